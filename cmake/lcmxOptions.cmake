@@ -1,0 +1,48 @@
+# All lcmx build options, in one place.
+#
+# lcmx_option(NAME "doc" DEFAULT) declares a plain option.
+# lcmx_optional_dependency(NAME "doc" PACKAGE...) declares an option for an optional part:
+#   unset   -> ON when the dependency is found, OFF (with a status line) otherwise;
+#   ON      -> the dependency is REQUIRED (configure fails if it is missing);
+#   OFF     -> not built.
+macro(lcmx_option name doc default)
+  option(${name} "${doc}" ${default})
+endmacro()
+
+macro(lcmx_optional_dependency name doc package)
+  if(NOT DEFINED ${name})
+    find_package(${package} QUIET)
+    if(${package}_FOUND)
+      set(${name} ON CACHE BOOL "${doc}")
+    else()
+      set(${name} OFF CACHE BOOL "${doc}")
+      message(STATUS "lcmx: ${package} not found, ${name}=OFF")
+    endif()
+  elseif(${name})
+    find_package(${package} REQUIRED)
+  endif()
+endmacro()
+
+lcmx_option(LCMX_BUILD_TESTS "Build the Catch2 test suite" ${LCMX_IS_TOP})
+lcmx_option(LCMX_BUILD_BENCH "Build the benchmarks under bench/" ${LCMX_IS_TOP})
+lcmx_option(LCMX_BUILD_APPS "Build the lcmx tool, daemons and examples" ${LCMX_IS_TOP})
+lcmx_option(LCMX_SANITIZE_ADDRESS "Build with AddressSanitizer and UBSan" OFF)
+lcmx_option(LCMX_SANITIZE_THREAD "Build with ThreadSanitizer" OFF)
+lcmx_option(LCMX_WARNINGS_AS_ERRORS "Treat compiler warnings as errors" OFF)
+
+if(LCMX_SANITIZE_ADDRESS)
+  add_compile_options(-fsanitize=address,undefined -fno-omit-frame-pointer)
+  add_link_options(-fsanitize=address,undefined)
+endif()
+if(LCMX_SANITIZE_THREAD)
+  add_compile_options(-fsanitize=thread)
+  add_link_options(-fsanitize=thread)
+endif()
+
+# Warnings for lcmx's own targets: lcmx_target_warnings(target)
+function(lcmx_target_warnings target)
+  target_compile_options(${target} PRIVATE -Wall -Wextra -Wpedantic)
+  if(LCMX_WARNINGS_AS_ERRORS)
+    target_compile_options(${target} PRIVATE -Werror)
+  endif()
+endfunction()

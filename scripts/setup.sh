@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Installs every Debian package lcmx needs to build, test, run its demo and benchmarks.
+# Idempotent: installs only what is missing, and runs `apt-get update` only when something is.
+# Usage: scripts/setup.sh            (as root, Debian 12)
+set -euo pipefail
+
+packages=(
+  build-essential cmake pkg-config git
+  liblcm-dev liblcm-bin            # lcm-gen, liblcm (reference peer), lcm-logger
+  libzmq3-dev cppzmq-dev           # Message Bridge
+  libboost-dev                     # Boost.Interprocess
+  catch2                           # tests (v2)
+  libcli11-dev libspdlog-dev libtomlplusplus-dev libncurses-dev
+  iproute2 procps                  # network namespaces for multi-host tests, ps/pgrep
+)
+
+missing=()
+for p in "${packages[@]}"; do
+  if ! dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed"; then
+    missing+=("$p")
+  fi
+done
+
+if ((${#missing[@]} == 0)); then
+  echo "setup: all ${#packages[@]} packages present"
+  exit 0
+fi
+
+if [[ $(id -u) -ne 0 ]]; then
+  echo "setup: missing packages: ${missing[*]}; run as root (or install them yourself)" >&2
+  exit 1
+fi
+echo "setup: installing ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+if ! apt-get install -y --no-install-recommends "${missing[@]}"; then
+  apt-get update
+  apt-get install -y --no-install-recommends "${missing[@]}"
+fi

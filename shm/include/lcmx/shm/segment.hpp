@@ -1,0 +1,198 @@
+// lcmx shared-memory transport: one Writer (publisher) per segment, any number of Readers
+// (subscribers, in any process of the host) per segment.
+//
+// Contract summary (details on each member):
+//  - The Writer never blocks on Readers. A slow, stopped or killed Reader loses the oldest
+//    messages (counted per Reader as drops); it never sees a torn message.
+//  - A Writer that dies mid-write never delivers that message.
+//  - A message larger than the current slot size makes the Writer move to a new, larger
+//    segment generation ("<base>_g<N>"); Readers follow by themselves.
+//  - Memory is bounded: slot_count * slot size per generation, slot size <= max_message_size.
+//  - Notification: one futex word per segment; one FUTEX_WAKE wakes every waiting Reader.
+//
+// Errors: constructors/factories and loan() throw lcmx::shm::Error; "nothing new" is an empty
+// std::optional, never an exception.
+// Threads: a Writer and each Reader are used by one thread at a time (move between threads ok).
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+namespace lcmx::shm {
+
+// Every segment name lcmx creates starts with this, e.g. "lcmx_3f2a..._1234_7_g0".
+inline constexpr const char* kPrefix = "lcmx_";
+
+enum class Errc {
+  too_large,         // message exceeds WriterOptions::max_message_size
+  not_found,         // no such segment (publisher gone)
+  corrupt,           // bad magic/version/layout
+  no_subscriber_slot,// segment's subscriber table is full of live readers
+  invalid_argument,  // bad options or name
+  system,            // an OS call failed (message says which, with errno text)
+};
+
+class Error : public std::runtime_error {
+ public:
+  Error(Errc code, const std::string& what) : std::runtime_error(what), code_(code) {}
+  Errc code() const noexcept { return code_; }
+
+ private:
+  Errc code_;
+};
+
+struct WriterOptions {
+  std::uint32_t slot_count = 8;            // ring depth (>= 2): messages a Reader may lag by
+  std::uint32_t max_subscribers = 32;      // Readers registered at once (live ones)
+  std::size_t initial_slot_size = 4096;    // first generation's slot payload size
+  std::size_t max_message_size = 64u << 20;// bound: loan(size) above it throws too_large
+};
+
+namespace detail {
+struct WriterImpl;
+struct ReaderImpl;
+}  // namespace detail
+
+class Writer;
+
+// A slot reserved by Writer::loan(): write up to capacity() bytes at data(), then
+// Writer::commit(). Destroyed without commit: the slot goes back, nothing is published.
+// Must not outlive its Writer.
+class WriteLoan {
+ public:
+  WriteLoan(WriteLoan&&) noexcept;
+  WriteLoan& operator=(WriteLoan&&) noexcept;
+  WriteLoan(const WriteLoan&) = delete;
+  WriteLoan& operator=(const WriteLoan&) = delete;
+  ~WriteLoan();
+
+  std::byte* data() const noexcept { return data_; }
+  std::size_t capacity() const noexcept { return capacity_; }
+
+ private:
+  friend class Writer;
+  WriteLoan(detail::WriterImpl* w, std::uint32_t slot, std::byte* data, std::size_t cap)
+      : writer_(w), slot_(slot), data_(data), capacity_(cap) {}
+  detail::WriterImpl* writer_ = nullptr;
+  std::uint32_t slot_ = 0;
+  std::byte* data_ = nullptr;
+  std::size_t capacity_ = 0;
+};
+
+class Writer {
+ public:
+  // Creates generation 0 of segment "<base_name>_g0". base_name must start with kPrefix and
+  // be a valid POSIX shm name without '/'. Throws Error (invalid_argument, system).
+  // Records this process's pid and start time in the header so orphans can be reclaimed.
+  static Writer create(const std::string& base_name, const WriterOptions& options);
+
+  Writer(Writer&&) noexcept;
+  Writer& operator=(Writer&&) noexcept;
+  ~Writer();  // unlinks every generation it created; mapped Readers keep their mapping
+
+  // Reserves a slot of at least `size` bytes, moving to a larger generation first if needed.
+  // Never waits for Readers: skips slots pinned by Readers (reclaiming pins of dead Readers).
+  // Throws Error(too_large) if size > max_message_size, Error(system) if growth fails.
+  WriteLoan loan(std::size_t size);
+
+  // Publishes the first `size` bytes of the loan as the next message and wakes all waiting
+  // Readers with one futex wake. size <= loan.capacity(). Returns the message's sequence.
+  std::uint64_t commit(WriteLoan&& loan, std::size_t size);
+
+  // Copy-in convenience: loan + memcpy + commit.
+  std::uint64_t write(const void* data, std::size_t size);
+
+  const std::string& segment_name() const;     // current generation's name
+  std::uint64_t published() const noexcept;    // messages committed so far
+  std::uint32_t live_readers() const noexcept; // Readers registered now (dead ones not counted)
+
+ private:
+  explicit Writer(std::unique_ptr<detail::WriterImpl> impl);
+  std::unique_ptr<detail::WriterImpl> impl_;
+};
+
+// A message pinned in its slot: zero-copy read; the Writer cannot reuse the slot until the
+// sample is destroyed. Must not outlive its Reader. At most kMaxPins samples per Reader.
+class ReadSample {
+ public:
+  ReadSample(ReadSample&&) noexcept;
+  ReadSample& operator=(ReadSample&&) noexcept;
+  ReadSample(const ReadSample&) = delete;
+  ReadSample& operator=(const ReadSample&) = delete;
+  ~ReadSample();
+
+  const std::byte* data() const noexcept { return data_; }
+  std::size_t size() const noexcept { return size_; }
+  std::uint64_t sequence() const noexcept { return sequence_; }
+
+ private:
+  friend class Reader;
+  ReadSample(detail::ReaderImpl* r, int pin, const std::byte* d, std::size_t n, std::uint64_t s)
+      : reader_(r), pin_(pin), data_(d), size_(n), sequence_(s) {}
+  detail::ReaderImpl* reader_ = nullptr;
+  int pin_ = -1;
+  const std::byte* data_ = nullptr;
+  std::size_t size_ = 0;
+  std::uint64_t sequence_ = 0;
+};
+
+// What to wait on before sleeping: see Reader::arm().
+struct WaitToken {
+  const std::atomic<std::uint32_t>* word = nullptr;
+  std::uint32_t expected = 0;
+};
+
+class Reader {
+ public:
+  static constexpr int kMaxPins = 4;  // ReadSamples alive at once per Reader
+
+  // Opens a Writer's segment by name (any generation; follows to the newest) and registers
+  // in its subscriber table, reclaiming entries of dead processes. The first message
+  // returned is the next one committed after open. Throws Error (not_found, corrupt,
+  // no_subscriber_slot, system).
+  static Reader open(const std::string& segment_name);
+
+  Reader(Reader&&) noexcept;
+  Reader& operator=(Reader&&) noexcept;
+  ~Reader();  // deregisters
+
+  // The next message in order, pinned; nullopt when there is none new. Messages overwritten
+  // before being read are skipped and counted in drops(). Follows generations.
+  // Throws Error(too_many_pins -> invalid_argument) if kMaxPins samples are alive.
+  std::optional<ReadSample> take();
+
+  bool has_data() const noexcept;             // take() would return a message now (hint)
+  std::uint64_t drops() const noexcept;       // messages this Reader lost
+  std::uint64_t received() const noexcept;    // messages returned by take()
+  bool writer_alive() const;                  // the Writer's process still runs
+  const std::string& segment_name() const;    // current generation
+
+  // Sleep protocol (no lost wake-ups):
+  //   WaitToken t = r.arm();           // registers as a waiter
+  //   if (!r.has_data()) futex-wait on t (e.g. wait_any);
+  //   r.disarm();                      // always, once per arm()
+  WaitToken arm();
+  void disarm() noexcept;
+
+ private:
+  explicit Reader(std::unique_ptr<detail::ReaderImpl> impl);
+  std::unique_ptr<detail::ReaderImpl> impl_;
+};
+
+// Removes segments with kPrefix whose creating process is dead (pid + start time do not
+// match a live process). Foreign or corrupt files with our prefix whose owner is alive (or
+// cannot be parsed) are left alone and reported through `log` (one line each). Returns how
+// many segments were removed. Never throws for bad files.
+struct ReclaimReport {
+  std::size_t removed = 0;
+  std::size_t skipped = 0;
+};
+ReclaimReport reclaim_orphans(const std::string& prefix = kPrefix);
+
+}  // namespace lcmx::shm
