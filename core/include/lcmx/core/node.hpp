@@ -1,0 +1,74 @@
+// Node: a named unit of a program inside a participant (like a ROS 2 node). It creates
+// publishers and subscribers and owns the executor that runs its subscribers' callbacks.
+//
+// Threading rule (ExecutorOptions, options.hpp):
+//  - own_threads, threads = 1 (default): one thread per node runs all its callbacks, one at
+//    a time; messages of one publisher are delivered in publish order.
+//  - own_threads, threads = N > 1: different subscriptions' callbacks may run in parallel;
+//    one subscription's callbacks still run one at a time and in order per publisher.
+//  - manual: no thread; callbacks run inside spin_once(), on the caller's thread.
+// Errors: advertise/subscribe throw lcmx::Error (channel_too_long, invalid_argument).
+// Move-only handle; the node lives while the handle or any of its endpoints does.
+#pragma once
+
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <string>
+#include <type_traits>
+
+#include "lcmx/core/options.hpp"
+#include "lcmx/core/publisher.hpp"
+#include "lcmx/core/subscriber.hpp"
+
+namespace lcmx {
+
+class Node {
+ public:
+  Node(Node&&) noexcept = default;
+  Node& operator=(Node&&) noexcept = default;
+  ~Node();
+
+  template <class T>
+  Publisher<T> advertise(std::string channel, PublisherOptions options = {}) {
+    return Publisher<T>(
+        detail::create_publisher(*impl_, std::move(channel), detail::type_info_of<T>(), options));
+  }
+
+  // callback: void(const T&) or void(const std::shared_ptr<const T>&).
+  template <class T, class F>
+  Subscriber<T> subscribe(std::string channel, F&& callback, SubscriberOptions options = {}) {
+    using Core = detail::TypedSubscriberCore<T>;
+    std::shared_ptr<detail::SubscriberCore> core;
+    if constexpr (std::is_invocable_v<F&, const std::shared_ptr<const T>&>) {
+      core = std::make_shared<Core>(std::move(channel), options,
+                                    typename Core::SharedCallback(std::forward<F>(callback)),
+                                    nullptr);
+    } else {
+      static_assert(std::is_invocable_v<F&, const T&>,
+                    "subscribe<T>: callback must take const T& or std::shared_ptr<const T>");
+      core = std::make_shared<Core>(std::move(channel), options, nullptr,
+                                    typename Core::RefCallback(std::forward<F>(callback)));
+    }
+    detail::add_subscriber(*impl_, core);
+    return Subscriber<T>(std::move(core));
+  }
+
+  RawPublisher advertise_raw(std::string channel, PublisherOptions options = {});
+  RawSubscriber subscribe_raw(std::string channel, std::function<void(const RawMessage&)> callback,
+                              SubscriberOptions options = {});
+
+  // Manual executor only: waits up to `timeout` for messages and runs the callbacks of what
+  // arrived. Returns the number of callbacks run. Throws Error(invalid_argument) on a node
+  // with its own threads.
+  std::size_t spin_once(std::chrono::nanoseconds timeout);
+
+  const std::string& name() const;
+
+ private:
+  friend class Runtime;
+  explicit Node(std::shared_ptr<detail::NodeImpl> impl) : impl_(std::move(impl)) {}
+  std::shared_ptr<detail::NodeImpl> impl_;
+};
+
+}  // namespace lcmx

@@ -1,0 +1,87 @@
+// Publisher<T> for an lcm-gen type T, and RawPublisher for untyped bytes.
+//
+// Delivery (DESIGN.md "Delivery"): subscribers in this process get the message as a
+// std::shared_ptr<const T> (no encoding); subscribers in other processes of this host read
+// it from shared memory, encoded once straight into a slot. Each path is used only when a
+// subscriber needs it.
+// Publishing never blocks on subscribers: slow ones lose the oldest messages (counted as
+// drops on their side).
+// Threads: publish() may be called from any thread; calls are serialised per publisher.
+// Errors: publish() throws lcmx::Error(message_too_large) when the encoding exceeds
+// PublisherOptions::max_message_size, lcmx::Error(transport) if shared memory fails.
+#pragma once
+
+#include <chrono>
+#include <memory>
+#include <span>
+
+#include "lcmx/core/detail/endpoint.hpp"
+
+namespace lcmx {
+
+template <class T>
+class Publisher {
+ public:
+  Publisher() = default;  // empty handle; assign from Node::advertise()
+
+  void publish(const T& message) {
+    core_->publish_ref(&message, [](const void* o) -> std::shared_ptr<const void> {
+      return std::make_shared<const T>(*static_cast<const T*>(o));
+    });
+  }
+  void publish(std::shared_ptr<const T> message) { core_->publish_shared(std::move(message)); }
+
+  // Subscribers currently matched (this process and other processes of the host).
+  std::size_t subscriber_count() const { return core_->subscriber_count(); }
+  // Waits until at least n subscribers are matched. Returns false on timeout.
+  bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const {
+    return core_->wait_for_subscribers(n, timeout);
+  }
+  std::uint64_t published() const { return core_->published(); }
+  const std::string& channel() const { return core_->channel(); }
+  explicit operator bool() const { return core_ != nullptr; }
+
+ private:
+  friend class Node;
+  explicit Publisher(std::shared_ptr<detail::PublisherCore> c) : core_(std::move(c)) {}
+  std::shared_ptr<detail::PublisherCore> core_;
+};
+
+// A slot loaned from shared memory by RawPublisher::loan(): write at data(), then
+// RawPublisher::publish(std::move(loan), size). Dropped unpublished: nothing is sent.
+class Loan {
+ public:
+  std::byte* data() const noexcept { return loan_.data(); }
+  std::size_t capacity() const noexcept { return loan_.capacity(); }
+
+ private:
+  friend class RawPublisher;
+  explicit Loan(shm::WriteLoan l) : loan_(std::move(l)) {}
+  shm::WriteLoan loan_;
+};
+
+class RawPublisher {
+ public:
+  RawPublisher() = default;
+
+  // Copies `data` once: into a shm slot and/or one buffer shared by in-process subscribers.
+  void publish(std::span<const std::byte> data) { core_->publish_bytes(data); }
+  // Zero-copy: write straight into a shared-memory slot of at least `size` bytes.
+  Loan loan(std::size_t size) { return Loan(core_->loan(size)); }
+  void publish(Loan&& loan, std::size_t size) { core_->publish_loan(std::move(loan.loan_), size); }
+
+  std::size_t subscriber_count() const { return core_->subscriber_count(); }
+  bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const {
+    return core_->wait_for_subscribers(n, timeout);
+  }
+  std::uint64_t published() const { return core_->published(); }
+  const std::string& channel() const { return core_->channel(); }
+  explicit operator bool() const { return core_ != nullptr; }
+
+ private:
+  friend class Node;
+  explicit RawPublisher(std::shared_ptr<detail::PublisherCore> c) : core_(std::move(c)) {}
+  std::shared_ptr<detail::PublisherCore> core_;
+};
+
+}  // namespace lcmx

@@ -1,0 +1,43 @@
+// Statistics and events visible to users.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace lcmx {
+
+// Which path a publisher->subscriber pair uses (DESIGN.md "Delivery").
+enum class Path { intra, shm, udp, bridge };
+const char* to_string(Path p);
+
+struct PairStats {
+  std::uint64_t publisher_participant = 0;
+  std::uint64_t publisher_endpoint = 0;
+  Path path = Path::intra;
+  std::uint64_t received = 0;
+  std::uint64_t drops = 0;
+};
+
+struct SubscriberStats {
+  std::uint64_t delivered = 0;      // callbacks run
+  std::uint64_t drops = 0;          // lost over all pairs
+  std::uint64_t decode_errors = 0;  // bytes that did not decode as the subscribed type
+  std::vector<PairStats> publishers;
+  std::vector<std::string> errors;  // e.g. type mismatches with publishers on the channel
+};
+
+struct Event {
+  enum class Kind {
+    type_mismatch,        // same channel, different fingerprint: not matched
+    publisher_matched,    // a subscriber of ours now receives from a publisher
+    publisher_unmatched,  // ... no longer (publisher gone, lease expired)
+    participant_joined,
+    participant_left,
+  };
+  Kind kind;
+  std::string channel;  // empty for participant events
+  std::string message;  // human-readable, also logged
+};
+
+}  // namespace lcmx

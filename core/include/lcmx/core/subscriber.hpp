@@ -1,0 +1,126 @@
+// Subscriber<T> for an lcm-gen type T, and RawSubscriber for bytes.
+//
+// Callbacks run on the subscriber's node executor (see node.hpp): by default one thread per
+// node, so a node's callbacks never run concurrently, and messages of one publisher arrive
+// in publish order. A typed callback may take `const T&` (valid during the call; its
+// storage is reused) or `std::shared_ptr<const T>` (keep it as long as you like; in-process
+// publishers hand over their own pointer, no copy).
+// Destroying the handle unsubscribes and waits for a running callback of it to finish
+// (unless destroyed from inside that callback).
+#pragma once
+
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <type_traits>
+
+#include <spdlog/spdlog.h>
+
+#include "lcmx/core/detail/endpoint.hpp"
+#include "lcmx/core/stats.hpp"
+
+namespace lcmx {
+
+namespace detail {
+SubscriberStats subscriber_stats(const SubscriberCore& core);
+bool wait_for_publishers(const SubscriberCore& core, std::size_t n,
+                         std::chrono::milliseconds timeout);
+
+template <class T>
+class TypedSubscriberCore final : public SubscriberCore {
+ public:
+  using SharedCallback = std::function<void(const std::shared_ptr<const T>&)>;
+  using RefCallback = std::function<void(const T&)>;
+
+  TypedSubscriberCore(std::string channel, SubscriberOptions o, SharedCallback shared,
+                      RefCallback ref)
+      : SubscriberCore(std::move(channel), type_info_of<T>(), o),
+        shared_(std::move(shared)), ref_(std::move(ref)) {}
+
+  bool deliver_intra(const IntraItem& item) override {
+    if (item.type->fingerprint == T::getHash()) {
+      auto p = std::static_pointer_cast<const T>(item.object);
+      if (shared_) shared_(p); else ref_(*p);
+      return true;
+    }
+    const auto& bytes = *std::static_pointer_cast<const Bytes>(item.object);
+    return deliver_bytes(bytes);
+  }
+
+  bool deliver_bytes(std::span<const std::byte> bytes) override {
+    // Reuse the last decoded object when nobody kept it: decoding into the same object
+    // reuses its buffers (no allocation for same-sized images).
+    if (!scratch_ || scratch_.use_count() > 1) scratch_ = std::make_shared<T>();
+    if (bytes.size() > static_cast<std::size_t>(INT32_MAX) ||
+        scratch_->decode(bytes.data(), 0, static_cast<int>(bytes.size())) < 0) {
+      if (decode_errors.fetch_add(1) == 0)
+        spdlog::error("lcmx: channel '{}': a message did not decode as {} (wrong type?)",
+                      channel(), T::getTypeName());
+      return false;
+    }
+    if (shared_) shared_(std::const_pointer_cast<const T>(scratch_)); else ref_(*scratch_);
+    return true;
+  }
+
+ private:
+  SharedCallback shared_;
+  RefCallback ref_;
+  std::shared_ptr<T> scratch_;
+};
+}  // namespace detail
+
+template <class T>
+class Subscriber {
+ public:
+  Subscriber() = default;
+  Subscriber(Subscriber&&) noexcept = default;
+  Subscriber& operator=(Subscriber&& o) noexcept {
+    reset();
+    core_ = std::move(o.core_);
+    return *this;
+  }
+  ~Subscriber() { reset(); }
+
+  SubscriberStats stats() const { return detail::subscriber_stats(*core_); }
+  std::size_t publisher_count() const { return stats().publishers.size(); }
+  // Waits until at least n publishers are matched. Returns false on timeout.
+  bool wait_for_publishers(std::size_t n, std::chrono::milliseconds timeout) const {
+    return detail::wait_for_publishers(*core_, n, timeout);
+  }
+  const std::string& channel() const { return core_->channel(); }
+  explicit operator bool() const { return core_ != nullptr; }
+  void reset() {
+    if (core_) detail::remove_subscriber(core_);
+    core_.reset();
+  }
+
+ private:
+  friend class Node;
+  explicit Subscriber(std::shared_ptr<detail::SubscriberCore> c) : core_(std::move(c)) {}
+  std::shared_ptr<detail::SubscriberCore> core_;
+};
+
+// A received raw message: a zero-copy view (into shared memory for the shm path), valid only
+// during the callback.
+struct RawMessage {
+  std::string_view channel;
+  std::span<const std::byte> data;
+};
+
+using RawSubscriber = Subscriber<void>;
+
+namespace detail {
+class RawSubscriberCore final : public SubscriberCore {
+ public:
+  RawSubscriberCore(std::string channel, SubscriberOptions o,
+                    std::function<void(const RawMessage&)> cb);
+  bool deliver_intra(const IntraItem& item) override;
+  bool deliver_bytes(std::span<const std::byte> bytes) override;
+
+ private:
+  std::function<void(const RawMessage&)> cb_;
+  Bytes scratch_;
+};
+}  // namespace detail
+
+}  // namespace lcmx

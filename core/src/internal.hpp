@@ -1,0 +1,197 @@
+// core internals: runtime registry, node executors, per-subscriber state.
+// Lock order (never take them the other way round):
+//   RuntimeImpl::mu -> SubscriberState::mu -> NodeImpl::mu
+//   PublisherImpl::publish_mu -> PublisherImpl::intra_mu -> SubscriberState::mu
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <thread>
+#include <vector>
+
+#include "lcmx/core/runtime.hpp"
+#include "lcmx/discovery/discovery.hpp"
+#include "lcmx/shm/segment.hpp"
+
+namespace lcmx::detail {
+
+class NodeImpl;
+class RuntimeImpl;
+
+// One publisher as seen by one subscriber.
+struct Match {
+  std::uint64_t publisher_participant = 0;
+  std::uint64_t publisher_endpoint = 0;
+  Path path = Path::intra;
+  std::shared_ptr<PairCounters> stats = std::make_shared<PairCounters>();
+  std::unique_ptr<shm::Reader> reader;  // shm path; used by the executor only
+};
+
+struct SubscriberState {
+  // Strong: the node lives while a subscriber does. The cycle node->subs->state->node is
+  // broken by remove_subscriber() (the Subscriber handle's destructor).
+  std::shared_ptr<NodeImpl> node;
+  std::string node_name;
+
+  std::mutex mu;                        // guards queue, matches, version, errors
+  std::condition_variable matched_cv;   // matches changed (wait_for_publishers)
+  std::deque<IntraItem> queue;          // intra-process messages waiting for the executor
+  std::vector<std::shared_ptr<Match>> matches;
+  std::uint64_t version = 0;            // +1 whenever matches change
+  std::vector<std::string> errors;
+
+  // Executor side. `busy` is held (true) while one executor thread polls this subscriber:
+  // it serialises callbacks and guards `snapshot`.
+  std::atomic<bool> busy{false};
+  std::atomic<bool> removed{false};
+  std::thread::id running_on{};         // thread running a callback now (for self-removal)
+  std::vector<std::shared_ptr<Match>> snapshot;
+  std::uint64_t snapshot_version = ~0ull;
+};
+
+class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
+ public:
+  NodeImpl(std::shared_ptr<RuntimeImpl> rt, std::string name, NodeOptions options);
+  ~NodeImpl();
+  void start();
+  void stop();
+
+  void add(const std::shared_ptr<SubscriberCore>& sub);
+  void remove(const SubscriberCore* sub);
+  // Something arrived or changed: wake an executor thread.
+  void ring();
+  // Runs ready callbacks, waiting up to `timeout` for some. Returns callbacks run.
+  std::size_t run_once(std::chrono::nanoseconds timeout);
+
+  const std::shared_ptr<RuntimeImpl> runtime;
+  const std::string name;
+  const NodeOptions options;
+
+ private:
+  std::size_t poll_all(std::vector<std::shared_ptr<SubscriberCore>>& subs);
+  std::size_t poll_one(SubscriberCore& sub);
+  void refresh(std::vector<std::shared_ptr<SubscriberCore>>& local, std::uint64_t& version);
+
+  std::mutex mu;
+  std::vector<std::shared_ptr<SubscriberCore>> subs;
+  std::atomic<std::uint64_t> subs_version{0};
+  std::atomic<std::uint32_t> doorbell{0};
+  std::atomic<int> sleepers{0};
+  std::atomic<bool> stopping{false};
+  std::vector<std::thread> threads;
+};
+
+class PublisherImpl;
+
+class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
+ public:
+  explicit RuntimeImpl(RuntimeOptions options);
+  ~RuntimeImpl();
+  void start_discovery();
+  // Goodbye, then stop every node's executor. Idempotent. Endpoints become inert.
+  void shutdown();
+
+  std::uint64_t new_endpoint_id() { return next_id.fetch_add(1); }
+  void add_publisher(PublisherImpl* pub);
+  void remove_publisher(PublisherImpl* pub);
+  void add_subscriber(const std::shared_ptr<SubscriberCore>& sub);
+  void remove_subscriber(const SubscriberCore* sub);
+  void add_node(const std::shared_ptr<NodeImpl>& node);
+  void changed();  // announce now
+  void emit(std::vector<Event> events);
+
+  const RuntimeOptions options;
+  const std::uint64_t participant_id;
+  const std::uint64_t host;
+  std::string shm_base_prefix;  // "lcmx_<host hex>_<pid>_"
+
+  std::mutex event_mu;
+  std::function<void(const Event&)> on_event;
+
+ private:
+  lcmx_msgs::beacon_t build_beacon();
+  void on_participant(discovery::Change change, const discovery::Participant& p);
+  // Locked helpers (mu held). They append what happened to `events`.
+  void match_local_locked(PublisherImpl& pub, SubscriberCore& sub, std::vector<Event>& events);
+  void sync_remote_locked(SubscriberCore& sub, std::vector<Event>& events);
+  void count_remote_locked(PublisherImpl& pub, std::vector<Event>& events);
+  void report_mismatch_locked(std::uint64_t local_endpoint, std::uint64_t remote_participant,
+                              std::uint64_t remote_endpoint, const std::string& channel,
+                              const std::string& text, std::vector<std::string>& errors,
+                              std::vector<Event>& events);
+
+  std::atomic<std::uint64_t> next_id{1};
+  std::mutex mu;
+  std::map<std::uint64_t, PublisherImpl*> pubs;
+  std::map<std::uint64_t, std::shared_ptr<SubscriberCore>> subs;
+  std::vector<std::weak_ptr<NodeImpl>> nodes;
+  std::map<std::int64_t, lcmx_msgs::beacon_t> remotes;  // same-host participants
+  std::set<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>> mismatches_reported;
+  struct RateState { std::uint64_t count = 0; std::chrono::steady_clock::time_point when{}; };
+  std::map<std::uint64_t, RateState> rates;
+  std::int64_t revision = 0;
+  std::atomic<bool> stopped{false};
+  std::atomic<bool> announce_pending{false};
+  std::unique_ptr<discovery::Discovery> disco;  // stopped first in ~RuntimeImpl
+};
+
+class PublisherImpl final : public PublisherCore {
+ public:
+  PublisherImpl(std::shared_ptr<NodeImpl> node, std::string channel, const TypeInfo& type,
+                PublisherOptions options);
+  ~PublisherImpl() override;
+
+  void publish_ref(const void* object, std::shared_ptr<const void> (*copy)(const void*)) override;
+  void publish_shared(std::shared_ptr<const void> object) override;
+  void publish_bytes(std::span<const std::byte> data) override;
+  shm::WriteLoan loan(std::size_t size) override;
+  void publish_loan(shm::WriteLoan&& loan, std::size_t size) override;
+  std::size_t subscriber_count() const override;
+  bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const override;
+  std::uint64_t published() const override { return published_.load(); }
+  const std::string& channel() const override { return channel_; }
+
+  // Runtime side (RuntimeImpl::mu held).
+  void add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_ptr<PairCounters> stats);
+  void remove_intra(const SubscriberCore* sub);
+  void set_remote_subscribers(std::size_t n);
+
+  const std::shared_ptr<NodeImpl> node;
+  const std::uint64_t id;
+  const TypeInfo& type;
+  const PublisherOptions options;
+  std::string segment_name() const;
+  std::vector<std::string> errors;  // guarded by RuntimeImpl::mu
+
+ private:
+  struct IntraTarget {
+    std::shared_ptr<SubscriberCore> sub;
+    std::shared_ptr<PairCounters> stats;
+  };
+  using Targets = std::vector<IntraTarget>;
+  std::shared_ptr<const Targets> targets() const;
+  void deliver_intra(const Targets& t, std::shared_ptr<const void> object);
+  void check_size(std::size_t size) const;
+  void write_encoded(const void* object);
+
+  std::string channel_;
+  mutable std::mutex publish_mu;  // serialises publishers' writes into shm
+  std::optional<shm::Writer> writer_;
+  mutable std::mutex intra_mu;    // guards intra_, remote_subscribers_
+  mutable std::condition_variable subs_cv;
+  std::shared_ptr<const Targets> intra_ = std::make_shared<Targets>();
+  std::size_t remote_subscribers_ = 0;
+  std::atomic<std::uint64_t> published_{0};
+};
+
+// Pushes an intra-process item to a subscriber's queue (drop oldest when full) and wakes
+// its node.
+void push_intra(SubscriberCore& sub, IntraItem item);
+
+}  // namespace lcmx::detail

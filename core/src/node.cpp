@@ -1,0 +1,334 @@
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+
+#include "internal.hpp"
+#include "lcmx/shm/futex.hpp"
+
+namespace lcmx {
+
+const char* to_string(Path p) {
+  switch (p) {
+    case Path::intra: return "intra";
+    case Path::shm: return "shm";
+    case Path::udp: return "udp";
+    case Path::bridge: return "bridge";
+  }
+  return "?";
+}
+
+namespace detail {
+
+// ---------------------------------------------------------------- NodeImpl / executor
+
+NodeImpl::NodeImpl(std::shared_ptr<RuntimeImpl> rt, std::string n, NodeOptions o)
+    : runtime(std::move(rt)), name(std::move(n)), options(o) {
+  if (name.empty()) throw Error(Errc::invalid_argument, "node name is empty");
+  if (options.executor.threads < 1)
+    throw Error(Errc::invalid_argument, "node '" + name + "': executor.threads must be >= 1");
+}
+
+NodeImpl::~NodeImpl() { stop(); }
+
+void NodeImpl::start() {
+  if (options.executor.kind != ExecutorKind::own_threads) return;
+  for (int i = 0; i < options.executor.threads; ++i)
+    threads.emplace_back([this] {
+      while (!stopping.load(std::memory_order_acquire)) run_once(std::chrono::seconds(1));
+    });
+}
+
+void NodeImpl::stop() {
+  stopping.store(true, std::memory_order_release);
+  ring();
+  for (auto& t : threads) {
+    if (!t.joinable()) continue;
+    if (t.get_id() == std::this_thread::get_id()) t.detach();  // last owner let go in a callback
+    else t.join();
+  }
+  threads.clear();
+}
+
+void NodeImpl::ring() {
+  // Dekker with run_once(): it increments `sleepers` and then re-reads `doorbell` before
+  // sleeping; we bump `doorbell` and then read `sleepers` (both seq_cst), so either it sees
+  // the new doorbell value or we see it sleeping and wake it.
+  doorbell.fetch_add(1, std::memory_order_seq_cst);
+  if (sleepers.load(std::memory_order_seq_cst) > 0) shm::futex_wake_all(&doorbell);
+}
+
+void NodeImpl::add(const std::shared_ptr<SubscriberCore>& sub) {
+  {
+    std::lock_guard lock(mu);
+    subs.push_back(sub);
+    subs_version.fetch_add(1);
+  }
+  ring();
+}
+
+void NodeImpl::remove(const SubscriberCore* sub) {
+  {
+    std::lock_guard lock(mu);
+    std::erase_if(subs, [&](const auto& s) { return s.get() == sub; });
+    subs_version.fetch_add(1);
+  }
+  ring();
+}
+
+void NodeImpl::refresh(std::vector<std::shared_ptr<SubscriberCore>>& local,
+                       std::uint64_t& version) {
+  const auto v = subs_version.load();
+  if (v == version) return;
+  std::lock_guard lock(mu);
+  local = subs;
+  version = subs_version.load();
+}
+
+// Polls one subscriber: intra-process queue first, then each shm reader (bounded batch per
+// reader so one busy publisher cannot starve the others). `busy` must be held.
+std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
+  auto& st = *sub.state;
+  std::deque<IntraItem> items;
+  {
+    std::lock_guard lock(st.mu);
+    items.swap(st.queue);
+    if (st.snapshot_version != st.version) {
+      st.snapshot = st.matches;
+      st.snapshot_version = st.version;
+    }
+  }
+  std::size_t n = 0;
+  st.running_on = std::this_thread::get_id();
+  for (auto& item : items) {
+    if (st.removed.load()) break;
+    item.pair->received.fetch_add(1, std::memory_order_relaxed);
+    if (sub.deliver_intra(item)) {
+      sub.delivered.fetch_add(1, std::memory_order_relaxed);
+      ++n;
+    }
+  }
+  constexpr int kBatch = 64;
+  for (auto& m : st.snapshot) {
+    if (!m->reader) continue;
+    for (int i = 0; i < kBatch && !st.removed.load(); ++i) {
+      std::optional<shm::ReadSample> s;
+      try {
+        s = m->reader->take();
+      } catch (const shm::Error& e) {
+        spdlog::warn("lcmx: channel '{}': shared-memory read failed: {}", sub.channel(), e.what());
+        break;
+      }
+      if (!s) break;
+      m->stats->received.fetch_add(1, std::memory_order_relaxed);
+      if (sub.deliver_bytes({s->data(), s->size()})) {
+        sub.delivered.fetch_add(1, std::memory_order_relaxed);
+        ++n;
+      }
+    }
+    m->stats->drops.store(m->reader->drops(), std::memory_order_relaxed);
+  }
+  st.running_on = {};
+  return n;
+}
+
+std::size_t NodeImpl::poll_all(std::vector<std::shared_ptr<SubscriberCore>>& local) {
+  std::size_t n = 0;
+  for (auto& sub : local) {
+    auto& st = *sub->state;
+    if (st.removed.load() || st.busy.exchange(true, std::memory_order_acquire)) continue;
+    try {
+      n += poll_one(*sub);
+    } catch (const std::exception& e) {
+      spdlog::error("lcmx: node '{}', channel '{}': callback threw: {}", name, sub->channel(),
+                    e.what());
+    }
+    st.busy.store(false, std::memory_order_release);
+    st.busy.notify_all();
+  }
+  return n;
+}
+
+std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
+  using Clock = std::chrono::steady_clock;
+  const auto start = Clock::now();
+  const auto deadline = start + timeout;
+  thread_local std::vector<std::shared_ptr<SubscriberCore>> local;
+  thread_local std::uint64_t local_version = ~0ull;
+  thread_local const NodeImpl* local_owner = nullptr;
+  if (local_owner != this) {
+    local.clear();
+    local_version = ~0ull;
+    local_owner = this;
+  }
+  std::vector<shm::WaitToken> tokens;
+  std::vector<shm::Reader*> armed;
+
+  for (;;) {
+    const std::uint32_t bell = doorbell.load(std::memory_order_seq_cst);
+    refresh(local, local_version);
+    if (const auto n = poll_all(local); n > 0) return n;
+    const auto now = Clock::now();
+    if (now >= deadline || stopping.load(std::memory_order_acquire)) return 0;
+    const auto& ex = options.executor;
+    if (ex.wait == WaitStrategy::busy_poll ||
+        (ex.wait == WaitStrategy::spin_then_block && now - start < ex.spin))
+      continue;
+
+    // Block: doorbell (in-process messages, changes) + every shm reader's futex word.
+    tokens.clear();
+    armed.clear();
+    tokens.push_back({&doorbell, bell});
+    for (auto& sub : local) {
+      auto& st = *sub->state;
+      if (st.busy.exchange(true, std::memory_order_acquire)) continue;  // another thread has it
+      for (auto& m : st.snapshot)
+        if (m->reader) {
+          tokens.push_back(m->reader->arm());
+          armed.push_back(m->reader.get());
+        }
+      st.busy.store(false, std::memory_order_release);
+      st.busy.notify_all();
+    }
+    sleepers.fetch_add(1, std::memory_order_seq_cst);
+    bool ready = doorbell.load(std::memory_order_seq_cst) != bell;
+    for (auto* r : armed) ready = ready || r->has_data();
+    if (!ready) shm::wait_any(tokens, std::min<Clock::duration>(deadline - Clock::now(),
+                                                                std::chrono::seconds(1)));
+    sleepers.fetch_sub(1, std::memory_order_seq_cst);
+    for (auto* r : armed) r->disarm();
+  }
+}
+
+// ---------------------------------------------------------------- free functions
+
+std::shared_ptr<PublisherCore> create_publisher(NodeImpl& node, std::string channel,
+                                                const TypeInfo& type, PublisherOptions options) {
+  if (channel.empty()) throw Error(Errc::invalid_argument, "channel name is empty");
+  if (channel.size() > kMaxChannelLength)
+    throw Error(Errc::channel_too_long, "channel '" + channel + "' is " +
+                                            std::to_string(channel.size()) +
+                                            " bytes; LCM allows at most 63");
+  auto pub = std::make_shared<PublisherImpl>(node.shared_from_this(), std::move(channel), type,
+                                             options);
+  node.runtime->add_publisher(pub.get());
+  return pub;
+}
+
+void add_subscriber(NodeImpl& node, const std::shared_ptr<SubscriberCore>& sub) {
+  const auto& channel = sub->channel();
+  if (channel.empty()) throw Error(Errc::invalid_argument, "channel name is empty");
+  if (channel.size() > kMaxChannelLength)
+    throw Error(Errc::channel_too_long, "channel '" + channel + "' is " +
+                                            std::to_string(channel.size()) +
+                                            " bytes; LCM allows at most 63");
+  sub->state = std::make_shared<SubscriberState>();
+  sub->state->node = node.shared_from_this();
+  sub->state->node_name = node.name;
+  sub->id = node.runtime->new_endpoint_id();
+  node.add(sub);
+  node.runtime->add_subscriber(sub);
+}
+
+void remove_subscriber(const std::shared_ptr<SubscriberCore>& sub) {
+  auto& st = *sub->state;
+  st.removed.store(true);
+  auto node = st.node;
+  if (node) {
+    node->runtime->remove_subscriber(sub.get());
+    node->remove(sub.get());
+  }
+  // Wait for a callback of this subscriber running on another thread to finish.
+  if (st.running_on != std::this_thread::get_id()) {
+    while (st.busy.load(std::memory_order_acquire)) st.busy.wait(true);
+  }
+  std::lock_guard lock(st.mu);
+  st.queue.clear();
+  for (auto& m : st.matches) m->reader.reset();  // matches are no longer polled
+}
+
+SubscriberStats subscriber_stats(const SubscriberCore& core) {
+  SubscriberStats s;
+  s.delivered = core.delivered.load();
+  s.decode_errors = core.decode_errors.load();
+  auto& st = *core.state;
+  std::lock_guard lock(st.mu);
+  for (const auto& m : st.matches) {
+    PairStats p;
+    p.publisher_participant = m->publisher_participant;
+    p.publisher_endpoint = m->publisher_endpoint;
+    p.path = m->path;
+    p.received = m->stats->received.load();
+    p.drops = m->stats->drops.load();
+    s.drops += p.drops;
+    s.publishers.push_back(p);
+  }
+  s.errors = st.errors;
+  return s;
+}
+
+bool wait_for_publishers(const SubscriberCore& core, std::size_t n,
+                         std::chrono::milliseconds timeout) {
+  auto& st = *core.state;
+  std::unique_lock lock(st.mu);
+  return st.matched_cv.wait_for(lock, timeout, [&] { return st.matches.size() >= n; });
+}
+
+// ---------------------------------------------------------------- raw subscriber
+
+RawSubscriberCore::RawSubscriberCore(std::string channel, SubscriberOptions o,
+                                     std::function<void(const RawMessage&)> cb)
+    : SubscriberCore(std::move(channel), raw_type_info(), o), cb_(std::move(cb)) {
+  if (!cb_) throw Error(Errc::invalid_argument, "subscribe_raw: empty callback");
+}
+
+bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
+  if (item.type->raw()) {
+    const auto& bytes = *std::static_pointer_cast<const Bytes>(item.object);
+    return deliver_bytes(bytes);
+  }
+  // A typed publisher in this process: encode for the raw subscriber.
+  scratch_.resize(item.type->encoded_size(item.object.get()));
+  item.type->encode(item.object.get(), scratch_.data(), scratch_.size());
+  return deliver_bytes(scratch_);
+}
+
+bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes) {
+  cb_(RawMessage{channel(), bytes});
+  return true;
+}
+
+const TypeInfo& raw_type_info() {
+  static const TypeInfo info{"", 0, nullptr, nullptr};
+  return info;
+}
+
+}  // namespace detail
+
+// ---------------------------------------------------------------- Node
+
+Node::~Node() = default;
+
+RawPublisher Node::advertise_raw(std::string channel, PublisherOptions options) {
+  return RawPublisher(
+      detail::create_publisher(*impl_, std::move(channel), detail::raw_type_info(), options));
+}
+
+RawSubscriber Node::subscribe_raw(std::string channel,
+                                  std::function<void(const RawMessage&)> callback,
+                                  SubscriberOptions options) {
+  auto core = std::make_shared<detail::RawSubscriberCore>(std::move(channel), options,
+                                                          std::move(callback));
+  detail::add_subscriber(*impl_, core);
+  return RawSubscriber(std::move(core));
+}
+
+std::size_t Node::spin_once(std::chrono::nanoseconds timeout) {
+  if (impl_->options.executor.kind != ExecutorKind::manual)
+    throw Error(Errc::invalid_argument,
+                "spin_once on node '" + impl_->name + "' which runs its own executor threads");
+  return impl_->run_once(timeout);
+}
+
+const std::string& Node::name() const { return impl_->name; }
+
+}  // namespace lcmx

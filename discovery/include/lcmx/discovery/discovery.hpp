@@ -1,0 +1,81 @@
+// Host-local discovery: participants beacon on an LCM udpm group (DESIGN.md "Discovery").
+//
+// A Discovery object runs one thread that
+//  - sends this participant's beacon at once when announce_now() is called and every
+//    `period` otherwise, and a goodbye when it stops;
+//  - answers an observer's query (FLAG_QUERY) with a beacon at once;
+//  - receives other participants' beacons, ignores its own, and declares a participant gone
+//    after its lease (the lease it announced) or at once on its goodbye.
+// Observers (the lcmx tool) send only queries, never appear as participants.
+//
+// Threads: on_change is called on the discovery thread, never concurrently with itself; it
+// must not call back into this Discovery's stop()/destructor. participants() is thread-safe.
+// Errors: the constructor throws (udpm::Error or std::runtime_error) when the group cannot be
+// opened; malformed beacons are counted and logged (rate-limited), never thrown.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "lcmx/udpm/udpm.hpp"
+#include "lcmx_msgs/beacon_t.hpp"
+
+namespace lcmx::discovery {
+
+struct Options {
+  udpm::GroupConfig group;                          // default: LCM's host-local group on lo
+  std::chrono::milliseconds period{1000};           // periodic beacon
+  std::chrono::milliseconds lease{3500};            // announced; others drop us after this
+  bool observer = false;                            // query only, never announce
+};
+
+// What is known about another participant: its latest beacon and when it arrived.
+struct Participant {
+  lcmx_msgs::beacon_t beacon;
+  std::chrono::steady_clock::time_point last_seen;
+};
+
+enum class Change { joined, updated, left };
+
+struct Counters {
+  std::uint64_t beacons_sent = 0;
+  std::uint64_t beacons_received = 0;
+  std::uint64_t malformed = 0;
+  std::uint64_t leases_expired = 0;
+  std::uint64_t goodbyes = 0;
+};
+
+class Discovery {
+ public:
+  // `local` builds this participant's beacon (called on the discovery thread before each
+  // send; the Discovery fills sequence, flags, lease and timestamp). Not used by observers.
+  // `on_change` is told of every other participant that joins, changes (new revision or
+  // new statistics) or leaves.
+  using LocalFn = std::function<lcmx_msgs::beacon_t()>;
+  using ChangeFn = std::function<void(Change, const Participant&)>;
+  Discovery(Options options, LocalFn local, ChangeFn on_change);
+  ~Discovery();  // stop()
+  Discovery(const Discovery&) = delete;
+  Discovery& operator=(const Discovery&) = delete;
+
+  // Send our beacon as soon as possible (something changed). Thread-safe, never blocks.
+  void announce_now();
+  // Observers: ask every participant to beacon now.
+  void query();
+  // Sends the goodbye and joins the thread. Idempotent.
+  void stop();
+
+  std::vector<Participant> participants() const;
+  Counters counters() const;
+  const Options& options() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace lcmx::discovery
