@@ -1,0 +1,41 @@
+#pragma once
+// Group configuration and LCM-style URLs ("udpm://239.255.76.67:7667?ttl=0&iface=lo").
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+namespace lcmx::udpm {
+
+struct GroupConfig {
+  std::string address = "239.255.76.67";  // IPv4 multicast group (224.0.0.0/4)
+  std::uint16_t port = 7667;              // 1..65535
+  int ttl = 0;                            // IP_MULTICAST_TTL 0..255; 0 = this host only
+  // Interface NAME. The group is joined on it (IP_ADD_MEMBERSHIP, ip_mreqn ifindex) and packets
+  // are sent on it (IP_MULTICAST_IF) from its first IPv4 address.
+  std::string interface = "lo";
+  // SO_RCVBUF request in bytes (SO_RCVBUFFORCE first when permitted); 0 keeps the kernel default.
+  int recv_buffer_bytes = 4 << 20;
+  bool multicast_loop = true;  // IP_MULTICAST_LOOP on the sending socket
+
+  // Not part of the URL: limits of fragment reassembly (LC03).
+  // Sum of the declared sizes of all partially received messages; the oldest partial messages
+  // are dropped (counted incomplete) to make room. A message larger than this is dropped.
+  std::size_t max_reassembly_bytes = std::size_t{1} << 28;
+  std::size_t max_partial_messages = 256;  // at most this many partial messages at once
+  // A partial message that got no fragment for this long is dropped (counted incomplete).
+  std::chrono::milliseconds reassembly_timeout{1000};
+};
+
+// Parses "udpm://[ADDRESS][:PORT][?key=value&...]". Missing address or port take GroupConfig's
+// defaults. Keys: ttl, iface, recv_buf_size, multicast_loop (true/false/1/0). Unknown or
+// repeated keys are errors. The reassembly fields keep their defaults.
+// Throws: Error(invalid_config) whose message names the bad part.
+GroupConfig parse_url(std::string_view url);
+
+// The URL of cfg's URL fields; parse_url(to_url(cfg)) gives them back. Does not validate.
+std::string to_url(const GroupConfig& cfg);
+
+}  // namespace lcmx::udpm

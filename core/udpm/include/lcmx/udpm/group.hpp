@@ -1,0 +1,111 @@
+#pragma once
+// lcmx::udpm::Group — one LCM udpm multicast group on sockets pinned to one interface.
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <span>
+#include <string>
+#include <string_view>
+
+#include "lcmx/udpm/config.hpp"
+
+namespace lcmx::udpm {
+
+// A sender's IPv4 address and UDP port, both in network byte order.
+struct Source {
+  std::uint32_t address_be;
+  std::uint16_t port_be;
+  friend bool operator==(const Source&, const Source&) = default;
+};
+std::string to_string(const Source& source);  // "a.b.c.d:port"
+
+// One complete message. Views are valid only during the on_message callback.
+struct Message {
+  std::string_view channel;
+  std::span<const std::byte> data;
+  Source source;
+  std::uint32_t sequence;  // the sender's LCM sequence number
+};
+
+struct Counters {
+  std::uint64_t packets_received = 0;    // datagrams read from the socket
+  std::uint64_t packets_sent = 0;        // datagrams sent
+  std::uint64_t messages_received = 0;   // complete messages delivered to on_message
+  std::uint64_t messages_sent = 0;       // publish() calls that sent every datagram
+  std::uint64_t fragments_received = 0;  // valid LC03 datagrams read
+  std::uint64_t incomplete_dropped = 0;  // partial messages expired or evicted
+  std::uint64_t malformed_dropped = 0;   // datagrams parse_datagram rejects, inconsistent fragments
+  std::uint64_t bytes_received = 0;      // UDP payload bytes read
+  std::uint64_t bytes_sent = 0;          // UDP payload bytes sent
+  std::uint64_t duplicate_fragments = 0;  // LC03 fragments received twice (ignored)
+  std::uint64_t oversize_dropped = 0;    // messages larger than max_reassembly_bytes
+  std::uint64_t kernel_dropped = 0;      // datagrams the kernel dropped (SO_RXQ_OVFL), cumulative
+};
+
+// Move-only owner of the receive socket (bound to INADDR_ANY:port with SO_REUSEADDR and
+// SO_REUSEPORT, so stock liblcm and other Groups share the port; joined on the interface) and
+// the send socket (bound to the interface's IPv4 address and an ephemeral port).
+//
+// Threads: drain(), poll(), counters() and the other accessors belong to one thread at a time
+// (the "receive thread"). publish() may be called from any number of threads, concurrently with
+// each other and with the receive thread. A moved-from Group may only be destroyed or assigned.
+class Group {
+ public:
+  using Handler = std::function<void(const Message&)>;
+
+  // Opens the sockets. Throws: Error(invalid_config) for a bad address (not IPv4 multicast),
+  // port 0, ttl outside 0..255, negative buffer size; Error(no_such_interface) when the
+  // interface is unknown or has no IPv4 address; Error(system) when a socket call fails (bind,
+  // join, ...), with errno.
+  static Group open(const GroupConfig& cfg);
+
+  Group(Group&&) noexcept;
+  Group& operator=(Group&&) noexcept;
+  Group(const Group&) = delete;
+  Group& operator=(const Group&) = delete;
+  ~Group();
+
+  // Sends one message: one LC02 datagram, or LC03 fragments (see wire.hpp) sent back to back
+  // under a lock so fragments of two messages never interleave. Blocks while the socket's send
+  // buffer is full. Thread-safe.
+  // Throws: Error(channel_too_long) for > 63 bytes, Error(invalid_channel) for a NUL in the
+  // channel, Error(message_too_large) for payload > kMaxMessageSize, Error(system) when sending
+  // fails (the message may have been partly sent; its sequence number is used up).
+  void publish(std::string_view channel, std::span<const std::byte> payload);
+
+  // The receive socket: readable when datagrams are waiting (for poll/epoll). Do not read it.
+  int fd() const noexcept;
+
+  // Non-blocking. Reads the datagrams available now in recvmmsg batches (at most 4096 per call,
+  // so a flood cannot starve the caller; the fd stays readable if more wait), reassembles LC03
+  // fragments per (source, sequence), expires stale partial messages, and calls on_message on
+  // this thread for each complete message, in arrival order of its last datagram.
+  // Returns the number of messages delivered. If on_message throws, the exception propagates;
+  // the datagrams read but not yet handled are handled by the next drain().
+  // Throws: Error(system) if recvmmsg fails with something other than EAGAIN/EINTR.
+  std::size_t drain(const Handler& on_message);
+
+  // Waits up to `timeout` (negative = 0) for the socket to become readable, then drain().
+  // Returns the number of messages delivered (0 on timeout).
+  std::size_t poll(std::chrono::milliseconds timeout, const Handler& on_message);
+
+  // The address and port this Group's packets come from; compare with Message::source to drop
+  // this Group's own looped-back messages.
+  Source local_source() const;
+
+  // A snapshot refreshed at each call; call it from the receive thread.
+  const Counters& counters() const noexcept;
+  const GroupConfig& config() const noexcept;
+  // SO_RCVBUF as the kernel reports it (the kernel doubles the request for bookkeeping).
+  int effective_recv_buffer() const noexcept;
+
+ private:
+  struct Impl;
+  explicit Group(std::unique_ptr<Impl> impl) noexcept;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace lcmx::udpm

@@ -1,0 +1,92 @@
+#include "reassembler.hpp"
+
+#include <cstring>
+
+namespace lcmx::udpm::detail {
+
+void Reassembler::erase(std::unordered_map<Key, Partial, KeyHash>::iterator it) {
+  reserved_ -= it->second.total_size;
+  partials_.erase(it);
+}
+
+bool Reassembler::evict_oldest() {
+  if (partials_.empty()) return false;
+  auto oldest = partials_.begin();
+  for (auto it = partials_.begin(); it != partials_.end(); ++it)
+    if (it->second.last < oldest->second.last) oldest = it;
+  erase(oldest);
+  ++stats_.incomplete_dropped;
+  return true;
+}
+
+std::optional<Reassembler::Complete> Reassembler::add(const ParsedDatagram& d, Source source,
+                                                      Clock::time_point now) {
+  const Key key{source.address_be, source.port_be, d.sequence};
+  auto it = partials_.find(key);
+  if (it == partials_.end()) {
+    if (d.total_size > limits_.max_bytes) {
+      ++stats_.oversize_dropped;  // counted once per fragment: the message can never complete
+      return std::nullopt;
+    }
+    // Make room: bounded by the number of partials.
+    while (!partials_.empty() && (partials_.size() >= limits_.max_partials ||
+                                  reserved_ + d.total_size > limits_.max_bytes))
+      evict_oldest();
+    if (limits_.max_partials == 0) return std::nullopt;
+    Partial p;
+    // Uninitialised: pages of a large buffer are only touched as fragments fill them.
+    p.data = std::make_unique_for_overwrite<std::byte[]>(d.total_size);
+    p.seen.assign(d.fragment_count, false);
+    p.total_size = d.total_size;
+    p.fragment_count = d.fragment_count;
+    it = partials_.emplace(key, std::move(p)).first;
+    reserved_ += d.total_size;
+  }
+
+  Partial& p = it->second;
+  if (p.total_size != d.total_size || p.fragment_count != d.fragment_count) {
+    ++stats_.malformed_dropped;  // inconsistent with the fragments seen so far: ignore it
+    return std::nullopt;
+  }
+  if (p.seen[d.fragment_no]) {
+    ++stats_.duplicate_fragments;
+    return std::nullopt;
+  }
+  p.seen[d.fragment_no] = true;
+  ++p.received;
+  p.last = now;
+  if (d.fragment_no == 0) p.channel.assign(d.channel);
+  // parse_datagram guarantees fragment_offset + payload.size() <= total_size.
+  if (!d.payload.empty()) std::memcpy(p.data.get() + d.fragment_offset, d.payload.data(), d.payload.size());
+  p.bytes += d.payload.size();
+
+  if (p.received < p.fragment_count) return std::nullopt;
+  if (p.bytes != p.total_size) {
+    // Every fragment arrived but they do not cover the message exactly (overlaps or gaps).
+    ++stats_.malformed_dropped;
+    erase(it);
+    return std::nullopt;
+  }
+  Complete c;
+  c.channel = std::move(p.channel);
+  c.data = std::move(p.data);
+  c.size = p.total_size;
+  c.source = source;
+  c.sequence = d.sequence;
+  erase(it);
+  return c;
+}
+
+void Reassembler::expire(Clock::time_point now) {
+  for (auto it = partials_.begin(); it != partials_.end();) {
+    if (now - it->second.last > limits_.timeout) {
+      reserved_ -= it->second.total_size;
+      it = partials_.erase(it);
+      ++stats_.incomplete_dropped;
+    } else {
+      ++it;
+    }
+  }
+}
+
+}  // namespace lcmx::udpm::detail
