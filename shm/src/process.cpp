@@ -1,0 +1,80 @@
+// Process liveness: pid + start time (guards against pid reuse).
+#include <signal.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+
+#include "impl.hpp"
+
+namespace lcmx::shm::detail {
+namespace {
+
+struct Stat {
+  char state = '?';
+  std::uint64_t start_time = 0;
+};
+
+// Parses /proc/<pid>/stat. The comm field (2) may contain spaces and ')': fields after it
+// start after the LAST ')'. Returns nullopt and sets *err to errno if unreadable.
+std::optional<Stat> read_stat(pid_t pid, int* err) {
+  char path[64];
+  std::snprintf(path, sizeof path, "/proc/%d/stat", static_cast<int>(pid));
+  std::FILE* f = std::fopen(path, "re");
+  if (f == nullptr) {
+    *err = errno;
+    return std::nullopt;
+  }
+  char buf[1024];
+  std::size_t n = std::fread(buf, 1, sizeof buf - 1, f);
+  std::fclose(f);
+  buf[n] = '\0';
+  const char* p = std::strrchr(buf, ')');
+  if (p == nullptr) {
+    *err = EINVAL;
+    return std::nullopt;
+  }
+  ++p;
+  Stat s;
+  // After ')': field 3 (state) is the first token; field 22 is the 20th token.
+  int field = 2;
+  while (*p != '\0') {
+    while (*p == ' ') ++p;
+    if (*p == '\0') break;
+    ++field;
+    if (field == 3) s.state = *p;
+    if (field == 22) {
+      s.start_time = std::strtoull(p, nullptr, 10);
+      return s;
+    }
+    while (*p != ' ' && *p != '\0') ++p;
+  }
+  *err = EINVAL;
+  return std::nullopt;
+}
+
+}  // namespace
+
+std::optional<std::uint64_t> process_start_time(pid_t pid) {
+  int err = 0;
+  auto s = read_stat(pid, &err);
+  if (!s) return std::nullopt;
+  return s->start_time;
+}
+
+std::uint64_t self_start_time() { return process_start_time(::getpid()).value_or(0); }
+
+bool process_alive(std::int32_t pid, std::uint64_t start_time) {
+  if (pid <= 0) return false;
+  if (::kill(pid, 0) != 0 && errno != EPERM) return false;  // ESRCH: no such process
+  int err = 0;
+  auto s = read_stat(pid, &err);
+  if (!s) return err != ENOENT && err != ESRCH;  // vanished => dead; unreadable => assume alive
+  if (s->state == 'Z' || s->state == 'X') return false;  // killed, not yet reaped
+  return s->start_time == start_time;
+}
+
+}  // namespace lcmx::shm::detail

@@ -1,0 +1,291 @@
+// Reader: one subscriber of a segment; follows the Writer across generations.
+//
+// Read protocol (reader keeps `next`, the seq it wants; seqs restart at 0 per generation):
+//   W = write_seq (acquire; pairs with the Writer's write_seq release: desc[m % N] for all
+//   m < W is visible).
+//   Cases of the take() loop, each iteration either returns or advances `next`/generation:
+//   a. next == W: nothing new here. If next_generation is set (acquire; pairs with the
+//      Writer's release, stored after its last write_seq, so W is final) open the successor
+//      and continue at its seq 0; else return nullopt.
+//   b. W - next > N: the ring lapped us; the oldest W - N - next messages are gone: count
+//      them as drops and jump to W - N.
+//   c. d = desc[next % N] (acquire; pairs with the Writer's desc release) has another seq
+//      (overwritten by next + k*N) or an out-of-range slot: drop one, advance.
+//   d. pin `next` (seq_cst store), then slot.seq (seq_cst load; Dekker with the Writer's
+//      WRITING store + pin scan, see writer.cpp). Equal to next => the Writer cannot reuse
+//      the slot until we unpin, and the load read-from its seq release, so size and payload
+//      are visible: return a zero-copy sample. WRITING => the Writer is probing or writing
+//      it: re-check a bounded number of times (a probe that saw a pin restores `next`
+//      without touching the payload; seqs are never reused, so seeing `next` again proves
+//      it). Anything else => overwritten: unpin, drop one, advance.
+//   All offsets come from the geometry validated at open; slot indices and sizes read from
+//   shared memory are range-checked before use.
+#include <unistd.h>
+
+#include <limits>
+#include <utility>
+
+#include "impl.hpp"
+
+namespace lcmx::shm {
+namespace detail {
+namespace {
+
+constexpr int kWritingSpins = 256;
+
+inline void cpu_relax() noexcept {
+#if defined(__x86_64__) || defined(__i386__)
+  __builtin_ia32_pause();
+#endif
+}
+
+std::shared_ptr<GenView> make_view(std::unique_ptr<Segment> seg, std::int32_t pid,
+                                   std::uint64_t start) {
+  auto v = std::make_shared<GenView>();
+  v->entry = register_subscriber(*seg, pid, start);
+  v->pid = pid;
+  v->seg = std::move(seg);
+  return v;
+}
+
+// Opens generation `gen` of base, or, if it is gone, the newest one above `floor`.
+std::unique_ptr<Segment> open_generation_or_newer(const std::string& base, std::uint64_t gen,
+                                                  std::optional<std::uint64_t> floor) {
+  try {
+    return open_segment(generation_name(base, gen));
+  } catch (const Error& e) {
+    if (e.code() != Errc::not_found) throw;
+  }
+  auto hi = find_highest_generation(base);
+  if (!hi || (floor && *hi <= *floor)) {
+    throw Error(Errc::not_found, "segment " + generation_name(base, gen) + ": not found");
+  }
+  return open_segment(generation_name(base, *hi));
+}
+
+}  // namespace
+
+GenView::~GenView() {
+  if (seg && ::getpid() == pid) deregister_subscriber(*seg, entry);
+}
+
+void ReaderImpl::unpin(int pin) noexcept {
+  if (pin < 0 || pin >= kMaxPins || !pin_gen[pin]) return;
+  // Release: our payload reads happen-before the Writer's reuse (its pin load reads this).
+  pin_gen[pin]->sub().pins[pin].store(kPinFree, std::memory_order_release);
+  pin_gen[pin].reset();
+}
+
+void ReaderImpl::publish_counters() noexcept {
+  auto& e = cur->sub();
+  e.drops.store(drops, std::memory_order_relaxed);
+  e.received.store(received, std::memory_order_relaxed);
+}
+
+bool ReaderImpl::try_follow() {
+  if (dead_end) return false;
+  const Segment& s = *cur->seg;
+  // Acquire: pairs with the Writer's next_generation release (after its last write_seq).
+  const std::uint64_t ng = s.hdr->next_generation.load(std::memory_order_acquire);
+  if (ng == 0) return false;
+  if (next < s.hdr->write_seq.load(std::memory_order_acquire)) return true;  // drain first
+  if (ng <= s.generation) {  // hostile or corrupt: never go backwards
+    dead_end = true;
+    return false;
+  }
+  std::unique_ptr<Segment> seg;
+  try {
+    seg = open_generation_or_newer(base, ng, s.generation);
+  } catch (const Error& e) {
+    if (e.code() != Errc::not_found) throw;
+    dead_end = true;  // Writer gone: nothing newer will come
+    return false;
+  }
+  // Messages of skipped generations (if any) are drops; first_global_seq makes it exact.
+  const std::uint64_t here = s.first_global_seq + next;
+  if (seg->first_global_seq > here && seg->first_global_seq - here < (std::uint64_t{1} << 48)) {
+    drops += seg->first_global_seq - here;
+  }
+  if (seg->generation <= s.generation) {
+    dead_end = true;
+    return false;
+  }
+  cur = make_view(std::move(seg), pid, start_time);  // old view deregisters when unpinned
+  next = 0;
+  publish_counters();
+  return true;
+}
+
+}  // namespace detail
+
+// ---- ReadSample ----
+
+ReadSample::ReadSample(ReadSample&& o) noexcept
+    : reader_(std::exchange(o.reader_, nullptr)), pin_(std::exchange(o.pin_, -1)),
+      data_(o.data_), size_(o.size_), sequence_(o.sequence_) {}
+
+ReadSample& ReadSample::operator=(ReadSample&& o) noexcept {
+  if (this != &o) {
+    if (reader_ != nullptr) reader_->unpin(pin_);
+    reader_ = std::exchange(o.reader_, nullptr);
+    pin_ = std::exchange(o.pin_, -1);
+    data_ = o.data_;
+    size_ = o.size_;
+    sequence_ = o.sequence_;
+  }
+  return *this;
+}
+
+ReadSample::~ReadSample() {
+  if (reader_ != nullptr) reader_->unpin(pin_);
+}
+
+// ---- Reader ----
+
+Reader::Reader(std::unique_ptr<detail::ReaderImpl> impl) : impl_(std::move(impl)) {}
+Reader::Reader(Reader&&) noexcept = default;
+Reader& Reader::operator=(Reader&&) noexcept = default;
+Reader::~Reader() {
+  if (impl_) {
+    disarm();
+    for (int i = 0; i < kMaxPins; ++i) impl_->unpin(i);
+  }
+}
+
+static_assert(Reader::kMaxPins == detail::kMaxPins);
+
+Reader Reader::open(const std::string& segment_name) {
+  using namespace detail;
+  if (segment_name.empty() || segment_name.size() > 240 ||
+      segment_name.find('/') != std::string::npos) {
+    throw Error(Errc::invalid_argument, "Reader: bad segment name '" + segment_name + "'");
+  }
+  auto impl = std::make_unique<ReaderImpl>();
+  impl->pid = static_cast<std::int32_t>(::getpid());
+  impl->start_time = self_start_time();
+  std::unique_ptr<Segment> seg;
+  if (auto sg = split_generation(segment_name)) {
+    impl->base = sg->first;
+    seg = open_generation_or_newer(impl->base, sg->second, std::nullopt);
+  } else {  // a base name: open its newest generation
+    impl->base = segment_name;
+    auto hi = find_highest_generation(impl->base);
+    if (!hi) throw Error(Errc::not_found, "segment " + segment_name + ": not found");
+    seg = open_segment(generation_name(impl->base, *hi));
+  }
+  // Follow to the newest generation (bounded: a hostile chain cannot loop us forever).
+  for (int hops = 0; hops < 64; ++hops) {
+    const std::uint64_t ng = seg->hdr->next_generation.load(std::memory_order_acquire);
+    if (ng <= seg->generation) break;
+    try {
+      seg = open_generation_or_newer(impl->base, ng, seg->generation);
+    } catch (const Error& e) {
+      if (e.code() != Errc::not_found) throw;
+      break;  // Writer gone: stay on the last one
+    }
+  }
+  impl->cur = make_view(std::move(seg), impl->pid, impl->start_time);
+  impl->next = impl->cur->seg->hdr->write_seq.load(std::memory_order_acquire);
+  return Reader(std::move(impl));
+}
+
+std::optional<ReadSample> Reader::take() {
+  using namespace detail;
+  auto& r = *impl_;
+  int pin = -1;
+  for (int i = 0; i < kMaxPins; ++i) {
+    if (!r.pin_gen[i]) {
+      pin = i;
+      break;
+    }
+  }
+  if (pin < 0) {
+    throw Error(Errc::invalid_argument,
+                "Reader::take: too many pins (kMaxPins samples alive)");
+  }
+  const std::uint64_t dropped_before = r.drops;
+  // Bound: after case b at most N+1 iterations per generation; a few generation hops.
+  const std::uint64_t budget = 4 * std::uint64_t{r.cur->seg->geo.slot_count} + 64;
+  for (std::uint64_t iter = 0; iter < budget; ++iter) {
+    const Segment& s = *r.cur->seg;
+    const std::uint64_t n = s.geo.slot_count;
+    const std::uint64_t w = s.hdr->write_seq.load(std::memory_order_acquire);
+    if (w <= r.next) {  // case a (w < next only if the header was tampered with)
+      if (r.try_follow()) continue;
+      break;
+    }
+    if (w - r.next > n) {  // case b
+      r.drops += w - n - r.next;
+      r.next = w - n;
+    }
+    const std::uint64_t d = s.desc(static_cast<std::uint32_t>(r.next % n))
+                                .load(std::memory_order_acquire);
+    const std::uint32_t slot = desc_slot(d);
+    if (desc_seq(d) != r.next || slot >= n) {  // case c
+      ++r.drops;
+      ++r.next;
+      continue;
+    }
+    auto& pin_word = r.cur->sub().pins[pin];
+    pin_word.store(r.next, std::memory_order_seq_cst);  // case d
+    const SlotHeader& sh = s.slot(slot);
+    std::uint64_t sq = sh.seq.load(std::memory_order_seq_cst);
+    for (int spin = 0; sq == kSlotWriting && spin < kWritingSpins; ++spin) {
+      cpu_relax();
+      sq = sh.seq.load(std::memory_order_seq_cst);
+    }
+    const std::uint64_t size = sh.size;  // read only if sq == next (then it is stable)
+    if (sq != r.next || size > s.geo.slot_size) {
+      pin_word.store(kPinFree, std::memory_order_release);
+      ++r.drops;
+      ++r.next;
+      continue;
+    }
+    r.pin_gen[pin] = r.cur;
+    const std::uint64_t seq = s.first_global_seq + r.next;
+    ++r.next;
+    ++r.received;
+    r.publish_counters();
+    return ReadSample(&r, pin, s.payload(slot), static_cast<std::size_t>(size), seq);
+  }
+  if (r.drops != dropped_before) r.publish_counters();
+  return std::nullopt;
+}
+
+bool Reader::has_data() const noexcept {
+  const auto& r = *impl_;
+  const auto& h = *r.cur->seg->hdr;
+  if (h.write_seq.load(std::memory_order_acquire) != r.next) return true;
+  return !r.dead_end && h.next_generation.load(std::memory_order_acquire) != 0;
+}
+
+std::uint64_t Reader::drops() const noexcept { return impl_->drops; }
+std::uint64_t Reader::received() const noexcept { return impl_->received; }
+
+bool Reader::writer_alive() const {
+  const auto& h = *impl_->cur->seg->hdr;
+  if (h.writer_closed.load(std::memory_order_acquire) != 0) return false;
+  return detail::process_alive(h.owner_pid, h.owner_start_time);
+}
+
+const std::string& Reader::segment_name() const { return impl_->cur->seg->name; }
+
+WaitToken Reader::arm() {
+  auto& r = *impl_;
+  disarm();
+  r.armed = r.cur;
+  auto& h = *r.armed->seg->hdr;
+  // seq_cst: Reader side of the waiter Dekker (see writer.cpp); the futex_word load comes
+  // after the waiters increment in the single total order.
+  h.waiters.fetch_add(1, std::memory_order_seq_cst);
+  return WaitToken{&h.futex_word, h.futex_word.load(std::memory_order_seq_cst)};
+}
+
+void Reader::disarm() noexcept {
+  auto& r = *impl_;
+  if (!r.armed) return;
+  r.armed->seg->hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
+  r.armed.reset();
+}
+
+}  // namespace lcmx::shm

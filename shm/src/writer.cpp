@@ -1,0 +1,301 @@
+// Writer: single publisher of a segment (and of its later generations).
+//
+// Publish protocol (invariant: a slot whose seq a live Reader has pinned is never written):
+//   1. choose slot s round-robin; old = its current seq (writer's private copy);
+//   2. slot[s].seq = WRITING (seq_cst store);
+//   3. scan pins (seq_cst loads) of subscriber entries [0, sub_high_water) for `old`;
+//      pinned => slot[s].seq = old (nothing was written) and try the next slot.
+//      Dekker with the Reader (pin store seq_cst; then slot.seq load seq_cst): in the single
+//      total order S of seq_cst operations, either the Reader's slot.seq load comes after our
+//      WRITING store (it sees WRITING or a later value != its seq: it unpins and drops), or it
+//      comes before, hence its pin store precedes our WRITING store and our pin loads: we see
+//      the pin and skip the slot. Exactly one side backs off; never both proceed.
+//   4. write payload (caller), slot.size, slot.seq = m (release), desc[m % N] = pack(m, s)
+//      (release), write_seq = m+1 (release), futex_word += 1 (seq_cst), then FUTEX_WAKE only
+//      if waiters > 0 (seq_cst load). Dekker with Reader::arm (waiters += 1 seq_cst; then
+//      futex_word load seq_cst; then has_data): either we see waiters > 0 and wake, or the
+//      Reader's futex_word load comes after our increment, so its expected value includes it
+//      (and, reading from our RMW, it also sees write_seq = m+1: has_data() is true).
+//   A writer dying between 2 and 4 leaves seq = WRITING: that message is never delivered.
+//
+// Slot bound: every live Reader pins at most kMaxPins slots, so with
+// slot_count >= kMaxPins * live_readers + 1 a free slot always exists. Below that bound loan()
+// may throw Error(system, "all slots pinned") after reclaiming dead Readers' pins.
+#include <unistd.h>
+
+#include <algorithm>
+#include <climits>
+#include <cstring>
+#include <utility>
+
+#include "impl.hpp"
+#include "lcmx/shm/futex.hpp"
+
+namespace lcmx::shm {
+namespace detail {
+namespace {
+
+bool valid_name_char(char c) {
+  return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+         c == '_' || c == '-' || c == '.';
+}
+
+std::uint64_t initial_slot_size(const WriterOptions& o) {
+  return round_up(std::max<std::uint64_t>(o.initial_slot_size, 1), kCacheLine);
+}
+
+}  // namespace
+
+WriterImpl::~WriterImpl() {
+  if (seg && ::getpid() == pid) {  // a fork()ed child's copy must not tear down the parent's
+    seg->hdr->writer_closed.store(1, std::memory_order_release);
+    bump_and_wake(*seg);
+  }
+  if (::getpid() == pid) {
+    for (const auto& g : old_gens) unlink_segment(g->name);
+    if (seg) unlink_segment(seg->name);
+  }
+}
+
+void WriterImpl::release_old_generations(bool reclaim_dead) noexcept {
+  while (!old_gens.empty()) {
+    const Segment& g = *old_gens.front();
+    if (reclaim_dead) {
+      try {
+        reclaim_dead_subscribers(g);
+      } catch (...) {  // liveness checks allocate; on failure just keep the generation
+        return;
+      }
+    }
+    const std::uint32_t hw =
+        std::min(g.hdr->sub_high_water.load(std::memory_order_acquire), g.geo.max_subscribers);
+    for (std::uint32_t i = 0; i < hw; ++i) {
+      if (g.sub(i).state.load(std::memory_order_acquire) != kSubFree) return;  // still used
+    }
+    unlink_segment(g.name);  // Readers that mapped it keep their mapping
+    old_gens.pop_front();
+  }
+}
+
+void WriterImpl::bump_and_wake(const Segment& s) noexcept {
+  // seq_cst RMW, then seq_cst load of waiters: see the Dekker argument at the top.
+  s.hdr->futex_word.fetch_add(1, std::memory_order_seq_cst);
+  if (s.hdr->waiters.load(std::memory_order_seq_cst) > 0) futex_wake_all(&s.hdr->futex_word);
+}
+
+void WriterImpl::grow(std::size_t size) {
+  const std::uint64_t old_size = seg->geo.slot_size;
+  std::uint64_t want = std::max<std::uint64_t>(round_up(size, 4096), 2 * old_size);
+  want = std::min<std::uint64_t>(want, opt.max_message_size);
+  want = round_up(std::max<std::uint64_t>(want, size), kCacheLine);
+  const Geometry geo = make_geometry(seg->geo.slot_count, seg->geo.max_subscribers, want);
+  const std::uint64_t gen = seg->generation + 1;
+  const std::uint64_t first = seg->first_global_seq + write_seq;
+  auto next = create_segment(generation_name(base, gen), geo, gen, first, pid, start_time);
+  // The new generation is fully initialised (magic published). Release pairs with the
+  // Reader's next_generation.load(acquire): it then sees our final write_seq here too.
+  seg->hdr->next_generation.store(gen, std::memory_order_release);
+  bump_and_wake(*seg);  // sleeping Readers of the old generation must move on
+  // The old name stays while Readers are registered there or earlier (they open the next
+  // generation by name); see release_old_generations.
+  old_gens.push_back(std::move(seg));
+  seg = std::move(next);
+  release_old_generations(true);
+  slot_seq.assign(geo.slot_count, kSlotEmpty);
+  next_slot = 0;
+  write_seq = 0;
+}
+
+bool WriterImpl::pinned(std::uint64_t seq) const noexcept {
+  const std::uint32_t hw =
+      std::min(seg->hdr->sub_high_water.load(std::memory_order_seq_cst), seg->geo.max_subscribers);
+  for (std::uint32_t i = 0; i < hw; ++i) {
+    for (const auto& p : seg->sub(i).pins) {
+      // seq_cst: the writer side of the Dekker pair (after the WRITING store).
+      if (p.load(std::memory_order_seq_cst) == seq) return true;
+    }
+  }
+  return false;
+}
+
+std::uint32_t WriterImpl::acquire_slot() {
+  const std::uint32_t n = seg->geo.slot_count;
+  for (int round = 0; round < 2; ++round) {
+    for (std::uint32_t k = 0; k < n; ++k) {
+      const std::uint32_t s = (next_slot + k) % n;
+      const std::uint64_t old = slot_seq[s];
+      auto& seq = seg->slot(s).seq;
+      seq.store(kSlotWriting, std::memory_order_seq_cst);
+      // Cases: old is Empty (never delivered, nobody can pin it) => ours; old pinned =>
+      // restore (payload untouched, the pinning Reader keeps a valid sample) and try next.
+      if (old != kSlotEmpty && pinned(old)) {
+        seq.store(old, std::memory_order_seq_cst);
+        continue;
+      }
+      next_slot = (s + 1) % n;
+      slot_seq[s] = kSlotWriting;
+      return s;
+    }
+    // Every slot pinned: clear pins of dead Readers, then one more round.
+    if (round == 0 && reclaim_dead_subscribers(*seg) == 0) break;
+  }
+  throw Error(Errc::system, "segment " + seg->name + ": all slots pinned (slot_count " +
+                                std::to_string(n) + " < kMaxPins * live readers + 1)");
+}
+
+void WriterImpl::abort_loan(std::uint32_t slot) noexcept {
+  // The payload may be partly overwritten: the old message is gone (Readers count a drop).
+  seg->slot(slot).seq.store(kSlotEmpty, std::memory_order_release);
+  slot_seq[slot] = kSlotEmpty;
+  loan_out = false;
+}
+
+std::uint64_t WriterImpl::commit(std::uint32_t slot, std::size_t size) {
+  const std::uint64_t m = write_seq;
+  auto& sh = seg->slot(slot);
+  sh.size = size;
+  // Release: payload + size visible to a Reader whose slot.seq load reads m.
+  sh.seq.store(m, std::memory_order_release);
+  // Release: pairs with the Reader's desc load (acquire).
+  seg->desc(static_cast<std::uint32_t>(m % seg->geo.slot_count))
+      .store(pack_desc(m, slot), std::memory_order_release);
+  // Release: pairs with the Reader's write_seq load (acquire): desc[m % N] is then visible.
+  seg->hdr->write_seq.store(m + 1, std::memory_order_release);
+  write_seq = m + 1;
+  slot_seq[slot] = m;
+  loan_out = false;
+  bump_and_wake(*seg);
+  if (!old_gens.empty()) release_old_generations(++commits % 1024 == 0);
+  return seg->first_global_seq + m;
+}
+
+}  // namespace detail
+
+// ---- WriteLoan ----
+
+WriteLoan::WriteLoan(WriteLoan&& o) noexcept
+    : writer_(std::exchange(o.writer_, nullptr)), slot_(o.slot_), data_(o.data_),
+      capacity_(o.capacity_) {}
+
+WriteLoan& WriteLoan::operator=(WriteLoan&& o) noexcept {
+  if (this != &o) {
+    if (writer_ != nullptr) writer_->abort_loan(slot_);
+    writer_ = std::exchange(o.writer_, nullptr);
+    slot_ = o.slot_;
+    data_ = o.data_;
+    capacity_ = o.capacity_;
+  }
+  return *this;
+}
+
+WriteLoan::~WriteLoan() {
+  if (writer_ != nullptr) writer_->abort_loan(slot_);
+}
+
+// ---- Writer ----
+
+Writer::Writer(std::unique_ptr<detail::WriterImpl> impl) : impl_(std::move(impl)) {}
+Writer::Writer(Writer&&) noexcept = default;
+Writer& Writer::operator=(Writer&&) noexcept = default;
+Writer::~Writer() = default;
+
+Writer Writer::create(const std::string& base_name, const WriterOptions& options) {
+  using namespace detail;
+  const std::string prefix = kPrefix;
+  if (base_name.size() <= prefix.size() || base_name.compare(0, prefix.size(), prefix) != 0 ||
+      base_name.size() > 200 || !std::all_of(base_name.begin(), base_name.end(), valid_name_char)) {
+    throw Error(Errc::invalid_argument,
+                "Writer: bad base name '" + base_name + "' (needs prefix " + prefix +
+                    ", <= 200 chars of [A-Za-z0-9_.-])");
+  }
+  if (options.slot_count < 2 || options.slot_count > kMaxSlotCount) {
+    throw Error(Errc::invalid_argument, "Writer: slot_count must be in [2, 65535]");
+  }
+  if (options.max_subscribers < 1 || options.max_subscribers > kMaxSubscribersLimit) {
+    throw Error(Errc::invalid_argument, "Writer: max_subscribers must be in [1, 4096]");
+  }
+  if (options.max_message_size == 0 || options.max_message_size > kMaxSlotSize ||
+      options.initial_slot_size > options.max_message_size) {
+    throw Error(Errc::invalid_argument,
+                "Writer: need 0 < initial_slot_size <= max_message_size <= 2^40");
+  }
+  // O_EXCL covers one name; a live Writer of the same base may be at a later generation.
+  for (const auto& n : list_shm(base_name + "_g")) {
+    auto sg = split_generation(n);
+    if (!sg || sg->first != base_name) continue;
+    auto info = peek_segment(n, nullptr);
+    if (info && process_alive(info->owner_pid, info->owner_start_time)) {
+      throw Error(Errc::system, "Writer: base name " + base_name + " is in use by pid " +
+                                    std::to_string(info->owner_pid) + " (" + n + ")");
+    }
+  }
+  auto impl = std::make_unique<WriterImpl>();
+  impl->base = base_name;
+  impl->opt = options;
+  impl->pid = static_cast<std::int32_t>(::getpid());
+  impl->start_time = self_start_time();
+  const Geometry geo =
+      make_geometry(options.slot_count, options.max_subscribers, initial_slot_size(options));
+  impl->seg = create_segment(generation_name(base_name, 0), geo, 0, 0, impl->pid,
+                             impl->start_time);
+  impl->slot_seq.assign(geo.slot_count, kSlotEmpty);
+  return Writer(std::move(impl));
+}
+
+WriteLoan Writer::loan(std::size_t size) {
+  auto& w = *impl_;
+  if (w.loan_out) {
+    throw Error(Errc::invalid_argument, "Writer::loan: a loan is already outstanding");
+  }
+  if (size > w.opt.max_message_size) {
+    throw Error(Errc::too_large, "Writer::loan: " + std::to_string(size) +
+                                     " bytes > max_message_size " +
+                                     std::to_string(w.opt.max_message_size));
+  }
+  if (size > w.seg->geo.slot_size) w.grow(size);
+  const std::uint32_t s = w.acquire_slot();
+  w.loan_out = true;
+  w.loan_slot = s;
+  return WriteLoan(&w, s, w.seg->payload(s), w.seg->geo.slot_size);
+}
+
+std::uint64_t Writer::commit(WriteLoan&& loan, std::size_t size) {
+  if (loan.writer_ != impl_.get()) {
+    throw Error(Errc::invalid_argument, "Writer::commit: loan of another Writer (or empty)");
+  }
+  if (size > loan.capacity_) {
+    throw Error(Errc::invalid_argument, "Writer::commit: size > loan capacity");
+  }
+  loan.writer_ = nullptr;
+  return impl_->commit(loan.slot_, size);
+}
+
+std::uint64_t Writer::write(const void* data, std::size_t size) {
+  WriteLoan l = loan(size);
+  if (size != 0) std::memcpy(l.data(), data, size);
+  return commit(std::move(l), size);
+}
+
+const std::string& Writer::segment_name() const { return impl_->seg->name; }
+
+std::uint64_t Writer::published() const noexcept {
+  return impl_->seg->first_global_seq + impl_->write_seq;
+}
+
+std::uint32_t Writer::live_readers() const noexcept {
+  const auto& seg = *impl_->seg;
+  const std::uint32_t hw =
+      std::min(seg.hdr->sub_high_water.load(std::memory_order_acquire), seg.geo.max_subscribers);
+  std::uint32_t n = 0;
+  for (std::uint32_t i = 0; i < hw; ++i) {
+    auto& e = seg.sub(i);
+    if (e.state.load(std::memory_order_acquire) != detail::kSubActive) continue;
+    if (detail::process_alive(e.pid.load(std::memory_order_acquire),
+                              e.start_time.load(std::memory_order_relaxed))) {
+      ++n;
+    }
+  }
+  return n;
+}
+
+}  // namespace lcmx::shm
