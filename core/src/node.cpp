@@ -161,7 +161,7 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     local_owner = this;
   }
   std::vector<shm::WaitToken> tokens;
-  std::vector<shm::Reader*> armed;
+  std::vector<std::pair<SubscriberCore*, std::shared_ptr<Match>>> armed;
 
   for (;;) {
     const std::uint32_t bell = doorbell.load(std::memory_order_seq_cst);
@@ -175,6 +175,8 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
       continue;
 
     // Block: doorbell (in-process messages, changes) + every shm reader's futex word.
+    // A Reader is used by one thread at a time, so arm() and disarm() run with the
+    // subscriber's `busy` held, like take(); `armed` keeps the matches alive meanwhile.
     tokens.clear();
     armed.clear();
     tokens.push_back({&doorbell, bell});
@@ -184,18 +186,24 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
       for (auto& m : st.snapshot)
         if (m->reader) {
           tokens.push_back(m->reader->arm());
-          armed.push_back(m->reader.get());
+          armed.push_back({sub.get(), m});
         }
       st.busy.store(false, std::memory_order_release);
       st.busy.notify_all();
     }
     sleepers.fetch_add(1, std::memory_order_seq_cst);
     bool ready = doorbell.load(std::memory_order_seq_cst) != bell;
-    for (auto* r : armed) ready = ready || r->has_data();
+    for (auto& [sub, m] : armed) ready = ready || m->reader->has_data();
     if (!ready) shm::wait_any(tokens, std::min<Clock::duration>(deadline - Clock::now(),
                                                                 std::chrono::seconds(1)));
     sleepers.fetch_sub(1, std::memory_order_seq_cst);
-    for (auto* r : armed) r->disarm();
+    for (auto& [sub, m] : armed) {
+      auto& st = *sub->state;
+      while (st.busy.exchange(true, std::memory_order_acquire)) st.busy.wait(true);
+      m->reader->disarm();
+      st.busy.store(false, std::memory_order_release);
+      st.busy.notify_all();
+    }
   }
 }
 
@@ -243,7 +251,6 @@ void remove_subscriber(const std::shared_ptr<SubscriberCore>& sub) {
   }
   std::lock_guard lock(st.mu);
   st.queue.clear();
-  for (auto& m : st.matches) m->reader.reset();  // matches are no longer polled
 }
 
 SubscriberStats subscriber_stats(const SubscriberCore& core) {

@@ -64,12 +64,11 @@ void PublisherImpl::publish_ref(const void* object,
                                 std::shared_ptr<const void> (*copy)(const void*)) {
   auto t = targets();
   std::lock_guard lock(publish_mu);
-  if (writer_->live_readers() > 0) write_encoded(object);
-  if (!t->empty()) {
-    // Size is checked even when only in-process subscribers exist.
-    if (writer_->live_readers() == 0) check_size(type.encoded_size(object));
-    deliver_intra(*t, copy(object));
-  }
+  const bool shm = writer_->live_readers() > 0;
+  if (!shm) check_size(type.encoded_size(object));  // also when only in-process subscribers
+  // In-process subscribers first: handing over a pointer is cheaper than encoding.
+  if (!t->empty()) deliver_intra(*t, copy(object));
+  if (shm) write_encoded(object);
   published_.fetch_add(1);
 }
 
@@ -77,9 +76,10 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   if (!object) throw Error(Errc::invalid_argument, "publish on '" + channel_ + "': null message");
   auto t = targets();
   std::lock_guard lock(publish_mu);
-  if (writer_->live_readers() > 0) write_encoded(object.get());
-  else check_size(type.encoded_size(object.get()));
-  if (!t->empty()) deliver_intra(*t, std::move(object));
+  const bool shm = writer_->live_readers() > 0;
+  if (!shm) check_size(type.encoded_size(object.get()));
+  if (!t->empty()) deliver_intra(*t, object);
+  if (shm) write_encoded(object.get());
   published_.fetch_add(1);
 }
 
