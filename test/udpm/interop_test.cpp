@@ -47,15 +47,18 @@ void liblcm_to_lcmx(std::size_t size, std::uint32_t count) {
   CHECK(rx.counters().incomplete_dropped == 0);
 }
 
-void lcmx_to_liblcm(std::size_t size, std::uint32_t count) {
+// group_first: open the Group (which binds the port) before liblcm binds it, else after.
+void lcmx_to_liblcm(std::size_t size, std::uint32_t count, bool group_first = false) {
   Netns ns;
   EnterNetns in(ns);
   const auto cfg = unique_config();
   const std::string channel = "LCMX_TO_LIBLCM";
+  std::optional<Group> early;
+  if (group_first) early.emplace(Group::open(cfg));
   Child sub({LCMX_UDPM_PEER, "sub", lcm_url(cfg), channel, std::to_string(count), "15000"});
   REQUIRE(sub.read_line() == std::optional<std::string>("ready"));
   // Same port as liblcm's receive socket: both bind with SO_REUSEADDR.
-  auto tx = Group::open(cfg);
+  auto tx = group_first ? std::move(*early) : Group::open(cfg);
   std::vector<std::string> lines;
   for (std::uint32_t i = 0; i < count; ++i) {
     tx.publish(channel, make_payload(i, size));
@@ -93,6 +96,16 @@ TEST_CASE("interop: lcmx publishes short messages, liblcm receives", "[integrati
 
 TEST_CASE("interop: lcmx publishes fragmented messages, liblcm receives", "[integration][interop]") {
   lcmx_to_liblcm(200000, 5);
+}
+
+TEST_CASE("interop: sizes at the LC02/LC03 boundary, both ways", "[integration][interop]") {
+  // channel + NUL + payload == 65499 is the largest LC02; one byte more is two LC03 fragments.
+  const std::size_t to_lcmx = kShortMessageMaxSize - std::string_view("LIBLCM_TO_LCMX").size() - 1;
+  const std::size_t to_liblcm = kShortMessageMaxSize - std::string_view("LCMX_TO_LIBLCM").size() - 1;
+  SECTION("liblcm -> lcmx, largest LC02") { liblcm_to_lcmx(to_lcmx, 3); }
+  SECTION("liblcm -> lcmx, smallest LC03") { liblcm_to_lcmx(to_lcmx + 1, 3); }
+  SECTION("lcmx -> liblcm, largest LC02, Group bound first") { lcmx_to_liblcm(to_liblcm, 3, true); }
+  SECTION("lcmx -> liblcm, smallest LC03, Group bound first") { lcmx_to_liblcm(to_liblcm + 1, 3, true); }
 }
 
 TEST_CASE("interop: lcm-logger records what lcmx publishes on LCM's default URL", "[integration][interop]") {
