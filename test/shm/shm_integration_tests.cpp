@@ -1,2 +1,296 @@
+// lcmx::shm multi-process tests (fork()ed writers/readers, kill -9). Label: integration.
+// Children communicate through pipes; every wait has a deadline; a watchdog per test.
 #define CATCH_CONFIG_MAIN
 #include <catch2/catch.hpp>
+
+#include <deque>
+#include <random>
+#include <thread>
+
+#include "lcmx/shm/futex.hpp"
+#include "lcmx/shm/segment.hpp"
+#include "test_util.hpp"
+
+using namespace lcmx::shm;
+using namespace lcmx::shm::test;
+
+namespace {
+
+WriterOptions opts(std::uint32_t slots) {
+  WriterOptions o;
+  o.slot_count = slots;
+  o.max_subscribers = 8;
+  o.initial_slot_size = 4096;
+  o.max_message_size = 1 << 20;
+  return o;
+}
+
+void write_msg(Writer& w, std::uint64_t index, std::size_t size) {
+  std::vector<unsigned char> buf(size);
+  fill_message(buf.data(), size, index);
+  w.write(buf.data(), size);
+}
+
+// Child side: blocks until the parent kills it (bounded so a lost parent cannot leak it).
+[[noreturn]] void park(const Pipe& from_parent) {
+  from_parent.recv(60s);
+  std::_Exit(0);
+}
+
+}  // namespace
+
+TEST_CASE("a slot pinned by a killed Reader is reclaimed by the Writer", "[shm][fork]") {
+  Watchdog wd(20s);
+  const auto base = unique_base("deadpin");
+  ShmGuard g(base);
+  auto w = Writer::create(base, opts(2));
+  Pipe up, down;
+  Child c([&] {
+    auto r = Reader::open(base + "_g0");
+    up.send('R');
+    if (down.recv(10s) != 'G') return 10;
+    auto a = r.take();
+    auto b = r.take();
+    if (!a || !b) return 11;
+    up.send('P');  // both slots pinned; die holding them
+    park(down);
+    return 0;
+  });
+  wd.watch_child(c.pid());
+  REQUIRE(up.recv(10s) == 'R');
+  write_msg(w, 0, 100);
+  write_msg(w, 1, 100);
+  down.send('G');
+  REQUIRE(up.recv(10s) == 'P');
+  CHECK(w.live_readers() == 1);
+  // Live Reader pins both slots: the Writer refuses rather than overwrite.
+  CHECK_THROWS_MATCHES(write_msg(w, 2, 100), Error, Catch::Predicate<Error>([](const Error& e) {
+                         return e.code() == Errc::system;
+                       }));
+  c.kill9();
+  CHECK(killed_by(c.wait(10s), SIGKILL));
+  CHECK(w.live_readers() == 0);
+  write_msg(w, 2, 100);  // pins of the dead Reader reclaimed
+  write_msg(w, 3, 100);
+  auto r = Reader::open(w.segment_name());
+  write_msg(w, 4, 100);
+  auto s = r.take();
+  REQUIRE(s);
+  std::uint64_t idx = 0;
+  CHECK(check_message(s->data(), s->size(), &idx));
+  CHECK(idx == 4);
+}
+
+TEST_CASE("reclaim_orphans removes the segment of a Writer killed -9", "[shm][fork]") {
+  Watchdog wd(20s);
+  const auto base = unique_base("orphan");
+  ShmGuard g(base);
+  Pipe up, down;
+  Child c([&] {
+    auto w = Writer::create(base, opts(4));
+    write_msg(w, 0, 5000);  // generation 1
+    up.send('R');
+    park(down);
+    return 0;
+  });
+  wd.watch_child(c.pid());
+  REQUIRE(up.recv(10s) == 'R');
+  REQUIRE(shm_exists(base + "_g1"));
+  auto rep = reclaim_orphans(base);
+  CHECK(rep.removed == 0);  // owner alive
+  c.kill9();
+  CHECK(killed_by(c.wait(10s), SIGKILL));
+  rep = reclaim_orphans(base);
+  CHECK(rep.removed == 1);
+  CHECK(rep.skipped == 0);
+  CHECK(shm_names(base + "_").empty());
+}
+
+TEST_CASE("a stale segment of a dead Writer does not block a new Writer", "[shm][fork]") {
+  Watchdog wd(20s);
+  const auto base = unique_base("stale");
+  ShmGuard g(base);
+  Pipe up, down;
+  Child c([&] {
+    auto w = Writer::create(base, opts(4));
+    up.send('R');
+    park(down);
+    return 0;
+  });
+  wd.watch_child(c.pid());
+  REQUIRE(up.recv(10s) == 'R');
+  CHECK_THROWS_AS(Writer::create(base, opts(4)), Error);  // owner alive
+  c.kill9();
+  CHECK(killed_by(c.wait(10s), SIGKILL));
+  auto w = Writer::create(base, opts(4));  // stale file removed, created anew
+  auto r = Reader::open(w.segment_name());
+  CHECK(r.writer_alive());
+  write_msg(w, 0, 64);
+  CHECK(r.take().has_value());
+}
+
+TEST_CASE("a Writer killed -9 mid-write never delivers that message", "[shm][fork]") {
+  Watchdog wd(20s);
+  const auto base = unique_base("midwrite");
+  ShmGuard g(base);
+  Pipe up, down;
+  Child c([&] {
+    auto w = Writer::create(base, opts(4));
+    up.send('R');
+    if (down.recv(10s) != 'G') return 10;
+    write_msg(w, 0, 1000);
+    auto l = w.loan(1000);
+    std::memset(l.data(), 0x5A, 500);  // half written
+    ::raise(SIGKILL);
+    return 0;
+  });
+  wd.watch_child(c.pid());
+  REQUIRE(up.recv(10s) == 'R');
+  auto r = Reader::open(base + "_g0");
+  down.send('G');
+  CHECK(killed_by(c.wait(10s), SIGKILL));
+  auto s = r.take();
+  REQUIRE(s);
+  std::uint64_t idx = 99;
+  CHECK(check_message(s->data(), s->size(), &idx));
+  CHECK(idx == 0);
+  CHECK_FALSE(r.take().has_value());
+  CHECK_FALSE(r.has_data());
+  CHECK_FALSE(r.writer_alive());
+  s.reset();
+  auto rep = reclaim_orphans(base);
+  CHECK(rep.removed == 1);
+}
+
+TEST_CASE("wait_any wakes a Reader in another process on commit", "[shm][fork][futex]") {
+  Watchdog wd(20s);
+  const auto base = unique_base("xwake");
+  ShmGuard g(base);
+  Pipe up, down;
+  Child c([&] {
+    auto w = Writer::create(base, opts(4));
+    up.send('R');
+    if (down.recv(10s) != 'G') return 10;
+    write_msg(w, 7, 100);
+    if (down.recv(10s) != 'Q') return 11;
+    return 0;
+  });
+  wd.watch_child(c.pid());
+  REQUIRE(up.recv(10s) == 'R');
+  auto r = Reader::open(base + "_g0");
+  {  // idle: times out
+    WaitToken t = r.arm();
+    REQUIRE_FALSE(r.has_data());
+    CHECK(wait_any({&t, 1}, 50ms) == WaitResult::timeout);
+    r.disarm();
+  }
+  WaitToken t = r.arm();
+  REQUIRE_FALSE(r.has_data());
+  down.send('G');
+  const auto t0 = Clock::now();
+  WaitResult res = WaitResult::timeout;
+  while (!r.has_data() && Clock::now() - t0 < 10s) res = wait_any({&t, 1}, 10s);
+  r.disarm();
+  CHECK(res == WaitResult::woken);
+  CHECK(Clock::now() - t0 < 5s);
+  auto s = r.take();
+  REQUIRE(s);
+  std::uint64_t idx = 0;
+  CHECK(check_message(s->data(), s->size(), &idx));
+  CHECK(idx == 7);
+  down.send('Q');
+  CHECK(exited_ok(c.wait(10s)));
+  CHECK_FALSE(r.writer_alive());
+}
+
+TEST_CASE("stress: fork()ed writer, 2 readers, random sizes, checksums, growth",
+          "[shm][fork][stress]") {
+  Watchdog wd(50s, "stress");
+  const auto base = unique_base("stress");
+  ShmGuard g(base);
+  const std::uint64_t total = kSanitized ? 20000 : 100000;
+  Pipe up, down;
+  Child c([&] {
+    auto w = Writer::create(base, opts(16));
+    up.send('R');
+    if (down.recv(10s) != 'G') return 10;
+    std::mt19937_64 rng(12345);
+    std::vector<unsigned char> buf(40000);
+    for (std::uint64_t i = 0; i < total; ++i) {
+      // Mostly small, sometimes large: grows 4 KiB -> 8 -> 16 -> 32 -> 64 KiB on the way.
+      const std::uint64_t cap = i < total / 4 ? 4000 : i < total / 2 ? 12000 : 40000;
+      const std::size_t sz = 16 + rng() % (rng() % 8 == 0 ? cap : 2000);
+      auto l = w.loan(sz);
+      fill_message(reinterpret_cast<unsigned char*>(l.data()), sz, i);
+      w.commit(std::move(l), sz);
+    }
+    if (w.published() != total) return 12;
+    if (down.recv(40s) != 'Q') return 11;  // readers may still follow generations by name
+    return 0;
+  });
+  wd.watch_child(c.pid());
+  REQUIRE(up.recv(10s) == 'R');
+
+  struct Result {
+    std::uint64_t received = 0, drops = 0, torn = 0, disorder = 0, pinned_changed = 0;
+    std::uint64_t last = 0;
+    bool timed_out = false;
+  };
+  Result res[2];
+  std::optional<Reader> readers[2];
+  for (auto& r : readers) r.emplace(Reader::open(base + "_g0"));
+  const auto deadline = Clock::now() + 40s;
+  auto run = [&](Reader& r, Result& out, std::size_t keep) {
+    std::deque<std::pair<ReadSample, std::uint64_t>> held;  // exercise pins under load
+    bool first = true;
+    while (r.received() + r.drops() < total) {
+      if (Clock::now() > deadline) {
+        out.timed_out = true;
+        break;
+      }
+      auto s = r.take();
+      if (!s) {
+        WaitToken t = r.arm();
+        if (!r.has_data()) wait_any({&t, 1}, 200ms);
+        r.disarm();
+        continue;
+      }
+      std::uint64_t idx = 0;
+      if (!check_message(s->data(), s->size(), &idx)) {
+        ++out.torn;
+        continue;
+      }
+      if ((!first && idx <= out.last) || idx != s->sequence()) ++out.disorder;
+      first = false;
+      out.last = idx;
+      held.emplace_back(std::move(*s), idx);
+      if (held.size() > keep) {
+        std::uint64_t again = 0;
+        const auto& h = held.front();
+        if (!check_message(h.first.data(), h.first.size(), &again) || again != h.second) {
+          ++out.pinned_changed;
+        }
+        held.pop_front();
+      }
+    }
+    out.received = r.received();
+    out.drops = r.drops();
+  };
+  std::thread t1([&] { run(*readers[0], res[0], 0); });
+  std::thread t2([&] { run(*readers[1], res[1], 3); });
+  down.send('G');
+  t1.join();
+  t2.join();
+  down.send('Q');
+  CHECK(exited_ok(c.wait(20s)));
+  for (const auto& r : res) {
+    INFO("received " << r.received << " drops " << r.drops);
+    CHECK_FALSE(r.timed_out);
+    CHECK(r.torn == 0);
+    CHECK(r.disorder == 0);
+    CHECK(r.pinned_changed == 0);
+    CHECK(r.received + r.drops == total);
+    CHECK(r.received > 0);
+    CHECK(r.last == total - 1);
+  }
+}
