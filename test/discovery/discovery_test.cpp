@@ -1,0 +1,205 @@
+// Discovery: beacon codec against hostile input, and two participants on a test group
+// (join, update, goodbye, lease expiry, observer query).
+#include <unistd.h>
+
+#include <atomic>
+#include <catch2/catch.hpp>
+#include <cstring>
+#include <mutex>
+#include <random>
+#include <thread>
+
+#include "lcmx/discovery/beacon_codec.hpp"
+#include "lcmx/discovery/discovery.hpp"
+#include "lcmx/discovery/identity.hpp"
+
+using namespace std::chrono_literals;
+using lcmx_msgs::beacon_t;
+
+namespace {
+
+beacon_t sample_beacon(std::int64_t id) {
+  beacon_t b{};
+  b.version = lcmx::discovery::kBeaconVersion;
+  b.participant_id = id;
+  b.host_id = 7;
+  b.pid = 1234;
+  b.process_name = "proc";
+  b.nodes = {"a", "b"};
+  b.num_nodes = 2;
+  lcmx_msgs::endpoint_t e{};
+  e.id = 1;
+  e.kind = lcmx_msgs::endpoint_t::KIND_SUBSCRIBER;
+  e.node = "a";
+  e.topic = "POSE";
+  e.type_name = "pose_t";
+  lcmx_msgs::match_t m{};
+  m.path = "shm";
+  e.matches = {m};
+  e.num_matches = 1;
+  e.errors = {"x"};
+  e.num_errors = 1;
+  b.endpoints = {e, e};
+  b.num_endpoints = 2;
+  return b;
+}
+
+lcmx::udpm::GroupConfig test_group(int salt) {
+  const int id = static_cast<int>(::getpid()) * 4 + salt;
+  lcmx::udpm::GroupConfig g;
+  g.address = "239.253." + std::to_string((id >> 8) & 0xff) + "." + std::to_string(id & 0xff);
+  g.port = static_cast<std::uint16_t>(20000 + id % 40000);
+  return g;
+}
+
+template <class Pred>
+bool eventually(Pred pred, std::chrono::milliseconds deadline = 5000ms) {
+  const auto end = std::chrono::steady_clock::now() + deadline;
+  while (!pred()) {
+    if (std::chrono::steady_clock::now() > end) return false;
+    std::this_thread::sleep_for(1ms);  // polling a condition with a deadline
+  }
+  return true;
+}
+
+}  // namespace
+
+TEST_CASE("beacons round-trip through the codec", "[discovery][codec]") {
+  const auto b = sample_beacon(42);
+  const auto bytes = lcmx::discovery::encode_beacon(b);
+  auto back = lcmx::discovery::decode_beacon(bytes);
+  REQUIRE(back);
+  CHECK(back->participant_id == 42);
+  CHECK(back->endpoints.size() == 2);
+  CHECK(back->endpoints[1].matches[0].path == "shm");
+}
+
+TEST_CASE("malformed beacons are rejected without crashing or allocating", "[discovery][codec]") {
+  const auto good = lcmx::discovery::encode_beacon(sample_beacon(1));
+  std::string why;
+  SECTION("every truncation") {
+    for (std::size_t n = 0; n < good.size(); ++n)
+      CHECK_FALSE(lcmx::discovery::decode_beacon({good.data(), n}, &why));
+  }
+  SECTION("wrong fingerprint") {
+    auto bad = good;
+    bad[0] ^= std::byte{0xff};
+    CHECK_FALSE(lcmx::discovery::decode_beacon(bad, &why));
+    CHECK_THAT(why, Catch::Contains("fingerprint"));
+  }
+  SECTION("huge and negative counts") {
+    // num_nodes sits right after the fixed header fields; find it by its value (2).
+    for (std::uint32_t v : {0x7fffffffu, 0x80000000u, 0xffffffffu, 100000u}) {
+      for (std::size_t off = 8; off + 4 <= good.size(); ++off) {
+        auto bad = good;
+        bad[off] = std::byte(v >> 24);
+        bad[off + 1] = std::byte(v >> 16);
+        bad[off + 2] = std::byte(v >> 8);
+        bad[off + 3] = std::byte(v);
+        (void)lcmx::discovery::decode_beacon(bad, &why);  // must not crash or blow up memory
+      }
+    }
+    SUCCEED();
+  }
+  SECTION("random mutations") {
+    std::mt19937 rng(1234);
+    for (int i = 0; i < 20000; ++i) {
+      auto bad = good;
+      const int flips = 1 + static_cast<int>(rng() % 4);
+      for (int k = 0; k < flips; ++k) bad[rng() % bad.size()] = std::byte(rng());
+      auto r = lcmx::discovery::decode_beacon(bad, &why);
+      if (r) CHECK(r->endpoints.size() == static_cast<std::size_t>(r->num_endpoints));
+    }
+  }
+  SECTION("unsupported version") {
+    auto b = sample_beacon(1);
+    b.version = 99;
+    CHECK_FALSE(lcmx::discovery::decode_beacon(lcmx::discovery::encode_beacon(b), &why));
+    CHECK_THAT(why, Catch::Contains("version"));
+  }
+}
+
+TEST_CASE("host id: stable, overridable, bad override refused", "[discovery][identity]") {
+  ::unsetenv("LCMX_HOST_ID");
+  const auto a = lcmx::discovery::host_id();
+  CHECK(a == lcmx::discovery::host_id());
+  ::setenv("LCMX_HOST_ID", "0x1234", 1);
+  CHECK(lcmx::discovery::host_id() == 0x1234);
+  ::setenv("LCMX_HOST_ID", "banana", 1);
+  CHECK_THROWS_AS(lcmx::discovery::host_id(), std::invalid_argument);
+  ::setenv("LCMX_HOST_ID", "0", 1);
+  CHECK_THROWS_AS(lcmx::discovery::host_id(), std::invalid_argument);
+  ::unsetenv("LCMX_HOST_ID");
+}
+
+TEST_CASE("participants find each other, see updates, goodbyes and lease expiry", "[discovery]") {
+  lcmx::discovery::Options o;
+  o.group = test_group(1);
+  o.period = 50ms;
+  o.lease = 400ms;
+
+  std::atomic<int> rev_b{0};
+  auto beacon_b = [&] {
+    auto b = sample_beacon(2);
+    b.revision = rev_b.load();
+    return b;
+  };
+  std::mutex mu;
+  std::vector<std::pair<lcmx::discovery::Change, std::int64_t>> seen;
+  lcmx::discovery::Discovery a(o, [] { return sample_beacon(1); },
+                               [&](lcmx::discovery::Change c, const lcmx::discovery::Participant& p) {
+                                 std::lock_guard lock(mu);
+                                 seen.push_back({c, p.beacon.participant_id});
+                               });
+  auto count = [&](lcmx::discovery::Change c) {
+    std::lock_guard lock(mu);
+    return std::count_if(seen.begin(), seen.end(), [&](auto& s) { return s.first == c && s.second == 2; });
+  };
+  {
+    lcmx::discovery::Discovery b(o, beacon_b, nullptr);
+    REQUIRE(eventually([&] { return count(lcmx::discovery::Change::joined) == 1; }));
+    REQUIRE(eventually([&] { return a.participants().size() == 1; }));
+    rev_b = 5;
+    b.announce_now();
+    REQUIRE(eventually([&] {
+      auto ps = a.participants();
+      return ps.size() == 1 && ps[0].beacon.revision == 5;
+    }));
+    // An observer sees both participants and is not listed by them.
+    lcmx::discovery::Options ob = o;
+    ob.observer = true;
+    lcmx::discovery::Discovery observer(ob, nullptr, nullptr);
+    observer.query();
+    REQUIRE(eventually([&] { return observer.participants().size() == 2; }));
+    CHECK(a.participants().size() == 1);
+  }  // b says goodbye
+  REQUIRE(eventually([&] { return count(lcmx::discovery::Change::left) == 1; }, 300ms));
+  CHECK(a.counters().goodbyes == 1);
+
+  // A participant that stops beaconing without goodbye: gone after its lease.
+  lcmx::discovery::Options quiet = o;
+  quiet.period = 10s;  // beacons once, then stays silent for longer than the lease
+  {
+    lcmx::discovery::Discovery c(quiet, [] { return sample_beacon(3); }, nullptr);
+    REQUIRE(eventually([&] { return a.participants().size() == 1; }));
+    const auto t0 = std::chrono::steady_clock::now();
+    REQUIRE(eventually([&] { return a.participants().empty(); }, 3000ms));
+    CHECK(std::chrono::steady_clock::now() - t0 >= 200ms);
+    CHECK(a.counters().leases_expired == 1);
+  }
+}
+
+TEST_CASE("malformed datagrams on the beacon channel are counted, not fatal", "[discovery]") {
+  lcmx::discovery::Options o;
+  o.group = test_group(2);
+  o.period = 50ms;
+  lcmx::discovery::Discovery a(o, [] { return sample_beacon(1); }, nullptr);
+  auto g = lcmx::udpm::Group::open(o.group);
+  const std::byte junk[16] = {};
+  g.publish(lcmx::discovery::kBeaconChannel, junk);
+  auto bad = lcmx::discovery::encode_beacon(sample_beacon(9));
+  bad.resize(bad.size() / 2);
+  g.publish(lcmx::discovery::kBeaconChannel, bad);
+  REQUIRE(eventually([&] { return a.counters().malformed >= 2; }));
+  CHECK(a.participants().empty());
+}
