@@ -1,0 +1,175 @@
+#include "common.hpp"
+
+#include <poll.h>
+#include <sched.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <climits>
+#include <cstring>
+#include <ctime>
+#include <sstream>
+#include <stdexcept>
+
+namespace lcmxbench {
+
+std::int64_t now_ns() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
+}
+
+std::string plan_to_string(const std::vector<SizePlan>& plan) {
+  std::string s;
+  for (const auto& p : plan) {
+    if (!s.empty()) s += ',';
+    s += std::to_string(p.size) + ':' + std::to_string(p.warmup) + ':' + std::to_string(p.messages);
+  }
+  return s;
+}
+
+std::vector<SizePlan> plan_from_string(const std::string& text) {
+  std::vector<SizePlan> plan;
+  std::stringstream in(text);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    SizePlan p;
+    char c1 = 0, c2 = 0;
+    std::stringstream is(item);
+    if (!(is >> p.size >> c1 >> p.warmup >> c2 >> p.messages) || c1 != ':' || c2 != ':' ||
+        p.size < 16 || p.warmup < 0 || p.messages < 1)
+      throw std::invalid_argument("bad plan item '" + item + "'");
+    plan.push_back(p);
+  }
+  if (plan.empty()) throw std::invalid_argument("empty plan");
+  return plan;
+}
+
+std::string size_label(std::size_t bytes) {
+  if (bytes >= (1u << 20) && bytes % (1u << 20) == 0) return std::to_string(bytes >> 20) + " MB";
+  if (bytes >= 1024 && bytes % 1024 == 0) return std::to_string(bytes >> 10) + " KB";
+  return std::to_string(bytes) + " B";
+}
+
+void report_line(const std::string& line) {
+  std::string l = line + '\n';
+  const char* p = l.data();
+  std::size_t left = l.size();
+  while (left > 0) {
+    const ssize_t n = ::write(kReportFd, p, left);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) return;  // parent gone: nothing to report to
+    p += n;
+    left -= static_cast<std::size_t>(n);
+  }
+}
+
+void report_error(const std::string& text) {
+  std::string t = text;
+  for (auto& c : t)
+    if (c == '\n') c = ' ';
+  report_line("error " + t);
+}
+
+bool pin_thread(int cpu) {
+  if (cpu < 0) return true;
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  CPU_SET(cpu, &set);
+  return ::sched_setaffinity(0, sizeof set, &set) == 0;
+}
+
+Recorder::Recorder(const std::vector<SizePlan>& plan) : plan_(plan), lat_(plan.size()) {
+  for (std::size_t i = 0; i < plan.size(); ++i)
+    lat_[i].reserve(static_cast<std::size_t>(plan[i].messages) + 16);
+}
+
+void Recorder::record(std::size_t size, std::int64_t seq, std::int64_t latency_ns) noexcept {
+  if (!seq_measured(seq)) return;
+  for (std::size_t i = 0; i < plan_.size(); ++i) {
+    if (plan_[i].size != size) continue;
+    if (lat_[i].size() < lat_[i].capacity()) lat_[i].push_back(latency_ns);  // never allocates
+    return;
+  }
+}
+
+void Recorder::report() const {
+  for (std::size_t i = 0; i < plan_.size(); ++i) {
+    std::string line = "lat " + std::to_string(plan_[i].size) + ' ' + std::to_string(lat_[i].size());
+    for (auto v : lat_[i]) line += ' ' + std::to_string(v);
+    report_line(line);
+  }
+}
+
+void send_ack(int fd, std::int64_t seq) noexcept {
+  // 8 bytes <= PIPE_BUF: one atomic write; a full pipe cannot happen in ping-pong.
+  ssize_t n;
+  do n = ::write(fd, &seq, sizeof seq);
+  while (n < 0 && errno == EINTR);
+}
+
+bool wait_ack(int fd, std::int64_t seq, int timeout_ms) {
+  const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_ms) * 1'000'000;
+  for (;;) {
+    const std::int64_t left_ns = deadline - now_ns();
+    if (left_ns <= 0) return false;
+    pollfd p{fd, POLLIN, 0};
+    const int r = ::poll(&p, 1, static_cast<int>((left_ns + 999'999) / 1'000'000));
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) return false;
+    std::int64_t got = 0;
+    const ssize_t n = ::read(fd, &got, sizeof got);
+    if (n < 0 && errno == EINTR) continue;
+    if (n != static_cast<ssize_t>(sizeof got)) return false;  // EOF: subscriber gone
+    if (got == seq) return true;
+    // older ack of a message that was already counted lost, or a matched record: skip
+  }
+}
+
+bool wait_end(int fd, int timeout_ms) {
+  const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_ms) * 1'000'000;
+  for (;;) {
+    const std::int64_t left_ns = deadline - now_ns();
+    if (left_ns <= 0) return false;
+    pollfd p{fd, POLLIN, 0};
+    const int r = ::poll(&p, 1, static_cast<int>((left_ns + 999'999) / 1'000'000));
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) return false;
+    char c = 0;
+    const ssize_t n = ::read(fd, &c, 1);
+    if (n < 0 && errno == EINTR) continue;
+    return true;  // 'E' or EOF (publisher gone): either way the run is over
+  }
+}
+
+bool run_driver(const RoleConfig& cfg, const Driver& d) {
+  std::int64_t k = 0;
+  bool first = true;
+  for (const auto& p : cfg.plan) {
+    d.prepare(p.size);
+    int warm_acked = 0;
+    for (int i = 0; i < p.warmup; ++i) {
+      const std::int64_t seq = make_seq(++k, false);
+      d.send(seq, p.size);
+      if (d.wait_ack(seq, cfg.timeout_ms)) ++warm_acked;
+    }
+    if (first && p.warmup > 0 && warm_acked == 0) {
+      report_error("no warmup message was received at " + size_label(p.size) + " (" +
+                   std::to_string(p.warmup) + " sent, each waited " +
+                   std::to_string(cfg.timeout_ms) + " ms)");
+      return false;
+    }
+    first = false;
+    int timeouts = 0;
+    for (int i = 0; i < p.messages; ++i) {
+      const std::int64_t seq = make_seq(++k, true);
+      d.send(seq, p.size);
+      if (!d.wait_ack(seq, cfg.timeout_ms)) ++timeouts;
+    }
+    report_line("sent " + std::to_string(p.size) + ' ' + std::to_string(p.messages) + ' ' +
+                std::to_string(timeouts));
+  }
+  return true;
+}
+
+}  // namespace lcmxbench

@@ -1,0 +1,106 @@
+// Shared pieces of lcmx_bench_latency: clock, the per-size plan, the child-process protocol,
+// the ping-pong driver used by every publisher role and the latency recorder used by every
+// subscriber role.
+//
+// Process model: the parent ("orchestrator") never publishes or subscribes itself. For each
+// method it starts a subscriber child, waits for its "ready" line, starts a publisher child
+// and reads both children's report lines. Children talk to each other only through the
+// method under test plus a side channel for acks that is not part of the measured time.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace lcmxbench {
+
+// CLOCK_MONOTONIC in ns. Processes on one host share it, so latency = receive - send.
+std::int64_t now_ns();
+
+// One message size of the run: `warmup` unmeasured messages, then `messages` measured ones.
+struct SizePlan {
+  std::size_t size = 0;
+  int warmup = 0;
+  int messages = 0;
+};
+std::string plan_to_string(const std::vector<SizePlan>& plan);    // "1024:20:200,..."
+std::vector<SizePlan> plan_from_string(const std::string& text);  // throws std::invalid_argument
+std::string size_label(std::size_t bytes);                        // "1 KB", "6 MB"
+
+// Sequence numbers are unique over the whole run of one method: seq = (k << 1) | measured.
+inline std::int64_t make_seq(std::int64_t k, bool measured) { return (k << 1) | (measured ? 1 : 0); }
+inline bool seq_measured(std::int64_t seq) { return (seq & 1) != 0; }
+
+// File descriptors a child inherits (fixed numbers, set up by the parent before exec).
+inline constexpr int kReportFd = 3;  // child -> parent: text lines (see Report)
+inline constexpr int kAckFd = 4;     // subscriber -> publisher: 8-byte seq records
+inline constexpr int kCtlFd = 5;     // publisher -> subscriber: 'E' when the run is over
+inline constexpr std::int64_t kMatchedRecord = INT64_MIN;  // on kAckFd: subscriber is matched
+
+// Everything a role needs, from the (hidden) command-line options of a child.
+struct RoleConfig {
+  std::string role;           // e.g. "floor-sub", "lcmx-shm-pub", "lcmx-intra"
+  std::vector<SizePlan> plan;
+  std::string name;           // unique per run: shm segment / channel names
+  std::string url;            // liblcm udpm URL or lcmx discovery URL
+  std::string wait = "block";  // lcmx subscriber wait strategy: block | spin | busy
+  int timeout_ms = 200;       // receive timeout per message (then it counts as lost)
+  int pub_cpu = -1;           // lcmx-intra only: CPU of the publishing thread (-1: none)
+  int sub_cpu = -1;           // CPU of the subscriber's callback thread (-1: none)
+};
+
+// Report lines written by children on kReportFd, one write() per line:
+//   ready | error <text> | note <text> | sent <size> <count> <ack_timeouts>
+//   lat <size> <count> <ns>... | done
+void report_line(const std::string& line);
+void report_error(const std::string& text);
+
+// Pins the calling thread to `cpu` (no-op for cpu < 0). Returns false on failure.
+bool pin_thread(int cpu);
+
+// Subscriber side: latencies per size, preallocated, filled by one thread at a time.
+class Recorder {
+ public:
+  explicit Recorder(const std::vector<SizePlan>& plan);
+  // Records one received message. Unknown sizes and warmup messages are ignored.
+  void record(std::size_t size, std::int64_t seq, std::int64_t latency_ns) noexcept;
+  // Writes one "lat" line per planned size.
+  void report() const;
+
+ private:
+  std::vector<SizePlan> plan_;
+  std::vector<std::vector<std::int64_t>> lat_;
+};
+
+// Writes an ack record (8-byte seq) on kAckFd. Async-signal-safe, thread-safe.
+void send_ack(int fd, std::int64_t seq) noexcept;
+// Waits until the ack `seq` arrives on `fd` (older acks are skipped). Returns false on timeout
+// or EOF.
+bool wait_ack(int fd, std::int64_t seq, int timeout_ms);
+// Waits for 'E' (or EOF) on kCtlFd, up to timeout_ms. Returns true if it came.
+bool wait_end(int fd, int timeout_ms);
+
+// The ping-pong driver of every publisher role: for each size, prepare(size), then for
+// warmup + measured messages send(seq, size) and wait_ack(seq). A message with no ack within
+// timeout_ms is lost. Reports "sent" lines. Returns false (after reporting an error) if no
+// warmup message of the first size was acknowledged: the method does not work at all.
+struct Driver {
+  std::function<void(std::size_t size)> prepare;
+  std::function<void(std::int64_t seq, std::size_t size)> send;
+  std::function<bool(std::int64_t seq, int timeout_ms)> wait_ack;
+};
+bool run_driver(const RoleConfig& cfg, const Driver& d);
+
+// Roles (each returns the child's exit code).
+int run_floor_sub(const RoleConfig& cfg);
+int run_floor_pub(const RoleConfig& cfg);
+int run_liblcm_sub(const RoleConfig& cfg);
+int run_liblcm_pub(const RoleConfig& cfg);
+int run_lcmx_sub(const RoleConfig& cfg, bool loan);
+int run_lcmx_pub(const RoleConfig& cfg, bool loan);
+int run_lcmx_intra(const RoleConfig& cfg);
+
+}  // namespace lcmxbench
