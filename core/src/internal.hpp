@@ -179,10 +179,12 @@ class PublisherImpl final : public PublisherCore {
   void deliver_intra(const Targets& t, std::shared_ptr<const void> object);
   void check_size(std::size_t size) const;
   void write_encoded(const void* object);
+  void note_generation();  // publish_mu held
 
   std::string channel_;
   mutable std::mutex publish_mu;  // serialises publishers' writes into shm
   std::optional<shm::Writer> writer_;
+  std::string announced_segment_;  // guarded by publish_mu
   mutable std::mutex intra_mu;    // guards intra_, remote_subscribers_
   mutable std::condition_variable subs_cv;
   std::shared_ptr<const Targets> intra_ = std::make_shared<Targets>();

@@ -18,6 +18,7 @@ PublisherImpl::PublisherImpl(std::shared_ptr<NodeImpl> n, std::string channel,
   w.max_message_size = options.max_message_size;
   try {
     writer_.emplace(shm::Writer::create(node->runtime->shm_base_prefix + std::to_string(id), w));
+    announced_segment_ = writer_->segment_name();
   } catch (const shm::Error& e) {
     throw Error(shm::Errc::invalid_argument == e.code() ? Errc::invalid_argument : Errc::transport,
                 "publisher '" + channel_ + "': " + e.what());
@@ -58,6 +59,15 @@ void PublisherImpl::write_encoded(const void* object) {
   } catch (const shm::Error& e) {
     throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
   }
+  note_generation();
+}
+
+// A larger message moved the writer to a new segment generation: announce its name at once
+// so subscribers that join now open the right one.
+void PublisherImpl::note_generation() {
+  if (writer_->segment_name() == announced_segment_) return;
+  announced_segment_ = writer_->segment_name();
+  node->runtime->changed();
 }
 
 void PublisherImpl::publish_ref(const void* object,
@@ -93,6 +103,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
     } catch (const shm::Error& e) {
       throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
     }
+    note_generation();
   }
   if (!t->empty()) deliver_intra(*t, make_bytes(data));
   published_.fetch_add(1);
@@ -102,7 +113,9 @@ shm::WriteLoan PublisherImpl::loan(std::size_t size) {
   check_size(size);
   std::lock_guard lock(publish_mu);
   try {
-    return writer_->loan(size);
+    auto loan = writer_->loan(size);
+    note_generation();
+    return loan;
   } catch (const shm::Error& e) {
     throw Error(Errc::transport, "loan on '" + channel_ + "': " + e.what());
   }

@@ -338,6 +338,13 @@ void RuntimeImpl::on_participant(discovery::Change change, const discovery::Part
     if (before_matches() != n0) ++revision, announce_pending = true;
   }
   if (announce_pending.exchange(false) && disco) disco->announce_now();
+  // A participant of this host that vanished without a goodbye may have left shared memory.
+  if (change == discovery::Change::left && options.reclaim_orphans) {
+    const auto r = shm::reclaim_orphans();
+    if (r.removed > 0)
+      spdlog::info("lcmx: removed {} shared-memory segments of {} pid {}", r.removed,
+                   b.process_name, b.pid);
+  }
   emit(std::move(events));
 }
 

@@ -158,6 +158,15 @@ struct Discovery::Impl {
     }
   }
 
+  Clock::time_point next_expiry() const {
+    std::lock_guard lock(mutex);
+    auto t = Clock::time_point::max();
+    for (const auto& [id, p] : peers)
+      t = std::min(t, p.last_seen + std::chrono::milliseconds(std::max(p.beacon.lease_ms, 1)) +
+                          std::chrono::milliseconds(1));
+    return t;
+  }
+
   void run() {
     auto next_periodic = Clock::now();
     while (!stopping.load()) {
@@ -170,12 +179,11 @@ struct Discovery::Impl {
                                            lcmx_msgs::beacon_t::FLAG_OBSERVER);
       expire_leases();
 
-      // Sleep until the next beacon, a datagram, or a wake-up; at most 100 ms so leases
-      // expire on time (a timer, not a busy loop: ~10 wake-ups/s when idle).
-      auto wait = options.observer ? std::chrono::milliseconds(100)
-                                   : std::chrono::duration_cast<std::chrono::milliseconds>(
-                                         next_periodic - Clock::now());
-      wait = std::clamp(wait, std::chrono::milliseconds(0), std::chrono::milliseconds(100));
+      // Sleep until the next beacon, the next lease to expire, a datagram, or a wake-up.
+      auto until = options.observer ? Clock::now() + std::chrono::seconds(1) : next_periodic;
+      until = std::min(until, next_expiry());
+      auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
+      wait = std::clamp(wait, std::chrono::milliseconds(0), std::chrono::milliseconds(1000));
       pollfd fds[2] = {{group.fd(), POLLIN, 0}, {wake_fd, POLLIN, 0}};
       const int r = ::poll(fds, 2, static_cast<int>(wait.count()));
       if (r > 0 && (fds[1].revents & POLLIN)) {
