@@ -28,7 +28,7 @@ trap 'rm -rf "$tmp"' EXIT
 {
   echo "# lcmx one-way latency: $stamp"
   echo
-  echo "Three runs of \`lcmx_bench_latency $*\`: unpinned, \`--pin same\`, \`--pin split\`."
+  echo "Three runs of \`lcmx_bench_latency${*:+ $*}\`: unpinned, \`--pin same\`, \`--pin split\`."
   echo "Commit: \`$(git -C "$repo" rev-parse --short HEAD 2>/dev/null || echo unknown)\`."
   echo "Small-message figures are bound by wake-up (same vCPU ~2-5 us, other vCPU ~20-25 us);"
   echo "compare methods within one run only; differences under 1.3x are noise (DESIGN.md)."

@@ -82,8 +82,6 @@ struct ThreadPin {
 void report_stats(const lcmx::SubscriberStats& s, const char* what) {
   std::string line = std::string("note ") + what + " subscriber: delivered=" + std::to_string(s.delivered) +
                      " drops=" + std::to_string(s.drops) + " decode_errors=" + std::to_string(s.decode_errors);
-  for (const auto& p : s.publishers)
-    line += std::string(" path=") + lcmx::to_string(p.path);
   for (const auto& e : s.errors) line += " error='" + e + "'";
   report_line(line);
 }
@@ -122,6 +120,14 @@ int run_lcmx_sub(const RoleConfig& cfg, bool loan) {
     if (!matched) {
       report_error("subscriber: wait_for_publishers(1, 15 s) timed out");
       return 1;
+    }
+    {
+      // The path of the pair, read now: at the end the publisher may already have left.
+      const auto at_match = loan ? raw.stats() : typed.stats();
+      std::string paths;
+      for (const auto& p : at_match.publishers) paths += std::string(paths.empty() ? "" : ",") + lcmx::to_string(p.path);
+      report_line(std::string("note ") + (loan ? "lcmx-loan" : "lcmx-shm") + ": path at match: " +
+                  (paths.empty() ? "(none listed in SubscriberStats::publishers)" : paths));
     }
     send_ack(kAckFd, kMatchedRecord);
     wait_end(kCtlFd, 600'000);
