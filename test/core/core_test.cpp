@@ -307,8 +307,8 @@ TEST_CASE("unsubscribing from inside the callback works", "[core][executor]") {
   std::atomic<int> calls{0};
   lcmx::Subscriber<lcmx_examples::pose_t> sub;
   sub = node.subscribe<lcmx_examples::pose_t>("U", [&](const lcmx_examples::pose_t&) {
-    ++calls;
     sub.reset();
+    ++calls;  // after reset: the main thread's wait on `calls` orders it before ~Subscriber
   });
   REQUIRE(pub.wait_for_subscribers(1, 2s));
   pub.publish(lcmx_examples::pose_t{});
