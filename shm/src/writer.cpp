@@ -298,4 +298,14 @@ std::uint32_t Writer::live_readers() const noexcept {
   return n;
 }
 
+std::uint32_t Writer::registered_readers() const noexcept {
+  const auto& seg = *impl_->seg;
+  const std::uint32_t hw =
+      std::min(seg.hdr->sub_high_water.load(std::memory_order_acquire), seg.geo.max_subscribers);
+  std::uint32_t n = 0;
+  for (std::uint32_t i = 0; i < hw; ++i)
+    if (seg.sub(i).state.load(std::memory_order_acquire) == detail::kSubActive) ++n;
+  return n;
+}
+
 }  // namespace lcmx::shm
