@@ -145,6 +145,7 @@ struct ReaderImpl {
   std::int32_t pid = 0;
   std::uint64_t start_time = 0;
 
+  ~ReaderImpl();
   bool try_follow();
   void unpin(int pin) noexcept;
   void publish_counters() noexcept;

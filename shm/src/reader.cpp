@@ -65,6 +65,11 @@ std::unique_ptr<Segment> open_generation_or_newer(const std::string& base, std::
 
 }  // namespace
 
+ReaderImpl::~ReaderImpl() {
+  if (armed) armed->seg->hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
+  for (int i = 0; i < kMaxPins; ++i) unpin(i);
+}
+
 GenView::~GenView() {
   if (seg && ::getpid() == pid) deregister_subscriber(*seg, entry);
 }
@@ -145,12 +150,7 @@ ReadSample::~ReadSample() {
 Reader::Reader(std::unique_ptr<detail::ReaderImpl> impl) : impl_(std::move(impl)) {}
 Reader::Reader(Reader&&) noexcept = default;
 Reader& Reader::operator=(Reader&&) noexcept = default;
-Reader::~Reader() {
-  if (impl_) {
-    disarm();
-    for (int i = 0; i < kMaxPins; ++i) impl_->unpin(i);
-  }
-}
+Reader::~Reader() = default;
 
 static_assert(Reader::kMaxPins == detail::kMaxPins);
 
@@ -234,7 +234,9 @@ std::optional<ReadSample> Reader::take() {
       cpu_relax();
       sq = sh.seq.load(std::memory_order_seq_cst);
     }
-    const std::uint64_t size = sh.size;  // read only if sq == next (then it is stable)
+    // size is read only once sq == next: the seq load read-from the Writer's release and
+    // our pin keeps the slot stable from here on.
+    const std::uint64_t size = sq == r.next ? sh.size : 0;
     if (sq != r.next || size > s.geo.slot_size) {
       pin_word.store(kPinFree, std::memory_order_release);
       ++r.drops;

@@ -90,19 +90,27 @@ class Writer {
   // Creates generation 0 of segment "<base_name>_g0". base_name must start with kPrefix and
   // be a valid POSIX shm name without '/'. Throws Error (invalid_argument, system).
   // Records this process's pid and start time in the header so orphans can be reclaimed.
+  // A same-name segment left by a dead process is removed first; one whose owner is alive
+  // (any generation of base_name) makes create throw Error(system).
   static Writer create(const std::string& base_name, const WriterOptions& options);
 
   Writer(Writer&&) noexcept;
   Writer& operator=(Writer&&) noexcept;
-  ~Writer();  // unlinks every generation it created; mapped Readers keep their mapping
+  // Unlinks every generation it created (mapped Readers keep their mapping), marks the
+  // segment closed and wakes sleeping Readers (they then see writer_alive() == false).
+  ~Writer();
 
   // Reserves a slot of at least `size` bytes, moving to a larger generation first if needed.
   // Never waits for Readers: skips slots pinned by Readers (reclaiming pins of dead Readers).
-  // Throws Error(too_large) if size > max_message_size, Error(system) if growth fails.
+  // Throws Error(too_large) if size > max_message_size, Error(system) if growth fails or all
+  // slots are pinned (only if slot_count < kMaxPins * live Readers + 1), and
+  // Error(invalid_argument) if another WriteLoan of this Writer is still alive (one at a time).
   WriteLoan loan(std::size_t size);
 
   // Publishes the first `size` bytes of the loan as the next message and wakes all waiting
-  // Readers with one futex wake. size <= loan.capacity(). Returns the message's sequence.
+  // Readers with one futex wake. size <= loan.capacity(). Returns the message's sequence:
+  // global across generations, 0 for the Writer's first message, +1 per commit (aborted loans
+  // take none). Throws Error(invalid_argument) for a loan of another Writer or size > capacity.
   std::uint64_t commit(WriteLoan&& loan, std::size_t size);
 
   // Copy-in convenience: loan + memcpy + commit.
@@ -132,7 +140,7 @@ class ReadSample {
 
   const std::byte* data() const noexcept { return data_; }
   std::size_t size() const noexcept { return size_; }
-  std::uint64_t sequence() const noexcept { return sequence_; }
+  std::uint64_t sequence() const noexcept { return sequence_; }  // as returned by commit()
 
  private:
   friend class Reader;
@@ -167,7 +175,9 @@ class Reader {
 
   // The next message in order, pinned; nullopt when there is none new. Messages overwritten
   // before being read are skipped and counted in drops(). Follows generations.
-  // Throws Error(too_many_pins -> invalid_argument) if kMaxPins samples are alive.
+  // Throws Error(too_many_pins -> invalid_argument) if kMaxPins samples are alive; when
+  // following the Writer to a new generation, the errors of open() (no_subscriber_slot,
+  // corrupt, system) — the Reader then stays where it was and may retry.
   std::optional<ReadSample> take();
 
   bool has_data() const noexcept;             // take() would return a message now (hint)
@@ -188,10 +198,11 @@ class Reader {
   std::unique_ptr<detail::ReaderImpl> impl_;
 };
 
-// Removes segments with kPrefix whose creating process is dead (pid + start time do not
-// match a live process). Foreign or corrupt files with our prefix whose owner is alive (or
-// cannot be parsed) are left alone and reported through `log` (one line each). Returns how
-// many segments were removed. Never throws for bad files.
+// Removes segments with `prefix` whose creating process is dead (pid + start time do not
+// match a live process). Segments of live owners are left alone (not counted). Files with the
+// prefix that are foreign, truncated or corrupt (header cannot be parsed) are left alone,
+// logged with spdlog::warn (one line each) and counted in `skipped`. Never throws for bad
+// files.
 struct ReclaimReport {
   std::size_t removed = 0;
   std::size_t skipped = 0;
