@@ -74,7 +74,7 @@ void PublisherImpl::publish_ref(const void* object,
                                 std::shared_ptr<const void> (*copy)(const void*)) {
   auto t = targets();
   std::lock_guard lock(publish_mu);
-  const bool shm = writer_->live_readers() > 0;
+  const bool shm = writer_->registered_readers() > 0;
   if (!shm) check_size(type.encoded_size(object));  // also when only in-process subscribers
   // In-process subscribers first: handing over a pointer is cheaper than encoding.
   if (!t->empty()) deliver_intra(*t, copy(object));
@@ -86,7 +86,7 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   if (!object) throw Error(Errc::invalid_argument, "publish on '" + channel_ + "': null message");
   auto t = targets();
   std::lock_guard lock(publish_mu);
-  const bool shm = writer_->live_readers() > 0;
+  const bool shm = writer_->registered_readers() > 0;
   if (!shm) check_size(type.encoded_size(object.get()));
   if (!t->empty()) deliver_intra(*t, object);
   if (shm) write_encoded(object.get());
@@ -97,7 +97,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   check_size(data.size());
   auto t = targets();
   std::lock_guard lock(publish_mu);
-  if (writer_->live_readers() > 0) {
+  if (writer_->registered_readers() > 0) {
     try {
       writer_->write(data.data(), data.size());
     } catch (const shm::Error& e) {
