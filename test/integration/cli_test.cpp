@@ -1,0 +1,145 @@
+// The `lcmx` tool (nodes, topics) against running participants.
+#include "lcmx/discovery/beacon_codec.hpp"
+#include "lcmx/udpm/udpm.hpp"
+#include "support.hpp"
+
+using namespace lcmx::it;
+
+#ifdef LCMX_TOOL
+
+namespace {
+
+bool contains(const std::string& s, const std::string& what) { return s.find(what) != std::string::npos; }
+
+// Lines of `out` from the one starting with `head` up to the next unindented line.
+std::string block(const std::string& out, const std::string& head) {
+  std::istringstream in(out);
+  std::string line, b;
+  bool on = false;
+  while (std::getline(in, line)) {
+    if (!line.empty() && line[0] != ' ') on = line.rfind(head, 0) == 0;
+    if (on) b += line + "\n";
+  }
+  return b;
+}
+
+// Listens to a discovery group's beacons in the test process (to know what an observer saw).
+class BeaconWatch {
+ public:
+  explicit BeaconWatch(const std::string& url) : group_(lcmx::udpm::Group::open(lcmx::udpm::parse_url(url))) {}
+  // Handles beacons until `done` returns true or the deadline passes.
+  bool until(const std::function<bool(const lcmx_msgs::beacon_t&)>& done, ms timeout) {
+    const auto deadline = Clock::now() + timeout;
+    bool hit = false;
+    while (!hit && Clock::now() < deadline) {
+      group_.poll(20ms, [&](const lcmx::udpm::Message& m) {
+        if (hit || m.channel != lcmx::discovery::kBeaconChannel) return;
+        if (auto b = lcmx::discovery::decode_beacon(m.data)) hit = done(*b);
+      });
+    }
+    return hit;
+  }
+
+ private:
+  lcmx::udpm::Group group_;
+};
+
+}  // namespace
+
+TEST_CASE("lcmx nodes / topics: nodes, topics, types and the path of each pair (intra, shm)", "[integration][cli]") {
+  Session s(40);
+  const auto ch = unique_channel("CLI", 40);
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "50", "--node", "camera",
+                      "--local-sub", "--subscribers", "1"});
+  auto& sub = s.peer({"sub", "--channel", ch, "--type", "pose", "--node", "viewer", "--publishers", "1"});
+  REQUIRE(pub.expect("MATCHED"));
+  REQUIRE(sub.expect("MATCHED"));
+
+  const auto nodes = s.run({LCMX_TOOL, "nodes", "--url", s.url});
+  INFO("lcmx nodes:\n" << nodes.out);
+  CHECK(nodes.rc == 0);
+  CHECK(contains(nodes.out, "participant lcmx_test_peer pid " + std::to_string(pub.pid())));
+  CHECK(contains(nodes.out, "participant lcmx_test_peer pid " + std::to_string(sub.pid())));
+  CHECK(contains(nodes.out, "  node camera\n"));
+  CHECK(contains(nodes.out, "  node camera_local\n"));
+  CHECK(contains(nodes.out, "  node viewer\n"));
+  CHECK(contains(nodes.out, "pub " + ch + "  [pose_t]"));
+  CHECK(contains(nodes.out, "sub " + ch + "  [pose_t]"));
+  CHECK_FALSE(contains(nodes.out, "lcmx-observer"));
+
+  const auto topics = s.run({LCMX_TOOL, "topics", "--url", s.url});
+  INFO("lcmx topics:\n" << topics.out);
+  CHECK(topics.rc == 0);
+  const auto b = block(topics.out, ch);
+  CHECK(contains(b, ch + "  [pose_t]  1 publisher(s), 2 subscriber(s)"));
+  CHECK_FALSE(contains(b, "CONFLICT"));
+  const std::string from = "<- lcmx_test_peer[" + std::to_string(pub.pid()) + "]/camera  path ";
+  CHECK(contains(b, "sub lcmx_test_peer[" + std::to_string(pub.pid()) + "]/camera_local"));
+  CHECK(contains(b, "sub lcmx_test_peer[" + std::to_string(sub.pid()) + "]/viewer"));
+  CHECK(contains(b, from + "intra"));
+  CHECK(contains(b, from + "shm"));
+}
+
+TEST_CASE("lcmx --help, lcmx topics --help exit 0; a bad flag exits non-zero with a message", "[integration][cli]") {
+  Session s(41);
+  auto help = s.run({LCMX_TOOL, "--help"});
+  CHECK(help.rc == 0);
+  CHECK(contains(help.out, "nodes"));
+  CHECK(contains(help.out, "topics"));
+  auto topics_help = s.run({LCMX_TOOL, "topics", "--help"});
+  CHECK(topics_help.rc == 0);
+  CHECK(contains(topics_help.out, "topics"));
+  auto bad = s.run({LCMX_TOOL, "topics", "--no-such-flag"});
+  INFO(bad.out);
+  CHECK(bad.rc != 0);
+  CHECK(contains(bad.out, "no-such-flag"));
+  auto bad_verb = s.run({LCMX_TOOL, "frobnicate"});
+  INFO(bad_verb.out);
+  CHECK(bad_verb.rc != 0);
+  CHECK_FALSE(bad_verb.out.empty());
+  auto bad_url = s.run({LCMX_TOOL, "nodes", "--url", "udpm://not-an-address:1"});
+  INFO(bad_url.out);
+  CHECK(bad_url.rc != 0);
+  CHECK(contains(bad_url.out, "lcmx:"));
+}
+
+TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye), a kill -9 after its lease", "[integration][cli]") {
+  Session s(42);
+  // alpha exits cleanly; bravo (lease 600 ms) and charlie (lease 8 s) are killed -9. The
+  // observer listens 2.5 s: longer than bravo's lease, shorter than alpha's and charlie's.
+  const auto long_lease = s.env(100ms, 8000ms);
+  auto& alpha = s.peer({"idle", "--node", "alpha"}, long_lease);
+  auto& bravo = s.peer({"idle", "--node", "bravo"});
+  auto& charlie = s.peer({"idle", "--node", "charlie"}, long_lease);
+  REQUIRE(alpha.expect("READY"));
+  REQUIRE(bravo.expect("READY"));
+  REQUIRE(charlie.expect("READY"));
+  const std::set<int> ours = {alpha.pid(), bravo.pid(), charlie.pid()};
+
+  BeaconWatch watch(s.url);
+  auto& observer = s.spawn({LCMX_TOOL, "nodes", "--url", s.url, "--wait", "2500"}, {}, true);
+  // Synchronise on what the observer saw: its query, then a beacon of each participant.
+  bool queried = false;
+  std::set<int> answered;
+  REQUIRE(watch.until(
+      [&](const lcmx_msgs::beacon_t& b) {
+        if (b.flags & lcmx_msgs::beacon_t::FLAG_QUERY) queried = queried || b.pid == observer.pid();
+        else if (queried && ours.count(b.pid)) answered.insert(b.pid);
+        return answered.size() == ours.size();
+      },
+      5000ms));
+  alpha.send("quit");
+  CHECK(alpha.wait() == 0);
+  bravo.kill9();
+  charlie.kill9();
+  CHECK(observer.wait(10000ms) == 0);
+  const auto out = observer.text();
+  INFO("lcmx nodes:\n" << out);
+  CHECK_FALSE(contains(out, "node alpha"));   // goodbye: gone at once
+  CHECK_FALSE(contains(out, "node bravo"));   // lease (600 ms) expired
+  CHECK(contains(out, "node charlie"));       // killed, lease (8 s) not expired yet
+}
+
+#else
+TEST_CASE("lcmx tool tests", "[integration][cli]") { WARN("lcmx tool not built (LCMX_BUILD_APPS=OFF)"); }
+#endif
