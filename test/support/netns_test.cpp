@@ -152,6 +152,10 @@ bool dead(pid_t pid) {
   return close[2] == 'Z' || close[2] == 'X';
 }
 
+double ms_since(Clock::time_point t0) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+}
+
 std::string prefix_of(const Emulation& e) { return e.ns(0).substr(0, e.ns(0).rfind('_') + 1); }
 
 }  // namespace
@@ -317,17 +321,23 @@ TEST_CASE("link down stops traffic, link up resumes it", "[multihost]") {
   REQUIRE(send_to(tx.get(), a1, port, 64));
   REQUIRE(recv_within(rx.get(), 3s) == 64);
 
+  auto t0 = Clock::now();
   emu.set_link_up(0, "eth", false);
+  const auto down_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   for (int i = 0; i < 5; ++i) send_to(tx.get(), a1, port, 64);  // errors allowed: no carrier
   CHECK(recv_within(rx.get(), 300ms) == -1);
 
+  t0 = Clock::now();
   emu.set_link_up(0, "eth", true);
+  const auto up_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
   bool resumed = false;
   for (int i = 0; i < 50 && !resumed; ++i) {
     send_to(tx.get(), a1, port, 64);
     resumed = recv_within(rx.get(), 100ms) == 64;
   }
   CHECK(resumed);
+  WARN("set_link_up: down " << down_ms << " ms, up " << up_ms << " ms, traffic resumed "
+                            << ms_since(t0) << " ms after up");
 
   // The multicast route survived (the host's interface never went administratively down).
   const std::string group = "239.255.93." + std::to_string(::getpid() % 250 + 1);
@@ -520,7 +530,7 @@ TEST_CASE("emulations created in parallel do not collide", "[multihost]") {
   CHECK(recv_within(rb.get(), 3s) == 50);
 }
 
-TEST_CASE("setup faults throw SetupError naming the problem; run_in rethrows", "[multihost]") {
+TEST_CASE("setup faults throw SetupError naming the problem, run_in rethrows", "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
   CHECK_THROWS_AS(Emulation::create({.hosts = 0}), SetupError);
@@ -529,6 +539,16 @@ TEST_CASE("setup faults throw SetupError naming the problem; run_in rethrows", "
   CHECK_THROWS_WITH(Emulation::create({.links = {{.name = "a"}, {.name = "a"}}}), Catch::Contains("twice"));
   CHECK_THROWS_WITH(Emulation::create({.hosts = 5, .links = {{.subnet = "10.9.9.0/30"}}}),
                     Catch::Contains("too small"));
+  // A fault in the middle of creation (tc rejects the rate after the namespaces exist): the
+  // message carries the command and its stderr, and nothing is left behind.
+  try {
+    Emulation::create({.hosts = 2, .links = {{.name = "eth", .rate = "0.5bit"}}});
+    FAIL("no exception");
+  } catch (const SetupError& e) {
+    const std::string what = e.what();
+    CHECK_THAT(what, Catch::Contains("tc -n lx") && Catch::Contains("qdisc add dev eth root") &&
+                         Catch::Contains("stderr: ") && Catch::Contains("rate"));
+  }
   const std::string mine = "lx" + std::to_string(::getpid()) + "_";
   for (const auto& n : netns_names()) CHECK(n.rfind(mine, 0) != 0);  // nothing left by failures
 

@@ -10,8 +10,9 @@
 //
 // Inside each host: lo up (127.0.0.1, multicast flag on), one veth per link named after the
 // link with its IPv4 address, a route 224.0.0.0/4 via the first link's interface, IPv6 off (so
-// the interface counters only see what the test sends, plus ARP/IGMP). Bridges have multicast
-// snooping and STP off, so multicast floods to every host on the link.
+// the interface counters only see what the test sends, plus ARP/IGMP), ARP retries every 100 ms
+// (not 1 s, so traffic resumes quickly after set_link_up). Bridges have multicast snooping and
+// STP off, so multicast floods to every host on the link.
 //
 // Names carry the creating pid; Emulation::create() first removes namespaces left by dead
 // creators (and kills processes still inside them). Root (CAP_SYS_ADMIN) is required; tests
