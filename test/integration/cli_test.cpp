@@ -46,7 +46,7 @@ class BeaconWatch {
 
 }  // namespace
 
-TEST_CASE("lcmx nodes / topics: nodes, topics, types and the path of each pair (intra, shm)", "[integration][cli]") {
+TEST_CASE("lcmx nodes and topics: nodes + topics + types and the path of each pair (intra and shm)", "[integration][cli]") {
   Session s(40);
   const auto ch = unique_channel("CLI", 40);
   auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "50", "--node", "camera",
@@ -55,7 +55,7 @@ TEST_CASE("lcmx nodes / topics: nodes, topics, types and the path of each pair (
   REQUIRE(pub.expect("MATCHED"));
   REQUIRE(sub.expect("MATCHED"));
 
-  const auto nodes = s.run({LCMX_TOOL, "nodes", "--url", s.url});
+  const auto nodes = s.run({LCMX_TOOL, "--url", s.url, "nodes"});
   INFO("lcmx nodes:\n" << nodes.out);
   CHECK(nodes.rc == 0);
   CHECK(contains(nodes.out, "participant lcmx_test_peer pid " + std::to_string(pub.pid())));
@@ -67,7 +67,7 @@ TEST_CASE("lcmx nodes / topics: nodes, topics, types and the path of each pair (
   CHECK(contains(nodes.out, "sub " + ch + "  [pose_t]"));
   CHECK_FALSE(contains(nodes.out, "lcmx-observer"));
 
-  const auto topics = s.run({LCMX_TOOL, "topics", "--url", s.url});
+  const auto topics = s.run({LCMX_TOOL, "--url", s.url, "topics"});
   INFO("lcmx topics:\n" << topics.out);
   CHECK(topics.rc == 0);
   const auto b = block(topics.out, ch);
@@ -80,7 +80,7 @@ TEST_CASE("lcmx nodes / topics: nodes, topics, types and the path of each pair (
   CHECK(contains(b, from + "shm"));
 }
 
-TEST_CASE("lcmx --help, lcmx topics --help exit 0; a bad flag exits non-zero with a message", "[integration][cli]") {
+TEST_CASE("lcmx --help and lcmx topics --help exit 0 - a bad flag exits non-zero with a message", "[integration][cli]") {
   Session s(41);
   auto help = s.run({LCMX_TOOL, "--help"});
   CHECK(help.rc == 0);
@@ -97,13 +97,13 @@ TEST_CASE("lcmx --help, lcmx topics --help exit 0; a bad flag exits non-zero wit
   INFO(bad_verb.out);
   CHECK(bad_verb.rc != 0);
   CHECK_FALSE(bad_verb.out.empty());
-  auto bad_url = s.run({LCMX_TOOL, "nodes", "--url", "udpm://not-an-address:1"});
+  auto bad_url = s.run({LCMX_TOOL, "--url", "udpm://not-an-address:1", "nodes"});
   INFO(bad_url.out);
   CHECK(bad_url.rc != 0);
   CHECK(contains(bad_url.out, "lcmx:"));
 }
 
-TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye), a kill -9 after its lease", "[integration][cli]") {
+TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye) - a kill -9 after its lease", "[integration][cli]") {
   Session s(42);
   // alpha exits cleanly; bravo (lease 600 ms) and charlie (lease 8 s) are killed -9. The
   // observer listens 2.5 s: longer than bravo's lease, shorter than alpha's and charlie's.
@@ -117,7 +117,7 @@ TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye), a kill -9 afte
   const std::set<int> ours = {alpha.pid(), bravo.pid(), charlie.pid()};
 
   BeaconWatch watch(s.url);
-  auto& observer = s.spawn({LCMX_TOOL, "nodes", "--url", s.url, "--wait", "2500"}, {}, true);
+  auto& observer = s.spawn({LCMX_TOOL, "--url", s.url, "--wait", "2500", "nodes"}, {}, true);
   // Synchronise on what the observer saw: its query, then a beacon of each participant.
   bool queried = false;
   std::set<int> answered;
@@ -141,5 +141,5 @@ TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye), a kill -9 afte
 }
 
 #else
-TEST_CASE("lcmx tool tests", "[integration][cli]") { WARN("lcmx tool not built (LCMX_BUILD_APPS=OFF)"); }
+TEST_CASE("lcmx tool tests", "[integration][cli]") { WARN("lcmx tool not built (LCMX_BUILD_APPS=OFF)") - }
 #endif

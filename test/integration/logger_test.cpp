@@ -66,12 +66,13 @@ TEST_CASE("lcm-logger on LCM's default URL records lcmx discovery beacons (LCMX_
                         unique_channel("LOGGED", 60), "--node", "logged_node", "--timeout-ms", "30000"},
                        {"LCMX_DISCOVERY_URL"});
   REQUIRE(peer.expect("READY"));
+  const int peer_pid = peer.pid();
   // lcm-logger prints no ready line: the peer beacons every 100 ms; look in the log until
   // beacons of this very peer show up (deadline).
   LogScan scan;
   const bool found = wait_until(
       [&] {
-        scan = scan_log(log, peer.pid(), "logged_node");
+        scan = scan_log(log, peer_pid, "logged_node");
         return scan.from_peer && scan.beacons >= 2;
       },
       10000ms, 50ms);
@@ -79,7 +80,7 @@ TEST_CASE("lcm-logger on LCM's default URL records lcmx discovery beacons (LCMX_
   CHECK(peer.wait() == 0);
   logger.signal(SIGINT);
   CHECK(logger.wait(5000ms) == 0);
-  scan = scan_log(log, peer.pid(), "logged_node");
+  scan = scan_log(log, peer_pid, "logged_node");
   INFO("beacons in the log: " << scan.beacons);
   REQUIRE(found);
   CHECK(scan.from_peer);

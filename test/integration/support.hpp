@@ -189,9 +189,12 @@ class Child {
       }
       if (eof_) return std::nullopt;
       const auto left = std::chrono::duration_cast<ms>(deadline - Clock::now());
-      if (left.count() <= 0) return std::nullopt;
       pollfd p{out_, POLLIN, 0};
-      if (::poll(&p, 1, static_cast<int>(left.count())) <= 0) continue;
+      // A zero timeout still reads what is already there.
+      if (::poll(&p, 1, static_cast<int>(std::max<long long>(left.count(), 0))) <= 0) {
+        if (left.count() <= 0) return std::nullopt;
+        continue;
+      }
       char chunk[8192];
       const ssize_t n = ::read(out_, chunk, sizeof chunk);
       if (n <= 0) eof_ = true;
