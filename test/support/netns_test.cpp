@@ -441,20 +441,17 @@ TEST_CASE("destruction removes namespaces and kills processes left inside", "[mu
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
   std::vector<std::string> names;
-  pid_t inside = -1;
   std::optional<Child> survivor;
   {
     auto emu = Emulation::create({.hosts = 2, .links = {{.name = "eth"}, {.name = "pcie"}}});
     names = {emu.ns(0), emu.ns(1), emu.switch_ns()};
     survivor.emplace(emu.spawn(1, {"sleep", "600"}));  // outlives the emulation
-    inside = survivor->pid();
     for (const auto& n : names) CHECK(netns_names().count(n) == 1);
   }
   const auto listed = ip_netns_list();
   for (const auto& n : names) CHECK(listed.count(n) == 0);
   for (const auto& n : names) CHECK(netns_names().count(n) == 0);
   CHECK(survivor->wait(5s) == 128 + SIGKILL);  // the destructor killed it
-  (void)inside;
 }
 
 TEST_CASE("a child killed by a watchdog, and a creator killed outright, still get cleaned up",
@@ -484,8 +481,9 @@ TEST_CASE("a child killed by a watchdog, and a creator killed outright, still ge
   CHECK(netns_names().count(h0) == 1);
   holder.kill(SIGKILL);
   REQUIRE(holder.wait(5s) == 128 + SIGKILL);
-  CHECK(netns_names().count(h0) == 1);  // left behind
-  CHECK(Emulation::remove_stale() >= 3);
+  // Left behind (unless another test process's create() already removed them: ctest -j).
+  INFO("left behind after SIGKILL: " << netns_names().count(h0));
+  Emulation::remove_stale();
   CHECK(netns_names().count(h0) == 0);
   CHECK(netns_names().count(sw) == 0);
   // The sleeper was killed (its parent died: PR_SET_PDEATHSIG; or remove_stale found it inside).

@@ -17,6 +17,18 @@
 // Names carry the creating pid; Emulation::create() first removes namespaces left by dead
 // creators (and kills processes still inside them). Root (CAP_SYS_ADMIN) is required; tests
 // check netns_available() and skip with its reason.
+//
+// Use (link lcmx::test_netns):
+//   std::string why;
+//   if (!lcmx::test::netns_available(&why)) { WARN("skipped: " << why); return; }
+//   auto emu = lcmx::test::Emulation::create({.hosts = 2, .links = {{.name = "eth"},
+//                                            {.name = "pcie", .rate = "8gbit"}}});
+//   auto peer = emu.spawn(1, {"/path/to/app", "--iface", emu.interface(1, "eth")});
+//   peer.expect("ready", 5s);
+//   int fd = emu.run_in(0, [] { return ::socket(AF_INET, SOCK_DGRAM, 0); });  // host 0's socket
+//   auto sent = emu.tx_bytes(0, "eth");
+// Timings on a 2-vCPU VM: create 2 hosts x 1 link ~35 ms, 4 hosts x 2 links 50-100 ms; the
+// destructor ~2 ms (the kernel frees the namespaces asynchronously).
 #pragma once
 
 #include <sched.h>
@@ -72,6 +84,8 @@ class ScopedNetns {
   int home_ = -1;
 };
 
+// Move-only RAII owner of one emulation. A moved-from Emulation may only be destroyed or
+// assigned to. Const members may be called from several threads at once.
 class Emulation {
  public:
   // Creates the namespaces, bridges, veths, addresses, routes and qdiscs, and waits until every
