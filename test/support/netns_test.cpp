@@ -160,7 +160,7 @@ std::string prefix_of(const Emulation& e) { return e.ns(0).substr(0, e.ns(0).rfi
 
 }  // namespace
 
-TEST_CASE("two hosts, one link: names, addresses, unicast UDP across the bridge", "[multihost]") {
+TEST_CASE("two hosts x one link: names and addresses and unicast UDP across the bridge", "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
   const auto t0 = Clock::now();
@@ -196,7 +196,7 @@ TEST_CASE("two hosts, one link: names, addresses, unicast UDP across the bridge"
   CHECK(recv_within(rx.get(), 200ms) == -1);
 }
 
-TEST_CASE("each host has its own network namespace inode, hence its own lcmx host id",
+TEST_CASE("each host has its own network namespace inode hence its own lcmx host id",
           "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
@@ -238,7 +238,7 @@ TEST_CASE("each host has its own network namespace inode, hence its own lcmx hos
   CHECK(ifs == std::set<std::string>{"eth", "lo"});
 }
 
-TEST_CASE("four hosts, two links: unicast on both, multicast floods the first link once",
+TEST_CASE("four hosts x two links: unicast on both and multicast floods the first link once",
           "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
@@ -310,7 +310,7 @@ TEST_CASE("host-local multicast on lo stays inside its host", "[multihost]") {
   CHECK(emu.tx_bytes(0, "eth") == eth_before);
 }
 
-TEST_CASE("link down stops traffic, link up resumes it", "[multihost]") {
+TEST_CASE("link down stops traffic and link up resumes it", "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
   auto emu = Emulation::create({.hosts = 2});
@@ -412,7 +412,7 @@ TEST_CASE("a rate-limited link measurably slows a bulk transfer", "[multihost]")
   CHECK(slow > 3 * fast);
 }
 
-TEST_CASE("link delay: netem when the kernel has it, a clear error otherwise", "[multihost]") {
+TEST_CASE("link delay: netem when the kernel has it or a clear error otherwise", "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
   std::string why;
@@ -454,7 +454,7 @@ TEST_CASE("destruction removes namespaces and kills processes left inside", "[mu
   CHECK(survivor->wait(5s) == 128 + SIGKILL);  // the destructor killed it
 }
 
-TEST_CASE("a child killed by a watchdog, and a creator killed outright, still get cleaned up",
+TEST_CASE("a child killed by a watchdog and a creator killed outright still get cleaned up",
           "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
@@ -528,7 +528,7 @@ TEST_CASE("emulations created in parallel do not collide", "[multihost]") {
   CHECK(recv_within(rb.get(), 3s) == 50);
 }
 
-TEST_CASE("setup faults throw SetupError naming the problem, run_in rethrows", "[multihost]") {
+TEST_CASE("setup faults throw SetupError naming the problem and run_in rethrows", "[multihost]") {
   SKIP_WITHOUT_NETNS();
   auto wd = watchdog();
   CHECK_THROWS_AS(Emulation::create({.hosts = 0}), SetupError);
