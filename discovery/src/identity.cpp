@@ -44,7 +44,9 @@ std::uint64_t host_id() {
   if (machine.empty()) machine = read_first_line("/proc/sys/kernel/random/boot_id");
   struct stat st {};
   std::uint64_t netns = 0;
-  if (::stat("/proc/self/ns/net", &st) == 0) netns = static_cast<std::uint64_t>(st.st_ino);
+  // thread-self: a thread that entered another namespace (setns) is on that host.
+  if (::stat("/proc/thread-self/ns/net", &st) == 0 || ::stat("/proc/self/ns/net", &st) == 0)
+    netns = static_cast<std::uint64_t>(st.st_ino);
   std::uint64_t h = fnv1a(machine);
   h = fnv1a(std::to_string(netns), h);
   return h == 0 ? 1 : h;

@@ -7,7 +7,7 @@
 namespace lcmx::discovery {
 
 // Stable id of this host: a hash of /etc/machine-id (or the boot id when it is missing) and
-// of this process's network namespace (/proc/self/ns/net inode), so two namespaces on one
+// of this process's network namespace (/proc/thread-self/ns/net inode), so two namespaces on one
 // machine are two hosts. LCMX_HOST_ID (decimal or 0x-hex, non-zero) overrides it.
 // Throws std::invalid_argument if LCMX_HOST_ID is set but not a valid non-zero number.
 std::uint64_t host_id();
