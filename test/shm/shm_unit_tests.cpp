@@ -227,13 +227,13 @@ TEST_CASE("growth across generations: a following Reader receives everything in 
   CHECK(r.received() == idx);
   CHECK(r.segment_name() == w.segment_name());
   CHECK(w.published() == idx);
-  write_msg(w, idx++, 10);  // a commit releases the generations nobody uses any more
+  write_msg(w, idx++, 16);  // a commit releases the generations nobody uses any more
   CHECK(shm_names(base + "_g").size() == 1);
   REQUIRE(r.take());
   // A new Reader opening an old (unlinked) generation name lands on the newest.
   auto r2 = Reader::open(base + "_g0");
   CHECK(r2.segment_name() == w.segment_name());
-  write_msg(w, idx, 10);
+  write_msg(w, idx, 16);
   auto s = r2.take();
   REQUIRE(s);
   CHECK(s->sequence() == idx);
