@@ -147,6 +147,7 @@ struct Config {
   bool hold = false;
   std::size_t queue_depth = 16;
   std::uint32_t shm_slots = 8;
+  std::size_t initial_slot = 4096;
 };
 
 // What one subscriber saw.
@@ -160,6 +161,7 @@ struct Recorder {
   std::map<std::string, Source> sources;
   std::uint64_t received = 0, bad_content = 0;
   std::int64_t first = -1, last = -1;
+  std::int64_t first_gap = -1;  // first sequence number missing (any source), -1 if none
 
   void on(const std::string& source, std::int64_t seq, bool content_ok) {
     std::lock_guard lock(mu);
@@ -171,7 +173,10 @@ struct Recorder {
     ++s.received;
     if (!s.seen.insert(seq).second) ++s.duplicates;
     else if (s.last >= 0 && seq < s.last) ++s.out_of_order;
-    else if (s.last >= 0 && seq > s.last + 1) s.gaps += static_cast<std::uint64_t>(seq - s.last - 1);
+    else if (s.last >= 0 && seq > s.last + 1) {
+      s.gaps += static_cast<std::uint64_t>(seq - s.last - 1);
+      if (first_gap < 0) first_gap = s.last + 1;
+    }
     if (seq > s.last) s.last = seq;
   }
   std::uint64_t count() {
@@ -208,7 +213,7 @@ void summary(Channel& c) {
   say("SUMMARY channel=" + c.name + " received=" + std::to_string(c.rec.received) +
       " first=" + std::to_string(c.rec.first) + " last=" + std::to_string(c.rec.last) +
       " duplicates=" + std::to_string(dups) + " out_of_order=" + std::to_string(ooo) +
-      " gaps=" + std::to_string(gaps) + " drops=" + std::to_string(st.drops) +
+      " gaps=" + std::to_string(gaps) + " first_gap=" + std::to_string(c.rec.first_gap) + " drops=" + std::to_string(st.drops) +
       " decode_errors=" + std::to_string(st.decode_errors) +
       " bad_content=" + std::to_string(c.rec.bad_content) +
       " publishers=" + std::to_string(st.publishers.size()) + " paths=" + (paths.empty() ? "-" : paths) +
@@ -327,6 +332,7 @@ int run_pub(const Config& cfg, lcmx::Runtime& rt, Stdin& in, Clock::time_point d
   auto node = rt.create_node(cfg.node);
   lcmx::PublisherOptions po;
   po.shm_slots = cfg.shm_slots;
+  po.shm_initial_slot_size = cfg.initial_slot;
   po.max_message_size = std::max<std::size_t>(16u << 20, cfg.size + 4096);
   const std::string& channel = cfg.channels.at(0);
 
@@ -480,6 +486,7 @@ int main(int argc, char** argv) {
   app.add_option("--timeout-ms", cfg.timeout_ms, "give up (exit 3) after this long");
   app.add_option("--queue-depth", cfg.queue_depth, "sub: intra-process queue depth");
   app.add_option("--shm-slots", cfg.shm_slots, "pub: shared-memory ring depth");
+  app.add_option("--initial-slot", cfg.initial_slot, "pub: first shared-memory slot size in bytes");
   app.add_flag("--local-sub", cfg.local_sub, "pub: also subscribe in this process (intra path)");
   app.add_flag("--hold", cfg.hold, "pub: after publishing, wait for quit");
   CLI11_PARSE(app, argc, argv);
