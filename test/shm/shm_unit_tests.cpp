@@ -497,3 +497,36 @@ TEST_CASE("two threads: writer and reader, no torn reads", "[shm]") {
   CHECK(r.received() + r.drops() == total);
   CHECK(r.received() > 0);
 }
+
+TEST_CASE("tampered descriptors and sizes are dropped, never read out of bounds", "[shm]") {
+  Watchdog wd(10s);
+  const auto base = unique_base("tamper");
+  ShmGuard g(base);
+  auto w = Writer::create(base, small_opts(4));
+  auto r = Reader::open(w.segment_name());
+  write_msg(w, 0, 100);
+  write_msg(w, 1, 100);
+  write_msg(w, 2, 100);
+  {
+    namespace d = lcmx::shm::detail;
+    int fd = ::shm_open(("/" + w.segment_name()).c_str(), O_RDWR, 0);
+    REQUIRE(fd >= 0);
+    const auto geo = d::make_geometry(4, 8, 4096);
+    void* m = ::mmap(nullptr, geo.total_size, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+    ::close(fd);
+    REQUIRE(m != MAP_FAILED);
+    auto* b = static_cast<std::byte*>(m);
+    auto* desc = reinterpret_cast<std::atomic<std::uint64_t>*>(b + geo.desc_offset);
+    auto slot = [&](std::uint32_t i) {
+      return reinterpret_cast<d::SlotHeader*>(b + geo.slots_offset + i * geo.slot_stride);
+    };
+    desc[0].store(d::pack_desc(0, 60000));  // slot index out of range
+    slot(1)->size = std::uint64_t{1} << 40; // size larger than the slot
+    ::munmap(m, geo.total_size);
+  }
+  auto s = r.take();
+  REQUIRE(s);
+  CHECK(index_of(*s) == 2);
+  CHECK(r.drops() == 2);
+  CHECK(r.received() == 1);
+}
