@@ -9,7 +9,7 @@ packages=(
   liblcm-dev liblcm-bin            # lcm-gen, liblcm (reference peer), lcm-logger
   libzmq3-dev cppzmq-dev           # Message Bridge
   libboost-dev                     # Boost.Interprocess
-  catch2                           # tests (v2)
+  catch2 clang libclang-rt-14-dev  # tests (Catch2 v2; clang + libFuzzer runtime for test/fuzz)
   libcli11-dev libspdlog-dev libtomlplusplus-dev libncurses-dev
   iproute2 procps                  # network namespaces for multi-host tests, ps/pgrep
 )

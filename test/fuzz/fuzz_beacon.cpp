@@ -1,0 +1,118 @@
+// libFuzzer target: lcmx::discovery::decode_beacon on hostile bytes.
+//
+// Checks:
+//  - a rejection says why;
+//  - an accepted beacon has the supported version and occupies no more than the input
+//    (getEncodedSize() <= input size: decoding allocates at most what was received);
+//  - it survives a round trip: encode_beacon, decode_beacon again, and the key fields (every
+//    field this target names; fields added later are covered by comparing the re-encodings)
+//    are equal, strings byte for byte.
+// A failed check prints what failed and aborts, which libFuzzer reports as a crash.
+
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "lcmx/discovery/beacon_codec.hpp"
+
+namespace {
+
+#define FUZZ_CHECK(cond)                                                                  \
+  do {                                                                                    \
+    if (!(cond)) {                                                                        \
+      std::fprintf(stderr, "fuzz_beacon: check failed: %s (%s:%d)\n", #cond, __FILE__,   \
+                   __LINE__);                                                             \
+      std::abort();                                                                       \
+    }                                                                                     \
+  } while (0)
+
+bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+void check_string(const std::string& a, const std::string& b, const char* what) {
+  if (a == b) return;
+  std::fprintf(stderr,
+               "fuzz_beacon: %s differs after encode_beacon + decode_beacon: %zu bytes before, "
+               "%zu after (NUL inside the decoded string: %s)\n",
+               what, a.size(), b.size(), a.find('\0') != std::string::npos ? "yes" : "no");
+  std::abort();
+}
+
+void check_same(const lcmx_msgs::endpoint_t& a, const lcmx_msgs::endpoint_t& b) {
+  FUZZ_CHECK(a.id == b.id);
+  FUZZ_CHECK(a.kind == b.kind);
+  check_string(a.node, b.node, "endpoint node");
+  check_string(a.topic, b.topic, "endpoint topic");
+  check_string(a.type_name, b.type_name, "endpoint type_name");
+  FUZZ_CHECK(a.fingerprint == b.fingerprint);
+  check_string(a.shm_segment, b.shm_segment, "endpoint shm_segment");
+  FUZZ_CHECK(a.max_message_size == b.max_message_size);
+  FUZZ_CHECK(a.messages == b.messages);
+  FUZZ_CHECK(a.drops == b.drops);
+  FUZZ_CHECK(same_bits(a.rate_hz, b.rate_hz));
+  FUZZ_CHECK(a.num_matches == b.num_matches);
+  FUZZ_CHECK(a.matches.size() == static_cast<std::size_t>(a.num_matches));
+  FUZZ_CHECK(b.matches.size() == a.matches.size());
+  for (std::size_t i = 0; i < a.matches.size(); ++i) {
+    FUZZ_CHECK(a.matches[i].publisher_participant == b.matches[i].publisher_participant);
+    FUZZ_CHECK(a.matches[i].publisher_endpoint == b.matches[i].publisher_endpoint);
+    check_string(a.matches[i].path, b.matches[i].path, "match path");
+    FUZZ_CHECK(a.matches[i].received == b.matches[i].received);
+    FUZZ_CHECK(a.matches[i].drops == b.matches[i].drops);
+  }
+  FUZZ_CHECK(a.num_errors == b.num_errors);
+  FUZZ_CHECK(a.errors.size() == static_cast<std::size_t>(a.num_errors));
+  FUZZ_CHECK(b.errors.size() == a.errors.size());
+  for (std::size_t i = 0; i < a.errors.size(); ++i) check_string(a.errors[i], b.errors[i], "error");
+}
+
+void check_same(const lcmx_msgs::beacon_t& a, const lcmx_msgs::beacon_t& b) {
+  FUZZ_CHECK(a.version == b.version);
+  FUZZ_CHECK(a.participant_id == b.participant_id);
+  FUZZ_CHECK(a.host_id == b.host_id);
+  FUZZ_CHECK(a.pid == b.pid);
+  check_string(a.process_name, b.process_name, "process_name");
+  FUZZ_CHECK(a.sequence == b.sequence);
+  FUZZ_CHECK(a.revision == b.revision);
+  FUZZ_CHECK(a.flags == b.flags);
+  FUZZ_CHECK(a.lease_ms == b.lease_ms);
+  FUZZ_CHECK(a.timestamp_us == b.timestamp_us);
+  FUZZ_CHECK(a.num_nodes == b.num_nodes);
+  FUZZ_CHECK(a.nodes.size() == static_cast<std::size_t>(a.num_nodes));
+  FUZZ_CHECK(b.nodes.size() == a.nodes.size());
+  for (std::size_t i = 0; i < a.nodes.size(); ++i) check_string(a.nodes[i], b.nodes[i], "node");
+  FUZZ_CHECK(a.num_endpoints == b.num_endpoints);
+  FUZZ_CHECK(a.endpoints.size() == static_cast<std::size_t>(a.num_endpoints));
+  FUZZ_CHECK(b.endpoints.size() == a.endpoints.size());
+  for (std::size_t i = 0; i < a.endpoints.size(); ++i) check_same(a.endpoints[i], b.endpoints[i]);
+}
+
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  const std::span<const std::byte> input(reinterpret_cast<const std::byte*>(data), size);
+  std::string why;
+  const auto first = lcmx::discovery::decode_beacon(input, &why);
+  if (!first) {
+    FUZZ_CHECK(!why.empty());
+    return 0;
+  }
+  FUZZ_CHECK(first->version == lcmx::discovery::kBeaconVersion);
+  FUZZ_CHECK(first->getEncodedSize() >= 0);
+  FUZZ_CHECK(static_cast<std::size_t>(first->getEncodedSize()) <= size);
+
+  const std::vector<std::byte> encoded = lcmx::discovery::encode_beacon(*first);
+  FUZZ_CHECK(!encoded.empty());
+  std::string why_again;
+  const auto second = lcmx::discovery::decode_beacon(encoded, &why_again);
+  if (!second) {
+    std::fprintf(stderr, "fuzz_beacon: re-encoded beacon rejected: %s\n", why_again.c_str());
+    std::abort();
+  }
+  check_same(*first, *second);
+  FUZZ_CHECK(lcmx::discovery::encode_beacon(*second) == encoded);
+  return 0;
+}
