@@ -31,6 +31,9 @@ struct Match {
   Path path = Path::intra;
   std::shared_ptr<PairCounters> stats = std::make_shared<PairCounters>();
   std::unique_ptr<shm::Reader> reader;  // shm path; used by the executor only
+  bool foreign = false;                 // udp from a non-lcmx sender (stock LCM program)
+  // The publisher left: the executor reads what it committed, then drops the match.
+  std::atomic<bool> retiring{false};
 };
 
 struct SubscriberState {
@@ -45,6 +48,7 @@ struct SubscriberState {
   std::vector<std::shared_ptr<Match>> matches;
   std::uint64_t version = 0;            // +1 whenever matches change
   std::vector<std::string> errors;
+  std::uint64_t retired_drops = 0;      // drops of matches already forgotten
 
   // Executor side. `busy` is held (true) while one executor thread polls this subscriber:
   // it serialises callbacks and guards `snapshot`.
@@ -93,7 +97,8 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
  public:
   explicit RuntimeImpl(RuntimeOptions options);
   ~RuntimeImpl();
-  void start_discovery();
+  // Opens the groups, starts discovery (both scopes) and the UDP receive thread.
+  void start_transports();
   // Goodbye, then stop every node's executor. Idempotent. Endpoints become inert.
   void shutdown();
 
@@ -103,20 +108,27 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   void add_subscriber(const std::shared_ptr<SubscriberCore>& sub);
   void remove_subscriber(const SubscriberCore* sub);
   void add_node(const std::shared_ptr<NodeImpl>& node);
-  void changed();  // announce now
+  // Announce now. Takes no lock: publishers call it with publish_mu held, and the beacon
+  // builder takes publish_mu under mu.
+  void changed();
   void emit(std::vector<Event> events);
 
   const RuntimeOptions options;
   const std::uint64_t participant_id;
   const std::uint64_t host;
   std::string shm_base_prefix;  // "lcmx_<host hex>_<pid>_"
+  std::shared_ptr<udpm::Group> local_group;    // host-local group (always)
+  std::shared_ptr<udpm::Group> vehicle_group;  // vehicle group (null: single host)
+  TopicClass class_of(const std::string& channel) const;
 
   std::mutex event_mu;
   std::function<void(const Event&)> on_event;
 
  private:
-  lcmx_msgs::beacon_t build_beacon();
-  void on_participant(discovery::Change change, const discovery::Participant& p);
+  lcmx_msgs::beacon_t build_beacon(std::int8_t scope);
+  void on_participant(std::int8_t scope, discovery::Change change, const discovery::Participant& p);
+  void receive_loop();
+  void on_udp(std::int8_t scope, const udpm::Message& m);
   // Locked helpers (mu held). They append what happened to `events`.
   void match_local_locked(PublisherImpl& pub, SubscriberCore& sub, std::vector<Event>& events);
   void sync_remote_locked(SubscriberCore& sub, std::vector<Event>& events);
@@ -131,14 +143,20 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::map<std::uint64_t, PublisherImpl*> pubs;
   std::map<std::uint64_t, std::shared_ptr<SubscriberCore>> subs;
   std::vector<std::weak_ptr<NodeImpl>> nodes;
-  std::map<std::int64_t, lcmx_msgs::beacon_t> remotes;  // same-host participants
+  std::map<std::int64_t, lcmx_msgs::beacon_t> remotes;          // same-host participants
+  std::map<std::int64_t, lcmx_msgs::beacon_t> vehicle_remotes;  // participants of other hosts
+  std::map<std::string, std::int64_t> host_sources;     // "ip:port" of same-host participants
+  std::map<std::string, std::int64_t> vehicle_sources;  // "ip:port" -> participant, other hosts
   std::set<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>> mismatches_reported;
   struct RateState { std::uint64_t count = 0; std::chrono::steady_clock::time_point when{}; };
   std::map<std::uint64_t, RateState> rates;
-  std::int64_t revision = 0;
+  std::atomic<std::int64_t> revision{0};  // atomic: changed() is called under publish_mu
   std::atomic<bool> stopped{false};
   std::atomic<bool> announce_pending{false};
-  std::unique_ptr<discovery::Discovery> disco;  // stopped first in ~RuntimeImpl
+  std::unique_ptr<discovery::Discovery> disco;          // host scope
+  std::unique_ptr<discovery::Discovery> disco_vehicle;  // vehicle scope (null: single host)
+  std::thread rx_thread;
+  int rx_wake_fd = -1;
 };
 
 class PublisherImpl final : public PublisherCore {
@@ -160,7 +178,8 @@ class PublisherImpl final : public PublisherCore {
   // Runtime side (RuntimeImpl::mu held).
   void add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_ptr<PairCounters> stats);
   void remove_intra(const SubscriberCore* sub);
-  void set_remote_subscribers(std::size_t n);
+  void set_remote_subscribers(std::size_t shm, std::size_t udp);
+  bool large() const { return large_.load(); }
 
   const std::shared_ptr<NodeImpl> node;
   const std::uint64_t id;
@@ -178,7 +197,7 @@ class PublisherImpl final : public PublisherCore {
   std::shared_ptr<const Targets> targets() const;
   void deliver_intra(const Targets& t, std::shared_ptr<const void> object);
   void check_size(std::size_t size) const;
-  void write_encoded(const void* object);
+  void write_encoded(const void* object, bool shm, bool udp);
   void note_generation();  // publish_mu held
 
   std::string channel_;
@@ -188,7 +207,15 @@ class PublisherImpl final : public PublisherCore {
   mutable std::mutex intra_mu;    // guards intra_, remote_subscribers_
   mutable std::condition_variable subs_cv;
   std::shared_ptr<const Targets> intra_ = std::make_shared<Targets>();
-  std::size_t remote_subscribers_ = 0;
+  std::size_t remote_subscribers_ = 0;  // same host (shm) + other hosts (udp)
+  std::atomic<std::size_t> udp_subscribers_{0};
+  std::atomic<bool> large_{false};
+  bool warned_large_udp_ = false;        // guarded by publish_mu
+  std::vector<std::byte> udp_buf_;       // guarded by publish_mu
+  // Sends encoded bytes on the vehicle group (and host-local mirror) when wanted.
+  void send_udp(std::span<const std::byte> encoded);
+  bool wants_udp() const;
+  void note_size(std::size_t size);
   std::atomic<std::uint64_t> published_{0};
 };
 

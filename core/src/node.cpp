@@ -127,6 +127,20 @@ std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
     }
     m->stats->drops.store(m->reader->drops(), std::memory_order_relaxed);
   }
+  // Publishers that left: once everything they committed has been read, forget them.
+  bool drained = false;
+  for (auto& m : st.snapshot)
+    drained = drained || (m->retiring && m->reader && !m->reader->has_data());
+  if (drained) {
+    std::lock_guard lock(st.mu);
+    std::erase_if(st.matches, [&](const auto& m) {
+      if (!(m->retiring && m->reader && !m->reader->has_data())) return false;
+      st.retired_drops += m->stats->drops.load();
+      return true;
+    });
+    ++st.version;
+    st.matched_cv.notify_all();
+  }
   st.running_on = {};
   return n;
 }
@@ -259,7 +273,12 @@ SubscriberStats subscriber_stats(const SubscriberCore& core) {
   s.decode_errors = core.decode_errors.load();
   auto& st = *core.state;
   std::lock_guard lock(st.mu);
+  s.drops = st.retired_drops;
   for (const auto& m : st.matches) {
+    if (m->retiring) {
+      s.drops += m->stats->drops.load();
+      continue;
+    }
     PairStats p;
     p.publisher_participant = m->publisher_participant;
     p.publisher_endpoint = m->publisher_endpoint;

@@ -19,6 +19,7 @@ PublisherImpl::PublisherImpl(std::shared_ptr<NodeImpl> n, std::string channel,
   try {
     writer_.emplace(shm::Writer::create(node->runtime->shm_base_prefix + std::to_string(id), w));
     announced_segment_ = writer_->segment_name();
+    large_ = node->runtime->class_of(channel_) == TopicClass::large;
   } catch (const shm::Error& e) {
     throw Error(shm::Errc::invalid_argument == e.code() ? Errc::invalid_argument : Errc::transport,
                 "publisher '" + channel_ + "': " + e.what());
@@ -48,18 +49,68 @@ void PublisherImpl::deliver_intra(const Targets& t, std::shared_ptr<const void> 
   for (const auto& target : t) push_intra(*target.sub, IntraItem{object, &type, target.stats});
 }
 
-// Encodes straight into a shm slot (no staging copy). publish_mu held.
-void PublisherImpl::write_encoded(const void* object) {
+bool PublisherImpl::wants_udp() const {
+  const auto& rt = *node->runtime;
+  if (!rt.vehicle_group && !rt.options.mirror) return false;
+  return udp_subscribers_.load() > 0 || rt.options.mirror ||
+         rt.options.vehicle_publish == VehiclePublish::always;
+}
+
+// Classifies by size: an automatic topic whose message exceeds udp_limit becomes large for
+// good (announced at once). publish_mu held.
+void PublisherImpl::note_size(std::size_t size) {
+  const auto& rt = *node->runtime;
+  if (size <= rt.options.udp_limit || large_.load()) return;
+  if (rt.class_of(channel_) != TopicClass::automatic) return;
+  large_.store(true);
+  spdlog::info("lcmx: topic '{}' is now large ({} bytes > udp_limit {})", channel_, size,
+               rt.options.udp_limit);
+  node->runtime->changed();
+}
+
+// Sends an encoding over LCM UDP: on the vehicle group when a subscriber on another host
+// wants it (or vehicle_publish = always), and on the host-local group for the mirror (small
+// topics only). publish_mu held.
+void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
+  auto& rt = *node->runtime;
+  try {
+    if (rt.vehicle_group &&
+        (udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always)) {
+      if (large_.load() && !warned_large_udp_) {
+        warned_large_udp_ = true;
+        spdlog::warn("lcmx: topic '{}' is large but no Message Bridge carries it yet: sending it to "
+                     "other hosts as UDP fragments",
+                     channel_);
+      }
+      rt.vehicle_group->publish(channel_, encoded);
+    }
+    if (rt.options.mirror && !large_.load()) rt.local_group->publish(channel_, encoded);
+  } catch (const std::exception& e) {
+    throw Error(Errc::transport, "publish on '" + channel_ + "' over UDP: " + e.what());
+  }
+}
+
+// Encodes once: straight into a shm slot when shm readers exist (UDP is sent from the same
+// bytes before the commit), else into a reused buffer for UDP. publish_mu held.
+void PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
   const std::size_t size = type.encoded_size(object);
   check_size(size);
-  try {
-    auto loan = writer_->loan(size);
-    type.encode(object, loan.data(), size);
-    writer_->commit(std::move(loan), size);
-  } catch (const shm::Error& e) {
-    throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
+  note_size(size);
+  if (shm) {
+    try {
+      auto loan = writer_->loan(size);
+      type.encode(object, loan.data(), size);
+      if (udp) send_udp({loan.data(), size});
+      writer_->commit(std::move(loan), size);
+    } catch (const shm::Error& e) {
+      throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
+    }
+    note_generation();
+  } else if (udp) {
+    udp_buf_.resize(size);
+    type.encode(object, udp_buf_.data(), size);
+    send_udp(udp_buf_);
   }
-  note_generation();
 }
 
 // A larger message moved the writer to a new segment generation: announce its name at once
@@ -75,10 +126,11 @@ void PublisherImpl::publish_ref(const void* object,
   auto t = targets();
   std::lock_guard lock(publish_mu);
   const bool shm = writer_->registered_readers() > 0;
-  if (!shm) check_size(type.encoded_size(object));  // also when only in-process subscribers
+  const bool udp = wants_udp();
+  if (!shm && !udp) check_size(type.encoded_size(object));  // also with only in-process subscribers
   // In-process subscribers first: handing over a pointer is cheaper than encoding.
   if (!t->empty()) deliver_intra(*t, copy(object));
-  if (shm) write_encoded(object);
+  if (shm || udp) write_encoded(object, shm, udp);
   published_.fetch_add(1);
 }
 
@@ -87,9 +139,10 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   auto t = targets();
   std::lock_guard lock(publish_mu);
   const bool shm = writer_->registered_readers() > 0;
-  if (!shm) check_size(type.encoded_size(object.get()));
+  const bool udp = wants_udp();
+  if (!shm && !udp) check_size(type.encoded_size(object.get()));
   if (!t->empty()) deliver_intra(*t, object);
-  if (shm) write_encoded(object.get());
+  if (shm || udp) write_encoded(object.get(), shm, udp);
   published_.fetch_add(1);
 }
 
@@ -97,6 +150,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   check_size(data.size());
   auto t = targets();
   std::lock_guard lock(publish_mu);
+  note_size(data.size());
   if (writer_->registered_readers() > 0) {
     try {
       writer_->write(data.data(), data.size());
@@ -105,6 +159,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
     }
     note_generation();
   }
+  if (wants_udp()) send_udp(data);
   if (!t->empty()) deliver_intra(*t, make_bytes(data));
   published_.fetch_add(1);
 }
@@ -127,8 +182,10 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
                                             std::to_string(size) + " exceeds the loan's capacity");
   auto t = targets();
   std::lock_guard lock(publish_mu);
+  note_size(size);
   // In-process subscribers get a copy taken before the slot is handed to other processes.
   if (!t->empty()) deliver_intra(*t, make_bytes({loan.data(), size}));
+  if (wants_udp()) send_udp({loan.data(), size});
   writer_->commit(std::move(loan), size);
   published_.fetch_add(1);
 }
@@ -160,9 +217,10 @@ void PublisherImpl::remove_intra(const SubscriberCore* sub) {
   subs_cv.notify_all();
 }
 
-void PublisherImpl::set_remote_subscribers(std::size_t n) {
+void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp) {
   std::lock_guard lock(intra_mu);
-  remote_subscribers_ = n;
+  remote_subscribers_ = shm + udp;
+  udp_subscribers_.store(udp);
   subs_cv.notify_all();
 }
 
@@ -177,6 +235,10 @@ void push_intra(SubscriberCore& sub, IntraItem item) {
     std::lock_guard lock(st.mu);
     if (st.removed.load()) return;
     if (st.queue.size() >= std::max<std::size_t>(sub.options().queue_depth, 1)) {
+      if (sub.options().policy == QueuePolicy::drop_newest) {
+        item.pair->drops.fetch_add(1);
+        return;
+      }
       st.queue.front().pair->drops.fetch_add(1);
       st.queue.pop_front();
     }

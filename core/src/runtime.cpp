@@ -1,4 +1,6 @@
+#include <poll.h>
 #include <spdlog/cfg/env.h>
+#include <sys/eventfd.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
@@ -6,6 +8,7 @@
 #include <sstream>
 
 #include "internal.hpp"
+#include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/discovery/identity.hpp"
 
 namespace lcmx {
@@ -34,35 +37,143 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
 
 RuntimeImpl::~RuntimeImpl() { shutdown(); }
 
-void RuntimeImpl::start_discovery() {
-  discovery::Options d;
-  try {
-    d.group = udpm::parse_url(options.discovery_url);
-  } catch (const std::exception& e) {
-    throw Error(Errc::invalid_argument, std::string("discovery_url: ") + e.what());
+void RuntimeImpl::start_transports() {
+  auto open_group = [](const std::string& what, const std::string& url) {
+    try {
+      return std::make_shared<udpm::Group>(udpm::Group::open(udpm::parse_url(url)));
+    } catch (const udpm::Error& e) {
+      const auto code = e.code() == udpm::Error::Code::invalid_config ||
+                                e.code() == udpm::Error::Code::no_such_interface
+                            ? Errc::invalid_argument
+                            : Errc::transport;
+      throw Error(code, what + " '" + url + "': " + e.what());
+    }
+  };
+  local_group = open_group("discovery_url", options.discovery_url);
+  if (!options.vehicle_url.empty()) {
+    if (options.vehicle_url.find("iface=") == std::string::npos)
+      throw Error(Errc::invalid_argument, "vehicle_url '" + options.vehicle_url +
+                                              "' names no interface: add &iface=<name>");
+    vehicle_group = open_group("vehicle_url", options.vehicle_url);
   }
-  d.period = options.beacon_period;
-  d.lease = options.lease;
+  rx_wake_fd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+  if (rx_wake_fd < 0) throw Error(Errc::transport, "eventfd failed");
+
   std::weak_ptr<RuntimeImpl> weak = weak_from_this();
-  try {
-    disco = std::make_unique<discovery::Discovery>(
+  auto make = [&](std::int8_t scope, std::shared_ptr<udpm::Group> group) {
+    discovery::Options d;
+    d.shared_group = std::move(group);
+    d.scope = scope;
+    d.period = options.beacon_period;
+    d.lease = options.lease;
+    return std::make_unique<discovery::Discovery>(
         d,
-        [weak] {
+        [weak, scope] {
           auto self = weak.lock();
-          return self ? self->build_beacon() : lcmx_msgs::beacon_t{};
+          return self ? self->build_beacon(scope) : lcmx_msgs::beacon_t{};
         },
-        [weak](discovery::Change c, const discovery::Participant& p) {
-          if (auto self = weak.lock()) self->on_participant(c, p);
+        [weak, scope](discovery::Change c, const discovery::Participant& p) {
+          if (auto self = weak.lock()) self->on_participant(scope, c, p);
         });
-  } catch (const std::exception& e) {
-    throw Error(Errc::transport, std::string("cannot start discovery on ") +
-                                     options.discovery_url + ": " + e.what());
+  };
+  disco = make(lcmx_msgs::beacon_t::SCOPE_HOST, local_group);
+  if (vehicle_group) disco_vehicle = make(lcmx_msgs::beacon_t::SCOPE_VEHICLE, vehicle_group);
+  rx_thread = std::thread([this] { receive_loop(); });
+}
+
+// The UDP receive thread: beacons go to discovery, messages to subscribers.
+void RuntimeImpl::receive_loop() {
+  while (!stopped.load()) {
+    pollfd fds[3] = {{rx_wake_fd, POLLIN, 0},
+                     {local_group->fd(), POLLIN, 0},
+                     {vehicle_group ? vehicle_group->fd() : -1, POLLIN, 0}};
+    if (::poll(fds, 3, 1000) <= 0) continue;
+    if (fds[0].revents & POLLIN) {
+      std::uint64_t v;
+      [[maybe_unused]] auto n = ::read(rx_wake_fd, &v, sizeof v);
+    }
+    try {
+      if (fds[1].revents & POLLIN)
+        local_group->drain([this](const udpm::Message& m) { on_udp(lcmx_msgs::beacon_t::SCOPE_HOST, m); });
+      if (fds[2].revents & POLLIN)
+        vehicle_group->drain([this](const udpm::Message& m) { on_udp(lcmx_msgs::beacon_t::SCOPE_VEHICLE, m); });
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx: UDP receive failed: {}", e.what());
+    }
   }
+}
+
+// Exactly one path per pair: UDP messages from a participant of this host are dropped (its
+// subscribers here read shared memory), from a matched participant of another host they go
+// to the subscribers matched with it, and from senders that are not lcmx participants
+// (stock LCM programs) to every subscriber of the channel.
+void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
+  const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
+  if (m.channel == discovery::kBeaconChannel) {
+    (vehicle ? disco_vehicle : disco)->deliver(m);
+    return;
+  }
+  const auto& group = vehicle ? vehicle_group : local_group;
+  if (m.source == group->local_source()) return;  // our own, looped back
+  const std::string source = udpm::to_string(m.source);
+  std::shared_ptr<const Bytes> bytes;
+  std::vector<std::pair<std::shared_ptr<SubscriberCore>, std::shared_ptr<PairCounters>>> targets;
+  {
+    std::lock_guard lock(mu);
+    if (host_sources.count(source)) return;  // a participant of this host: shm path
+    std::int64_t participant = 0;
+    if (vehicle) {
+      auto it = vehicle_sources.find(source);
+      if (it != vehicle_sources.end()) participant = it->second;
+    }
+    for (auto& [id, sub] : subs) {
+      if (sub->channel() != m.channel) continue;
+      auto& st = *sub->state;
+      std::lock_guard l2(st.mu);
+      std::shared_ptr<Match> match;
+      for (auto& x : st.matches) {
+        if (x->path != Path::udp) continue;
+        if (participant != 0 ? x->publisher_participant == static_cast<std::uint64_t>(participant)
+                             : (x->foreign && x->publisher_endpoint == std::hash<std::string>{}(source))) {
+          match = x;
+          break;
+        }
+      }
+      if (!match && participant != 0) continue;  // not matched (type mismatch, or not yet)
+      if (!match) {
+        match = std::make_shared<Match>();
+        match->path = Path::udp;
+        match->foreign = true;
+        match->publisher_endpoint = std::hash<std::string>{}(source);
+        st.matches.push_back(match);
+        ++st.version;
+        st.matched_cv.notify_all();
+        spdlog::info("lcmx: channel '{}': receiving from LCM sender {} ({} group)", sub->channel(),
+                     source, vehicle ? "vehicle" : "host-local");
+      }
+      targets.push_back({sub, match->stats});
+    }
+  }
+  if (targets.empty()) return;
+  bytes = make_bytes(m.data);
+  for (auto& [sub, stats] : targets) push_intra(*sub, IntraItem{bytes, &raw_type_info(), stats});
+}
+
+TopicClass RuntimeImpl::class_of(const std::string& channel) const {
+  auto it = options.topic_class.find(channel);
+  return it == options.topic_class.end() ? TopicClass::automatic : it->second;
 }
 
 void RuntimeImpl::shutdown() {
   if (stopped.exchange(true)) return;
-  if (disco) disco->stop();  // goodbye
+  if (rx_thread.joinable()) {
+    const std::uint64_t one = 1;
+    [[maybe_unused]] auto n = ::write(rx_wake_fd, &one, sizeof one);
+    rx_thread.join();
+  }
+  if (rx_wake_fd >= 0) ::close(rx_wake_fd), rx_wake_fd = -1;
+  if (disco_vehicle) disco_vehicle->stop();  // goodbyes
+  if (disco) disco->stop();
   std::vector<std::shared_ptr<NodeImpl>> live;
   {
     std::lock_guard lock(mu);
@@ -74,11 +185,9 @@ void RuntimeImpl::shutdown() {
 }
 
 void RuntimeImpl::changed() {
-  {
-    std::lock_guard lock(mu);
-    ++revision;
-  }
+  ++revision;
   if (disco) disco->announce_now();
+  if (disco_vehicle) disco_vehicle->announce_now();
 }
 
 void RuntimeImpl::emit(std::vector<Event> events) {
@@ -157,8 +266,15 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
   auto& st = *sub.state;
   std::set<std::pair<std::uint64_t, std::uint64_t>> wanted;
   std::vector<std::shared_ptr<Match>> added;
-  std::vector<std::pair<const lcmx_msgs::beacon_t*, const lcmx_msgs::endpoint_t*>> candidates;
-  for (const auto& [pid, b] : remotes) {
+  struct Candidate {
+    const lcmx_msgs::beacon_t* b;
+    const lcmx_msgs::endpoint_t* e;
+    Path path;
+  };
+  std::vector<Candidate> candidates;
+  for (const auto* scope_map : {&remotes, &vehicle_remotes})
+  for (const auto& [pid, b] : *scope_map) {
+    const Path path = scope_map == &remotes ? Path::shm : Path::udp;
     for (const auto& e : b.endpoints) {
       if (e.kind != lcmx_msgs::endpoint_t::KIND_PUBLISHER || e.topic != sub.channel()) continue;
       if (!compatible(e.fingerprint, sub.type().fingerprint)) {
@@ -173,44 +289,52 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
                                events);
         continue;
       }
-      if (e.shm_segment.empty()) continue;
+      if (path == Path::shm && e.shm_segment.empty()) continue;
       wanted.insert({static_cast<std::uint64_t>(b.participant_id), static_cast<std::uint64_t>(e.id)});
-      candidates.push_back({&b, &e});
+      candidates.push_back({&b, &e, path});
     }
   }
   std::lock_guard lock(st.mu);
   const auto before = st.matches.size();
   std::vector<std::shared_ptr<Match>> removed;
   std::erase_if(st.matches, [&](const std::shared_ptr<Match>& m) {
-    if (m->path != Path::shm) return false;
+    if (m->path == Path::intra || m->foreign || m->retiring) return false;
     if (wanted.count({m->publisher_participant, m->publisher_endpoint})) return false;
     removed.push_back(m);
+    if (m->reader) {  // keep it until the executor has read what was committed
+      m->retiring = true;
+      return false;
+    }
     return true;
   });
-  for (const auto& [b, e] : candidates) {
+  for (const auto& [b, e, path] : candidates) {
     const auto key = std::make_pair(static_cast<std::uint64_t>(b->participant_id),
                                     static_cast<std::uint64_t>(e->id));
     const bool have = std::any_of(st.matches.begin(), st.matches.end(), [&](const auto& m) {
-      return m->publisher_participant == key.first && m->publisher_endpoint == key.second;
+      return !m->retiring && m->publisher_participant == key.first &&
+             m->publisher_endpoint == key.second;
     });
     if (have) continue;
     auto m = std::make_shared<Match>();
     m->publisher_participant = key.first;
     m->publisher_endpoint = key.second;
-    m->path = Path::shm;
-    try {
-      m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment));
-    } catch (const shm::Error& err) {
-      // The publisher may be gone or be creating a new generation: retried on its next beacon.
-      spdlog::debug("lcmx: channel '{}': cannot open {} yet: {}", sub.channel(), e->shm_segment,
-                    err.what());
-      continue;
+    m->path = path;
+    if (path == Path::shm) {
+      try {
+        m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment));
+      } catch (const shm::Error& err) {
+        // The publisher may be gone or be creating a new generation: retried on its next beacon.
+        spdlog::debug("lcmx: channel '{}': cannot open {} yet: {}", sub.channel(), e->shm_segment,
+                      err.what());
+        continue;
+      }
     }
     st.matches.push_back(m);
     events.push_back({Event::Kind::publisher_matched, sub.channel(),
                       "channel '" + sub.channel() + "': node '" + st.node_name +
                           "' receives from process " + b->process_name + " pid " +
-                          std::to_string(b->pid) + " node '" + e->node + "' (shm)"});
+                          std::to_string(b->pid) + " node '" + e->node + "' (" +
+                          to_string(path) + ")"});
   }
   for (auto& m : removed)
     events.push_back({Event::Kind::publisher_unmatched, sub.channel(),
@@ -229,8 +353,10 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
 // Counts subscribers of other processes that report a match with `pub` (they opened its
 // segment), and reports remote subscribers of another type.
 void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& events) {
-  std::size_t n = 0;
-  for (const auto& [pid, b] : remotes) {
+  std::size_t counts[2] = {0, 0};  // shm (this host), udp (other hosts)
+  for (const auto* scope_map : {&remotes, &vehicle_remotes})
+  for (const auto& [pid, b] : *scope_map) {
+    auto& n = counts[scope_map == &remotes ? 0 : 1];
     for (const auto& e : b.endpoints) {
       if (e.kind != lcmx_msgs::endpoint_t::KIND_SUBSCRIBER || e.topic != pub.channel()) continue;
       if (!compatible(e.fingerprint, pub.type.fingerprint)) {
@@ -250,7 +376,7 @@ void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& ev
           ++n;
     }
   }
-  pub.set_remote_subscribers(n);
+  pub.set_remote_subscribers(counts[0], counts[1]);
 }
 
 void RuntimeImpl::add_publisher(PublisherImpl* pub) {
@@ -269,7 +395,7 @@ void RuntimeImpl::remove_publisher(PublisherImpl* pub) {
   {
     std::lock_guard lock(mu);
     pubs.erase(pub->id);
-    rates.erase(pub->id);
+    rates.erase(pub->id * 2), rates.erase(pub->id * 2 + 1);
     for (auto& [id, sub] : subs) {
       auto& st = *sub->state;
       std::lock_guard l2(st.mu);
@@ -302,29 +428,48 @@ void RuntimeImpl::remove_subscriber(const SubscriberCore* sub) {
     std::lock_guard lock(mu);
     for (auto& [id, pub] : pubs) pub->remove_intra(sub);
     subs.erase(sub->id);
-    rates.erase(sub->id);
+    rates.erase(sub->id * 2), rates.erase(sub->id * 2 + 1);
   }
   changed();
 }
 
-void RuntimeImpl::on_participant(discovery::Change change, const discovery::Participant& p) {
+// Scopes (DESIGN.md "Discovery"): a host-scope beacon comes from a participant of this host
+// (shm path); a vehicle-scope beacon from another host's participant (udp path). Vehicle
+// beacons of this host's participants are ignored: they are known through the host scope.
+void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
+                                 const discovery::Participant& p) {
   const auto& b = p.beacon;
-  if (static_cast<std::uint64_t>(b.host_id) != host) return;  // other hosts: issue 3
+  const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
+  const bool same_host = static_cast<std::uint64_t>(b.host_id) == host;
+  if (vehicle == same_host) return;
+  auto& scope_map = vehicle ? vehicle_remotes : remotes;
   std::vector<Event> events;
   {
     std::lock_guard lock(mu);
+    // Sources: which UDP sender is which participant.
+    auto forget_sources = [&](std::map<std::string, std::int64_t>& m) {
+      std::erase_if(m, [&](const auto& kv) { return kv.second == b.participant_id; });
+    };
+    forget_sources(vehicle ? vehicle_sources : host_sources);
+    const std::string where = vehicle ? " on host " + std::to_string(b.host_id) : "";
     if (change == discovery::Change::left) {
-      remotes.erase(b.participant_id);
+      scope_map.erase(b.participant_id);
       events.push_back({Event::Kind::participant_left, "",
-                        "participant " + b.process_name + " pid " + std::to_string(b.pid) + " left"});
+                        "participant " + b.process_name + " pid " + std::to_string(b.pid) + where + " left"});
     } else {
       if (change == discovery::Change::joined)
         events.push_back({Event::Kind::participant_joined, "",
-                          "participant " + b.process_name + " pid " + std::to_string(b.pid) +
+                          "participant " + b.process_name + " pid " + std::to_string(b.pid) + where +
                               " joined"});
-      remotes[b.participant_id] = b;
+      scope_map[b.participant_id] = b;
+      if (vehicle) {
+        if (!b.vehicle_source.empty()) vehicle_sources[b.vehicle_source] = b.participant_id;
+      } else {
+        if (!b.local_source.empty()) host_sources[b.local_source] = b.participant_id;
+        if (!b.vehicle_source.empty()) host_sources[b.vehicle_source] = b.participant_id;
+      }
     }
-    const auto before_matches = [&] {
+  const auto before_matches = [&] {
       std::size_t n = 0;
       for (auto& [id, sub] : subs) {
         std::lock_guard l2(sub->state->mu);
@@ -337,9 +482,12 @@ void RuntimeImpl::on_participant(discovery::Change change, const discovery::Part
     for (auto& [id, pub] : pubs) count_remote_locked(*pub, events);
     if (before_matches() != n0) ++revision, announce_pending = true;
   }
-  if (announce_pending.exchange(false) && disco) disco->announce_now();
+  if (announce_pending.exchange(false)) {
+    if (disco) disco->announce_now();
+    if (disco_vehicle) disco_vehicle->announce_now();
+  }
   // A participant of this host that vanished without a goodbye may have left shared memory.
-  if (change == discovery::Change::left && options.reclaim_orphans) {
+  if (!vehicle && change == discovery::Change::left && options.reclaim_orphans) {
     const auto r = shm::reclaim_orphans();
     if (r.removed > 0)
       spdlog::info("lcmx: removed {} shared-memory segments of {} pid {}", r.removed,
@@ -348,9 +496,15 @@ void RuntimeImpl::on_participant(discovery::Change change, const discovery::Part
   emit(std::move(events));
 }
 
-lcmx_msgs::beacon_t RuntimeImpl::build_beacon() {
+// Host scope: everything. Vehicle scope: the same endpoints without what only this host can
+// use (shm segment names); addresses as "ip:port", never hostnames.
+lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
+  const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
   lcmx_msgs::beacon_t b;
-  b.version = 1;
+  b.version = discovery::kBeaconVersion;
+  b.scope = scope;
+  b.local_source = udpm::to_string(local_group->local_source());
+  if (vehicle_group) b.vehicle_source = udpm::to_string(vehicle_group->local_source());
   b.participant_id = static_cast<std::int64_t>(participant_id);
   b.host_id = static_cast<std::int64_t>(host);
   b.pid = static_cast<std::int32_t>(::getpid());
@@ -358,7 +512,7 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon() {
   b.flags = 0;
   const auto now = std::chrono::steady_clock::now();
   auto rate = [&](std::uint64_t id, std::uint64_t count) {
-    auto& r = rates[id];
+    auto& r = rates[id * 2 + (vehicle ? 1 : 0)];
     double hz = 0;
     if (r.when != std::chrono::steady_clock::time_point{}) {
       const double dt = std::chrono::duration<double>(now - r.when).count();
@@ -370,7 +524,7 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon() {
     return hz;
   };
   std::lock_guard lock(mu);
-  b.revision = revision;
+  b.revision = revision.load();
   for (auto& w : nodes)
     if (auto n = w.lock()) b.nodes.push_back(n->name);
   b.num_nodes = static_cast<std::int32_t>(b.nodes.size());
@@ -382,7 +536,8 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon() {
     e.topic = pub->channel();
     e.type_name = pub->type.name;
     e.fingerprint = pub->type.fingerprint;
-    e.shm_segment = pub->segment_name();
+    if (!vehicle) e.shm_segment = pub->segment_name();
+    e.large = pub->large() ? 1 : 0;
     e.max_message_size = static_cast<std::int64_t>(pub->options.max_message_size);
     e.messages = static_cast<std::int64_t>(pub->published());
     e.rate_hz = rate(id, pub->published());
@@ -441,6 +596,31 @@ long env_number(const char* name, long fallback, long min, long max) {
 RuntimeOptions RuntimeOptions::from_env() {
   RuntimeOptions o;
   if (const char* url = std::getenv("LCMX_DISCOVERY_URL"); url && *url) o.discovery_url = url;
+  if (const char* url = std::getenv("LCMX_VEHICLE_URL"); url && *url) o.vehicle_url = url;
+  if (const char* v = std::getenv("LCMX_VEHICLE_PUBLISH"); v && *v) {
+    const std::string s = v;
+    if (s == "always") o.vehicle_publish = VehiclePublish::always;
+    else if (s == "on_demand") o.vehicle_publish = VehiclePublish::on_demand;
+    else throw Error(Errc::invalid_argument, "LCMX_VEHICLE_PUBLISH='" + s + "': expected on_demand or always");
+  }
+  o.udp_limit = static_cast<std::size_t>(env_number("LCMX_UDP_LIMIT", static_cast<long>(o.udp_limit), 1, 1L << 28));
+  o.mirror = env_number("LCMX_MIRROR", o.mirror ? 1 : 0, 0, 1) == 1;
+  for (auto [var, cls] : {std::pair{"LCMX_LARGE_TOPICS", TopicClass::large},
+                          std::pair{"LCMX_SMALL_TOPICS", TopicClass::small}}) {
+    const char* v = std::getenv(var);
+    if (!v) continue;
+    std::string list = v;
+    for (std::size_t pos = 0; pos <= list.size();) {
+      const auto comma = std::min(list.find(',', pos), list.size());
+      const auto name = list.substr(pos, comma - pos);
+      if (!name.empty()) {
+        if (name.size() > kMaxChannelLength)
+          throw Error(Errc::invalid_argument, std::string(var) + ": channel '" + name + "' is longer than 63 bytes");
+        o.topic_class[name] = cls;
+      }
+      pos = comma + 1;
+    }
+  }
   o.beacon_period = std::chrono::milliseconds(env_number("LCMX_BEACON_PERIOD_MS", o.beacon_period.count(), 10, 60000));
   o.lease = std::chrono::milliseconds(env_number("LCMX_LEASE_MS", o.lease.count(), 50, 600000));
   return o;
@@ -457,7 +637,7 @@ Runtime Runtime::create(RuntimeOptions options) {
     throw Error(Errc::already_exists, "a lcmx::Runtime already exists in this process");
   try {
     auto impl = std::make_shared<detail::RuntimeImpl>(std::move(options));
-    impl->start_discovery();
+    impl->start_transports();
     return Runtime(std::move(impl));
   } catch (...) {
     detail::g_runtime_alive.store(false);

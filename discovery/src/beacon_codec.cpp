@@ -32,6 +32,10 @@ class Walker {
     std::int32_t len = 0;
     if (!i32(&len) || len < 1) return fail();
     if (static_cast<std::size_t>(len) > b_.size() - pos_) return fail();
+    // Exactly one NUL, at the end: LCM encoders stop at the first NUL, so a string with an
+    // inner NUL was not written by one (and would not survive re-encoding).
+    for (std::int32_t i = 0; i < len - 1; ++i)
+      if (b_[pos_ + i] == std::byte{0}) return fail();
     if (b_[pos_ + len - 1] != std::byte{0}) return fail();
     pos_ += static_cast<std::size_t>(len);
     return ok_;
@@ -59,8 +63,10 @@ bool walk_match(Walker& w) {
 }
 
 bool walk_endpoint(Walker& w) {
-  if (!(w.i64() && w.i8() && w.str() && w.str() && w.str() && w.i64() && w.str() && w.i64() &&
-        w.i64() && w.i64() && w.f64()))
+  // id, kind, node, topic, type_name, fingerprint, shm_segment, large, max_message_size,
+  // messages, drops, rate_hz
+  if (!(w.i64() && w.i8() && w.str() && w.str() && w.str() && w.i64() && w.str() && w.i8() &&
+        w.i64() && w.i64() && w.i64() && w.f64()))
     return false;
   std::int32_t n = 0;
   if (!w.count(&n, 8 + 8 + kMinString + 8 + 8)) return false;
@@ -74,15 +80,15 @@ bool walk_endpoint(Walker& w) {
 
 bool walk_beacon(Walker& w) {
   // fingerprint, version, participant_id, host_id, pid, process_name, sequence, revision,
-  // flags, lease_ms, timestamp_us
+  // flags, lease_ms, timestamp_us, scope, local_source, vehicle_source
   if (!(w.i64() && w.i32() && w.i64() && w.i64() && w.i32() && w.str() && w.i64() && w.i64() &&
-        w.i8() && w.i32() && w.i64()))
+        w.i8() && w.i32() && w.i64() && w.i8() && w.str() && w.str()))
     return false;
   std::int32_t n = 0;
   if (!w.count(&n, kMinString)) return false;
   for (std::int32_t i = 0; i < n; ++i)
     if (!w.str()) return false;
-  constexpr std::size_t kMinEndpoint = 8 + 1 + 4 * kMinString + 8 * 5 + 4 + 4;
+  constexpr std::size_t kMinEndpoint = 8 + 1 + 4 * kMinString + 1 + 8 * 5 + 4 + 4;
   if (!w.count(&n, kMinEndpoint)) return false;
   for (std::int32_t i = 0; i < n; ++i)
     if (!walk_endpoint(w)) return false;

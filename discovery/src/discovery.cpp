@@ -22,14 +22,15 @@ struct Discovery::Impl {
   Options options;
   LocalFn local;
   ChangeFn on_change;
-  udpm::Group group;
+  std::shared_ptr<udpm::Group> group;
+  bool receive = true;  // false with a shared group: the owner calls deliver()
   int wake_fd = -1;  // eventfd: announce_now()/query()/stop() wake the thread
   std::atomic<bool> want_announce{true};
   std::atomic<bool> want_query{false};
   std::atomic<bool> stopping{false};
   std::thread thread;
   std::int64_t sequence = 0;
-  std::uint64_t self_id = 0;  // participant id from our own beacons, to ignore our echo
+  std::atomic<std::uint64_t> self_id{0};  // our participant id, to ignore our own echo
 
   mutable std::mutex mutex;  // guards peers and counters
   std::map<std::int64_t, Participant> peers;
@@ -38,7 +39,9 @@ struct Discovery::Impl {
 
   Impl(Options o, LocalFn l, ChangeFn c)
       : options(std::move(o)), local(std::move(l)), on_change(std::move(c)),
-        group(udpm::Group::open(options.group)) {
+        group(options.shared_group ? options.shared_group
+                                   : std::make_shared<udpm::Group>(udpm::Group::open(options.group))),
+        receive(!options.shared_group) {
     wake_fd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
     if (wake_fd < 0) throw std::runtime_error("discovery: eventfd failed");
   }
@@ -67,12 +70,13 @@ struct Discovery::Impl {
     b.sequence = ++sequence;
     b.flags = static_cast<std::int8_t>(b.flags | flags);
     b.lease_ms = static_cast<std::int32_t>(options.lease.count());
+    b.scope = options.scope;
     b.timestamp_us = std::chrono::duration_cast<std::chrono::microseconds>(
                          std::chrono::system_clock::now().time_since_epoch())
                          .count();
     const auto bytes = encode_beacon(b);
     try {
-      group.publish(kBeaconChannel, bytes);
+      group->publish(kBeaconChannel, bytes);
       std::lock_guard lock(mutex);
       ++counters.beacons_sent;
     } catch (const std::exception& e) {
@@ -184,15 +188,15 @@ struct Discovery::Impl {
       until = std::min(until, next_expiry());
       auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       wait = std::clamp(wait, std::chrono::milliseconds(0), std::chrono::milliseconds(1000));
-      pollfd fds[2] = {{group.fd(), POLLIN, 0}, {wake_fd, POLLIN, 0}};
+      pollfd fds[2] = {{wake_fd, POLLIN, 0}, {receive ? group->fd() : -1, POLLIN, 0}};
       const int r = ::poll(fds, 2, static_cast<int>(wait.count()));
-      if (r > 0 && (fds[1].revents & POLLIN)) {
+      if (r > 0 && (fds[0].revents & POLLIN)) {
         std::uint64_t v;
         [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);
       }
-      if (r > 0 && (fds[0].revents & POLLIN)) {
+      if (r > 0 && (fds[1].revents & POLLIN)) {
         try {
-          group.drain([this](const udpm::Message& m) { on_datagram(m); });
+          group->drain([this](const udpm::Message& m) { on_datagram(m); });
         } catch (const std::exception& e) {
           spdlog::warn("lcmx discovery: receive failed: {}", e.what());
         }
@@ -221,6 +225,13 @@ void Discovery::announce_now() {
 void Discovery::query() {
   impl_->want_query = true;
   impl_->wake();
+}
+
+void Discovery::deliver(const udpm::Message& message) {
+  const bool wake = !impl_->options.observer && !impl_->want_announce.load();
+  impl_->on_datagram(message);
+  // A query asks us to beacon now: wake the thread if on_datagram set want_announce.
+  if (wake && impl_->want_announce.load()) impl_->wake();
 }
 
 void Discovery::stop() {

@@ -298,13 +298,20 @@ std::uint32_t Writer::live_readers() const noexcept {
   return n;
 }
 
+// Counts the current generation and the older ones still kept: a Reader registered in an
+// older generation has not followed yet but will read this one's messages, so they must be
+// written (counting only the current generation lost messages right after growth).
 std::uint32_t Writer::registered_readers() const noexcept {
-  const auto& seg = *impl_->seg;
-  const std::uint32_t hw =
-      std::min(seg.hdr->sub_high_water.load(std::memory_order_acquire), seg.geo.max_subscribers);
-  std::uint32_t n = 0;
-  for (std::uint32_t i = 0; i < hw; ++i)
-    if (seg.sub(i).state.load(std::memory_order_acquire) == detail::kSubActive) ++n;
+  auto count = [](const detail::Segment& seg) {
+    const std::uint32_t hw =
+        std::min(seg.hdr->sub_high_water.load(std::memory_order_acquire), seg.geo.max_subscribers);
+    std::uint32_t n = 0;
+    for (std::uint32_t i = 0; i < hw; ++i)
+      if (seg.sub(i).state.load(std::memory_order_acquire) == detail::kSubActive) ++n;
+    return n;
+  };
+  std::uint32_t n = count(*impl_->seg);
+  for (const auto& old : impl_->old_gens) n += count(*old);
   return n;
 }
 

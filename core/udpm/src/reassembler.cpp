@@ -1,5 +1,6 @@
 #include "reassembler.hpp"
 
+#include <algorithm>
 #include <cstring>
 
 namespace lcmx::udpm::detail {
@@ -59,10 +60,19 @@ std::optional<Reassembler::Complete> Reassembler::add(const ParsedDatagram& d, S
   // parse_datagram guarantees fragment_offset + payload.size() <= total_size.
   if (!d.payload.empty()) std::memcpy(p.data.get() + d.fragment_offset, d.payload.data(), d.payload.size());
   p.bytes += d.payload.size();
+  p.extents.emplace_back(d.fragment_offset, static_cast<std::uint32_t>(d.payload.size()));
 
   if (p.received < p.fragment_count) return std::nullopt;
-  if (p.bytes != p.total_size) {
-    // Every fragment arrived but they do not cover the message exactly (overlaps or gaps).
+  // Every fragment arrived: they must tile [0, total_size) exactly, without overlaps or gaps
+  // (equal byte sums are not enough: an overlap can hide a gap of the same size).
+  std::sort(p.extents.begin(), p.extents.end());
+  std::uint64_t end = 0;
+  bool tiled = true;
+  for (const auto& [offset, length] : p.extents) {
+    tiled = tiled && offset == end;
+    end = std::uint64_t{offset} + length;
+  }
+  if (!tiled || end != p.total_size || p.bytes != p.total_size) {
     ++stats_.malformed_dropped;
     erase(it);
     return std::nullopt;

@@ -71,6 +71,8 @@ class Reassembler {
     std::string channel;
     std::unique_ptr<std::byte[]> data;  // total_size bytes, filled as fragments arrive
     std::vector<bool> seen;             // per fragment number
+    // (offset, length) of each fragment received, to check they tile the message exactly.
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> extents;
     std::uint32_t total_size = 0;
     std::uint16_t fragment_count = 0;
     std::uint16_t received = 0;

@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <map>
 #include <string>
 
 namespace lcmx {
@@ -38,18 +39,53 @@ struct PublisherOptions {
   std::size_t shm_initial_slot_size = 4096;  // grows by itself up to max_message_size
 };
 
+// What a full subscriber queue (in-process and UDP messages) does with a new message.
+enum class QueuePolicy {
+  drop_oldest,  // default: keep the newest messages
+  drop_newest,  // keep what is queued, drop the new one
+};
+
 struct SubscriberOptions {
-  std::size_t queue_depth = 16;  // intra-process queue per subscriber; full -> drop oldest
+  std::size_t queue_depth = 16;  // in-process / UDP queue per subscriber (shm has its own ring)
+  QueuePolicy policy = QueuePolicy::drop_oldest;
+};
+
+// A topic's class decides its path to other hosts (DESIGN.md "Delivery").
+enum class TopicClass {
+  automatic,  // small until a message exceeds RuntimeOptions::udp_limit, then large (sticky)
+  small,      // always LCM UDP multicast to other hosts
+  large,      // always the Message Bridge to other hosts (UDP fragments until it exists)
+};
+
+// When small topics are sent on the vehicle group.
+enum class VehiclePublish {
+  on_demand,  // only while a subscriber on another host wants the topic (default)
+  always,     // every message, like stock LCM (for liblcm subscribers on other hosts)
 };
 
 struct RuntimeOptions {
-  // Host-local discovery group (LCM's default URL). Tests use their own group/port.
+  // Host-local group (LCM's default URL): discovery on this host, messages from stock LCM
+  // programs, and the mirror. Tests use their own group/port.
   std::string discovery_url = "udpm://239.255.76.67:7667?ttl=0";
+  // Vehicle group across hosts, e.g. "udpm://239.255.76.68:7668?ttl=1&iface=eth0"; the
+  // interface is required. Empty: this host only.
+  std::string vehicle_url;
+  VehiclePublish vehicle_publish = VehiclePublish::on_demand;
+  // A message larger than this (encoded bytes) makes an automatic topic large: one LCM
+  // datagram (LC02) carries up to 65499 bytes with the channel name.
+  std::size_t udp_limit = 65000;
+  // Also publish small messages on the host-local group, so stock lcm-logger / lcm-spy on
+  // this host see them.
+  bool mirror = false;
+  // Per-channel class overrides (channel name -> class).
+  std::map<std::string, TopicClass> topic_class;
   std::chrono::milliseconds beacon_period{1000};
   std::chrono::milliseconds lease{3500};
   bool reclaim_orphans = true;  // remove shm segments of dead processes at start
 
-  // Defaults overridden by the environment: LCMX_DISCOVERY_URL, LCMX_BEACON_PERIOD_MS,
+  // Defaults overridden by the environment: LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL,
+  // LCMX_VEHICLE_PUBLISH (on_demand|always), LCMX_UDP_LIMIT, LCMX_MIRROR (0|1),
+  // LCMX_LARGE_TOPICS / LCMX_SMALL_TOPICS (comma-separated channels), LCMX_BEACON_PERIOD_MS,
   // LCMX_LEASE_MS. Throws lcmx::Error(invalid_argument) naming a bad variable.
   static RuntimeOptions from_env();
 };

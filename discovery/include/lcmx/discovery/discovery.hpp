@@ -28,6 +28,11 @@ namespace lcmx::discovery {
 
 struct Options {
   udpm::GroupConfig group;                          // default: LCM's host-local group on lo
+  // When set, beacons are sent on this group (owned with others) instead of one opened
+  // from `group`, and nothing is received by the Discovery: the owner reads the group and
+  // hands beacon-channel messages to deliver().
+  std::shared_ptr<udpm::Group> shared_group;
+  std::int8_t scope = lcmx_msgs::beacon_t::SCOPE_HOST;  // written into every beacon
   std::chrono::milliseconds period{1000};           // periodic beacon
   std::chrono::milliseconds lease{3500};            // announced; others drop us after this
   bool observer = false;                            // query only, never announce
@@ -66,6 +71,8 @@ class Discovery {
   void announce_now();
   // Observers: ask every participant to beacon now.
   void query();
+  // With Options::shared_group: a message received on the beacon channel. Any thread.
+  void deliver(const udpm::Message& message);
   // Sends the goodbye and joins the thread. Idempotent.
   void stop();
 

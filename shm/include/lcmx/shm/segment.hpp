@@ -119,8 +119,9 @@ class Writer {
   const std::string& segment_name() const;     // current generation's name
   std::uint64_t published() const noexcept;    // messages committed so far
   std::uint32_t live_readers() const noexcept; // Readers registered now (dead ones not counted)
-  // Readers registered now, dead ones included until reclaimed. Cheap (no /proc access):
-  // for the publish hot path; live_readers() checks each reader's process.
+  // Readers registered now in this or an older generation they have not left yet, dead
+  // ones included until reclaimed. Cheap (no /proc access): for the publish hot path;
+  // live_readers() checks each reader's process (current generation only).
   std::uint32_t registered_readers() const noexcept;
 
  private:
