@@ -117,6 +117,7 @@ struct WriterImpl {
   void grow(std::size_t size);
   bool pinned(std::uint64_t seq) const noexcept;
   std::uint32_t acquire_slot();
+  bool readers_caught_up() const noexcept;
   void abort_loan(std::uint32_t slot) noexcept;
   std::uint64_t commit(std::uint32_t slot, std::size_t size);
   void bump_and_wake(const Segment& s) noexcept;

@@ -84,7 +84,7 @@ void ReaderImpl::unpin(int pin) noexcept {
 void ReaderImpl::publish_counters() noexcept {
   auto& e = cur->sub();
   e.drops.store(drops, std::memory_order_relaxed);
-  e.received.store(received, std::memory_order_relaxed);
+  e.next.store(next, std::memory_order_relaxed);
 }
 
 bool ReaderImpl::try_follow() {

@@ -250,7 +250,7 @@ std::uint32_t register_subscriber(const Segment& seg, std::int32_t pid, std::uin
     }
     for (auto& p : e.pins) p.store(kPinFree, std::memory_order_relaxed);
     e.drops.store(0, std::memory_order_relaxed);
-    e.received.store(0, std::memory_order_relaxed);
+    e.next.store(0, std::memory_order_relaxed);
     e.start_time.store(start, std::memory_order_relaxed);
     e.pid.store(pid, std::memory_order_release);
     // Raise the high-water mark (seq_cst) before any pin can be stored: the writer loads it

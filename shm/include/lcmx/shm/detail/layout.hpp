@@ -36,7 +36,7 @@ namespace lcmx::shm::detail {
 
 inline constexpr std::size_t kCacheLine = 64;
 inline constexpr std::uint32_t kMagic = 0x584d434cu;  // "LCMX" little-endian
-inline constexpr std::uint32_t kVersion = 1;
+inline constexpr std::uint32_t kVersion = 2;  // 2: SubscriberEntry::next replaces received
 inline constexpr int kMaxPins = 4;                     // == Reader::kMaxPins
 
 inline constexpr std::uint64_t kSlotEmpty = ~std::uint64_t{0} - 1;
@@ -104,7 +104,9 @@ struct SubscriberEntry {
   std::atomic<std::uint64_t> start_time;
   std::atomic<std::uint64_t> pins[kMaxPins];
   std::atomic<std::uint64_t> drops;      // informational (the Reader keeps its own copy)
-  std::atomic<std::uint64_t> received;   // informational
+  // Seq (this generation) of the next message this Reader will take. A hint for the Writer's
+  // slot choice (relaxed; pins and seq checks keep reads safe whatever it says).
+  std::atomic<std::uint64_t> next;
 };
 
 struct SlotHeader {
@@ -137,7 +139,7 @@ static_assert(offsetof(SegmentHeader, futex_word) == 3 * kCacheLine);
 static_assert(offsetof(SegmentHeader, waiters) == 3 * kCacheLine + 4);
 static_assert(sizeof(SubscriberEntry) == kCacheLine);
 static_assert(offsetof(SubscriberEntry, pins) == 16);
-static_assert(offsetof(SubscriberEntry, received) == 56);
+static_assert(offsetof(SubscriberEntry, next) == 56);
 static_assert(sizeof(SlotHeader) == kCacheLine);
 
 constexpr std::uint64_t round_up(std::uint64_t v, std::uint64_t a) noexcept {
