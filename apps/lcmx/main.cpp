@@ -4,7 +4,10 @@
 #include <CLI/CLI.hpp>
 #include <spdlog/spdlog.h>
 
+#include <cstdlib>
 #include <iostream>
+#include <memory>
+#include <set>
 #include <thread>
 
 #include "lcmx/core/options.hpp"
@@ -13,19 +16,31 @@
 
 namespace {
 
-std::vector<lcmx::discovery::Participant> observe(const std::string& url, int wait_ms) {
-  lcmx::discovery::Options o;
-  o.group = lcmx::udpm::parse_url(url);
-  o.observer = true;
-  lcmx::discovery::Discovery d(o, nullptr, nullptr);
+// Listens on the host-local group, and on the vehicle group when given, for `wait_ms`.
+// A participant seen in both scopes is listed once, from its host-local beacon (complete).
+std::vector<lcmx::discovery::Participant> observe(const std::string& url, const std::string& vehicle_url,
+                                                  int wait_ms) {
+  std::vector<std::unique_ptr<lcmx::discovery::Discovery>> observers;
+  for (const auto& u : {url, vehicle_url}) {
+    if (u.empty()) continue;
+    lcmx::discovery::Options o;
+    o.group = lcmx::udpm::parse_url(u);
+    o.observer = true;
+    observers.push_back(std::make_unique<lcmx::discovery::Discovery>(o, nullptr, nullptr));
+  }
   // Participants answer the query at once; a second query covers a lost datagram.
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(wait_ms);
-  std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms / 2));
-  d.query();
+  std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms / 2));  // a listening window
+  for (auto& d : observers) d->query();
   std::this_thread::sleep_until(deadline);
-  auto ps = d.participants();
-  d.stop();
-  return ps;
+  std::vector<lcmx::discovery::Participant> all;
+  std::set<std::int64_t> seen;
+  for (auto& d : observers) {
+    for (auto& p : d->participants())
+      if (seen.insert(p.beacon.participant_id).second) all.push_back(std::move(p));
+    d->stop();
+  }
+  return all;
 }
 
 }  // namespace
@@ -33,9 +48,15 @@ std::vector<lcmx::discovery::Participant> observe(const std::string& url, int wa
 int main(int argc, char** argv) {
   CLI::App app{"lcmx: inspect and operate an lcmx system (https://... see README.md)"};
   app.require_subcommand(1);
+  app.fallthrough();  // global options may also come after the verb
   std::string url = lcmx::RuntimeOptions::from_env().discovery_url;
   int wait_ms = 400;
   app.add_option("--url", url, "discovery group (default: LCMX_DISCOVERY_URL or LCM's default)")
+      ->capture_default_str();
+  std::string vehicle_url;
+  if (const char* v = std::getenv("LCMX_VEHICLE_URL")) vehicle_url = v;
+  app.add_option("--vehicle-url", vehicle_url,
+                 "vehicle group, to see other hosts too (default: LCMX_VEHICLE_URL)")
       ->capture_default_str();
   app.add_option("--wait", wait_ms, "how long to listen for beacons, in milliseconds")
       ->check(CLI::Range(50, 60000))
@@ -52,7 +73,7 @@ int main(int argc, char** argv) {
   }
   spdlog::set_level(spdlog::level::warn);
   try {
-    const auto ps = observe(url, wait_ms);
+    const auto ps = observe(url, vehicle_url, wait_ms);
     if (nodes->parsed()) lcmx::cli::print_nodes(std::cout, ps);
     if (topics->parsed()) lcmx::cli::print_topics(std::cout, ps);
   } catch (const std::exception& e) {

@@ -38,7 +38,10 @@ void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& p
   for (const auto& p : ps) {
     const auto& b = p.beacon;
     out << "participant " << b.process_name << " pid " << b.pid << "  host " << host_hex(b.host_id)
-        << "  id " << b.participant_id << "\n";
+        << "  id " << b.participant_id << "  seen on "
+        << (b.scope == Beacon::SCOPE_VEHICLE ? "vehicle group" : "host-local group");
+    if (!b.vehicle_source.empty()) out << "  vehicle address " << b.vehicle_source;
+    out << "\n";
     for (const auto& n : b.nodes) {
       out << "  node " << n << "\n";
       for (const auto& e : b.endpoints) {
@@ -86,7 +89,8 @@ void print_topics(std::ostream& out, const std::vector<discovery::Participant>& 
     for (const auto& r : refs) {
       if (r.e->kind != Endpoint::KIND_PUBLISHER) continue;
       out << "  pub " << who(*r.b, *r.e) << "  host " << host_hex(r.b->host_id) << "  "
-          << r.e->messages << " msgs  " << fmt("%.1f Hz", r.e->rate_hz) << "\n";
+          << r.e->messages << " msgs  " << fmt("%.1f Hz", r.e->rate_hz)
+          << (r.e->large ? "  class large" : "  class small") << "\n";
     }
     for (const auto& r : refs) {
       if (r.e->kind != Endpoint::KIND_SUBSCRIBER) continue;
