@@ -223,13 +223,22 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
 
 // ---------------------------------------------------------------- free functions
 
-std::shared_ptr<PublisherCore> create_publisher(NodeImpl& node, std::string channel,
-                                                const TypeInfo& type, PublisherOptions options) {
+namespace {
+// LCM's rules: 1 to 63 bytes, no NUL (the wire format ends the name with one).
+void validate_channel(const std::string& channel) {
   if (channel.empty()) throw Error(Errc::invalid_argument, "channel name is empty");
   if (channel.size() > kMaxChannelLength)
     throw Error(Errc::channel_too_long, "channel '" + channel + "' is " +
                                             std::to_string(channel.size()) +
                                             " bytes; LCM allows at most 63");
+  if (channel.find('\0') != std::string::npos)
+    throw Error(Errc::invalid_argument, "channel name contains a NUL byte");
+}
+}  // namespace
+
+std::shared_ptr<PublisherCore> create_publisher(NodeImpl& node, std::string channel,
+                                                const TypeInfo& type, PublisherOptions options) {
+  validate_channel(channel);
   auto pub = std::make_shared<PublisherImpl>(node.shared_from_this(), std::move(channel), type,
                                              options);
   node.runtime->add_publisher(pub.get());
@@ -237,12 +246,7 @@ std::shared_ptr<PublisherCore> create_publisher(NodeImpl& node, std::string chan
 }
 
 void add_subscriber(NodeImpl& node, const std::shared_ptr<SubscriberCore>& sub) {
-  const auto& channel = sub->channel();
-  if (channel.empty()) throw Error(Errc::invalid_argument, "channel name is empty");
-  if (channel.size() > kMaxChannelLength)
-    throw Error(Errc::channel_too_long, "channel '" + channel + "' is " +
-                                            std::to_string(channel.size()) +
-                                            " bytes; LCM allows at most 63");
+  validate_channel(sub->channel());
   sub->state = std::make_shared<SubscriberState>();
   sub->state->node = node.shared_from_this();
   sub->state->node_name = node.name;
