@@ -1,0 +1,396 @@
+// Multi-host tests: real lcmx_test_peer / liblcm processes in 2 and 3 emulated hosts (network
+// namespaces joined by a bridge), DESIGN.md "Delivery", "LCM UDP multicast", "Discovery",
+// "Identity". Fragment loss dropping only that message is covered at unit level
+// (test/udpm/group_test.cpp "A missing fragment drops only that message").
+#include "multihost.hpp"
+
+using namespace lcmx::mh;
+using lcmx::it::parse_kv;
+using lcmx::it::wait_until;
+
+#define MH_REQUIRE_NETNS()                                   \
+  do {                                                       \
+    std::string why_;                                        \
+    if (!lcmx::test::netns_available(&why_)) {               \
+      WARN("skipped: no network namespaces here: " << why_); \
+      return;                                                \
+    }                                                        \
+  } while (0)
+
+namespace {
+
+void check_exact(const Summary& s, long long n) {
+  CHECK(s.num("received") == n);
+  CHECK(s.num("first") == 0);
+  CHECK(s.num("last") == n - 1);
+  CHECK(s.num("duplicates") == 0);
+  CHECK(s.num("out_of_order") == 0);
+  CHECK(s.num("gaps") == 0);
+  CHECK(s.num("bad_content") == 0);
+}
+
+}  // namespace
+
+TEST_CASE("small topic from host A: exactly once and in order on B and C (udp) and on A (shm)",
+          "[multihost][delivery]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(3, 1);
+  const auto ch = h.channel("SMALL");
+  const std::string n = "400";
+  std::vector<std::string> sub_args = {"sub", "--channel", ch, "--type", "pose", "--publishers", "1",
+                                       "--expect", n, "--queue-depth", "4096"};
+  Child* subs[3];
+  for (int host = 0; host < 3; ++host) {
+    subs[host] = &h.peer(host, sub_args);
+    REQUIRE(subs[host]->expect("READY"));
+  }
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", n, "--rate", "400",
+                         "--subscribers", "3", "--shm-slots", "1024", "--hold", "--id", "A"});
+  REQUIRE(pub.expect("MATCHED 3"));
+  for (auto* s : subs) REQUIRE(s->wait_seen("MATCHED", 10000ms));
+  REQUIRE(pub.expect("PUBLISHED"));
+  for (int host = 0; host < 3; ++host) {
+    INFO("subscriber on host " << host << ":\n" << subs[host]->output());
+    const auto st = of(subs[host]->read_summaries(15000ms), ch);
+    check_exact(st, std::stoll(n));
+    CHECK(st.num("drops") == 0);
+    CHECK(st.num("decode_errors") == 0);
+    CHECK(st.num("publishers") == 1);
+    CHECK(st.str("paths") == (host == 0 ? "shm" : "udp"));
+    CHECK(st.str("sources") == "A:" + n);
+    CHECK(subs[host]->wait() == 0);
+  }
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
+
+TEST_CASE("vehicle group: stock liblcm -> lcmx subscriber on another host", "[multihost][interop]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 2);
+  const auto ch = h.channel("LCM_TO_LCMX");
+  auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "bench", "--expect", "200",
+                         "--queue-depth", "4096"});
+  REQUIRE(sub.expect("READY"));
+  auto& lcm = h.lcm_peer(0, {"pub", without_iface(h.vehicle_url), ch, "200", "500", "1000", "L"});
+  REQUIRE(lcm.expect("done 200", 15000ms));
+  INFO(sub.output());
+  const auto st = of(sub.read_summaries(10000ms), ch);
+  check_exact(st, 200);
+  CHECK(st.num("decode_errors") == 0);
+  CHECK(st.str("paths") == "udp");
+  CHECK(st.str("sources") == "L:200");
+  CHECK(sub.wait() == 0);
+}
+
+TEST_CASE("vehicle group: lcmx publisher (LCMX_VEHICLE_PUBLISH=always) -> stock liblcm on another host",
+          "[multihost][interop]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 3);
+  const auto ch = h.channel("LCMX_TO_LCM");
+  auto& lcm = h.lcm_peer(1, {"sub", without_iface(h.vehicle_url), ch, "200", "20000"});
+  REQUIRE(lcm.expect("ready"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "bench", "--size", "1000", "--count", "200",
+                         "--rate", "500", "--hold", "--id", "X"},
+                     {"LCMX_VEHICLE_PUBLISH=always"});
+  REQUIRE(pub.expect("PUBLISHED"));
+  INFO(lcm.output());
+  const auto st = lcm.read_summaries(15000ms);
+  REQUIRE(st.size() == 1);
+  check_exact(st[0], 200);
+  CHECK(st[0].num("decode_errors") == 0);
+  CHECK(lcm.wait() == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
+
+TEST_CASE("host-local group: stock liblcm -> lcmx on the same host, and not on another host",
+          "[multihost][interop]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 4);
+  h.route_local_group_to_lo();
+  const auto ch = h.channel("LOCAL_LCM_TO_LCMX");
+  auto& sub = h.peer(0, {"sub", "--channel", ch, "--type", "bench", "--expect", "100",
+                         "--queue-depth", "4096"});
+  auto& other = h.peer(1, {"sub", "--channel", ch, "--type", "bench"});
+  REQUIRE(sub.expect("READY"));
+  REQUIRE(other.expect("READY"));
+  // liblcm on LCM's host-local form of the URL (ttl=0), as stock lcm-spy / lcm-logger use it.
+  auto& lcm = h.lcm_peer(0, {"pub", h.discovery_url, ch, "100", "500", "500", "L"});
+  REQUIRE(lcm.expect("done 100", 15000ms));
+  INFO(sub.output());
+  const auto st = of(sub.read_summaries(10000ms), ch);
+  check_exact(st, 100);
+  CHECK(st.str("paths") == "udp");
+  CHECK(sub.wait() == 0);
+  const auto o = of(other.summaries("quit"), ch);
+  CHECK(o.num("received") == 0);  // ttl=0: never left host 0
+  CHECK(other.wait() == 0);
+}
+
+TEST_CASE("host-local group: lcmx with LCMX_MIRROR=1 -> stock liblcm on the same host",
+          "[multihost][interop]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 5);
+  h.route_local_group_to_lo();
+  const auto ch = h.channel("MIRROR");
+  auto& lcm = h.lcm_peer(0, {"sub", h.discovery_url, ch, "150", "20000"});
+  auto& far = h.lcm_peer(1, {"sub", h.discovery_url, ch, "150", "20000"});
+  REQUIRE(lcm.expect("ready"));
+  REQUIRE(far.expect("ready"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "bench", "--size", "2000", "--count", "150",
+                         "--rate", "500", "--hold", "--id", "M"},
+                     {"LCMX_MIRROR=1"});
+  REQUIRE(pub.expect("PUBLISHED"));
+  INFO(lcm.output());
+  const auto st = lcm.read_summaries(15000ms);
+  REQUIRE(st.size() == 1);
+  check_exact(st[0], 150);
+  CHECK(lcm.wait() == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+  // No subscriber on another host and vehicle_publish=on_demand: nothing on the vehicle group,
+  // and the host-local group (ttl=0) stays on host 0.
+  const auto f = far.summaries("quit", 5000ms);
+  REQUIRE(f.size() == 1);
+  CHECK(f[0].num("received") == 0);
+}
+
+TEST_CASE("200 KB messages across hosts: the topic becomes large, UDP fragments arrive, one warning",
+          "[multihost][large]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 6);
+  const auto ch = h.channel("LARGE");
+  auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "bench", "--publishers", "1", "--expect",
+                         "40", "--queue-depth", "64"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "bench", "--size", "200000", "--count", "40",
+                         "--rate", "40", "--subscribers", "1", "--hold", "--id", "B"},
+                     {"SPDLOG_LEVEL=info"}, /*merge_stderr=*/true);
+  REQUIRE(pub.expect("MATCHED"));
+  REQUIRE(pub.expect("PUBLISHED", 20000ms));
+#ifdef LCMX_TOOL
+  const auto topics = h.run(1, {LCMX_TOOL, "--wait", "600", "topics"}, h.lcmx_env());
+  INFO("lcmx topics on host 1:\n" << topics.out);
+  CHECK(count_lines(topics.out, "class large") == 1);
+#endif
+  INFO("subscriber:\n" << sub.output());
+  const auto st = of(sub.read_summaries(15000ms), ch);
+  check_exact(st, 40);
+  CHECK(st.num("decode_errors") == 0);
+  CHECK(st.str("paths") == "udp");
+  CHECK(sub.wait() == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+  INFO("publisher:\n" << pub.output());
+  CHECK(count_lines(pub.text(), "is now large") == 1);
+  CHECK(count_lines(pub.text(), "no Message Bridge carries it yet") == 1);
+}
+
+TEST_CASE("host A killed -9: gone from B and C after the lease - lcmx nodes/topics with "
+          "LCMX_VEHICLE_URL show the hosts and the udp path per pair",
+          "[multihost][discovery][cli]") {
+  MH_REQUIRE_NETNS();
+#ifndef LCMX_TOOL
+  WARN("lcmx tool not built");
+#else
+  Hosts h(3, 7);
+  const auto ch = h.channel("LEAVE");
+  auto& sub_b = h.peer(1, {"sub", "--channel", ch, "--type", "pose", "--publishers", "1"});
+  auto& sub_c = h.peer(2, {"sub", "--channel", ch, "--type", "pose", "--publishers", "1"});
+  REQUIRE(sub_b.expect("READY"));
+  REQUIRE(sub_c.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "50",
+                         "--subscribers", "2", "--id", "A"});
+  auto& idle = h.peer(0, {"idle", "--node", "bystander"});
+  REQUIRE(pub.expect("MATCHED 2"));
+  REQUIRE(idle.expect("READY"));
+  REQUIRE(sub_b.wait_seen("MATCHED", 10000ms));
+  REQUIRE(sub_c.wait_seen("MATCHED", 10000ms));
+  REQUIRE(poll_sub(sub_b, ch, [](const Summary& s) { return s.num("received") >= 10; }, 10000ms));
+
+  // As a user on host 2 runs it: the environment of the host's lcmx programs.
+  const std::vector<std::string> nodes_cmd = {LCMX_TOOL, "--wait", "600", "nodes"};
+  const std::vector<std::string> topics_cmd = {LCMX_TOOL, "--wait", "600", "topics"};
+  const auto nodes = h.run(2, nodes_cmd, h.lcmx_env());
+  INFO("lcmx nodes on host 2:\n" << nodes.out);
+  REQUIRE(nodes.rc == 0);
+  const auto host_a = host_of(nodes.out, pub.pid());
+  const auto host_b = host_of(nodes.out, sub_b.pid());
+  const auto host_c = host_of(nodes.out, sub_c.pid());
+  CHECK(host_a.size() == 16);
+  CHECK(host_b.size() == 16);
+  CHECK(host_c.size() == 16);
+  CHECK(host_a != host_b);
+  CHECK(host_b != host_c);
+  CHECK(host_a != host_c);
+  CHECK(host_of(nodes.out, idle.pid()) == host_a);
+
+  const auto topics = h.run(2, topics_cmd, h.lcmx_env());
+  INFO("lcmx topics on host 2:\n" << topics.out);
+  REQUIRE(topics.rc == 0);
+  const auto chan = lines_with(topics.out, ch + "  [");
+  REQUIRE(chan.size() == 1);
+  CHECK(contains(chan[0], "pose_t]  1 publisher(s), 2 subscriber(s)"));
+  CHECK_FALSE(contains(chan[0], "CONFLICT"));
+  CHECK(count_lines(topics.out, "pub lcmx_test_peer[" + std::to_string(pub.pid()) + "]/peer  host " + host_a) == 1);
+  CHECK(count_lines(topics.out, "sub lcmx_test_peer[" + std::to_string(sub_b.pid()) + "]/peer  host " + host_b) == 1);
+  CHECK(count_lines(topics.out, "sub lcmx_test_peer[" + std::to_string(sub_c.pid()) + "]/peer  host " + host_c) == 1);
+  CHECK(count_lines(topics.out, "<- lcmx_test_peer[" + std::to_string(pub.pid()) + "]/peer  path udp") == 2);
+
+  // Host A dies: every process on it, no goodbye.
+  const pid_t pub_pid = pub.pid(), idle_pid = idle.pid();
+  const auto killed = Clock::now();
+  pub.kill9();
+  idle.kill9();
+  for (Child* s : {&sub_b, &sub_c}) {
+    INFO(s->output());
+    CHECK(s->expect("EVENT participant_left - participant lcmx_test_peer pid " + std::to_string(pub_pid),
+                    h.lease_ms + 5000ms));
+  }
+  const auto left_after = std::chrono::duration_cast<ms>(Clock::now() - killed);
+  CHECK(left_after >= h.lease_ms - 2 * h.beacon_ms);  // after the lease, not before
+  for (Child* s : {&sub_b, &sub_c}) {
+    const auto st = poll_sub(*s, ch, [](const Summary& x) { return x.num("publishers") == 0; }, 5000ms);
+    CHECK(st);
+  }
+  // The tool no longer shows host A's participants.
+  const auto after = h.run(1, nodes_cmd, h.lcmx_env());
+  INFO("lcmx nodes on host 1 after the kill:\n" << after.out);
+  CHECK(after.rc == 0);
+  CHECK(host_of(after.out, pub_pid).empty());
+  CHECK(host_of(after.out, idle_pid).empty());
+  CHECK(host_of(after.out, sub_b.pid()) == host_b);
+  CHECK(host_of(after.out, sub_c.pid()) == host_c);
+  sub_b.send("quit");
+  sub_c.send("quit");
+  CHECK(sub_b.wait() == 0);
+  CHECK(sub_c.wait() == 0);
+#endif
+}
+
+TEST_CASE("lcmx nodes/topics --vehicle-url show the other hosts' participants and the udp path",
+          "[multihost][cli]") {
+  MH_REQUIRE_NETNS();
+#ifndef LCMX_TOOL
+  WARN("lcmx tool not built");
+#else
+  Hosts h(2, 8);
+  const auto ch = h.channel("TOOL_ENV");
+  auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "pose", "--publishers", "1"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "50",
+                         "--subscribers", "1", "--id", "A"});
+  REQUIRE(pub.expect("MATCHED 1"));
+  // Flags instead of the environment.
+  const auto nodes = h.run(1, {LCMX_TOOL, "nodes", "--url", h.discovery_url, "--vehicle-url", h.vehicle_url,
+                               "--wait", "600"});
+  INFO("lcmx nodes on host 1 (--vehicle-url " << h.vehicle_url << "):\n" << nodes.out);
+  CHECK(nodes.rc == 0);
+  CHECK_FALSE(host_of(nodes.out, sub.pid()).empty());
+  CHECK_FALSE(host_of(nodes.out, pub.pid()).empty());  // the other host's participant
+  const auto topics = h.run(1, {LCMX_TOOL, "topics", "--url", h.discovery_url, "--vehicle-url",
+                                h.vehicle_url, "--wait", "600"});
+  INFO("lcmx topics on host 1:\n" << topics.out);
+  CHECK(count_lines(topics.out, "<- lcmx_test_peer[" + std::to_string(pub.pid()) + "]/peer  path udp") == 1);
+#endif
+}
+
+TEST_CASE("type mismatch across hosts: reported on both sides, not matched, nothing delivered",
+          "[multihost][types]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 9);
+  const auto ch = h.channel("MISMATCH");
+  auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "image"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "100",
+                         "--id", "A"});
+  REQUIRE(pub.expect("READY"));
+  INFO("subscriber:\n" << sub.output());
+  CHECK(sub.expect("EVENT type_mismatch " + ch, 10000ms));
+  CHECK(pub.expect("EVENT type_mismatch " + ch, 10000ms));
+  REQUIRE(wait_until([&] { return published(pub) >= 50; }, 10000ms, 20ms));
+  const auto st = of(sub.summaries("status"), ch);
+  CHECK(st.num("received") == 0);
+  CHECK(st.num("publishers") == 0);
+  CHECK(st.num("decode_errors") == 0);
+  CHECK(st.num("errors") >= 1);
+#ifdef LCMX_TOOL
+  const auto topics = h.run(1, {LCMX_TOOL, "--wait", "600", "topics"}, h.lcmx_env());
+  INFO("lcmx topics:\n" << topics.out);
+  const auto chan = lines_with(topics.out, ch + "  [");
+  REQUIRE(chan.size() == 1);
+  CHECK(contains(chan[0], "image_t"));
+  CHECK(contains(chan[0], "pose_t"));
+  CHECK(contains(chan[0], "CONFLICT"));
+#endif
+  sub.send("quit");
+  pub.send("quit");
+  CHECK(sub.wait() == 0);
+  CHECK(pub.wait() == 0);
+}
+
+// A publisher with LCMX_VEHICLE_PUBLISH=always is already sending on the vehicle group when a
+// subscriber starts: its first datagrams arrive before the publisher's beacon. Core bug (both
+// [!mayfail] tests below): RuntimeImpl::on_udp (core/src/runtime.cpp ~l.123-150) treats a source
+// it does not know yet (not in host_sources / vehicle_sources) as a stock LCM sender and creates
+// a permanent `foreign` udp Match for it. When the beacon arrives, sync_remote_locked adds the
+// real match but the foreign one stays: a subscriber of another type gets decode errors and
+// publishers=1 although the types mismatch; a same-type subscriber on the publisher's own host
+// gets paths "udp,shm" and publishers=2 (the first messages came over UDP, not shm); one on
+// another host gets publishers=2 for one publisher. Found: decode_errors=172, publishers 2.
+TEST_CASE("always-publisher already sending: a late subscriber of another type on another host gets nothing",
+          "[multihost][types][!mayfail]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 10);
+  const auto ch = h.channel("LATE_MISMATCH");
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "2000",
+                         "--id", "A"},
+                     {"LCMX_VEHICLE_PUBLISH=always"});
+  REQUIRE(pub.expect("READY"));
+  REQUIRE(wait_until([&] { return published(pub) >= 200; }, 10000ms, 20ms));
+  auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "image"});
+  REQUIRE(sub.expect("READY"));
+  INFO("subscriber:\n" << sub.output());
+  CHECK(sub.expect("EVENT type_mismatch " + ch, 10000ms));
+  const auto st = of(sub.summaries("status"), ch);
+  CHECK(st.num("received") == 0);
+  CHECK(st.num("decode_errors") == 0);
+  CHECK(st.num("publishers") == 0);
+  sub.send("quit");
+  pub.send("quit");
+  CHECK(sub.wait() == 0);
+  CHECK(pub.wait() == 0);
+}
+
+TEST_CASE("always-publisher already sending: late subscribers on its host (shm only) and on another "
+          "host (one udp publisher)",
+          "[multihost][delivery][!mayfail]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 11);
+  const auto ch = h.channel("LATE_ALWAYS");
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "2000",
+                         "--shm-slots", "4096", "--id", "A"},
+                     {"LCMX_VEHICLE_PUBLISH=always"});
+  REQUIRE(pub.expect("READY"));
+  REQUIRE(wait_until([&] { return published(pub) >= 200; }, 10000ms, 20ms));
+  auto& local = h.peer(0, {"sub", "--channel", ch, "--type", "pose", "--queue-depth", "8192"});
+  auto& remote = h.peer(1, {"sub", "--channel", ch, "--type", "pose", "--queue-depth", "8192"});
+  REQUIRE(local.expect("READY"));
+  REQUIRE(remote.expect("READY"));
+  const auto enough = [](const Summary& s) { return s.num("received") >= 1000; };
+  REQUIRE(poll_sub(local, ch, enough, 15000ms));
+  REQUIRE(poll_sub(remote, ch, enough, 15000ms));
+  const auto l = of(local.summaries("quit"), ch);
+  const auto r = of(remote.summaries("quit"), ch);
+  INFO("same-host subscriber:\n" << local.output() << "other-host subscriber:\n" << remote.output());
+  CHECK(l.str("paths") == "shm");
+  CHECK(l.num("publishers") == 1);
+  CHECK(l.num("duplicates") == 0);
+  CHECK(l.num("out_of_order") == 0);
+  CHECK(r.str("paths") == "udp");
+  CHECK(r.num("publishers") == 1);
+  CHECK(r.num("duplicates") == 0);
+  CHECK(r.num("out_of_order") == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
