@@ -1,0 +1,27 @@
+// Roles of lcmx_bench_udp's children (see roles.cpp); bench/latency's common.hpp supplies the
+// plan, the report/ack protocol, Recorder and the ping-pong driver.
+#pragma once
+
+#include <functional>
+#include <string>
+
+#include "common.hpp"
+
+namespace lcmxbench::udp {
+
+struct UdpConfig {
+  RoleConfig base;          // base.url: liblcm URL (liblcm roles) or lcmx discovery URL
+  std::string vehicle_url;  // lcmx roles: the vehicle group, with iface=
+  double rate_hz = 30;      // stream roles
+};
+
+int run_lcmx_udp_sub(const UdpConfig& u, bool stream);
+int run_lcmx_udp_pub(const UdpConfig& u, bool stream);
+int run_liblcm_stream_sub(const UdpConfig& u);
+int run_liblcm_stream_pub(const UdpConfig& u);
+
+// Publishes plan[0].messages messages of plan[0].size at rate_hz (no acks), then a "sent" line.
+bool run_stream(const RoleConfig& cfg, double rate_hz, const std::function<void(std::size_t)>& prepare,
+                const std::function<void(std::int64_t)>& send);
+
+}  // namespace lcmxbench::udp
