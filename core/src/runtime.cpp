@@ -37,6 +37,8 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
 
 RuntimeImpl::~RuntimeImpl() { shutdown(); }
 
+bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint);
+
 void RuntimeImpl::start_transports() {
   auto open_group = [](const std::string& what, const std::string& url) {
     try {
@@ -118,6 +120,7 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   const std::string source = udpm::to_string(m.source);
   std::shared_ptr<const Bytes> bytes;
   std::vector<std::pair<std::shared_ptr<SubscriberCore>, std::shared_ptr<PairCounters>>> targets;
+  std::vector<Event> events;
   {
     std::lock_guard lock(mu);
     if (host_sources.count(source)) return;  // a participant of this host: shm path
@@ -140,6 +143,15 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
         }
       }
       if (!match && participant != 0) continue;  // not matched (type mismatch, or not yet)
+      if (!match && !sub->type().raw() && !fingerprint_is(m.data, sub->type().fingerprint)) {
+        // A stock LCM sender of another type on this channel: not delivered, reported once.
+        const std::string text = "type mismatch on channel '" + sub->channel() + "': LCM sender " +
+                                 source + " sends another type than " + sub->type().name +
+                                 "; not delivered";
+        report_mismatch_locked(sub->id, 0, std::hash<std::string>{}(source), sub->channel(), text,
+                               st.errors, events);
+        continue;
+      }
       if (!match) {
         match = std::make_shared<Match>();
         match->path = Path::udp;
@@ -154,9 +166,18 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
       targets.push_back({sub, match->stats});
     }
   }
+  emit(std::move(events));
   if (targets.empty()) return;
   bytes = make_bytes(m.data);
   for (auto& [sub, stats] : targets) push_intra(*sub, IntraItem{bytes, &raw_type_info(), stats});
+}
+
+// The LCM encoding starts with the type's fingerprint, big-endian.
+bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint) {
+  if (data.size() < 8) return false;
+  std::uint64_t v = 0;
+  for (int i = 0; i < 8; ++i) v = (v << 8) | std::to_integer<std::uint8_t>(data[i]);
+  return static_cast<std::int64_t>(v) == fingerprint;
 }
 
 TopicClass RuntimeImpl::class_of(const std::string& channel) const {
@@ -467,6 +488,23 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
       } else {
         if (!b.local_source.empty()) host_sources[b.local_source] = b.participant_id;
         if (!b.vehicle_source.empty()) host_sources[b.vehicle_source] = b.participant_id;
+      }
+      // Its messages may have arrived before its beacon and been taken for a stock LCM
+      // sender's: now that we know who it is, that foreign match goes (its real one, if its
+      // type matches, comes from the beacon).
+      for (const auto* src : {&b.local_source, &b.vehicle_source}) {
+        if (src->empty()) continue;
+        const auto key = std::hash<std::string>{}(*src);
+        for (auto& [id, sub] : subs) {
+          auto& st = *sub->state;
+          std::lock_guard l2(st.mu);
+          if (std::erase_if(st.matches, [&](const auto& m) {
+                return m->foreign && m->publisher_endpoint == key;
+              })) {
+            ++st.version;
+            st.matched_cv.notify_all();
+          }
+        }
       }
     }
   const auto before_matches = [&] {

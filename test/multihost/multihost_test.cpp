@@ -330,8 +330,8 @@ TEST_CASE("type mismatch across hosts: reported on both sides, not matched, noth
 }
 
 // A publisher with LCMX_VEHICLE_PUBLISH=always is already sending on the vehicle group when a
-// subscriber starts: its first datagrams arrive before the publisher's beacon. Core bug (both
-// [!mayfail] tests below): RuntimeImpl::on_udp (core/src/runtime.cpp ~l.123-150) treats a source
+// subscriber starts: its first datagrams arrive before the publisher's beacon. Regression tests
+// for a bug fixed since: RuntimeImpl::on_udp (core/src/runtime.cpp ~l.123-150) treats a source
 // it does not know yet (not in host_sources / vehicle_sources) as a stock LCM sender and creates
 // a permanent `foreign` udp Match for it. When the beacon arrives, sync_remote_locked adds the
 // real match but the foreign one stays: a subscriber of another type gets decode errors and
@@ -339,7 +339,7 @@ TEST_CASE("type mismatch across hosts: reported on both sides, not matched, noth
 // gets paths "udp,shm" and publishers=2 (the first messages came over UDP, not shm); one on
 // another host gets publishers=2 for one publisher. Found: decode_errors=172, publishers 2.
 TEST_CASE("always-publisher already sending: a late subscriber of another type on another host gets nothing",
-          "[multihost][types][!mayfail]") {
+          "[multihost][types]") {
   MH_REQUIRE_NETNS();
   Hosts h(2, 10);
   const auto ch = h.channel("LATE_MISMATCH");
@@ -364,7 +364,7 @@ TEST_CASE("always-publisher already sending: a late subscriber of another type o
 
 TEST_CASE("always-publisher already sending: late subscribers on its host (shm only) and on another "
           "host (one udp publisher)",
-          "[multihost][delivery][!mayfail]") {
+          "[multihost][delivery]") {
   MH_REQUIRE_NETNS();
   Hosts h(2, 11);
   const auto ch = h.channel("LATE_ALWAYS");
