@@ -211,6 +211,8 @@ class PublisherImpl final : public PublisherCore {
   std::atomic<std::size_t> udp_subscribers_{0};
   std::atomic<bool> large_{false};
   bool warned_large_udp_ = false;        // guarded by publish_mu
+  std::uint64_t udp_send_failures_ = 0;  // guarded by publish_mu
+  std::chrono::steady_clock::time_point last_udp_failure_log_{};  // guarded by publish_mu
   std::vector<std::byte> udp_buf_;       // guarded by publish_mu
   // Sends encoded bytes on the vehicle group (and host-local mirror) when wanted.
   void send_udp(std::span<const std::byte> encoded);

@@ -70,24 +70,37 @@ void PublisherImpl::note_size(std::size_t size) {
 
 // Sends an encoding over LCM UDP: on the vehicle group when a subscriber on another host
 // wants it (or vehicle_publish = always), and on the host-local group for the mirror (small
-// topics only). publish_mu held.
+// topics only). A network fault (link or interface down) does not fail the publish: the
+// local paths already delivered; the message is counted lost on UDP and logged (at most
+// once per 5 s per publisher), and sending resumes when the network is back.
+// publish_mu held.
 void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
   auto& rt = *node->runtime;
-  try {
-    if (rt.vehicle_group &&
-        (udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always)) {
-      if (large_.load() && !warned_large_udp_) {
-        warned_large_udp_ = true;
-        spdlog::warn("lcmx: topic '{}' is large but no Message Bridge carries it yet: sending it to "
-                     "other hosts as UDP fragments",
-                     channel_);
+  auto send = [&](udpm::Group& group, const char* which) {
+    try {
+      group.publish(channel_, encoded);
+    } catch (const udpm::Error& e) {
+      if (e.code() != udpm::Error::Code::system) throw Error(Errc::transport, e.what());
+      ++udp_send_failures_;
+      const auto now = std::chrono::steady_clock::now();
+      if (now - last_udp_failure_log_ > std::chrono::seconds(5)) {
+        last_udp_failure_log_ = now;
+        spdlog::warn("lcmx: topic '{}': cannot send on the {} group ({} lost so far): {}", channel_,
+                     which, udp_send_failures_, e.what());
       }
-      rt.vehicle_group->publish(channel_, encoded);
     }
-    if (rt.options.mirror && !large_.load()) rt.local_group->publish(channel_, encoded);
-  } catch (const std::exception& e) {
-    throw Error(Errc::transport, "publish on '" + channel_ + "' over UDP: " + e.what());
+  };
+  if (rt.vehicle_group &&
+      (udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always)) {
+    if (large_.load() && !warned_large_udp_) {
+      warned_large_udp_ = true;
+      spdlog::warn("lcmx: topic '{}' is large but no Message Bridge carries it yet: sending it to "
+                   "other hosts as UDP fragments",
+                   channel_);
+    }
+    send(*rt.vehicle_group, "vehicle");
   }
+  if (rt.options.mirror && !large_.load()) send(*rt.local_group, "host-local");
 }
 
 // Encodes once: straight into a shm slot when shm readers exist (UDP is sent from the same

@@ -36,6 +36,7 @@ struct Discovery::Impl {
   std::map<std::int64_t, Participant> peers;
   Counters counters;
   Clock::time_point last_malformed_log{};
+  Clock::time_point last_send_error_log{};  // discovery thread only
 
   Impl(Options o, LocalFn l, ChangeFn c)
       : options(std::move(o)), local(std::move(l)), on_change(std::move(c)),
@@ -80,7 +81,12 @@ struct Discovery::Impl {
       std::lock_guard lock(mutex);
       ++counters.beacons_sent;
     } catch (const std::exception& e) {
-      spdlog::warn("lcmx discovery: cannot send beacon: {}", e.what());
+      // A link or interface that is down: keep trying every period, log at most every 5 s.
+      const auto now = Clock::now();
+      if (now - last_send_error_log > std::chrono::seconds(5)) {
+        last_send_error_log = now;
+        spdlog::warn("lcmx discovery: cannot send beacon (will keep trying): {}", e.what());
+      }
     }
   }
 
