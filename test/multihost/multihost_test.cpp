@@ -394,3 +394,34 @@ TEST_CASE("always-publisher already sending: late subscribers on its host (shm o
   pub.send("quit");
   CHECK(pub.wait() == 0);
 }
+
+TEST_CASE("the vehicle link of the publishing host goes down and comes back: publishing goes on, delivery resumes",
+          "[multihost][links]") {
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 14);
+  const auto ch = h.channel("LINK_FLAP");
+  auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "pose", "--queue-depth", "4096"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "200",
+                         "--subscribers", "1", "--id", "A"});
+  REQUIRE(pub.expect("MATCHED", 10000ms));
+  REQUIRE(poll_sub(sub, ch, [](const Summary& s) { return s.num("received") >= 20; }, 10000ms));
+
+  h.emu().set_link_up(0, "eth", false);
+  const long long before_down = published(pub);
+  // The publisher keeps publishing while its link is down (no exception, no stall).
+  REQUIRE(wait_until([&] { return published(pub) >= before_down + 100; }, 10000ms, 20ms));
+  const auto during = of(sub.summaries("status"), ch).num("received");
+
+  h.emu().set_link_up(0, "eth", true);
+  INFO("subscriber:\n" << sub.output());
+  REQUIRE(poll_sub(sub, ch, [&](const Summary& s) { return s.num("received") >= during + 50; }, 10000ms));
+  const auto st = of(sub.summaries("status"), ch);
+  CHECK(st.num("duplicates") == 0);
+  CHECK(st.num("out_of_order") == 0);
+  CHECK(st.str("paths") == "udp");
+  pub.send("quit");
+  sub.send("quit");
+  CHECK(pub.wait() == 0);
+  CHECK(sub.wait() == 0);
+}
