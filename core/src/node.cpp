@@ -99,8 +99,11 @@ std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
   }
   std::size_t n = 0;
   st.running_on = std::this_thread::get_id();
-  for (auto& item : items) {
-    if (st.removed.load()) break;
+  while (!items.empty() && !st.removed.load()) {
+    // Moved out first: the message is released as soon as its callback returns, so a
+    // publisher reusing its object does not find lcmx still holding it.
+    IntraItem item = std::move(items.front());
+    items.pop_front();
     item.pair->received.fetch_add(1, std::memory_order_relaxed);
     if (sub.deliver_intra(item)) {
       sub.delivered.fetch_add(1, std::memory_order_relaxed);
