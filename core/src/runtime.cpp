@@ -503,22 +503,25 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
               })) {
             ++st.version;
             st.matched_cv.notify_all();
+            announce_pending = true;
           }
         }
       }
     }
-  const auto before_matches = [&] {
-      std::size_t n = 0;
+    // Any change of our matches is announced at once: publishers count subscribers by the
+    // matches subscribers announce (versions only grow, so their sum tells).
+    const auto match_versions = [&] {
+      std::uint64_t v = 0;
       for (auto& [id, sub] : subs) {
         std::lock_guard l2(sub->state->mu);
-        n += sub->state->matches.size();
+        v += sub->state->version;
       }
-      return n;
+      return v;
     };
-    const auto n0 = before_matches();
+    const auto v0 = match_versions();
     for (auto& [id, sub] : subs) sync_remote_locked(*sub, events);
     for (auto& [id, pub] : pubs) count_remote_locked(*pub, events);
-    if (before_matches() != n0) ++revision, announce_pending = true;
+    if (match_versions() != v0) ++revision, announce_pending = true;
   }
   if (announce_pending.exchange(false)) {
     if (disco) disco->announce_now();
