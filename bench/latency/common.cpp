@@ -1,5 +1,7 @@
 #include "common.hpp"
 
+#include <cstdio>
+
 #include <poll.h>
 #include <sched.h>
 #include <unistd.h>
@@ -49,6 +51,12 @@ std::string size_label(std::size_t bytes) {
   if (bytes >= (1u << 20) && bytes % (1u << 20) == 0) return std::to_string(bytes >> 20) + " MB";
   if (bytes >= 1024 && bytes % 1024 == 0) return std::to_string(bytes >> 10) + " KB";
   return std::to_string(bytes) + " B";
+}
+
+std::string fmt_us(double us) {
+  char b[32];
+  std::snprintf(b, sizeof b, us < 100 ? "%.1f" : "%.0f", us);
+  return b;
 }
 
 void report_line(const std::string& line) {

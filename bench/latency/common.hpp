@@ -29,6 +29,7 @@ struct SizePlan {
 std::string plan_to_string(const std::vector<SizePlan>& plan);    // "1024:20:200,..."
 std::vector<SizePlan> plan_from_string(const std::string& text);  // throws std::invalid_argument
 std::string size_label(std::size_t bytes);                        // "1 KB", "6 MB"
+std::string fmt_us(double us);                                    // "4.3", "857" (table cells)
 
 // Sequence numbers are unique over the whole run of one method: seq = (k << 1) | measured.
 inline std::int64_t make_seq(std::int64_t k, bool measured) { return (k << 1) | (measured ? 1 : 0); }

@@ -554,12 +554,6 @@ MethodResult run_method(const Run& run, const std::string& method) {
 
 // ---------------------------------------------------------------- report
 
-std::string fmt_us(double us) {
-  char b[32];
-  if (us < 100) std::snprintf(b, sizeof b, "%.1f", us);
-  else std::snprintf(b, sizeof b, "%.0f", us);
-  return b;
-}
 std::string fmt_ratio(double r) {
   char b[32];
   std::snprintf(b, sizeof b, "%.2fx", r);

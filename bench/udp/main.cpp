@@ -330,11 +330,6 @@ MethodResult run_method(Run& run, const std::string& method) {
   return res;
 }
 
-std::string fmt_us(double us) {
-  char b[32];
-  std::snprintf(b, sizeof b, us < 100 ? "%.1f" : "%.0f", us);
-  return b;
-}
 std::string fmt_ratio(double r) {
   char b[32];
   std::snprintf(b, sizeof b, "%.2fx", r);
