@@ -85,11 +85,14 @@ std::string result_line(const std::string& who, const char* topic, Recorder& r,
 // --role sub: subscribe to camera and pose until the publisher says stop.
 int run_subscriber(const std::string& name, int timeout_s) {
   auto rt = lcmx::Runtime::create();
+  // Two nodes, so a 6 MB image being decoded never delays a pose (each node has its own
+  // executor thread; one node's callbacks run one at a time).
   auto node = rt.create_node(name);
+  auto pose_node = rt.create_node(name + "_pose");
   Recorder cam, pose;
   auto cam_sub = node.subscribe<lcmx_examples::image_t>(
       kCamera, [&](const lcmx_examples::image_t& img) { cam.on(img.header); });
-  auto pose_sub = node.subscribe<lcmx_examples::pose_t>(
+  auto pose_sub = pose_node.subscribe<lcmx_examples::pose_t>(
       kPose, [&](const lcmx_examples::pose_t& p) { pose.on(p.header); });
   std::mutex mu;
   std::condition_variable cv;
