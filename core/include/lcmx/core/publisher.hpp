@@ -19,8 +19,29 @@
 
 namespace lcmx {
 
+namespace detail {
+// What Publisher<T> and RawPublisher have in common: matching state and counters.
+class PublisherHandle {
+ public:
+  // Subscribers currently matched (this process, other processes, other hosts).
+  std::size_t subscriber_count() const { return core_->subscriber_count(); }
+  // Waits until at least n subscribers are matched. Returns false on timeout.
+  bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const {
+    return core_->wait_for_subscribers(n, timeout);
+  }
+  std::uint64_t published() const { return core_->published(); }
+  const std::string& channel() const { return core_->channel(); }
+  explicit operator bool() const { return core_ != nullptr; }
+
+ protected:
+  PublisherHandle() = default;
+  explicit PublisherHandle(std::shared_ptr<PublisherCore> c) : core_(std::move(c)) {}
+  std::shared_ptr<PublisherCore> core_;
+};
+}  // namespace detail
+
 template <class T>
-class Publisher {
+class Publisher : public detail::PublisherHandle {
  public:
   Publisher() = default;  // empty handle; assign from Node::advertise()
 
@@ -31,20 +52,9 @@ class Publisher {
   }
   void publish(std::shared_ptr<const T> message) { core_->publish_shared(std::move(message)); }
 
-  // Subscribers currently matched (this process and other processes of the host).
-  std::size_t subscriber_count() const { return core_->subscriber_count(); }
-  // Waits until at least n subscribers are matched. Returns false on timeout.
-  bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const {
-    return core_->wait_for_subscribers(n, timeout);
-  }
-  std::uint64_t published() const { return core_->published(); }
-  const std::string& channel() const { return core_->channel(); }
-  explicit operator bool() const { return core_ != nullptr; }
-
  private:
   friend class Node;
-  explicit Publisher(std::shared_ptr<detail::PublisherCore> c) : core_(std::move(c)) {}
-  std::shared_ptr<detail::PublisherCore> core_;
+  explicit Publisher(std::shared_ptr<detail::PublisherCore> c) : PublisherHandle(std::move(c)) {}
 };
 
 // A slot loaned from shared memory by RawPublisher::loan(): write at data(), then
@@ -60,7 +70,7 @@ class Loan {
   shm::WriteLoan loan_;
 };
 
-class RawPublisher {
+class RawPublisher : public detail::PublisherHandle {
  public:
   RawPublisher() = default;
 
@@ -70,18 +80,9 @@ class RawPublisher {
   Loan loan(std::size_t size) { return Loan(core_->loan(size)); }
   void publish(Loan&& loan, std::size_t size) { core_->publish_loan(std::move(loan.loan_), size); }
 
-  std::size_t subscriber_count() const { return core_->subscriber_count(); }
-  bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const {
-    return core_->wait_for_subscribers(n, timeout);
-  }
-  std::uint64_t published() const { return core_->published(); }
-  const std::string& channel() const { return core_->channel(); }
-  explicit operator bool() const { return core_ != nullptr; }
-
  private:
   friend class Node;
-  explicit RawPublisher(std::shared_ptr<detail::PublisherCore> c) : core_(std::move(c)) {}
-  std::shared_ptr<detail::PublisherCore> core_;
+  explicit RawPublisher(std::shared_ptr<detail::PublisherCore> c) : PublisherHandle(std::move(c)) {}
 };
 
 }  // namespace lcmx
