@@ -1,5 +1,6 @@
 #include "common.hpp"
 
+#include <algorithm>
 #include <cstdio>
 
 #include <poll.h>
@@ -51,6 +52,12 @@ std::string size_label(std::size_t bytes) {
   if (bytes >= (1u << 20) && bytes % (1u << 20) == 0) return std::to_string(bytes >> 20) + " MB";
   if (bytes >= 1024 && bytes % 1024 == 0) return std::to_string(bytes >> 10) + " KB";
   return std::to_string(bytes) + " B";
+}
+
+std::size_t max_size(const std::vector<SizePlan>& plan) {
+  std::size_t m = 0;
+  for (const auto& p : plan) m = std::max(m, p.size);
+  return m;
 }
 
 std::string fmt_us(double us) {

@@ -27,6 +27,7 @@ struct SizePlan {
   int messages = 0;
 };
 std::string plan_to_string(const std::vector<SizePlan>& plan);    // "1024:20:200,..."
+std::size_t max_size(const std::vector<SizePlan>& plan);          // largest size in the plan
 std::vector<SizePlan> plan_from_string(const std::string& text);  // throws std::invalid_argument
 std::string size_label(std::size_t bytes);                        // "1 KB", "6 MB"
 std::string fmt_us(double us);                                    // "4.3", "857" (table cells)

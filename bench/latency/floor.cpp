@@ -67,12 +67,6 @@ std::uint32_t wait_change(std::atomic<std::uint32_t>* word, std::uint32_t seen, 
   }
 }
 
-std::size_t max_size(const std::vector<SizePlan>& plan) {
-  std::size_t m = 0;
-  for (const auto& p : plan) m = std::max(m, p.size);
-  return m;
-}
-
 std::string shm_name(const RoleConfig& cfg) { return "/" + cfg.name + "_floor"; }
 
 struct Mapping {

@@ -54,12 +54,6 @@ lcmx::NodeOptions sub_node_options(const RoleConfig& cfg) {
   return o;
 }
 
-std::size_t max_size(const std::vector<SizePlan>& plan) {
-  std::size_t m = 0;
-  for (const auto& p : plan) m = std::max(m, p.size);
-  return m;
-}
-
 // lcmx logs through spdlog's default logger; the report fd is the protocol, so keep logs on
 // stderr with the role in front.
 void log_to_stderr(const std::string& role) {

@@ -37,12 +37,6 @@ lcmx::RuntimeOptions runtime_options(const UdpConfig& u) {
   return o;
 }
 
-std::size_t max_size(const std::vector<SizePlan>& plan) {
-  std::size_t m = 0;
-  for (const auto& p : plan) m = std::max(m, p.size);
-  return m;
-}
-
 void log_to_stderr(const std::string& role) {
   auto logger = spdlog::stderr_color_mt(role);
   spdlog::set_default_logger(logger);
