@@ -255,19 +255,27 @@ struct SizeResult {
   std::size_t size = 0;
   int sent = 0;                 // measured messages sent
   int expected = 0;             // sent x subscribers
+  int received = 0;             // of expected
   Stats lat;                    // every subscriber's one-way latency, pooled
-  std::vector<Stats> lat_sub;   // per subscriber
   Stats diff;                   // |t1 - t2|, subscribers 1 and 2
   Stats spread;                 // max - min over all subscribers (N > 2)
-  std::uint64_t link_bytes = 0; // A's tx on the link during the measured messages
-  int lost() const { return expected - static_cast<int>(lat.n); }
-  double bytes_per_msg() const { return sent ? static_cast<double>(link_bytes) / sent : 0; }
+  double link_bytes = 0;        // A's tx on the link during the measured messages
+  double window_s = 0;          // how long those messages took (tx counter window)
+  double bg_bytes = 0;          // idle background (heartbeats...) expected in that window
+  // --repeat: ranges over the runs (min, max) of the figures shown with a range
+  double mean_lo = 0, mean_hi = 0, diff_lo = 0, diff_hi = 0;
+  int lost() const { return expected - received; }
+  double bytes_per_msg() const { return sent ? link_bytes / sent : 0; }
   double ratio() const { return sent ? bytes_per_msg() / static_cast<double>(size) : 0; }
+  double net_ratio() const {
+    return sent ? std::max(0.0, link_bytes - bg_bytes) / sent / static_cast<double>(size) : 0;
+  }
 };
 
 struct FanoutResult {
   std::string method;  // zmq | bridge
   int subscribers = 0;
+  double bg_bytes_per_s = 0;  // A's tx with everything connected and nothing sent (1 s)
   std::vector<SizeResult> sizes;
   std::vector<std::string> errors, notes;
 };
@@ -275,6 +283,7 @@ struct FanoutResult {
 struct TputResult {
   std::string method;
   bool ok = false;
+  double gbit_lo = 0, gbit_hi = 0;  // --repeat: range over the runs
   double gbit = 0, msgs_per_s = 0, offered_hz = 0;
   int sent = 0, received = 0;
   double link_ratio = 0;  // A's tx bytes / delivered payload bytes (bridge) or / TCP bytes (iperf3)
@@ -337,28 +346,26 @@ void drain_bridges(Run& run, bool force = false) {
     }
 }
 
-// Polls every proc for up to timeout_ms (or until `until` holds), appending their lines.
+// Collects the procs' lines until `until` holds or the deadline. It does not sleep in poll() on
+// their pipes: it looks every 5 ms, so a subscriber's report line never wakes the orchestrator
+// while the other subscribers are still being woken (that would disturb experiment 3).
 template <class Until>
 bool pump(Run& run, std::vector<Proc*> procs, std::int64_t deadline, Until until) {
   for (;;) {
     drain_bridges(run);
     if (interrupted()) return false;
-    if (until()) return true;
     std::vector<pollfd> p;
     std::vector<Proc*> who;
     for (auto* pr : procs)
       if (!pr->eof()) p.push_back({pr->fd(), POLLIN, 0}), who.push_back(pr);
+    if (!p.empty() && ::poll(p.data(), p.size(), 0) > 0)
+      for (std::size_t i = 0; i < p.size(); ++i)
+        if (p[i].revents) who[i]->pump();
+    if (until()) return true;
     const std::int64_t left = deadline - now_ns();
-    if (left <= 0) return until();
-    if (p.empty()) {
-      pollfd none{-1, 0, 0};
-      ::poll(&none, 0, static_cast<int>(std::min<std::int64_t>(left / 1'000'000 + 1, 50)));
-      continue;
-    }
-    const int r = ::poll(p.data(), p.size(), static_cast<int>(std::min<std::int64_t>(left / 1'000'000 + 1, 50)));
-    if (r <= 0) continue;
-    for (std::size_t i = 0; i < p.size(); ++i)
-      if (p[i].revents) who[i]->pump();
+    if (left <= 0) return false;
+    const timespec ts{0, static_cast<long>(std::min<std::int64_t>(left, 5'000'000))};
+    ::nanosleep(&ts, nullptr);
   }
 }
 
@@ -427,14 +434,17 @@ bool start_bridges(Run& run, std::vector<std::string>& errors) {
     run.bridges.push_back(run.emu->spawn(0, taskset(run.cpu_a, {run.opt.lcmx_tool, "bridge", "--config", ca}), env));
     run.bridges.push_back(run.emu->spawn(1, taskset(run.cpu_b, {run.opt.lcmx_tool, "bridge", "--config", cb}), env));
     progress("bridges started: " + run.opt.lcmx_tool + " bridge --config {" + ca + ", " + cb + "}");
-    // One that cannot start (bad config, no `bridge` verb in this lcmx) exits at once.
+    // Each prints "bridge <name>: ready" once started; one that cannot start (bad config, no
+    // `bridge` verb in this lcmx) exits at once.
     const char* names[] = {"A", "B"};
-    for (std::size_t i = 0; i < run.bridges.size(); ++i)
-      if (const auto st = run.bridges[i].wait(std::chrono::milliseconds(i == 0 ? 1000 : 0))) {
-        drain_bridges(run, true);
+    for (std::size_t i = 0; i < run.bridges.size(); ++i) {
+      const std::string ready = std::string("bridge bench") + names[i] + ": ready";
+      if (run.bridges[i].expect(ready, std::chrono::milliseconds(10000))) continue;
+      if (const auto st = run.bridges[i].wait(std::chrono::milliseconds(0)))
         throw std::runtime_error(std::string("bridge ") + names[i] + " exited with " + std::to_string(*st) +
                                  " at start (see its output above; does `" + run.opt.lcmx_tool + " bridge --help` work?)");
-      }
+      progress(std::string("bridge ") + names[i] + ": no '" + ready + "' line within 10 s; going on (probes decide)");
+    }
     return true;
   } catch (const std::exception& e) {
     run.bridge_errors.push_back(std::string("lcmx bridge: ") + e.what());
@@ -562,6 +572,13 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
              " probe(s), " + std::to_string((now_ns() - t_start) / 1'000'000) + " ms");
     // The last probe everywhere (or 2 s) before measuring.
     pump(run, all(), now_ns() + 2'000'000'000LL, [&] { return got_all(make_seq(k, false)); });
+    {
+      // Idle background on A's link (bridge heartbeats, demand, TCP acks), 1 s.
+      const std::uint64_t b0 = run.emu->tx_bytes(0, "eth");
+      const std::int64_t t0 = now_ns();
+      pump(run, all(), t0 + 1'000'000'000LL, [] { return false; });
+      res.bg_bytes_per_s = static_cast<double>(run.emu->tx_bytes(0, "eth") - b0) / (static_cast<double>(now_ns() - t0) / 1e9);
+    }
 
     for (const auto& p : run.plan) {
       SizeResult sr;
@@ -571,6 +588,7 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
       if (link > 0) timeout_ns = std::max<std::int64_t>(timeout_ns, static_cast<std::int64_t>(10 * nsubs * p.size * 8 / link * 1e9));
       if (run.opt.timeout_ms > 0) timeout_ns = static_cast<std::int64_t>(run.opt.timeout_ms) * 1'000'000;
       std::uint64_t tx0 = 0;
+      std::int64_t t_tx0 = 0;
       std::vector<std::int64_t> measured;
       std::int64_t next_send = now_ns();
       int timeouts = 0;
@@ -579,7 +597,7 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
         // Pace: wait (collecting lines) until the next period.
         pump(run, all(), next_send, [] { return false; });
         if (interrupted()) throw std::runtime_error("interrupted");
-        if (m && i == p.warmup) tx0 = run.emu->tx_bytes(0, "eth");
+        if (m && i == p.warmup) tx0 = run.emu->tx_bytes(0, "eth"), t_tx0 = now_ns();
         const std::int64_t seq = make_seq(++k, m);
         const std::int64_t t = now_ns();
         if (!pub->command("send " + std::to_string(seq) + " " + std::to_string(p.size)))
@@ -588,7 +606,9 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
         if (m) measured.push_back(seq);
         next_send = t + period_ns;
       }
-      sr.link_bytes = run.emu->tx_bytes(0, "eth") - tx0;
+      sr.link_bytes = static_cast<double>(run.emu->tx_bytes(0, "eth") - tx0);
+      sr.window_s = static_cast<double>(now_ns() - t_tx0) / 1e9;
+      sr.bg_bytes = res.bg_bytes_per_s * sr.window_s;
       sr.sent = static_cast<int>(measured.size());
       sr.expected = sr.sent * nsubs;
       // Stats over the measured messages.
@@ -601,7 +621,6 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
             if (it->second.size != p.size) res.notes.push_back("size mismatch at seq " + std::to_string(seq));
           }
         lat_all.insert(lat_all.end(), v.begin(), v.end());
-        sr.lat_sub.push_back(stats_of(v));
       }
       for (auto seq : measured) {
         std::vector<std::int64_t> ts;
@@ -613,13 +632,14 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
           spreads.push_back(static_cast<double>(*std::max_element(ts.begin(), ts.end()) - *std::min_element(ts.begin(), ts.end())) / 1000.0);
       }
       sr.lat = stats_of(lat_all);
+      sr.received = static_cast<int>(sr.lat.n);
       sr.diff = stats_of(diffs);
       sr.spread = stats_of(spreads);
       char buf[300];
       std::snprintf(buf, sizeof buf,
-                    "%s x%d %s: mean %.0f p50 %.0f p99 %.0f us, lost %d/%d, %.4fx payload on link, |t1-t2| p50 %.1f p99 %.1f us%s",
+                    "%s x%d %s: mean %.0f p50 %.0f p99 %.0f us, lost %d/%d, %.4fx payload on link (%.4fx net of idle), |t1-t2| p50 %.1f p99 %.1f us%s",
                     method.c_str(), nsubs, size_label(p.size).c_str(), sr.lat.mean, sr.lat.p50, sr.lat.p99, sr.lost(),
-                    sr.expected, sr.ratio(), sr.diff.p50, sr.diff.p99,
+                    sr.expected, sr.ratio(), sr.net_ratio(), sr.diff.p50, sr.diff.p99,
                     timeouts ? (", " + std::to_string(timeouts) + " timeouts").c_str() : "");
       progress(buf);
       res.sizes.push_back(sr);
@@ -832,6 +852,116 @@ const FanoutResult* find_fanout(const Report& r, const std::string& m, int n) {
   return nullptr;
 }
 
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2;
+}
+
+// --repeat: one Report whose figures are the medians over the runs (ranges kept for the
+// figures shown with one). Errors and notes of every run are kept, prefixed with the run.
+Report aggregate(const std::vector<Report>& runs) {
+  if (runs.size() == 1) return runs.front();
+  Report out;
+  for (std::size_t r = 0; r < runs.size(); ++r)
+    for (const auto& f : runs[r].fanouts) {
+      FanoutResult* a = nullptr;
+      for (auto& g : out.fanouts)
+        if (g.method == f.method && g.subscribers == f.subscribers) a = &g;
+      if (!a) {
+        out.fanouts.push_back({f.method, f.subscribers, 0, {}, {}, {}});
+        a = &out.fanouts.back();
+      }
+      for (const auto& e : f.errors) a->errors.push_back("run " + std::to_string(r + 1) + ": " + e);
+      for (const auto& n : f.notes) a->notes.push_back("run " + std::to_string(r + 1) + ": " + n);
+    }
+  for (auto& a : out.fanouts) {
+    std::vector<double> bg;
+    std::map<std::size_t, std::vector<SizeResult>> by_size;
+    std::vector<std::size_t> order;
+    for (const auto& rep : runs)
+      for (const auto& f : rep.fanouts)
+        if (f.method == a.method && f.subscribers == a.subscribers) {
+          bg.push_back(f.bg_bytes_per_s);
+          for (const auto& s : f.sizes) {
+            if (!by_size.count(s.size)) order.push_back(s.size);
+            by_size[s.size].push_back(s);
+          }
+        }
+    a.bg_bytes_per_s = median(bg);
+    for (auto size : order) {
+      const auto& v = by_size[size];
+      auto med = [&](auto get) {
+        std::vector<double> x;
+        for (const auto& s : v) x.push_back(static_cast<double>(get(s)));
+        return median(x);
+      };
+      auto lo_hi = [&](auto get, double& lo, double& hi) {
+        lo = 1e300, hi = -1e300;
+        for (const auto& s : v) lo = std::min(lo, get(s)), hi = std::max(hi, get(s));
+      };
+      SizeResult m;
+      m.size = size;
+      m.sent = static_cast<int>(med([](const SizeResult& s) { return s.sent; }));
+      m.expected = static_cast<int>(med([](const SizeResult& s) { return s.expected; }));
+      m.received = static_cast<int>(std::lround(med([](const SizeResult& s) { return s.received; })));
+      m.lat.n = m.received;
+      m.lat.mean = med([](const SizeResult& s) { return s.lat.mean; });
+      m.lat.p50 = med([](const SizeResult& s) { return s.lat.p50; });
+      m.lat.p99 = med([](const SizeResult& s) { return s.lat.p99; });
+      m.lat.max = med([](const SizeResult& s) { return s.lat.max; });
+      m.diff.n = static_cast<std::size_t>(med([](const SizeResult& s) { return s.diff.n; }));
+      m.diff.mean = med([](const SizeResult& s) { return s.diff.mean; });
+      m.diff.p50 = med([](const SizeResult& s) { return s.diff.p50; });
+      m.diff.p99 = med([](const SizeResult& s) { return s.diff.p99; });
+      m.spread.n = static_cast<std::size_t>(med([](const SizeResult& s) { return s.spread.n; }));
+      m.spread.p50 = med([](const SizeResult& s) { return s.spread.p50; });
+      m.spread.p99 = med([](const SizeResult& s) { return s.spread.p99; });
+      m.link_bytes = med([](const SizeResult& s) { return s.link_bytes; });
+      m.window_s = med([](const SizeResult& s) { return s.window_s; });
+      m.bg_bytes = med([](const SizeResult& s) { return s.bg_bytes; });
+      lo_hi([](const SizeResult& s) { return s.lat.mean; }, m.mean_lo, m.mean_hi);
+      lo_hi([](const SizeResult& s) { return s.diff.p50; }, m.diff_lo, m.diff_hi);
+      a.sizes.push_back(m);
+    }
+  }
+  auto tput = [&](auto get) -> std::optional<TputResult> {
+    std::vector<TputResult> v;
+    std::vector<std::string> errs;
+    for (std::size_t r = 0; r < runs.size(); ++r)
+      if (const auto& t = get(runs[r])) {
+        if (t->ok) v.push_back(*t);
+        for (const auto& e : t->errors) errs.push_back("run " + std::to_string(r + 1) + ": " + e);
+      }
+    if (v.empty() && errs.empty()) return std::nullopt;
+    TputResult m;
+    if (!v.empty()) {
+      m = v.front();
+      m.notes.clear();
+      auto med = [&](auto f) {
+        std::vector<double> x;
+        for (const auto& t : v) x.push_back(f(t));
+        return median(x);
+      };
+      m.gbit = med([](const TputResult& t) { return t.gbit; });
+      m.msgs_per_s = med([](const TputResult& t) { return t.msgs_per_s; });
+      m.link_ratio = med([](const TputResult& t) { return t.link_ratio; });
+      m.received = static_cast<int>(std::lround(med([](const TputResult& t) { return t.received; })));
+      m.gbit_lo = 1e300, m.gbit_hi = 0;
+      for (const auto& t : v) m.gbit_lo = std::min(m.gbit_lo, t.gbit), m.gbit_hi = std::max(m.gbit_hi, t.gbit);
+      for (std::size_t i = 0; i < v.size(); ++i)
+        for (const auto& n : v[i].notes) m.notes.push_back("run " + std::to_string(i + 1) + ": " + n);
+      m.notes.push_back(std::to_string(v.size()) + " of " + std::to_string(runs.size()) + " runs ok");
+    }
+    m.errors = errs;
+    return m;
+  };
+  out.bridge_tput = tput([](const Report& r) -> const std::optional<TputResult>& { return r.bridge_tput; });
+  out.iperf = tput([](const Report& r) -> const std::optional<TputResult>& { return r.iperf; });
+  return out;
+}
+
 std::string markdown(const Run& run, const Report& rep, const std::string& command) {
   const auto& o = run.opt;
   std::ostringstream md;
@@ -858,7 +988,13 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   md << "- latency: publisher's CLOCK_MONOTONIC right before the hand-off -> the subscriber's clock when its "
         "callback/receive starts (hosts share the clock); all subscribers' samples pooled; p50/p99 nearest-rank\n";
   md << "- link bytes/msg: A's veth tx bytes (Ethernet frames incl. headers; TSO super-frames count one header) "
-        "during the measured messages / messages; x payload = that / message size\n\n";
+        "during the measured messages / messages; x payload = that / message size; net = after subtracting A's "
+        "idle tx rate (bridge heartbeats, demand, TCP acks; measured for 1 s with everything connected) over the "
+        "same window\n";
+  if (o.repeat > 1)
+    md << "- " << o.repeat << " runs in one emulation: every figure is the median over the runs; (lo–hi) = "
+          "min–max over the runs\n";
+  md << "\n";
 
   // Experiment 2
   std::vector<int> counts;
@@ -867,18 +1003,21 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   if (o.only.empty() || o.only == "exp2") {
     for (int n : counts) {
       md << "### Experiment 2: " << n << " subscribers on host B\n\n";
-      md << "| size | method | mean µs | p50 µs | p99 µs | lost | link bytes/msg | x payload |\n|---|---|---|---|---|---|---|---|\n";
+      md << "| size | method | mean µs | p50 µs | p99 µs | lost | link bytes/msg | x payload | x payload net of idle |\n"
+            "|---|---|---|---|---|---|---|---|---|\n";
       for (const auto& p : run.plan)
         for (const auto& m : o.methods) {
           const FanoutResult* f = find_fanout(rep, m, n);
           const SizeResult* s = f ? find_size(*f, p.size) : nullptr;
           md << "| " << size_label(p.size) << " | " << method_label(m) << " | ";
           if (!s) {
-            md << "failed | | | | | |\n";
+            md << "failed | | | | | | |\n";
             continue;
           }
-          md << f1(s->lat.mean) << " | " << f1(s->lat.p50) << " | " << f1(s->lat.p99) << " | " << s->lost() << "/"
-             << s->expected << " | " << std::llround(s->bytes_per_msg()) << " | " << fx(s->ratio()) << " |\n";
+          md << f1(s->lat.mean);
+          if (o.repeat > 1) md << " (" << f1(s->mean_lo) << "–" << f1(s->mean_hi) << ")";
+          md << " | " << f1(s->lat.p50) << " | " << f1(s->lat.p99) << " | " << s->lost() << "/" << s->expected << " | "
+             << std::llround(s->bytes_per_msg()) << " | " << fx(s->ratio()) << " | " << fx(s->net_ratio()) << " |\n";
         }
       const FanoutResult* z = find_fanout(rep, "zmq", n);
       const FanoutResult* b = find_fanout(rep, "bridge", n);
@@ -896,6 +1035,12 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
         }
         md << " (− = bridge faster)\n";
       }
+      for (const auto& m : o.methods)
+        if (const FanoutResult* f = find_fanout(rep, m, n)) {
+          char b[160];
+          std::snprintf(b, sizeof b, "Idle tx on A's link during %s: %.0f bytes/s.\n", method_label(m).c_str(), f->bg_bytes_per_s);
+          md << (m == o.methods.front() ? "\n" : "") << b;
+        }
       md << "\n";
     }
   }
@@ -914,7 +1059,9 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
             md << "— | — | — | 0 |" << (n > 2 ? " — |" : "") << "\n";
             continue;
           }
-          md << f1(s->diff.p50) << " | " << f1(s->diff.p99) << " | " << f1(s->diff.mean) << " | " << s->diff.n << " |";
+          md << f1(s->diff.p50);
+          if (o.repeat > 1) md << " (" << f1(s->diff_lo) << "–" << f1(s->diff_hi) << ")";
+          md << " | " << f1(s->diff.p99) << " | " << f1(s->diff.mean) << " | " << s->diff.n << " |";
           if (n > 2) md << " " << f1(s->spread.p50) << " / " << f1(s->spread.p99) << " |";
           md << "\n";
         }
@@ -931,8 +1078,9 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
         md << "| " << t->method << " | failed | | | | " << (t->errors.empty() ? "" : t->errors.front()) << " |\n";
         continue;
       }
-      char g[32];
-      std::snprintf(g, sizeof g, "%.3f", t->gbit);
+      char g[64];
+      if (o.repeat > 1) std::snprintf(g, sizeof g, "%.3f (%.3f–%.3f)", t->gbit, t->gbit_lo, t->gbit_hi);
+      else std::snprintf(g, sizeof g, "%.3f", t->gbit);
       md << "| " << t->method << " | " << g << " | ";
       if (t->sent) {
         char m[32];
@@ -966,13 +1114,16 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
         md << "not measured" << (b ? " (the bridge run failed)" : " (run with --subscribers 2,4)") << "\n";
         continue;
       }
-      double worst = 0;
-      std::size_t ws = 0;
-      for (const auto& s : b->sizes)
+      double worst = 0, worst_net = 0;
+      std::size_t ws = 0, wn = 0;
+      for (const auto& s : b->sizes) {
         if (s.ratio() > worst) worst = s.ratio(), ws = s.size;
+        if (s.net_ratio() > worst_net) worst_net = s.net_ratio(), wn = s.size;
+      }
       const bool all = b->sizes.size() == run.plan.size();
-      md << (worst <= 1.01 && all ? "**holds**" : "**FAILS**") << " (worst " << fx(worst) << " at " << size_label(ws)
-         << (all ? "" : "; some sizes missing") << ")\n";
+      md << (worst <= 1.01 && all ? "**holds**" : "**FAILS**") << " counting every byte (worst " << fx(worst) << " at "
+         << size_label(ws) << "); net of the idle heartbeat traffic: " << (worst_net <= 1.01 && all ? "**holds**" : "**FAILS**")
+         << " (worst " << fx(worst_net) << " at " << size_label(wn) << ")" << (all ? "" : "; some sizes missing") << "\n";
     }
   }
   if (o.only.empty() || o.only == "exp3") {
@@ -1029,22 +1180,27 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   return md.str();
 }
 
-void write_csv(const std::string& path, const Run& run, const Report& rep) {
+void write_csv(const std::string& path, const Run& run, const std::vector<Report>& runs) {
   std::ofstream f(path);
-  f << "section,method,subscribers,size,sent,received,lost,mean_us,p50_us,p99_us,max_us,link_bytes_per_msg,"
-       "link_ratio,diff_p50_us,diff_p99_us,diff_mean_us,spread_p50_us,spread_p99_us,gbit_s,msgs_s,link_rate,pin\n";
-  const std::string tail = "," + run.opt.link_rate + "," + run.opt.pin + "\n";
-  for (const auto& fo : rep.fanouts)
-    for (const auto& s : fo.sizes)
-      f << "exp2," << fo.method << "," << fo.subscribers << "," << s.size << "," << s.sent << "," << s.lat.n << ","
-        << s.lost() << "," << s.lat.mean << "," << s.lat.p50 << "," << s.lat.p99 << "," << s.lat.max << ","
-        << s.bytes_per_msg() << "," << s.ratio() << "," << s.diff.p50 << "," << s.diff.p99 << "," << s.diff.mean
-        << "," << s.spread.p50 << "," << s.spread.p99 << ",," << tail;
-  for (const auto* t : {rep.bridge_tput ? &*rep.bridge_tput : nullptr, rep.iperf ? &*rep.iperf : nullptr})
-    if (t && t->ok)
-      f << "throughput," << (t->sent ? "bridge" : "iperf3") << ",1," << (t->sent ? run.tput_size : 0) << "," << t->sent
-        << "," << t->received << "," << (t->sent - t->received) << ",,,,,," << t->link_ratio << ",,,,,," << t->gbit
-        << "," << t->msgs_per_s << tail;
+  f << "run,section,method,subscribers,size,sent,received,lost,mean_us,p50_us,p99_us,max_us,link_bytes_per_msg,"
+       "link_ratio,link_ratio_net,idle_bytes_per_s,diff_p50_us,diff_p99_us,diff_mean_us,spread_p50_us,spread_p99_us,"
+       "gbit_s,msgs_s,link_rate,pin,wait\n";
+  const std::string tail = "," + run.opt.link_rate + "," + run.opt.pin + "," + run.opt.wait + "\n";
+  for (std::size_t r = 0; r < runs.size(); ++r) {
+    const Report& rep = runs[r];
+    for (const auto& fo : rep.fanouts)
+      for (const auto& s : fo.sizes)
+        f << r + 1 << ",exp2," << fo.method << "," << fo.subscribers << "," << s.size << "," << s.sent << ","
+          << s.received << "," << s.lost() << "," << s.lat.mean << "," << s.lat.p50 << "," << s.lat.p99 << ","
+          << s.lat.max << "," << s.bytes_per_msg() << "," << s.ratio() << "," << s.net_ratio() << ","
+          << fo.bg_bytes_per_s << "," << s.diff.p50 << "," << s.diff.p99 << "," << s.diff.mean << ","
+          << s.spread.p50 << "," << s.spread.p99 << ",," << tail;
+    for (const auto* t : {rep.bridge_tput ? &*rep.bridge_tput : nullptr, rep.iperf ? &*rep.iperf : nullptr})
+      if (t && t->ok)
+        f << r + 1 << ",throughput," << (t->sent ? "bridge" : "iperf3") << ",1," << (t->sent ? run.tput_size : 0)
+          << "," << t->sent << "," << t->received << "," << (t->sent - t->received) << ",,,,,," << t->link_ratio
+          << ",,,,,,,," << t->gbit << "," << t->msgs_per_s << tail;
+  }
 }
 
 int orchestrate(const Options& opt, const std::string& command) {
@@ -1086,7 +1242,7 @@ int orchestrate(const Options& opt, const std::string& command) {
   } workdir{run.workdir};
   fs::create_directories(run.workdir);
 
-  Report rep;
+  std::vector<Report> runs;
   int rc = 0;
   {
     lcmx::test::LinkSpec link;
@@ -1102,18 +1258,22 @@ int orchestrate(const Options& opt, const std::string& command) {
     run.emu = &*emu;
     progress("hosts: A " + emu->ns(0) + " (" + emu->address(0, "eth") + "), B " + emu->ns(1) + " (" +
              emu->address(1, "eth") + "), link " + (opt.link_rate.empty() ? "unlimited" : opt.link_rate) +
-             ", discovery " + run.discovery_url);
+             ", discovery " + run.discovery_url + ", pin " + opt.pin + ", lcmx wait " + opt.wait);
     const bool fan = opt.only.empty() || opt.only == "exp2" || opt.only == "exp3";
-    if (fan)
-      for (int n : opt.subscribers)
-        for (const auto& m : opt.methods) {
-          if (interrupted()) break;
-          if (n < 2 && (opt.only == "exp3")) continue;
-          rep.fanouts.push_back(run_fanout(run, m, n));
-        }
-    if ((opt.only.empty() || opt.only == "throughput") && !interrupted()) {
-      rep.iperf = run_iperf3(run);
-      if (!interrupted()) rep.bridge_tput = run_bridge_throughput(run);
+    for (int r = 0; r < opt.repeat && !interrupted(); ++r) {
+      if (opt.repeat > 1) progress("run " + std::to_string(r + 1) + " of " + std::to_string(opt.repeat));
+      Report rep;
+      if (fan)
+        for (int n : opt.subscribers)
+          for (const auto& m : opt.methods) {
+            if (interrupted()) break;
+            rep.fanouts.push_back(run_fanout(run, m, n));
+          }
+      if ((opt.only.empty() || opt.only == "throughput") && !interrupted()) {
+        rep.iperf = run_iperf3(run);
+        if (!interrupted()) rep.bridge_tput = run_bridge_throughput(run);
+      }
+      runs.push_back(std::move(rep));
     }
     stop_bridges(run);
   }  // namespaces removed here (Emulation's destructor kills what is left inside)
@@ -1121,10 +1281,11 @@ int orchestrate(const Options& opt, const std::string& command) {
     std::cerr << "lcmx_bench_bridge: interrupted (signal " << g_signal.load() << "); namespaces removed\n";
     return 128 + g_signal.load();
   }
+  const Report rep = aggregate(runs);
   const std::string md = markdown(run, rep, command);
   std::cout << md << std::flush;
   if (!opt.markdown.empty()) std::ofstream(opt.markdown) << md;
-  if (!opt.csv.empty()) write_csv(opt.csv, run, rep);
+  if (!opt.csv.empty()) write_csv(opt.csv, run, runs);
   for (const auto& f : rep.fanouts)
     if (!f.errors.empty()) rc = 1;
   if ((rep.bridge_tput && !rep.bridge_tput->ok) || (rep.iperf && !rep.iperf->ok)) rc = 1;
@@ -1168,7 +1329,9 @@ int main(int argc, char** argv) {
   app.add_option("--tput-size", opt.tput_size, "throughput: message size")->capture_default_str();
   app.add_option("--lcmx", opt.lcmx_tool, "the lcmx tool (runs `lcmx bridge --config FILE`)")->capture_default_str();
   app.add_option("--iperf3", opt.iperf3, "iperf3 program")->capture_default_str();
-  app.add_option("--csv", opt.csv, "also write one CSV row per method/subscribers/size (and throughput)");
+  app.add_option("--repeat", opt.repeat, "run everything this many times in one emulation; tables show medians (and ranges)")
+      ->check(CLI::Range(1, 20))->capture_default_str();
+  app.add_option("--csv", opt.csv, "also write one CSV row per run, method, subscribers and size (and throughput)");
   app.add_option("--markdown", opt.markdown, "also write the Markdown report to this file");
   // Hidden: child roles.
   ChildConfig c;
