@@ -242,6 +242,11 @@ struct Bridge::Impl {
     s.set(zmq::sockopt::immediate, 1);
     s.set(zmq::sockopt::reconnect_ivl, static_cast<int>(std::min<std::int64_t>(100, cfg.heartbeat.count())));
     s.set(zmq::sockopt::reconnect_ivl_max, static_cast<int>(cfg.link_timeout.count()));
+    // A SYN into a dead link would otherwise wait for the kernel's retransmissions (1 s, 3 s,
+    // 7 s...) and notice a link that came back only seconds later.
+    s.set(zmq::sockopt::connect_timeout, static_cast<int>(cfg.link_timeout.count()));
+    // Unacknowledged data on a dead link: give up on the connection like the heartbeat does.
+    s.set(zmq::sockopt::tcp_maxrt, static_cast<int>(cfg.link_timeout.count()));
     if (cfg.security.curve) {
       s.set(zmq::sockopt::curve_serverkey, p.cfg.public_key);
       s.set(zmq::sockopt::curve_publickey, cfg.security.public_key);

@@ -183,6 +183,22 @@ std::pair<Summary, bool> wait_sub(Child& sub, const std::string& channel, const 
   }
 }
 
+// Reads a child's output until a line contains `needle` (true) or the deadline passes.
+bool log_has(Child& c, const std::string& needle, ms timeout) {
+  if (c.text().find(needle) != std::string::npos) return true;
+  const auto deadline = Clock::now() + timeout;
+  while (auto line = c.read_line(std::chrono::duration_cast<ms>(std::max<Clock::duration>(0ms, deadline - Clock::now()))))
+    if (line->find(needle) != std::string::npos) return true;
+  return false;
+}
+
+#define REQUIRE_LOG(child, needle, timeout)              \
+  do {                                                     \
+    const bool found_ = log_has((child), (needle), (timeout)); \
+    INFO("waited for \"" << (needle) << "\" in:\n" << (child).text()); \
+    REQUIRE(found_);                                       \
+  } while (0)
+
 std::string pub_cmd(long n, double rate) { return "pub " + std::to_string(n) + " " + std::to_string(rate); }
 
 long long published_total(Child& pub, ms timeout = 20000ms) {
@@ -278,4 +294,310 @@ TEST_CASE("two subscribers on host B cost one transmission per message on the li
 
 TEST_CASE("four subscribers on host B cost one transmission per message on the link", "[bridge][multihost]") {
   one_transmission_per_message(2, 4);
+}
+
+namespace {
+
+// "A:12,C:5" -> {A: 12, C: 5}
+std::map<std::string, long long> sources_of(const Summary& s) {
+  std::map<std::string, long long> out;
+  std::istringstream in(s.str("sources"));
+  for (std::string item; std::getline(in, item, ',');)
+    if (const auto c = item.find(':'); c != std::string::npos) out[item.substr(0, c)] = std::stoll(item.substr(c + 1));
+  return out;
+}
+
+long long rss_kib(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  for (std::string line; std::getline(in, line);)
+    if (line.rfind("VmRSS:", 0) == 0) return std::stoll(line.substr(6));
+  return -1;
+}
+
+// Runs `lcmx bridge status` in `host` and returns its output.
+std::string bridge_status(World& w, int host) {
+  auto& c = w.spawn(host, {LCMX_TOOL, "bridge", "status", "--wait", "5000"}, true);
+  const int rc = c.wait(10000ms);
+  INFO(c.text());
+  CHECK(rc == 0);
+  return c.text();
+}
+
+}  // namespace
+
+TEST_CASE("three hosts, publishers on A and C, subscribers on B and C: no loops, no duplicates, in order",
+          "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(3, 3, {{.name = "eth"}});
+  const auto ch = w.channel("MESH");
+  auto& ba = w.bridge(0, {1, 2});
+  auto& bb = w.bridge(1, {0, 2});
+  auto& bc = w.bridge(2, {0, 1});
+  auto& sub_b = w.sub(1, {ch});
+  auto& sub_c = w.sub(2, {ch});
+  constexpr std::size_t kSize = 100000;
+  auto& pa = w.pub(0, ch, kSize, "A");
+  auto& pc = w.pub(2, ch, kSize, "C");
+
+  // Warm up: probes from both publishers until both subscribers have heard from both.
+  const auto deadline = Clock::now() + 15000ms;
+  long long na = 0, nc = 0;
+  for (;;) {
+    pa.send(pub_cmd(1, 0));
+    pc.send(pub_cmd(1, 0));
+    na = published_total(pa);
+    nc = published_total(pc);
+    const auto sb = sources_of(status_of(sub_b, ch)), sc = sources_of(status_of(sub_c, ch));
+    if (sb.count("A") && sb.count("C") && sc.count("A") && sc.count("C")) break;
+    INFO("B: " << ba.output() << "\nC: " << bc.output() << "\nsub B: " << sub_b.output() << "\nsub C: " << sub_c.output());
+    REQUIRE(Clock::now() < deadline);
+    std::this_thread::sleep_for(50ms);  // a new probe per poll
+  }
+  // Settle: the last probes arrived everywhere.
+  auto settled = [&](const Summary& s) {
+    const auto src = sources_of(s);
+    return s.num("last") >= std::min(na, nc) - 1 && src.count("A") && src.count("C");
+  };
+  REQUIRE(wait_sub(sub_b, ch, settled, 5000ms).second);
+  REQUIRE(wait_sub(sub_c, ch, settled, 5000ms).second);
+  const auto b0 = sources_of(status_of(sub_b, ch)), c0 = sources_of(status_of(sub_c, ch));
+
+  constexpr long kN = 80;
+  const auto txa0 = w.emu().tx_bytes(0, "eth"), txc0 = w.emu().tx_bytes(2, "eth");
+  pa.send(pub_cmd(kN, 100));
+  pc.send(pub_cmd(kN, 100));
+  REQUIRE(published_total(pa) == na + kN);
+  REQUIRE(published_total(pc) == nc + kN);
+  for (auto* s : {&sub_b, &sub_c}) {
+    const auto& base = s == &sub_b ? b0 : c0;
+    auto [st, ok] = wait_sub(*s, ch, [&](const Summary& x) {
+      const auto src = sources_of(x);
+      return src.count("A") && src.count("C") && src.at("A") >= base.at("A") + kN && src.at("C") >= base.at("C") + kN;
+    }, 10000ms);
+    INFO((s == &sub_b ? "subscriber on B" : "subscriber on C") << ":\n" << s->output() << "\nbridge A:\n" << ba.output()
+                                                                 << "\nbridge B:\n" << bb.output() << "\nbridge C:\n"
+                                                                 << bc.output());
+    REQUIRE(ok);
+    check_clean(st);
+    const auto src = sources_of(st);
+    CHECK(src.at("A") == base.at("A") + kN);  // exactly once each: no loop brought a second copy
+    CHECK(src.at("C") == base.at("C") + kN);
+  }
+  // Bytes: A sends each message once to B and once to C; C sends its own once (to B), never
+  // A's that it republished.
+  const double per = static_cast<double>(kSize + 28 + ch.size() + 16);
+  const auto txa = w.emu().tx_bytes(0, "eth") - txa0, txc = w.emu().tx_bytes(2, "eth") - txc0;
+  INFO("A sent " << txa << " bytes, C sent " << txc << " for " << kN << " messages of " << per << " each");
+  CHECK(static_cast<double>(txa) >= 2 * kN * per);
+  CHECK(static_cast<double>(txa) <= 2 * kN * per * 1.06 + 200000);
+  CHECK(static_cast<double>(txc) >= kN * per);
+  CHECK(static_cast<double>(txc) <= kN * per * 1.06 + 200000);
+}
+
+TEST_CASE("a peer bridge killed (SIGKILL) and restarted: traffic resumes, no duplicates", "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, 4, {{.name = "eth"}});
+  const auto ch = w.channel("RESTART");
+  Child* ba = &w.bridge(0, {1});
+  Child* bb = &w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 80000, "A");
+  warm_up(pub, {&sub}, ch);
+  pub.send(pub_cmd(100000, 50));  // runs in the background for the rest of the test
+
+  auto resumes = [&](const std::string& what) {
+    const long long r0 = status_of(sub, ch).num("received");
+    auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= r0 + 25; }, 10000ms);
+    INFO(what << ": subscriber:\n" << sub.output() << "\nbridge A:\n" << ba->output() << "\nbridge B:\n" << bb->output());
+    REQUIRE(ok);
+    check_clean(st);
+  };
+  resumes("before any kill");
+  bb->kill9();  // the receiving side
+  bb = &w.bridge(1, {0});
+  resumes("after B's bridge was killed and restarted");
+  ba->kill9();  // the serving side
+  ba = &w.bridge(0, {1});
+  resumes("after A's bridge was killed and restarted");
+  CHECK(log_has(*bb, "peer chipA restarted", 5000ms));
+}
+
+TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to eth and back",
+          "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, 5, {{.name = "pcie"}, {.name = "eth"}});
+  const auto ch = w.channel("FAILOVER");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  constexpr std::size_t kSize = 100000;
+  auto& pub = w.pub(0, ch, kSize, "A");
+  warm_up(pub, {&sub}, ch);
+  pub.send(pub_cmd(100000, 50));  // in the background for the rest of the test
+  INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output() << "\nsubscriber:\n" << sub.output());
+
+  // Bytes A sends on each link while B receives `n` more messages.
+  struct Window {
+    std::uint64_t pcie, eth;
+  };
+  auto window = [&](long n) {
+    const long long r0 = status_of(sub, ch).num("received");
+    const auto p0 = w.emu().tx_bytes(0, "pcie"), e0 = w.emu().tx_bytes(0, "eth");
+    auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= r0 + n; }, 10000ms);
+    REQUIRE(ok);
+    return Window{w.emu().tx_bytes(0, "pcie") - p0, w.emu().tx_bytes(0, "eth") - e0};
+  };
+  const double data = 20.0 * kSize;
+
+  // pcie preferred: the data goes there.
+  REQUIRE_LOG(ba, "peer chipB: active link pcie", 5000ms);
+  auto w1 = window(20);
+  CHECK(static_cast<double>(w1.pcie) >= data);
+  CHECK(static_cast<double>(w1.eth) < 0.05 * data);
+
+  // pcie down: data moves to eth within about link_timeout + heartbeat.
+  const auto t_down = Clock::now();
+  w.emu().set_link_up(0, "pcie", false);
+  const long long r_down = status_of(sub, ch).num("received");
+  REQUIRE_LOG(ba, "peer chipB: active link eth", 5000ms);
+  REQUIRE(wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") > r_down + 1; }, 5000ms).second);
+  const auto failover = std::chrono::duration_cast<ms>(Clock::now() - t_down);
+  INFO("failover took " << failover.count() << " ms");
+  CHECK(failover < 2500ms);  // link_timeout 300 + heartbeat 50 + reconnect, with margin for a loaded machine
+  auto w2 = window(20);
+  CHECK(static_cast<double>(w2.eth) >= data);
+  CHECK(w2.pcie < 20000u);
+
+  // pcie up again: back to pcie after the hold-down.
+  w.emu().set_link_up(0, "pcie", true);
+  REQUIRE_LOG(ba, "(was eth)", 8000ms);  // "peer chipB: active link pcie (<address>) (was eth)"
+  window(5);  // whatever was queued on eth drains
+  auto w3 = window(20);
+  CHECK(static_cast<double>(w3.pcie) >= data);
+  CHECK(static_cast<double>(w3.eth) < 0.05 * data);
+
+  const auto st = status_of(sub, ch);
+  check_clean(st);
+  // lcmx bridge status on A shows the peer, its active link and per-link bytes.
+  const auto out = bridge_status(w, 0);
+  CHECK(out.find("bridge chipA") != std::string::npos);
+  CHECK(out.find("peer chipB  UP  active link pcie  failovers 2") != std::string::npos);
+  CHECK(out.find("pcie      " + w.emu().address(1, "pcie")) != std::string::npos);
+  CHECK(out.find("eth       " + w.emu().address(1, "eth")) != std::string::npos);
+}
+
+TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's other peer C nor A's memory",
+          "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(3, 6, {{.name = "eth"}});
+  const auto ch = w.channel("SLOW");
+  const BridgeOpts o{.channels = "[[channel]]\nname = \"bulk\"\nport = 7701\nhwm = 4\ntopics = [\"*\"]\n"};
+  auto& ba = w.bridge(0, {1, 2}, o);
+  auto& bb = w.bridge(1, {0, 2}, o);
+  w.bridge(2, {0, 1}, o);
+  auto& sub_b = w.sub(1, {ch});
+  auto& sub_c = w.sub(2, {ch});
+  constexpr std::size_t kSize = 200000;
+  auto& pub = w.pub(0, ch, kSize, "A");
+  const long long warm = warm_up(pub, {&sub_b, &sub_c}, ch);
+  REQUIRE(wait_sub(sub_c, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms).second);
+  const long long c0 = status_of(sub_c, ch).num("received");
+  const long long b0 = status_of(sub_b, ch).num("received");
+
+  sub_b.signal(SIGSTOP);
+  bb.signal(SIGSTOP);
+  const long long rss0 = rss_kib(ba.pid());
+  constexpr long kN = 300;  // 60 MB: far more than the stopped peer's queues may hold
+  pub.send(pub_cmd(kN, 100));
+  REQUIRE(published_total(pub) == warm + kN);
+  auto [st, ok] = wait_sub(sub_c, ch, [&](const Summary& x) { return x.num("received") >= c0 + kN; }, 10000ms);
+  INFO("subscriber on C:\n" << sub_c.output() << "\nbridge A:\n" << ba.output());
+  REQUIRE(ok);
+  CHECK(st.num("received") == c0 + kN);  // C lost nothing while B was stopped
+  CHECK(st.num("last") == warm + kN - 1);
+  check_clean(st);
+  const long long rss1 = rss_kib(ba.pid());
+  INFO("bridge A RSS " << rss0 << " KiB -> " << rss1 << " KiB");
+  CHECK(rss1 - rss0 < 24 * 1024);  // hwm 4 x 200 KB queued for B + buffers; 60 MB if unbounded
+  CHECK(log_has(ba, "to chipB dropped on channel bulk", 5000ms));
+
+  // B comes back and receives again.
+  bb.signal(SIGCONT);
+  sub_b.signal(SIGCONT);
+  pub.send(pub_cmd(100000, 50));
+  auto [sb, okb] = wait_sub(sub_b, ch, [&](const Summary& x) { return x.num("received") >= b0 + 20; }, 10000ms);
+  INFO("subscriber on B:\n" << sub_b.output() << "\nbridge B:\n" << bb.output());
+  CHECK(okb);
+  check_clean(sb);
+}
+
+TEST_CASE("CURVE: a peer with the wrong key is refused and logged, with the right keys traffic passes",
+          "[bridge][multihost][curve]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, 7, {{.name = "eth"}});
+  for (const char* k : {"chipA", "chipB", "intruder"}) w.keygen(k);
+  const auto ch = w.channel("CURVE");
+  auto& ba = w.bridge(0, {1}, {.curve = true});
+  // B uses a key pair A does not know.
+  Child* bb = &w.bridge(1, {0}, {.curve = true, .own_key = "intruder"});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 80000, "A");
+  const std::string refused = "refused a CURVE connection from " + w.emu().address(1, "eth");
+  {
+    INFO("bridge A:\n" << ba.output());
+    CHECK(log_has(ba, refused, 5000ms));
+  }
+  pub.send(pub_cmd(20, 50));
+  published_total(pub);
+  CHECK(status_of(sub, ch).num("received") == 0);
+  CHECK(!log_has(*bb, "link eth to chipA", 0ms));  // never up
+
+  // The right key: the link comes up and data passes, encrypted.
+  bb->kill9();
+  bb = &w.bridge(1, {0}, {.curve = true});
+  warm_up(pub, {&sub}, ch);
+  const long long r0 = status_of(sub, ch).num("received");
+  pub.send(pub_cmd(20, 100));
+  published_total(pub);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= r0 + 20; }, 10000ms);
+  INFO("bridge B:\n" << bb->output());
+  CHECK(ok);
+  check_clean(st);
+  CHECK(bridge_status(w, 1).find("CURVE") != std::string::npos);
+}
+
+TEST_CASE("lcmx bridge --check: good config 0, bad config 2 with the key named, and the daemon refuses a bad one too",
+          "[bridge][cli]") {
+  std::string t = (fs::temp_directory_path() / "lcmx_bridge_cli_XXXXXX").string();
+  REQUIRE(::mkdtemp(t.data()) != nullptr);
+  const fs::path dir = t;
+  struct Cleanup {
+    fs::path p;
+    ~Cleanup() {
+      std::error_code ec;
+      fs::remove_all(p, ec);
+    }
+  } cleanup{dir};
+  std::ofstream(dir / "good.toml") << "name = \"a\"\nlisten = [\"127.0.0.1\"]\ncontrol_port = 7700\n";
+  std::ofstream(dir / "bad.toml") << "name = \"a\"\nlisten = [\"127.0.0.1\"]\ncontrol_port = 7700\n[[channel]]\n"
+                                     "name = \"c\"\nport = 7701\ndrop = \"sometimes\"\n";
+  auto run = [](std::vector<std::string> argv) {
+    Child c(argv, {"LCMX_VEHICLE_URL"}, true);
+    const int rc = c.wait(10000ms);
+    return std::pair{rc, c.text()};
+  };
+  auto [rc_good, out_good] = run({LCMX_TOOL, "bridge", "--config", (dir / "good.toml").string(), "--check"});
+  INFO(out_good);
+  CHECK(rc_good == 0);
+  auto [rc_bad, out_bad] = run({LCMX_TOOL, "bridge", "--config", (dir / "bad.toml").string(), "--check"});
+  INFO(out_bad);
+  CHECK(rc_bad == 2);
+  CHECK(out_bad.find((dir / "bad.toml").string() + ": channel[0].drop: must be \"oldest\" or \"newest\"") !=
+        std::string::npos);
+  auto [rc_run, out_run] = run({LCMX_TOOL, "bridge", "--config", (dir / "bad.toml").string()});
+  INFO(out_run);
+  CHECK(rc_run == 2);
+  auto [rc_missing, out_missing] = run({LCMX_TOOL, "bridge", "--config", (dir / "none.toml").string(), "--check"});
+  CHECK(rc_missing == 2);
+  CHECK(out_missing.find("cannot read") != std::string::npos);
 }
