@@ -82,9 +82,11 @@ std::string path_of(const lcmx::SubscriberStats& s) {
 }
 
 // One result line: "RESULT <subscriber> <topic> <path> <received> <rate> <p50> <p99> <lost> <drops>"
+// `path`: the path seen while the publisher was there (its match goes when it leaves).
 std::string result_line(const std::string& who, const char* topic, Recorder& r,
-                        const lcmx::SubscriberStats& s) {
-  return "RESULT " + who + " " + topic + " " + path_of(s) + " " + r.summary() + " " +
+                        const lcmx::SubscriberStats& s, std::string path = {}) {
+  if (path.empty() || path == "-") path = path_of(s);
+  return "RESULT " + who + " " + topic + " " + path + " " + r.summary() + " " +
          std::to_string(s.drops);
 }
 
@@ -117,14 +119,19 @@ int run_subscriber(const std::string& name, const std::vector<std::string>& topi
   sigaddset(&signals, SIGINT);
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(timeout_s);
   const timespec tick{0, 100'000'000};
+  std::string cam_path, pose_path;  // last seen while matched
   while (!stop && sigtimedwait(&signals, nullptr, &tick) < 0) {
+    if (want_cam)
+      if (auto p = path_of(cam_sub.stats()); p != "-") cam_path = p;
+    if (want_pose)
+      if (auto p = path_of(pose_sub.stats()); p != "-") pose_path = p;
     if (std::chrono::steady_clock::now() > deadline) {
       std::cerr << name << ": no stop within " << timeout_s << " s\n";
       break;
     }
   }
-  if (want_cam) std::cout << result_line(name, kCamera, cam, cam_sub.stats()) << "\n";
-  if (want_pose) std::cout << result_line(name, kPose, pose, pose_sub.stats()) << "\n";
+  if (want_cam) std::cout << result_line(name, kCamera, cam, cam_sub.stats(), cam_path) << "\n";
+  if (want_pose) std::cout << result_line(name, kPose, pose, pose_sub.stats(), pose_path) << "\n";
   std::cout << "END" << std::endl;
   return 0;
 }

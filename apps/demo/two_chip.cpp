@@ -209,10 +209,15 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
     total += p + e;
     std::printf("| %-14s | %10s | %10s |\n", ph.what, mb(p).c_str(), mb(e).c_str());
   }
-  const double per_image = cams ? static_cast<double>(total) / static_cast<double>(cams) / 1e6 : 0;
-  std::printf("\nper camera image published: %.2f MB on the links = %.3fx one image (%.2f MB), with two\n"
-              "camera subscribers on chip B: one transmission per image.\n\n",
+  // Images chip B received (cam_b1's count; cam_b2 got the same ones from the same slot).
+  unsigned long long on_b = 0;
+  for (const auto& l : lines)
+    if (l.rfind("RESULT cam_b1 ", 0) == 0) std::sscanf(l.c_str(), "RESULT %*s %*s %*s %llu", &on_b);
+  const double per_image = on_b ? static_cast<double>(total) / static_cast<double>(on_b) / 1e6 : 0;
+  std::printf("\nper camera image received on chip B: %.2f MB sent on the links = %.3fx one image (%.2f MB)\n"
+              "for two camera subscribers there: one transmission per image.\n\n",
               per_image, image_mb > 0 ? per_image / image_mb : 0, image_mb);
+  if (on_b == 0) ok = false;
   if (!print_results(lines)) ok = false;
   return ok ? 0 : 1;
 }
