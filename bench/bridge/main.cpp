@@ -298,7 +298,7 @@ struct Options {
   int count = 30, warmup = 5;
   double rate = 10;
   std::vector<int> subscribers{2};
-  std::vector<std::string> methods{"zmq", "bridge"};
+  std::vector<std::string> methods{"zmq", "bridge", "floor"};
   std::string only;  // exp2 | exp3 | throughput ("" = all)
   std::string link_rate = "2gbit";
   std::string pin = "none";
@@ -488,7 +488,10 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
   FanoutResult res;
   res.method = method;
   res.subscribers = nsubs;
-  const bool lcmx = method == "bridge";
+  const bool lcmx = method == "bridge", floor = method == "floor";
+  const std::string role = lcmx ? "lcmx" : floor ? "floor" : "zmq";
+  // floor moves no data: one size is enough.
+  const std::vector<SizePlan> plan = floor ? std::vector<SizePlan>{run.plan.front()} : run.plan;
   progress(method + " x" + std::to_string(nsubs) + ": starting");
   const std::int64_t t_start = now_ns();
   if (lcmx && !start_bridges(run, res.errors)) return res;
@@ -517,12 +520,12 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
     // Subscribers first (each says ready once bound / subscribed), then the publisher.
     for (int i = 0; i < nsubs; ++i) {
       std::vector<std::string> eps;
-      if (!lcmx) eps.push_back("tcp://" + run.emu->address(1, "eth") + ":" + std::to_string(7800 + i));
+      if (role == "zmq") eps.push_back(sub_endpoint(run, i));
       subs.push_back(std::make_unique<Proc>(method + "-sub" + std::to_string(i + 1), run.emu->ns_fd(1),
-                                            role_args(run, lcmx ? "lcmx-sub" : "zmq-sub", channel, eps), run.cpu_b));
+                                            role_args(run, role + "-sub", channel, eps), run.cpu_b));
     }
     std::vector<std::string> pub_eps;
-    if (!lcmx)
+    if (role == "zmq")
       for (int i = 0; i < nsubs; ++i) pub_eps.push_back(sub_endpoint(run, i));
     auto ready = [](Proc& p) {
       return std::any_of(p.lines().begin(), p.lines().end(), [](const std::string& l) { return l == "ready"; });
@@ -538,8 +541,9 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
     pump(run, sp, now_ns() + 20'000'000'000LL, [&] { return ready_or_failed(sp); });
     for (auto* p : sp)
       if (!ready(*p)) throw std::runtime_error(p->name() + " not ready within 20 s");
-    pub = std::make_unique<Proc>(method + "-pub", run.emu->ns_fd(0),
-                                 role_args(run, lcmx ? "lcmx-pub" : "zmq-pub", channel, pub_eps), run.cpu_a);
+    // The floor's waker runs on host B (it stands for B's bridge); the publishers on A.
+    pub = std::make_unique<Proc>(method + "-pub", run.emu->ns_fd(floor ? 1 : 0),
+                                 role_args(run, role + "-pub", channel, pub_eps), floor ? run.cpu_b : run.cpu_a);
     pump(run, {pub.get()}, now_ns() + 20'000'000'000LL, [&] { return ready_or_failed({pub.get()}); });
     if (!ready(*pub)) throw std::runtime_error(pub->name() + " not ready within 20 s");
     absorb_all();
@@ -548,7 +552,7 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
     // Probes (unmeasured) every 200 ms until every subscriber has one: connections are up,
     // discovery has matched, the bridges carry the topic.
     std::int64_t k = 0;
-    const std::size_t probe_size = run.plan.front().size;
+    const std::size_t probe_size = plan.front().size;
     const std::int64_t probe_deadline = now_ns() + 30'000'000'000LL;
     bool all_have_one = false;
     while (!all_have_one) {
@@ -580,7 +584,7 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
       res.bg_bytes_per_s = static_cast<double>(run.emu->tx_bytes(0, "eth") - b0) / (static_cast<double>(now_ns() - t0) / 1e9);
     }
 
-    for (const auto& p : run.plan) {
+    for (const auto& p : plan) {
       SizeResult sr;
       sr.size = p.size;
       // Timeout per message: 10x the time `nsubs` copies take on the link, at least 2 s.
@@ -838,7 +842,7 @@ std::string fx(double v, int prec = 3) {
   return b;
 }
 std::string method_label(const std::string& m) {
-  return m == "zmq" ? "per-subscriber ZeroMQ/TCP" : m == "bridge" ? "lcmx bridge" : m;
+  return m == "zmq" ? "per-subscriber ZeroMQ/TCP" : m == "bridge" ? "lcmx bridge" : m == "floor" ? "floor: futex wake, no data" : m;
 }
 
 const SizeResult* find_size(const FanoutResult& f, std::size_t size) {
@@ -1007,6 +1011,7 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
             "|---|---|---|---|---|---|---|---|---|\n";
       for (const auto& p : run.plan)
         for (const auto& m : o.methods) {
+          if (m == "floor") continue;
           const FanoutResult* f = find_fanout(rep, m, n);
           const SizeResult* s = f ? find_size(*f, p.size) : nullptr;
           md << "| " << size_label(p.size) << " | " << method_label(m) << " | ";
@@ -1036,7 +1041,7 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
         md << " (− = bridge faster)\n";
       }
       for (const auto& m : o.methods)
-        if (const FanoutResult* f = find_fanout(rep, m, n)) {
+        if (const FanoutResult* f = find_fanout(rep, m, n); f && m != "floor") {
           char b[160];
           std::snprintf(b, sizeof b, "Idle tx on A's link during %s: %.0f bytes/s.\n", method_label(m).c_str(), f->bg_bytes_per_s);
           md << (m == o.methods.front() ? "\n" : "") << b;
@@ -1052,9 +1057,10 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
          << "\n|---|---|---|---|---|---|" << (n > 2 ? "---|" : "") << "\n";
       for (const auto& p : run.plan)
         for (const auto& m : o.methods) {
+          if (m == "floor" && &p != &run.plan.front()) continue;
           const FanoutResult* f = find_fanout(rep, m, n);
           const SizeResult* s = f ? find_size(*f, p.size) : nullptr;
-          md << "| " << size_label(p.size) << " | " << method_label(m) << " | ";
+          md << "| " << (m == "floor" ? std::string("any") : size_label(p.size)) << " | " << method_label(m) << " | ";
           if (!s || !s->diff.n) {
             md << "— | — | — | 0 |" << (n > 2 ? " — |" : "") << "\n";
             continue;
@@ -1065,7 +1071,12 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
           if (n > 2) md << " " << f1(s->spread.p50) << " / " << f1(s->spread.p99) << " |";
           md << "\n";
         }
-      md << "\nPaper (mean): 54–86 µs with the bridge, 92–774 µs with Fast DDS unicast.\n\n";
+      md << "\nPaper (mean): 54–86 µs with the bridge, 92–774 µs with Fast DDS unicast.";
+      if (std::find(o.methods.begin(), o.methods.end(), "floor") != o.methods.end())
+        md << " The floor row is this machine's limit for the same fan-out: one process on B bumps a futex word in "
+              "shared memory and FUTEX_WAKEs the " << n << " subscriber processes, which only take the time (no "
+              "data, no network, no lcmx).";
+      md << "\n\n";
     }
   }
   // Throughput
@@ -1142,7 +1153,10 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
         if (s.diff.p50 > worst) worst = s.diff.p50, ws = s.size;
       }
       md << (worst <= 20 && !missing ? "**holds**" : "**FAILS**") << " (worst p50 " << f1(worst) << " µs at "
-         << size_label(ws) << ", " << b->subscribers << " subscribers" << (missing ? "; some sizes missing" : "") << ")\n";
+         << size_label(ws) << ", " << b->subscribers << " subscribers" << (missing ? "; some sizes missing" : "");
+      if (const FanoutResult* fl = find_fanout(rep, "floor", b->subscribers); fl && !fl->sizes.empty() && fl->sizes.front().diff.n)
+        md << "; this machine's floor for the same wake-up: p50 " << f1(fl->sizes.front().diff.p50) << " µs";
+      md << ")\n";
     }
   }
   if (o.only.empty() || o.only == "throughput") {
@@ -1214,7 +1228,7 @@ int orchestrate(const Options& opt, const std::string& command) {
     for (int n : opt.subscribers)
       if (n < 1 || n > 16) throw std::invalid_argument("--subscribers: 1..16");
     for (const auto& m : opt.methods)
-      if (m != "zmq" && m != "bridge") throw std::invalid_argument("--methods: zmq, bridge");
+      if (m != "zmq" && m != "bridge" && m != "floor") throw std::invalid_argument("--methods: zmq, bridge, floor");
   } catch (const std::exception& e) {
     std::cerr << "lcmx_bench_bridge: " << e.what() << "\n";
     return 2;
@@ -1311,7 +1325,7 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(0.1, 10000.0))->capture_default_str();
   app.add_option("--subscribers", opt.subscribers, "subscriber processes on host B; a list runs each (e.g. 2,4)")
       ->delimiter(',')->capture_default_str();
-  app.add_option("--methods", opt.methods, "exp2/3 methods in run order: zmq (per-subscriber), bridge")->delimiter(',')->capture_default_str();
+  app.add_option("--methods", opt.methods, "exp2/3 methods in run order: zmq (per-subscriber), bridge, floor (futex wake of the subscribers on B, no data; exp3 only)")->delimiter(',')->capture_default_str();
   app.add_option("--only", opt.only, "run only exp2, exp3 (both run the same fan-out; only the tables differ) or throughput")
       ->check(CLI::IsMember({"exp2", "exp3", "throughput"}));
   app.add_option("--link-rate", opt.link_rate, "tc tbf rate of the link (e.g. 1gbit, 2gbit); \"\" = unlimited")->capture_default_str();
@@ -1351,6 +1365,8 @@ int main(int argc, char** argv) {
   if (c.role == "zmq-sub") return run_zmq_sub(c);
   if (c.role == "lcmx-pub") return run_lcmx_pub(c);
   if (c.role == "lcmx-sub") return run_lcmx_sub(c);
+  if (c.role == "floor-pub") return run_floor_pub(c);
+  if (c.role == "floor-sub") return run_floor_sub(c);
   lcmxbench::report_error("unknown role " + c.role);
   return 2;
 }

@@ -9,7 +9,11 @@
 // See roles.hpp for the line protocol.
 #include "roles.hpp"
 
+#include <fcntl.h>
+#include <linux/futex.h>
 #include <poll.h>
+#include <sys/mman.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 #include <zmq.h>
 
@@ -17,6 +21,7 @@
 #include <spdlog/spdlog.h>
 
 #include <atomic>
+#include <climits>
 #include <cerrno>
 #include <chrono>
 #include <cstring>
@@ -25,6 +30,7 @@
 #include <optional>
 #include <sstream>
 #include <thread>
+#include <vector>
 #include <zmq.hpp>
 
 #include "common.hpp"
@@ -62,12 +68,70 @@ class CtlReader {
   bool eof_ = false;
 };
 
-void report_rx(const Header& h, std::size_t got, std::int64_t recv_ns) {
-  char line[128];
-  std::snprintf(line, sizeof line, "r %lld %zu %lld %lld", static_cast<long long>(h.seq), got,
-                static_cast<long long>(h.send_ns), static_cast<long long>(recv_ns));
-  report_line(line);
-}
+// Receive records of one subscriber: the receiving thread appends (no system call, no
+// allocation), a reporter thread writes them as "r" lines every 5 ms. So the callback of one
+// subscriber does not delay another subscriber that waits for the same CPU, and report lines
+// never wake the orchestrator while a message is being delivered (experiment 3).
+class RxLog {
+ public:
+  RxLog() : recs_(kCapacity), reporter_([this] { run(); }) {}
+  RxLog(const RxLog&) = delete;
+  RxLog& operator=(const RxLog&) = delete;
+  ~RxLog() { stop(); }
+
+  // One producer thread only. Records beyond kCapacity are dropped (counted).
+  void add(const Header& h, std::size_t got, std::int64_t recv_ns) noexcept {
+    const std::size_t i = n_.load(std::memory_order_relaxed);
+    if (i >= kCapacity) {
+      overflow_.fetch_add(1, std::memory_order_relaxed);
+      return;
+    }
+    recs_[i] = Rec{h.seq, h.send_ns, recv_ns, got};
+    n_.store(i + 1, std::memory_order_release);  // pairs with the acquire in flush()
+  }
+  // Stops the reporter and writes what is left. Idempotent.
+  void stop() {
+    if (stop_.exchange(true)) return;
+    reporter_.join();
+    flush();
+    if (overflow_) report_line("note subscriber: " + std::to_string(overflow_.load()) + " receive records lost (log full)");
+  }
+
+ private:
+  static constexpr std::size_t kCapacity = 1 << 16;
+  struct Rec {
+    std::int64_t seq, send_ns, recv_ns;
+    std::size_t got;
+  };
+  void flush() {
+    const std::size_t n = n_.load(std::memory_order_acquire);
+    std::string out;
+    for (; done_ < n; ++done_) {
+      const Rec& r = recs_[done_];
+      char line[128];
+      std::snprintf(line, sizeof line, "r %lld %zu %lld %lld\n", static_cast<long long>(r.seq), r.got,
+                    static_cast<long long>(r.send_ns), static_cast<long long>(r.recv_ns));
+      out += line;
+    }
+    if (!out.empty()) {
+      out.pop_back();  // report_line adds the last '\n'
+      report_line(out);
+    }
+  }
+  void run() {
+    while (!stop_.load()) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));  // a tick, not a synchronisation
+      flush();
+    }
+  }
+
+  std::vector<Rec> recs_;
+  std::atomic<std::size_t> n_{0};
+  std::atomic<std::uint64_t> overflow_{0};
+  std::size_t done_ = 0;  // reporter thread only (then stop())
+  std::atomic<bool> stop_{false};
+  std::thread reporter_;
+};
 
 // The command loop of both publishers. send(seq, size) hands one message to the transport.
 int publisher_loop(const std::function<void(std::int64_t, std::size_t)>& send) {
@@ -192,6 +256,7 @@ int run_zmq_sub(const ChildConfig& c) {
     s.bind(c.endpoints.at(0));
     report_line("ready");
     CtlReader ctl;
+    RxLog log;
     std::uint64_t received = 0, short_msgs = 0;
     for (;;) {
       zmq::pollitem_t items[] = {{s.handle(), 0, ZMQ_POLLIN, 0}, {nullptr, kCtlIn, ZMQ_POLLIN, 0}};
@@ -206,7 +271,7 @@ int run_zmq_sub(const ChildConfig& c) {
           }
           Header h;
           std::memcpy(&h, m.data(), sizeof h);
-          report_rx(h, m.size(), t);
+          log.add(h, m.size(), t);
           ++received;
         }
       }
@@ -215,10 +280,91 @@ int run_zmq_sub(const ChildConfig& c) {
         if (line && *line == "quit") break;
       }
     }
+    log.stop();
     report_line("note zmq-sub: received=" + std::to_string(received) +
                 (short_msgs ? " short=" + std::to_string(short_msgs) : std::string()));
   } catch (const std::exception& e) {
     report_error(std::string("zmq-sub: ") + e.what());
+    return 1;
+  }
+  report_line("done");
+  return 0;
+}
+
+// ---- floor: one process wakes N processes through a futex in shared memory ----
+
+namespace {
+
+// The shared page of the floor roles: the futex word, then the header of the "message".
+struct FloorPage {
+  std::atomic<std::uint32_t> word;
+  std::uint32_t reserved;
+  Header h;
+};
+
+FloorPage* map_floor(const std::string& name) {
+  const std::string shm = "/" + name;
+  const int fd = ::shm_open(shm.c_str(), O_RDWR | O_CREAT, 0600);
+  if (fd < 0) throw std::runtime_error("shm_open " + shm + ": " + std::strerror(errno));
+  if (::ftruncate(fd, 4096) != 0) {
+    ::close(fd);
+    throw std::runtime_error("ftruncate " + shm + ": " + std::strerror(errno));
+  }
+  void* p = ::mmap(nullptr, 4096, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+  ::close(fd);
+  if (p == MAP_FAILED) throw std::runtime_error("mmap " + shm + ": " + std::strerror(errno));
+  return static_cast<FloorPage*>(p);
+}
+
+long futex(std::atomic<std::uint32_t>* w, int op, std::uint32_t val, const timespec* ts) {
+  return ::syscall(SYS_futex, reinterpret_cast<std::uint32_t*>(w), op, val, ts, nullptr, 0);
+}
+
+}  // namespace
+
+int run_floor_pub(const ChildConfig& c) {
+  try {
+    FloorPage* page = map_floor(c.channel);
+    report_line("ready");
+    publisher_loop([&](std::int64_t seq, std::size_t size) {
+      page->h = Header{seq, now_ns(), static_cast<std::int64_t>(size)};
+      page->word.fetch_add(1, std::memory_order_release);  // pairs with the subscribers' acquire
+      futex(&page->word, FUTEX_WAKE, INT_MAX, nullptr);
+    });
+    ::munmap(page, 4096);
+    ::shm_unlink(("/" + c.channel).c_str());
+  } catch (const std::exception& e) {
+    report_error(std::string("floor-pub: ") + e.what());
+    return 1;
+  }
+  report_line("done");
+  return 0;
+}
+
+int run_floor_sub(const ChildConfig& c) {
+  try {
+    FloorPage* page = map_floor(c.channel);
+    RxLog log;
+    CtlReader ctl;
+    report_line("ready");
+    std::uint32_t seen = page->word.load(std::memory_order_acquire);
+    for (;;) {
+      const timespec ts{0, 100'000'000};
+      futex(&page->word, FUTEX_WAIT, seen, &ts);
+      const std::uint32_t now = page->word.load(std::memory_order_acquire);
+      if (now != seen) {
+        const std::int64_t t = now_ns();
+        seen = now;
+        const Header h = page->h;
+        log.add(h, static_cast<std::size_t>(h.size), t);
+      }
+      if (const auto line = ctl.next(0); line && *line == "quit") break;
+    }
+    log.stop();
+    ::munmap(page, 4096);
+    ::shm_unlink(("/" + c.channel).c_str());
+  } catch (const std::exception& e) {
+    report_error(std::string("floor-sub: ") + e.what());
     return 1;
   }
   report_line("done");
@@ -277,6 +423,7 @@ int run_lcmx_sub(const ChildConfig& c) {
     else if (c.wait == "busy") no.executor.wait = lcmx::WaitStrategy::busy_poll;
     auto node = rt.create_node("bench_bridge_sub", no);
     std::atomic<std::uint64_t> short_msgs{0};
+    RxLog log;
     auto sub = node.subscribe_raw(c.channel, [&](const lcmx::RawMessage& m) {
       const std::int64_t t = now_ns();
       if (m.data.size() < sizeof(Header)) {
@@ -285,7 +432,7 @@ int run_lcmx_sub(const ChildConfig& c) {
       }
       Header h;
       std::memcpy(&h, m.data.data(), sizeof h);  // zero-copy read of the header
-      report_rx(h, m.data.size(), t);
+      log.add(h, m.data.size(), t);
     });
     report_line("ready");
     CtlReader ctl;
@@ -295,6 +442,7 @@ int run_lcmx_sub(const ChildConfig& c) {
     }
     const auto st = sub.stats();
     sub.reset();  // waits for a running callback
+    log.stop();
     std::string paths;
     for (const auto& p : st.publishers) paths += std::string(paths.empty() ? "" : ",") + lcmx::to_string(p.path);
     report_line("note lcmx-sub: delivered=" + std::to_string(st.delivered) + " drops=" + std::to_string(st.drops) +

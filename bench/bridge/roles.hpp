@@ -4,8 +4,8 @@
 // Protocol, one text line per write():
 //  - fd 3 (kReportFd, child -> orchestrator): "ready", "error <text>", "note <text>", "done";
 //    publishers: "s <seq>" once a message is handed to the transport, "streamed <n> <t0> <t1>";
-//    subscribers: "r <seq> <size> <send_ns> <recv_ns>" for every message, written from the
-//    callback right after the receive time was taken.
+//    subscribers: "r <seq> <size> <send_ns> <recv_ns>" for every message: the callback only
+//    appends a record in memory, a reporter thread writes the lines every 5 ms.
 //  - fd 4 (kCtlFd, orchestrator -> child): "send <seq> <size>", "stream <size> <count> <hz>
 //    <first k>", "quit" (publishers); "quit" (subscribers). EOF = quit.
 // Every message starts with a Header (seq, send_ns, size); the rest is payload that is never
@@ -28,7 +28,7 @@ struct Header {
 static_assert(sizeof(Header) == 24);
 
 struct ChildConfig {
-  std::string role;                    // zmq-pub | zmq-sub | lcmx-pub | lcmx-sub
+  std::string role;                    // {zmq,lcmx,floor}-{pub,sub}
   std::vector<std::string> endpoints;  // zmq-pub: connect to each; zmq-sub: bind endpoints[0]
   std::string channel;                 // lcmx roles
   std::string discovery_url;           // lcmx roles
@@ -40,5 +40,9 @@ int run_zmq_pub(const ChildConfig& c);
 int run_zmq_sub(const ChildConfig& c);
 int run_lcmx_pub(const ChildConfig& c);
 int run_lcmx_sub(const ChildConfig& c);
+// The platform floor of experiment 3: floor-pub (on host B) writes the header into a shared
+// page, bumps a futex word and FUTEX_WAKEs every floor-sub (no data, no network).
+int run_floor_pub(const ChildConfig& c);
+int run_floor_sub(const ChildConfig& c);
 
 }  // namespace lcmxbench::bridge
