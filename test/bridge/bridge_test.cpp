@@ -484,6 +484,15 @@ TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to e
   CHECK(out.find("peer chipB  UP  active link pcie  failovers 2") != std::string::npos);
   CHECK(out.find("pcie      " + w.emu().address(1, "pcie")) != std::string::npos);
   CHECK(out.find("eth       " + w.emu().address(1, "eth")) != std::string::npos);
+  // lcmx topics on B shows the bridged pair; lcmx nodes marks the bridge.
+  auto& topics = w.spawn(1, {LCMX_TOOL, "topics", "--wait", "800"}, true);
+  REQUIRE(topics.wait(10000ms) == 0);
+  INFO(topics.text());
+  CHECK(topics.text().find("path bridge") != std::string::npos);
+  auto& nodes = w.spawn(1, {LCMX_TOOL, "nodes", "--wait", "800"}, true);
+  REQUIRE(nodes.wait(10000ms) == 0);
+  INFO(nodes.text());
+  CHECK(nodes.text().find("MESSAGE BRIDGE") != std::string::npos);
 }
 
 TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's other peer C nor A's memory",

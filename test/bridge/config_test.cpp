@@ -90,7 +90,7 @@ TEST_CASE("defaults: one channel on control_port+1 for every topic", "[bridge][c
   CHECK(c.carry.empty());
 }
 
-TEST_CASE("first matching channel wins; a topic may match none", "[bridge][config]") {
+TEST_CASE("first matching channel wins, and a topic may match none", "[bridge][config]") {
   const auto c = parse_config(std::string(kBase) + R"(
 [[channel]]
 name = "fast"
