@@ -452,7 +452,7 @@ TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to e
   // pcie preferred: the data goes there.
   REQUIRE_LOG(ba, "peer chipB: active link pcie", 5000ms);
   auto w1 = window(20);
-  CHECK(static_cast<double>(w1.pcie) >= data);
+  CHECK(static_cast<double>(w1.pcie) >= 0.8 * data);  // (a message may be in flight at either end)
   CHECK(static_cast<double>(w1.eth) < 0.05 * data);
 
   // pcie down: data moves to eth within about link_timeout + heartbeat.
@@ -465,7 +465,7 @@ TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to e
   INFO("failover took " << failover.count() << " ms");
   CHECK(failover < 2500ms);  // link_timeout 300 + heartbeat 50 + reconnect, with margin for a loaded machine
   auto w2 = window(20);
-  CHECK(static_cast<double>(w2.eth) >= data);
+  CHECK(static_cast<double>(w2.eth) >= 0.8 * data);
   CHECK(w2.pcie < 20000u);
 
   // pcie up again: back to pcie after the hold-down.
@@ -473,7 +473,7 @@ TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to e
   REQUIRE_LOG(ba, "(was eth)", 8000ms);  // "peer chipB: active link pcie (<address>) (was eth)"
   window(5);  // whatever was queued on eth drains
   auto w3 = window(20);
-  CHECK(static_cast<double>(w3.pcie) >= data);
+  CHECK(static_cast<double>(w3.pcie) >= 0.8 * data);
   CHECK(static_cast<double>(w3.eth) < 0.05 * data);
 
   const auto st = status_of(sub, ch);
