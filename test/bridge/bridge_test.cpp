@@ -420,6 +420,15 @@ TEST_CASE("a peer bridge killed (SIGKILL) and restarted: traffic resumes, no dup
   ba = &w.bridge(0, {1});
   resumes("after A's bridge was killed and restarted");
   CHECK(log_has(*bb, "peer chipA restarted", 5000ms));
+  // SIGTERM: a clean exit (0), and the subscriber hears the republisher's goodbye at once
+  // (well before the 800 ms lease).
+  const auto t_term = Clock::now();
+  bb->signal(SIGTERM);
+  CHECK(bb->wait(5000ms) == 0);
+  REQUIRE(log_has(sub, "EVENT publisher_unmatched", 3000ms));
+  CHECK(Clock::now() - t_term < 2000ms);
+  ba->signal(SIGINT);
+  CHECK(ba->wait(5000ms) == 0);
 }
 
 TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to eth and back",
