@@ -1185,12 +1185,21 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   if (rep.iperf) fail("throughput iperf3", rep.iperf->errors);
   fail("bridges", run.bridge_errors);
   any = false;
-  for (const auto& f : rep.fanouts)
+  for (const auto& f : rep.fanouts) {
+    // Identical notes (one per subscriber and run) once, with a count.
+    std::vector<std::pair<std::string, int>> seen;
     for (const auto& n : f.notes) {
+      const std::string key = n.rfind("run ", 0) == 0 && n.find(": ") != std::string::npos ? n.substr(n.find(": ") + 2) : n;
+      auto it = std::find_if(seen.begin(), seen.end(), [&](const auto& p) { return p.first == key; });
+      if (it == seen.end()) seen.emplace_back(key, 1);
+      else ++it->second;
+    }
+    for (const auto& [n, count] : seen) {
       if (!any) md << "\n**Notes from the children**\n";
       any = true;
-      md << "- " << method_label(f.method) << " x" << f.subscribers << ": " << n << "\n";
+      md << "- " << method_label(f.method) << " x" << f.subscribers << ": " << n << (count > 1 ? " (x" + std::to_string(count) + ")" : "") << "\n";
     }
+  }
   return md.str();
 }
 
