@@ -48,6 +48,7 @@ namespace {
 using Clock = std::chrono::steady_clock;
 using namespace std::chrono_literals;
 
+constexpr auto kDemandRefresh = std::chrono::seconds(1);  // full ping at least this often
 constexpr std::int64_t kMaxDataMessage = (64ll << 20) + 4096;  // = PublisherOptions default + slack
 constexpr std::size_t kRecvBatch = 64;
 
@@ -151,6 +152,11 @@ struct Bridge::Impl {
     std::uint64_t instance = 0;
     std::uint64_t hello_checked_instance = 0;
     bool was_up = false;
+    // What our last full ping (demand) to it said, and when/where/to which instance of it.
+    std::set<std::string> sent_want, sent_offer;
+    Clock::time_point full_sent_at{};
+    int full_sent_link = -1;
+    std::uint64_t full_sent_instance = 0;
     // guarded by view_mu:
     std::set<std::string> wants, offers;
     Clock::time_point demand_at{};
@@ -230,11 +236,15 @@ struct Bridge::Impl {
 
   // ---- setup -------------------------------------------------------------------------------
 
+  // ZMTP heartbeats only clean up connections nobody talks on any more (e.g. a peer's, after
+  // it failed over): link liveness comes from our own pings, and unacknowledged data on a dead
+  // link is cut by TCP_MAXRT. So they are slow, and cost the link almost nothing.
   void common_options(zmq::socket_t& s) {
+    const int ivl = static_cast<int>(std::max<std::int64_t>(1000, 2 * cfg.link_timeout.count()));
     s.set(zmq::sockopt::linger, 0);
-    s.set(zmq::sockopt::heartbeat_ivl, static_cast<int>(cfg.heartbeat.count()));
-    s.set(zmq::sockopt::heartbeat_timeout, static_cast<int>(cfg.link_timeout.count()));
-    s.set(zmq::sockopt::heartbeat_ttl, static_cast<int>(cfg.link_timeout.count()));
+    s.set(zmq::sockopt::heartbeat_ivl, ivl);
+    s.set(zmq::sockopt::heartbeat_timeout, 3 * ivl);
+    s.set(zmq::sockopt::heartbeat_ttl, 3 * ivl);
   }
 
   void client_options(zmq::socket_t& s, const Peer& p) {
@@ -830,32 +840,51 @@ struct Bridge::Impl {
     return (it != published.end() && it->second) || sticky_large.count(topic) || cfg.carried(topic);
   }
 
+  // Every heartbeat, on every link of every peer: a ping. On the active link it is marked
+  // active (the peer keeps our demand alive) and carries the full state — channels, what this
+  // host wants, what we will send it — only when that changed, the link or the peer's
+  // instance changed, or a second passed: the idle link carries a few dozen bytes per ping.
   void send_pings() {
     wire::Control c;
     c.kind = wire::Control::Kind::ping;
     c.from = cfg.name;
     c.instance = instance;
-    c.control_port = cfg.control_port;
-    for (const auto& ch : cfg.channels) c.channels.emplace_back(ch.name, ch.port);
     std::set<std::string> want;
     {
       std::lock_guard lock(view_mu);
       want = demand;
     }
+    const auto now = Clock::now();
     for (auto& p : peers) {
       const int active = p->active.load();
+      std::set<std::string> offer;
+      if (active >= 0) {
+        std::lock_guard lock(view_mu);
+        for (const auto& t : p->served)
+          if (is_large_locked(t)) offer.insert(t);
+      }
+      const bool full = active >= 0 && (want != p->sent_want || offer != p->sent_offer ||
+                                        active != p->full_sent_link || p->instance != p->full_sent_instance ||
+                                        now - p->full_sent_at >= kDemandRefresh);
       for (std::size_t i = 0; i < p->links.size(); ++i) {
         Link& l = *p->links[i];
         c.link = l.cfg.link;
         c.t_ns = now_ns();
-        c.has_demand = static_cast<int>(i) == active;
+        c.active = static_cast<int>(i) == active;
+        c.has_demand = c.active && full;
         c.want.clear();
         c.offer.clear();
+        c.channels.clear();
         if (c.has_demand) {
+          c.control_port = cfg.control_port;
+          for (const auto& ch : cfg.channels) c.channels.emplace_back(ch.name, ch.port);
           c.want = want;
-          std::lock_guard lock(view_mu);
-          for (const auto& t : p->served)
-            if (is_large_locked(t)) c.offer.insert(t);
+          c.offer = offer;
+          p->sent_want = want;
+          p->sent_offer = offer;
+          p->full_sent_at = now;
+          p->full_sent_link = active;
+          p->full_sent_instance = p->instance;
         }
         const std::string text = wire::encode(c);
         try {
@@ -918,7 +947,7 @@ struct Bridge::Impl {
         p.wants.clear();
         p.offers.clear();
       }
-      if (p.hello_checked_instance != c->instance) {
+      if (c->has_demand && p.hello_checked_instance != c->instance) {
         p.hello_checked_instance = c->instance;
         check_hello(p, *c);
       }
@@ -927,6 +956,9 @@ struct Bridge::Impl {
         p.wants = std::move(c->want);
         p.offers = std::move(c->offer);
         p.demand_at = Clock::now();
+      } else if (c->active) {
+        std::lock_guard lock(view_mu);
+        if (p.demand_at != Clock::time_point{}) p.demand_at = Clock::now();  // still wanted
       }
       wire::Control pong;
       pong.kind = wire::Control::Kind::pong;

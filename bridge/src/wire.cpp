@@ -32,9 +32,10 @@ std::string encode(const Control& c) {
   std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(c.instance));
   s += "from " + c.from + "\ninstance " + hex + "\nlink " + c.link + "\nt " + std::to_string(c.t_ns) + "\n";
   if (c.kind == Control::Kind::ping) {
-    s += "control " + std::to_string(c.control_port) + "\n";
-    for (const auto& [name, port] : c.channels) s += "channel " + name + " " + std::to_string(port) + "\n";
+    if (c.active) s += "active\n";
     if (c.has_demand) {
+      s += "control " + std::to_string(c.control_port) + "\n";
+      for (const auto& [name, port] : c.channels) s += "channel " + name + " " + std::to_string(port) + "\n";
       s += "demand\n";
       for (const auto& t : c.want) s += "want " + t + "\n";
       for (const auto& t : c.offer) s += "offer " + t + "\n";
@@ -87,6 +88,8 @@ std::optional<Control> decode(std::string_view f) {
         return std::nullopt;
       if (c.channels.size() >= 256) return std::nullopt;
       c.channels.emplace_back(std::string(val.substr(0, sp2)), port);
+    } else if (key == "active" && val.empty()) {
+      c.active = true;
     } else if (key == "demand" && val.empty()) {
       c.has_demand = true;
     } else if ((key == "want" || key == "offer") && c.has_demand) {

@@ -291,6 +291,21 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   // Truncations of a valid frame never crash (and never decode to something else's fields).
   for (std::size_t n = 0; n < text.size(); ++n) (void)wire::decode(text.substr(0, n));
 
+  // A heartbeat without the full state ("active" only) is small: the idle link stays quiet.
+  wire::Control light;
+  light.from = "chipA";
+  light.instance = c.instance;
+  light.link = "pcie";
+  light.t_ns = 1'700'000'000'000'000'000;
+  light.active = true;
+  const auto light_text = wire::encode(light);
+  CHECK(light_text.size() < 100);
+  auto l = wire::decode(light_text);
+  REQUIRE(l);
+  CHECK(l->active);
+  CHECK_FALSE(l->has_demand);
+  CHECK(l->channels.empty());
+
   unsigned char h[wire::kDataHeader];
   wire::encode_header({0xfedcba9876543210ull, 77}, h);
   const auto back = wire::decode_header(h);

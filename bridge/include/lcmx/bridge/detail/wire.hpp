@@ -28,7 +28,10 @@ struct Control {
   std::uint64_t instance = 0;
   std::string link;
   std::int64_t t_ns = 0;
-  // PING only.
+  // PING only. `active`: sent on the link the sender uses for this peer (keeps its demand
+  // alive). `has_demand`: the full state follows (control port, channels, want, offer); sent
+  // when it changed and at least every second, so most pings are a few dozen bytes.
+  bool active = false;
   int control_port = 0;
   std::vector<std::pair<std::string, int>> channels;
   bool has_demand = false;
