@@ -7,8 +7,13 @@
 //    previous one (or after --timeout-ms: lost). Acks go through a pipe the orchestrator creates
 //    and hands to both children (pipes do not care about network namespaces), so the link only
 //    carries the measured traffic. Hosts share CLOCK_MONOTONIC: latency = receive - send.
-//  - stream: --stream-messages messages of --stream-size at --stream-rate Hz, no acks; loss =
-//    sent - received.
+//    The methods run in --rounds rounds, in alternating order (liblcm, lcmx / lcmx, liblcm, ...),
+//    and each method's rounds are pooled: slow drifts of a shared machine hit both alike.
+//  - stream, two scenarios per method: "idle" (--stream-messages messages of --stream-size at
+//    --stream-rate Hz to an idle receiving host) and "busy" (the same messages in bursts of
+//    --stream-burst back to back per tick, like a camera's frame set, while --stream-hogs CPU
+//    hog processes run in the receiving host's namespace at the same nice level, started before
+//    the subscriber for both methods alike). No acks; loss = sent - received.
 // Without --role this is the orchestrator: Markdown on stdout, progress on stderr. Root needed.
 #include <sched.h>
 #include <signal.h>
@@ -225,6 +230,8 @@ struct Options {
   std::string stream_size = "100K";
   double stream_rate = 30;
   int stream_messages = 150;
+  int stream_burst = 4, stream_hogs = 2;  // "busy" scenario
+  int rounds = 3;
   bool no_stream = false;
   std::string link_rate;  // tc tbf rate on the link ("" = none)
   std::string pin = "none";
@@ -261,7 +268,13 @@ struct Run {
 };
 
 // method: "liblcm" | "lcmx-udp" (ping-pong), "liblcm-stream" | "lcmx-udp-stream".
-MethodResult run_method(Run& run, const std::string& method) {
+// Stream scenario: messages per tick and CPU hogs on the receiving host.
+struct Scenario {
+  std::string name = "idle";
+  int burst = 1, hogs = 0;
+};
+
+MethodResult run_method(Run& run, const std::string& method, const Scenario& sc = {}) {
   MethodResult res;
   res.method = method;
   const bool stream = method.find("stream") != std::string::npos;
@@ -279,15 +292,18 @@ MethodResult run_method(Run& run, const std::string& method) {
     return std::vector<std::string>{
         run.exe, "--role", role, "--plan", plan_to_string(plan), "--name", name, "--url",
         liblcm ? kLcmUrl : kDiscoveryUrl, "--vehicle-url", kVehicleUrl, "--timeout-ms",
-        std::to_string(run.opt.timeout_ms), "--stream-rate", std::to_string(run.opt.stream_rate)};
+        std::to_string(run.opt.timeout_ms), "--stream-rate", std::to_string(run.opt.stream_rate),
+        "--stream-burst", std::to_string(sc.burst)};
   };
   const std::string base = liblcm ? "liblcm" : "lcmx-udp";
   const std::string sub_role = base + (stream ? "-stream-sub" : "-sub");
   const std::string pub_role = base + (stream ? "-stream-pub" : "-pub");
-  std::vector<pid_t> pids;
+  std::vector<pid_t> pids, hogs;
   Reader sub, pub;
   bool timed_out = false;
   try {
+    // Hogs first, unpinned, so the subscriber starts on an already busy host.
+    for (int i = 0; i < sc.hogs; ++i) hogs.push_back(spawn_in(run.emu->ns_fd(1), {run.exe, "--role", "hog"}, {}, -1));
     Pipe rep_sub, rep_pub, ack, ctl;
     pids.push_back(spawn_in(run.emu->ns_fd(1), args(sub_role), {rep_sub.w, ack.w, ctl.r}, run.sub_cpu));
     rep_sub.close_w();
@@ -303,6 +319,7 @@ MethodResult run_method(Run& run, const std::string& method) {
   } catch (const std::exception& e) {
     res.errors.push_back(e.what());
   }
+  for (auto p : hogs) reap(p, 0);  // SIGKILLed and reaped
   for (auto p : pids) {
     const int st = reap(p, timed_out ? 0 : 5000);
     if (WIFEXITED(st) && WEXITSTATUS(st) >= 125) res.errors.push_back("a child could not start (exit " + std::to_string(WEXITSTATUS(st)) + ")");
@@ -330,6 +347,21 @@ MethodResult run_method(Run& run, const std::string& method) {
   return res;
 }
 
+// Pools another round of the same method into `into`.
+void merge(MethodResult& into, MethodResult&& more) {
+  for (auto& e : more.errors) into.errors.push_back(std::move(e));
+  for (auto& n : more.notes)
+    if (std::find(into.notes.begin(), into.notes.end(), n) == into.notes.end()) into.notes.push_back(std::move(n));
+  for (auto& [size, r] : more.sizes) {
+    auto& t = into.sizes[size];
+    if (r.sent) t.sent = t.sent.value_or(0) + *r.sent;
+    if (r.lat) {
+      if (!t.lat) t.lat.emplace();
+      t.lat->insert(t.lat->end(), r.lat->begin(), r.lat->end());
+    }
+  }
+}
+
 std::string fmt_ratio(double r) {
   char b[32];
   std::snprintf(b, sizeof b, "%.2fx", r);
@@ -343,8 +375,20 @@ std::string cell_text(const MethodResult& m, std::size_t size) {
   return s;
 }
 
+struct StreamResult {
+  Scenario sc;
+  MethodResult lcm, lx;
+};
+
+// Reads a one-number /proc/sys file ("?" if unreadable).
+std::string sysctl(const char* path) {
+  std::ifstream in(path);
+  std::string v;
+  return in >> v ? v : "?";
+}
+
 std::string report(const Run& run, const MethodResult& lcm, const MethodResult& lx,
-                   const std::optional<MethodResult>& lcm_s, const std::optional<MethodResult>& lx_s) {
+                   const std::vector<StreamResult>& streams) {
   std::ostringstream md;
   char date[64];
   const std::time_t now = std::time(nullptr);
@@ -358,8 +402,14 @@ std::string report(const Run& run, const MethodResult& lcm, const MethodResult& 
      << (run.opt.link_rate.empty() ? " (no rate limit)" : " shaped to " + run.opt.link_rate + " (tbf)")
      << "; publisher on host 0, subscriber on host 1\n";
   md << "- lcmx: Publisher<bench_t> -> Subscriber<bench_t>, vehicle group `" << kVehicleUrl
-     << "` (path udp; messages > udp_limit make the topic large and go as LC03 fragments); liblcm "
-        "1.3.1: lcm_publish -> lcm_handle on `" << kLcmUrl << "`, default buffers\n";
+     << "` (path udp; messages > udp_limit make the topic large and go as LC03 fragments), receive "
+        "buffer 4 MiB (GroupConfig default, SO_RCVBUFFORCE), subscriber node `block`; liblcm: "
+        "lcm_publish -> lcm_handle on `" << kLcmUrl << "`, kernel default receive buffer "
+        "(net.core.rmem_default " << sysctl("/proc/sys/net/core/rmem_default") << ", rmem_max "
+     << sysctl("/proc/sys/net/core/rmem_max") << ")\n";
+  md << "- ping-pong rounds: " << run.opt.rounds
+     << " per method, alternating order (liblcm first in odd rounds, lcmx first in even ones), "
+        "pooled\n";
   md << "- ping-pong: next message after the ack (pipe side channel, not on the link) or after "
      << run.opt.timeout_ms << " ms = lost; messages per size (warmup + measured): ";
   for (std::size_t i = 0; i < run.plan.size(); ++i)
@@ -385,35 +435,41 @@ std::string report(const Run& run, const MethodResult& lcm, const MethodResult& 
     md << "| " << size_label(p.size) << " | " << cell_text(lcm, p.size) << " | " << cell_text(lx, p.size)
        << " | " << ratio << " |\n";
   }
-  if (lcm_s && lx_s) {
+  md << "\n**Targets**\n";
+  md << "- lcmx UDP within 1.1x of raw liblcm at every size where liblcm loses nothing: ";
+  if (!compared) md << "not measured (no size where both delivered and liblcm lost nothing)";
+  else md << (worst <= 1.1 && !missing ? "**holds**" : "**FAILS**") << " (worst " << fmt_ratio(worst) << " at "
+          << size_label(worst_size) << (missing ? "; lcmx has no result at a size where liblcm lost nothing" : "")
+          << ")";
+  md << "\n";
+  if (!streams.empty()) {
     const auto& sp = run.stream_plan.front();
-    const Cell a = cell_of(*lcm_s, sp.size), b = cell_of(*lx_s, sp.size);
-    md << "\nStream: " << size_label(sp.size) << " at " << run.opt.stream_rate << " Hz, " << sp.messages
-       << " messages, no acks\n\n| | liblcm udpm | lcmx UDP |\n|---|---|---|\n";
-    md << "| p50 / p99 µs (lost/sent) | " << cell_text(*lcm_s, sp.size) << " | " << cell_text(*lx_s, sp.size) << " |\n";
-    md << "\n**Targets**\n";
-    md << "- lcmx UDP within 1.1x of raw liblcm at every size where liblcm loses nothing: ";
-    if (!compared) md << "not measured (no size where both delivered and liblcm lost nothing)";
-    else md << (worst <= 1.1 && !missing ? "**holds**" : "**FAILS**") << " (worst " << fmt_ratio(worst) << " at "
-            << size_label(worst_size) << (missing ? "; lcmx has no result at a size where liblcm lost nothing" : "")
-            << ")";
-    md << "\n- no loss at " << size_label(sp.size) << " and " << run.opt.stream_rate
-       << " Hz where liblcm with default buffers loses some: ";
-    if (!a.ok || !b.ok) md << "not measured (a stream run failed)";
-    else if (b.lost > 0) md << "**FAILS** (lcmx lost " << b.lost << "/" << b.sent << ", liblcm " << a.lost << "/" << a.sent << ")";
-    else if (a.lost == 0) md << "lcmx lost nothing; liblcm lost nothing either in this run (contrast not shown)";
-    else md << "**holds** (lcmx lost 0/" << b.sent << ", liblcm lost " << a.lost << "/" << a.sent << ")";
-    md << "\n";
+    std::ostringstream table;
+    table << "\nStream: " << sp.messages << " messages of " << size_label(sp.size) << ", "
+          << run.opt.stream_rate << " ticks/s, no acks; cells: p50 / p99 one-way µs (lost/sent)\n\n"
+          << "| scenario | liblcm udpm | lcmx UDP |\n|---|---|---|\n";
+    for (const auto& r : streams) {
+      table << "| " << r.sc.name << ": " << r.sc.burst << " message" << (r.sc.burst > 1 ? "s" : "")
+            << " per tick, " << r.sc.hogs << " CPU hog" << (r.sc.hogs == 1 ? "" : "s")
+            << " on the receiving host | " << cell_text(r.lcm, sp.size) << " | " << cell_text(r.lx, sp.size) << " |\n";
+      const Cell a = cell_of(r.lcm, sp.size), b = cell_of(r.lx, sp.size);
+      md << "- no loss at " << size_label(sp.size) << " and " << run.opt.stream_rate << " Hz where liblcm "
+         << "with default buffers loses some (" << r.sc.name << "): ";
+      if (!a.ok || !b.ok) md << "not measured (a stream run failed)";
+      else if (b.lost > 0) md << "**FAILS** (lcmx lost " << b.lost << "/" << b.sent << ", liblcm " << a.lost << "/" << a.sent << ")";
+      else if (a.lost == 0) md << "lcmx lost nothing; liblcm lost nothing either in this run (no contrast)";
+      else md << "**holds** (lcmx lost 0/" << b.sent << ", liblcm lost " << a.lost << "/" << a.sent << ")";
+      md << "\n";
+    }
+    md << table.str() << "\n";
   } else {
-    md << "\n**Targets**\n- lcmx UDP within 1.1x of raw liblcm at every size where liblcm loses nothing: ";
-    if (!compared) md << "not measured";
-    else md << (worst <= 1.1 && !missing ? "**holds**" : "**FAILS**") << " (worst " << fmt_ratio(worst) << " at " << size_label(worst_size) << ")";
-    md << "\n- stream target: not measured (--no-stream)\n";
+    md << "- stream target: not measured (--no-stream)\n";
   }
   md << "- (differences under 1.3x are noise on this 2-vCPU machine, DESIGN.md \"Measuring\")\n";
   bool any = false;
-  for (const MethodResult* m : {&lcm, &lx, lcm_s ? &*lcm_s : nullptr, lx_s ? &*lx_s : nullptr}) {
-    if (!m) continue;
+  std::vector<const MethodResult*> all = {&lcm, &lx};
+  for (const auto& r : streams) all.push_back(&r.lcm), all.push_back(&r.lx);
+  for (const MethodResult* m : all) {
     for (const auto& e : m->errors) {
       if (!any) md << "\n**Failures**\n";
       any = true;
@@ -421,8 +477,7 @@ std::string report(const Run& run, const MethodResult& lcm, const MethodResult& 
     }
   }
   any = false;
-  for (const MethodResult* m : {&lcm, &lx, lcm_s ? &*lcm_s : nullptr, lx_s ? &*lx_s : nullptr}) {
-    if (!m) continue;
+  for (const MethodResult* m : all) {
     for (const auto& n : m->notes) {
       if (!any) md << "\n**Notes**\n";
       any = true;
@@ -470,21 +525,35 @@ int orchestrate(const Options& opt) {
   run.emu = &emu;
   progress("hosts: " + emu.ns(0) + " (" + emu.address(0, "eth") + ") -> " + emu.ns(1) + " (" +
            emu.address(1, "eth") + ")");
-  auto lcm = run_method(run, "liblcm");
-  auto lx = run_method(run, "lcmx-udp");
-  std::optional<MethodResult> lcm_s, lx_s;
+  MethodResult lcm{"liblcm", {}, {}, {}}, lx{"lcmx-udp", {}, {}, {}};
+  for (int r = 0; r < opt.rounds && !g_signal.load(); ++r) {
+    progress("round " + std::to_string(r + 1) + " of " + std::to_string(opt.rounds));
+    if (r % 2 == 0) {
+      merge(lcm, run_method(run, "liblcm"));
+      merge(lx, run_method(run, "lcmx-udp"));
+    } else {
+      merge(lx, run_method(run, "lcmx-udp"));
+      merge(lcm, run_method(run, "liblcm"));
+    }
+  }
+  std::vector<StreamResult> streams;
   if (!opt.no_stream && !g_signal.load()) {
-    lcm_s = run_method(run, "liblcm-stream");
-    lx_s = run_method(run, "lcmx-udp-stream");
+    for (const Scenario& sc : {Scenario{"idle", 1, 0}, Scenario{"busy", opt.stream_burst, opt.stream_hogs}}) {
+      progress("stream scenario " + sc.name);
+      StreamResult r{sc, run_method(run, "liblcm-stream", sc), run_method(run, "lcmx-udp-stream", sc)};
+      streams.push_back(std::move(r));
+    }
   }
   if (g_signal.load()) {
     std::cerr << "lcmx_bench_udp: interrupted\n";
     return 128 + g_signal.load();
   }
-  const std::string md = report(run, lcm, lx, lcm_s, lx_s);
+  const std::string md = report(run, lcm, lx, streams);
   std::cout << md << std::flush;
   if (!opt.markdown.empty()) std::ofstream(opt.markdown) << md;
-  return lx.errors.empty() && lcm.errors.empty() ? 0 : 1;
+  bool ok = lx.errors.empty() && lcm.errors.empty();
+  for (const auto& r : streams) ok = ok && r.lcm.errors.empty() && r.lx.errors.empty();
+  return ok ? 0 : 1;
 }
 
 }  // namespace
@@ -507,6 +576,12 @@ int main(int argc, char** argv) {
   app.add_option("--stream-size", opt.stream_size, "stream message size")->capture_default_str();
   app.add_option("--stream-rate", opt.stream_rate, "stream rate in Hz")->check(CLI::Range(1.0, 100000.0))->capture_default_str();
   app.add_option("--stream-messages", opt.stream_messages, "stream messages")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--stream-burst", opt.stream_burst, "busy stream scenario: messages sent back to back per tick")
+      ->check(CLI::Range(1, 1000))->capture_default_str();
+  app.add_option("--stream-hogs", opt.stream_hogs, "busy stream scenario: CPU hog processes on the receiving host")
+      ->check(CLI::Range(0, 64))->capture_default_str();
+  app.add_option("--rounds", opt.rounds, "ping-pong rounds per method, alternating order, pooled")
+      ->check(CLI::Range(1, 100))->capture_default_str();
   app.add_flag("--no-stream", opt.no_stream, "skip the stream runs");
   app.add_option("--link-rate", opt.link_rate, "shape the link with tc tbf (e.g. 10gbit, 1gbit); default: none");
   app.add_option("--pin", opt.pin, "CPU pinning: none, same (both on CPU 0), split (pub 0, sub 1)")
@@ -522,6 +597,7 @@ int main(int argc, char** argv) {
   app.add_option("--vehicle-url", u.vehicle_url)->group("");
   CLI11_PARSE(app, argc, argv);
   if (u.base.role.empty()) return orchestrate(opt);
+  if (u.base.role == "hog") return run_hog();
   try {
     u.base.plan = plan_from_string(plan);
   } catch (const std::exception& e) {
@@ -530,6 +606,7 @@ int main(int argc, char** argv) {
   }
   u.base.timeout_ms = opt.timeout_ms;
   u.rate_hz = opt.stream_rate;
+  u.burst = opt.stream_burst;
   const auto& r = u.base.role;
   if (r == "liblcm-sub") return run_liblcm_sub(u.base);
   if (r == "liblcm-pub") return run_liblcm_pub(u.base);

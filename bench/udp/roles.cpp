@@ -130,7 +130,7 @@ int run_lcmx_udp_pub(const UdpConfig& u, bool stream) {
         pub.publish(msg);
       };
       if (stream) {
-        ok = run_stream(cfg, u.rate_hz, prepare, send);
+        ok = run_stream(cfg, u.rate_hz, u.burst, prepare, send);
       } else {
         Driver d;
         d.prepare = prepare;
@@ -148,7 +148,7 @@ int run_lcmx_udp_pub(const UdpConfig& u, bool stream) {
   return ok ? 0 : 1;
 }
 
-bool run_stream(const RoleConfig& cfg, double rate_hz, const std::function<void(std::size_t)>& prepare,
+bool run_stream(const RoleConfig& cfg, double rate_hz, int burst, const std::function<void(std::size_t)>& prepare,
                 const std::function<void(std::int64_t)>& send) {
   const SizePlan& p = cfg.plan.front();
   prepare(p.size);
@@ -157,11 +157,20 @@ bool run_stream(const RoleConfig& cfg, double rate_hz, const std::function<void(
   auto next = std::chrono::steady_clock::now();
   for (int i = 0; i < p.messages; ++i) {
     send(make_seq(i + 1, true));
+    if ((i + 1) % std::max(burst, 1) != 0 && i + 1 < p.messages) continue;  // rest of the burst
     next += period;
     std::this_thread::sleep_until(next);  // pacing the rate
   }
   report_line("sent " + std::to_string(p.size) + ' ' + std::to_string(p.messages) + " 0");
   return true;
+}
+
+int run_hog() {
+  const auto end = std::chrono::steady_clock::now() + std::chrono::minutes(10);
+  volatile std::uint64_t x = 0;
+  while (std::chrono::steady_clock::now() < end)
+    for (int i = 0; i < 1000000; ++i) x = x + 1;
+  return 0;
 }
 
 // ---- liblcm stream roles ----
@@ -224,7 +233,7 @@ int run_liblcm_stream_pub(const UdpConfig& u) {
   std::vector<std::uint8_t> buf;
   const std::string ch = channel_of(cfg);
   const bool ok = run_stream(
-      cfg, u.rate_hz,
+      cfg, u.rate_hz, u.burst,
       [&](std::size_t size) {
         msg.size = static_cast<std::int32_t>(size);
         msg.data.resize(size);

@@ -12,16 +12,21 @@ namespace lcmxbench::udp {
 struct UdpConfig {
   RoleConfig base;          // base.url: liblcm URL (liblcm roles) or lcmx discovery URL
   std::string vehicle_url;  // lcmx roles: the vehicle group, with iface=
-  double rate_hz = 30;      // stream roles
+  double rate_hz = 30;      // stream roles: ticks per second
+  int burst = 1;            // stream roles: messages sent back to back per tick
 };
+
+// A CPU hog for the busy stream scenario: spins until killed (at most 10 minutes).
+int run_hog();
 
 int run_lcmx_udp_sub(const UdpConfig& u, bool stream);
 int run_lcmx_udp_pub(const UdpConfig& u, bool stream);
 int run_liblcm_stream_sub(const UdpConfig& u);
 int run_liblcm_stream_pub(const UdpConfig& u);
 
-// Publishes plan[0].messages messages of plan[0].size at rate_hz (no acks), then a "sent" line.
-bool run_stream(const RoleConfig& cfg, double rate_hz, const std::function<void(std::size_t)>& prepare,
+// Publishes plan[0].messages messages of plan[0].size, `burst` back to back per tick at rate_hz
+// ticks per second (no acks), then a "sent" line.
+bool run_stream(const RoleConfig& cfg, double rate_hz, int burst, const std::function<void(std::size_t)>& prepare,
                 const std::function<void(std::int64_t)>& send);
 
 }  // namespace lcmxbench::udp

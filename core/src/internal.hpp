@@ -1,6 +1,6 @@
 // core internals: runtime registry, node executors, per-subscriber state.
 // Lock order (never take them the other way round):
-//   RuntimeImpl::mu -> SubscriberState::mu -> NodeImpl::mu
+//   RuntimeImpl::recv_mu -> RuntimeImpl::mu -> SubscriberState::mu -> NodeImpl::mu
 //   PublisherImpl::publish_mu -> PublisherImpl::intra_mu -> SubscriberState::mu
 #pragma once
 
@@ -85,10 +85,20 @@ class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
   std::mutex mu;
   std::vector<std::shared_ptr<SubscriberCore>> subs;
   std::atomic<std::uint64_t> subs_version{0};
+  // Blocks in epoll on the UDP sockets + wake_fd instead of futex_waitv (see run_once).
+  // Returns false if this thread cannot (another thread of the node waits so already).
+  bool wait_udp(std::uint32_t bell, std::chrono::steady_clock::time_point deadline);
+
   std::atomic<std::uint32_t> doorbell{0};
-  std::atomic<int> sleepers{0};
+  std::atomic<int> sleepers{0};      // threads blocked (futex or epoll) after reading doorbell
+  std::atomic<int> fd_sleepers{0};   // of which in epoll: ring() must write wake_fd
   std::atomic<bool> stopping{false};
   std::vector<std::thread> threads;
+  // UDP waiting (one thread of the node at a time, `fd_waiter` held): an eventfd for ring()
+  // and an epoll set with it and the runtime's group sockets. Created on first use.
+  std::atomic<bool> fd_waiter{false};
+  int wake_fd = -1;
+  int epoll_fd = -1;
 };
 
 class PublisherImpl;
@@ -129,6 +139,16 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::mutex event_mu;
   std::function<void(const Event&)> on_event;
 
+  // UDP receive, shared by the receive thread and idle node executors (see receive_loop).
+  // Drains both groups and dispatches what arrived to the subscribers' queues. Beacons are
+  // handled on the receive thread only: another thread copies them for it and wakes it.
+  // Takes recv_mu (blocking, or only if free when `try_only`); call it with no lock held.
+  // Returns false if try_only and another thread was draining.
+  bool drain_udp(bool try_only = false);
+  // Adds the group sockets to `epfd` (EPOLLEXCLUSIVE: a datagram wakes one waiting thread)
+  // ahead of the receive thread, which only gets datagrams when no executor waits for them.
+  void add_udp_waiter(int epfd);
+
  private:
   lcmx_msgs::beacon_t build_beacon(std::int8_t scope);
   void on_participant(std::int8_t scope, discovery::Change change, const discovery::Participant& p);
@@ -166,6 +186,20 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::unique_ptr<discovery::Discovery> disco_vehicle;  // vehicle scope (null: single host)
   std::thread rx_thread;
   int rx_wake_fd = -1;
+  int rx_epoll = -1;  // rx_wake_fd + the group sockets (EPOLLEXCLUSIVE, last in their queues)
+  std::mutex rx_epoll_mu;  // serialises re-registrations of the sockets in rx_epoll
+  // Whoever drains holds recv_mu: a Group's receive side is used by one thread at a time, and
+  // messages are dispatched in arrival order.
+  std::mutex recv_mu;
+  struct Forwarded {  // a beacon another thread drained, for the receive thread
+    std::int8_t scope;
+    std::string channel;
+    std::vector<std::byte> data;
+    udpm::Source source;
+    std::uint32_t sequence;
+  };
+  std::vector<Forwarded> forwarded;  // guarded by recv_mu; handled before anything drained later
+  void drain_locked(bool rx_thread);  // recv_mu held
 };
 
 class PublisherImpl final : public PublisherCore {

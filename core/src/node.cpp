@@ -1,6 +1,10 @@
 #include <spdlog/spdlog.h>
+#include <sys/epoll.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
 
 #include <algorithm>
+#include <cstring>
 
 #include "internal.hpp"
 #include "lcmx/shm/futex.hpp"
@@ -28,7 +32,11 @@ NodeImpl::NodeImpl(std::shared_ptr<RuntimeImpl> rt, std::string n, NodeOptions o
     throw Error(Errc::invalid_argument, "node '" + name + "': executor.threads must be >= 1");
 }
 
-NodeImpl::~NodeImpl() { stop(); }
+NodeImpl::~NodeImpl() {
+  stop();
+  if (epoll_fd >= 0) ::close(epoll_fd);
+  if (wake_fd >= 0) ::close(wake_fd);
+}
 
 void NodeImpl::start() {
   if (options.executor.kind != ExecutorKind::own_threads) return;
@@ -53,8 +61,70 @@ void NodeImpl::ring() {
   // Dekker with run_once(): it increments `sleepers` and then re-reads `doorbell` before
   // sleeping; we bump `doorbell` and then read `sleepers` (both seq_cst), so either it sees
   // the new doorbell value or we see it sleeping and wake it.
+  // The same holds for a thread in wait_udp() with `fd_sleepers`: it is woken by wake_fd.
   doorbell.fetch_add(1, std::memory_order_seq_cst);
-  if (sleepers.load(std::memory_order_seq_cst) > 0) shm::futex_wake_all(&doorbell);
+  if (sleepers.load(std::memory_order_seq_cst) > 0) {
+    shm::futex_wake_all(&doorbell);
+    if (fd_sleepers.load(std::memory_order_seq_cst) > 0) {
+      const std::uint64_t one = 1;
+      [[maybe_unused]] auto n = ::write(wake_fd, &one, sizeof one);
+    }
+  }
+}
+
+// Waits in epoll for the node's wake_fd (ring) or a datagram on the runtime's UDP sockets,
+// until `deadline` (at most 1 s). A datagram is drained here and dispatched to every
+// subscriber's queue (ours and other nodes'), so the caller's next poll_all() runs our
+// callbacks with no second wake-up. EPOLLEXCLUSIVE: one waiting thread is woken per datagram,
+// executors before the runtime's receive thread.
+bool NodeImpl::wait_udp(std::uint32_t bell, std::chrono::steady_clock::time_point deadline) {
+  if (fd_waiter.exchange(true, std::memory_order_acquire)) return false;
+  struct Release {
+    std::atomic<bool>& f;
+    ~Release() { f.store(false, std::memory_order_release); }
+  } release{fd_waiter};
+  if (epoll_fd < 0) {
+    // wake_fd is written by ring() only while fd_sleepers > 0, which needs epoll_fd.
+    wake_fd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+    const int ep = ::epoll_create1(EPOLL_CLOEXEC);
+    epoll_event ev{};
+    ev.events = EPOLLIN;
+    ev.data.fd = wake_fd;
+    if (wake_fd < 0 || ep < 0 || ::epoll_ctl(ep, EPOLL_CTL_ADD, wake_fd, &ev) != 0) {
+      spdlog::warn("lcmx: node '{}': cannot wait on UDP sockets ({}); the receive thread "
+                   "delivers", name, std::strerror(errno));
+      if (ep >= 0) ::close(ep);
+      return false;  // epoll_fd stays -1: tried again next time
+    }
+    try {
+      runtime->add_udp_waiter(ep);
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx: node '{}': {}", name, e.what());
+    }
+    epoll_fd = ep;
+  }
+  using Clock = std::chrono::steady_clock;
+  const auto left = std::min<Clock::duration>(deadline - Clock::now(), std::chrono::seconds(1));
+  const int ms = static_cast<int>(
+      std::max<std::int64_t>(std::chrono::ceil<std::chrono::milliseconds>(left).count(), 0));
+  sleepers.fetch_add(1, std::memory_order_seq_cst);
+  fd_sleepers.fetch_add(1, std::memory_order_seq_cst);
+  epoll_event evs[4];
+  int n = 0;
+  if (doorbell.load(std::memory_order_seq_cst) == bell) n = ::epoll_wait(epoll_fd, evs, 4, ms);
+  fd_sleepers.fetch_sub(1, std::memory_order_seq_cst);
+  sleepers.fetch_sub(1, std::memory_order_seq_cst);
+  bool udp = false;
+  for (int i = 0; i < n; ++i) {
+    if (evs[i].data.fd == wake_fd) {
+      std::uint64_t v;
+      [[maybe_unused]] auto r = ::read(wake_fd, &v, sizeof v);
+    } else {
+      udp = true;
+    }
+  }
+  if (udp) runtime->drain_udp();
+  return true;
 }
 
 void NodeImpl::add(const std::shared_ptr<SubscriberCore>& sub) {
@@ -187,9 +257,21 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     const auto now = Clock::now();
     if (now >= deadline || stopping.load(std::memory_order_acquire)) return 0;
     const auto& ex = options.executor;
+    // Does any subscriber of ours receive over UDP (from another host or a stock LCM
+    // program)? Read from the snapshots, under `busy` like poll_one().
+    bool udp = false;
+    for (auto& sub : local) {
+      auto& st = *sub->state;
+      if (st.busy.exchange(true, std::memory_order_acquire)) continue;  // another thread has it
+      for (auto& m : st.snapshot) udp = udp || (m->path == Path::udp && !m->reader);
+      st.busy.store(false, std::memory_order_release);
+      st.busy.notify_all();
+    }
     if (ex.wait == WaitStrategy::busy_poll ||
-        (ex.wait == WaitStrategy::spin_then_block && now - start < ex.spin))
+        (ex.wait == WaitStrategy::spin_then_block && now - start < ex.spin)) {
+      if (udp) runtime->drain_udp(/*try_only=*/true);  // spinning covers UDP too
       continue;
+    }
 
     // Block: doorbell (in-process messages, changes) + every shm reader's futex word.
     // A Reader is used by one thread at a time, so arm() and disarm() run with the
@@ -208,6 +290,9 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
       st.busy.store(false, std::memory_order_release);
       st.busy.notify_all();
     }
+    // UDP subscribers and no shm reader to wait for (futex_waitv cannot wait on sockets):
+    // receive ourselves, one wake-up from the datagram to the callback.
+    if (udp && armed.empty() && wait_udp(bell, deadline)) continue;
     sleepers.fetch_add(1, std::memory_order_seq_cst);
     bool ready = doorbell.load(std::memory_order_seq_cst) != bell;
     for (auto& [sub, m] : armed) ready = ready || m->reader->has_data();

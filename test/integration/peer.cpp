@@ -135,6 +135,7 @@ struct Config {
   std::string type = "pose";
   std::string id = "P";
   std::string node = "peer";
+  int nodes = 1;            // sub: nodes, each subscribing to every channel
   long count = 10;
   double rate = 100;
   std::size_t size = 1024;
@@ -187,6 +188,7 @@ struct Recorder {
 
 struct Channel {
   std::string name;
+  std::string label;  // in SUMMARY lines: name, or name@<node index> with --nodes > 1
   Recorder rec;
   std::function<lcmx::SubscriberStats()> stats;
 };
@@ -210,7 +212,7 @@ void summary(Channel& c) {
     }
   }
   std::lock_guard lock(c.rec.mu);
-  say("SUMMARY channel=" + c.name + " received=" + std::to_string(c.rec.received) +
+  say("SUMMARY channel=" + (c.label.empty() ? c.name : c.label) + " received=" + std::to_string(c.rec.received) +
       " first=" + std::to_string(c.rec.first) + " last=" + std::to_string(c.rec.last) +
       " duplicates=" + std::to_string(dups) + " out_of_order=" + std::to_string(ooo) +
       " gaps=" + std::to_string(gaps) + " first_gap=" + std::to_string(c.rec.first_gap) + " drops=" + std::to_string(st.drops) +
@@ -278,14 +280,18 @@ void subscribe(lcmx::Node& node, const Config& cfg, Channel& c,
 bool deadline_passed(Clock::time_point deadline) { return Clock::now() >= deadline; }
 
 int run_sub(const Config& cfg, lcmx::Runtime& rt, Stdin& in, Clock::time_point deadline) {
-  auto node = rt.create_node(cfg.node);
+  std::vector<lcmx::Node> nodes;
+  for (int k = 0; k < std::max(cfg.nodes, 1); ++k)
+    nodes.push_back(rt.create_node(k == 0 ? cfg.node : cfg.node + std::to_string(k)));
   std::vector<std::unique_ptr<Channel>> chans;
   std::vector<std::shared_ptr<void>> keep_alive;
-  for (const auto& name : cfg.channels) {
-    chans.push_back(std::make_unique<Channel>());
-    chans.back()->name = name;
-    subscribe(node, cfg, *chans.back(), keep_alive);
-  }
+  for (std::size_t k = 0; k < nodes.size(); ++k)
+    for (const auto& name : cfg.channels) {
+      chans.push_back(std::make_unique<Channel>());
+      chans.back()->name = name;
+      if (k > 0) chans.back()->label = name + "@" + std::to_string(k);
+      subscribe(nodes[k], cfg, *chans.back(), keep_alive);
+    }
   say("READY");
   if (cfg.publishers > 0) {
     for (auto& c : chans) {
@@ -475,6 +481,7 @@ int main(int argc, char** argv) {
   app.add_option("--type", cfg.type, "pose | image | bench")->check(CLI::IsMember({"pose", "image", "bench"}));
   app.add_option("--id", cfg.id, "publisher tag carried in every message");
   app.add_option("--node", cfg.node, "node name");
+  app.add_option("--nodes", cfg.nodes, "sub: this many nodes, each subscribing to every channel (summaries of node k > 0 as channel@k)");
   app.add_option("--count", cfg.count, "messages to publish (0: until killed or quit)");
   app.add_option("--rate", cfg.rate, "publish rate in Hz (0: as fast as possible)");
   app.add_option("--size", cfg.size, "bench: payload bytes");

@@ -64,6 +64,35 @@ TEST_CASE("small topic from host A: exactly once and in order on B and C (udp) a
   CHECK(pub.wait() == 0);
 }
 
+TEST_CASE("two nodes of one process on another host subscribe over udp: each gets every message once, in order",
+          "[multihost][delivery]") {
+  // Whichever executor (or the receive thread) drains the socket dispatches to both nodes.
+  MH_REQUIRE_NETNS();
+  Hosts h(2, 1);
+  const auto ch = h.channel("TWO_NODES");
+  const std::string n = "400";
+  auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "pose", "--publishers", "1", "--expect", n,
+                         "--queue-depth", "4096", "--nodes", "2"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", n, "--rate", "400",
+                         "--subscribers", "2", "--hold", "--id", "A"});
+  REQUIRE(pub.expect("MATCHED 2"));
+  REQUIRE(sub.wait_seen("MATCHED", 10000ms));
+  REQUIRE(pub.expect("PUBLISHED"));
+  INFO("subscriber:\n" << sub.output());
+  const auto sums = sub.read_summaries(15000ms);
+  for (const auto& label : {ch, ch + "@1"}) {
+    INFO("node " << label);
+    const auto st = of(sums, label);
+    check_exact(st, std::stoll(n));
+    CHECK(st.num("drops") == 0);
+    CHECK(st.str("paths") == "udp");
+  }
+  CHECK(sub.wait() == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
+
 TEST_CASE("vehicle group: stock liblcm -> lcmx subscriber on another host", "[multihost][interop]") {
   MH_REQUIRE_NETNS();
   Hosts h(2, 2);

@@ -107,6 +107,29 @@ TEST_CASE("Group round-trips small and fragmented messages in order on lo", "[in
   CHECK(own == sizes.size());
 }
 
+TEST_CASE("receive_own = false: the kernel drops the Group's own datagrams, others still hear them",
+          "[integration][group]") {
+  auto cfg = unique_config();
+  auto rx = Group::open(cfg);
+  cfg.receive_own = false;
+  auto tx = Group::open(cfg);
+  const std::string channel = "LCMX_OWN";
+  tx.publish(channel, make_payload(0, 100));
+  tx.publish(channel, make_payload(1, 200000));  // LC03 fragments
+  std::vector<Got> got;
+  REQUIRE(poll_until(rx, collect(got), [&] { return got.size() >= 2; }));
+  // Every socket's copy of tx's datagrams was queued (or filtered) when rx got its copy, so
+  // once tx hears rx's marker it would have heard its own messages before it.
+  rx.publish(channel, make_payload(2, 10));
+  std::vector<Got> own;
+  REQUIRE(poll_until(tx, collect(own), [&] { return !own.empty(); }));
+  tx.poll(0ms, collect(own));
+  REQUIRE(own.size() == 1);
+  CHECK(own[0].source == rx.local_source());
+  CHECK(tx.counters().packets_received == 1);
+  CHECK(tx.counters().malformed_dropped == 0);
+}
+
 TEST_CASE("Group::publish rejects bad channels and oversize payloads", "[integration][group]") {
   auto g = Group::open(unique_config());
   const std::byte b[1] = {};

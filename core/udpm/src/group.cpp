@@ -1,6 +1,7 @@
 #include "lcmx/udpm/group.hpp"
 
 #include <arpa/inet.h>
+#include <linux/filter.h>
 #include <ifaddrs.h>
 #include <net/if.h>
 #include <netinet/in.h>
@@ -105,6 +106,23 @@ std::pair<int, in_addr> resolve_interface(const std::string& name) {
   if (!found)
     throw Error(Error::Code::no_such_interface, "udpm group: interface '" + name + "' has no IPv4 address");
   return {static_cast<int>(index), *found};
+}
+
+// A classic BPF socket filter for the receive socket that drops datagrams from `own` (this
+// Group's send socket) and accepts everything else. For UDP the filter runs on the datagram
+// with the UDP header at offset 0 (source port) and the IPv4 header at SKF_NET_OFF (source
+// address at +12); BPF_ABS loads are big-endian, hence the ntoh*.
+void drop_own_datagrams(int fd, const Source& own) {
+  sock_filter code[] = {
+      BPF_STMT(BPF_LD | BPF_W | BPF_ABS, static_cast<std::uint32_t>(SKF_NET_OFF) + 12),
+      BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohl(own.address_be), 0, 3),
+      BPF_STMT(BPF_LD | BPF_H | BPF_ABS, 0),
+      BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohs(own.port_be), 0, 1),
+      BPF_STMT(BPF_RET | BPF_K, 0),           // ours: drop
+      BPF_STMT(BPF_RET | BPF_K, 0xffffffffu),  // anyone else's: keep all of it
+  };
+  sock_fprog prog{static_cast<unsigned short>(std::size(code)), code};
+  set_opt(fd, SOL_SOCKET, SO_ATTACH_FILTER, prog, "udpm group: SO_ATTACH_FILTER");
 }
 
 }  // namespace
@@ -389,6 +407,8 @@ Group Group::open(const GroupConfig& cfg) {
   if (::getsockname(s.get(), reinterpret_cast<sockaddr*>(&src), &slen) != 0)
     throw_errno("udpm group: getsockname", errno);
   impl->local = Source{src.sin_addr.s_addr, src.sin_port};
+  // Nothing has been sent from `s` yet, so no own datagram can be queued before the filter.
+  if (!cfg.receive_own) drop_own_datagrams(r.get(), impl->local);
 
   impl->dest.sin_family = AF_INET;
   impl->dest.sin_addr = group;

@@ -20,6 +20,12 @@ struct GroupConfig {
   int recv_buffer_bytes = 4 << 20;
   bool multicast_loop = true;  // IP_MULTICAST_LOOP on the sending socket
 
+  // Not part of the URL: false attaches a socket filter to the receive socket that drops, in
+  // the kernel, this Group's own looped-back datagrams (source = local_source()). They are
+  // never read, counted or delivered, and above all never wake the receiving thread; other
+  // programs on this host still hear them (multicast_loop stays as configured).
+  bool receive_own = true;
+
   // Not part of the URL: limits of fragment reassembly (LC03).
   // Sum of the declared sizes of all partially received messages; the oldest partial messages
   // are dropped (counted incomplete) to make room. A message larger than this is dropped.
