@@ -54,7 +54,7 @@ struct SubscriberState {
   // it serialises callbacks and guards `snapshot`.
   std::atomic<bool> busy{false};
   std::atomic<bool> removed{false};
-  std::thread::id running_on{};         // thread running a callback now (for self-removal)
+  std::atomic<std::thread::id> running_on{};  // thread running a callback now (for self-removal)
   std::vector<std::shared_ptr<Match>> snapshot;
   std::uint64_t snapshot_version = ~0ull;
 };

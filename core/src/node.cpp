@@ -40,9 +40,17 @@ NodeImpl::~NodeImpl() {
 
 void NodeImpl::start() {
   if (options.executor.kind != ExecutorKind::own_threads) return;
+  // Each executor thread holds the node only while it runs run_once(): when the last other
+  // owner lets go meanwhile (e.g. a callback drops the last handle), the node is destroyed
+  // here, after run_once() returned, never under it; its destructor detaches this thread,
+  // which then finds the node gone and ends.
   for (int i = 0; i < options.executor.threads; ++i)
-    threads.emplace_back([this] {
-      while (!stopping.load(std::memory_order_acquire)) run_once(std::chrono::seconds(1));
+    threads.emplace_back([weak = weak_from_this()] {
+      for (;;) {
+        const auto self = weak.lock();
+        if (!self || self->stopping.load(std::memory_order_acquire)) return;
+        self->run_once(std::chrono::seconds(1));
+      }
     });
 }
 
@@ -214,7 +222,7 @@ std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
     ++st.version;
     st.matched_cv.notify_all();
   }
-  st.running_on = {};
+  st.running_on = std::thread::id{};
   return n;
 }
 
@@ -352,7 +360,7 @@ void remove_subscriber(const std::shared_ptr<SubscriberCore>& sub) {
     node->remove(sub.get());
   }
   // Wait for a callback of this subscriber running on another thread to finish.
-  if (st.running_on != std::this_thread::get_id()) {
+  if (st.running_on.load() != std::this_thread::get_id()) {
     while (st.busy.load(std::memory_order_acquire)) st.busy.wait(true);
   }
   std::lock_guard lock(st.mu);
