@@ -61,14 +61,6 @@ bool interrupted() { return g_signal.load() != 0; }
 
 void progress(const std::string& s) { std::cerr << "[bench-bridge] " << s << std::endl; }
 
-std::string self_exe() {
-  char buf[4096];
-  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
-  if (n <= 0) return "/proc/self/exe";
-  buf[n] = 0;
-  return buf;
-}
-
 std::size_t parse_size(const std::string& text) {
   std::size_t pos = 0;
   const double v = std::stod(text, &pos);
@@ -118,28 +110,7 @@ class Proc {
     int rep[2], ctl[2];
     if (::pipe2(rep, O_CLOEXEC) != 0 || ::pipe2(ctl, O_CLOEXEC) != 0)
       throw std::runtime_error(std::string("pipe: ") + std::strerror(errno));
-    std::vector<char*> cargv;
-    for (const auto& a : argv) cargv.push_back(const_cast<char*>(a.c_str()));
-    cargv.push_back(nullptr);
-    const pid_t parent = ::getpid();
-    pid_ = ::fork();
-    if (pid_ < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
-    if (pid_ == 0) {
-      ::prctl(PR_SET_PDEATHSIG, SIGKILL);
-      if (::getppid() != parent) ::_exit(127);
-      for (int s : {SIGINT, SIGTERM, SIGHUP, SIGPIPE}) ::signal(s, SIG_DFL);
-      if (::setns(netns_fd, CLONE_NEWNET) != 0) ::_exit(125);
-      if (cpu >= 0) {
-        cpu_set_t set;
-        CPU_ZERO(&set);
-        CPU_SET(cpu, &set);
-        if (::sched_setaffinity(0, sizeof set, &set) != 0) ::_exit(126);
-      }
-      const int w = ::fcntl(rep[1], F_DUPFD_CLOEXEC, 100), r = ::fcntl(ctl[0], F_DUPFD_CLOEXEC, 100);
-      if (w < 0 || r < 0 || ::dup2(w, kReportFd) < 0 || ::dup2(r, kCtlIn) < 0) ::_exit(125);
-      ::execv(cargv[0], cargv.data());
-      ::_exit(127);
-    }
+    pid_ = spawn_child(argv, {rep[1], ctl[0]}, cpu, netns_fd);  // fd 3 = kReportFd, fd 4 = kCtlIn
     ::close(rep[1]);
     ::close(ctl[0]);
     rep_ = rep[0];

@@ -1,5 +1,10 @@
 #include "common.hpp"
 
+#include <fcntl.h>
+#include <sched.h>
+#include <signal.h>
+#include <sys/prctl.h>
+
 #include <algorithm>
 #include <cstdio>
 
@@ -15,6 +20,60 @@
 #include <stdexcept>
 
 namespace lcmxbench {
+
+std::string self_exe() {
+  char buf[4096];
+  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
+  if (n <= 0) return "/proc/self/exe";
+  buf[n] = 0;
+  return buf;
+}
+
+Pipe::Pipe() {
+  int fds[2];
+  if (::pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error(std::string("pipe: ") + std::strerror(errno));
+  r = fds[0];
+  w = fds[1];
+}
+void Pipe::close_r() {
+  if (r >= 0) ::close(r);
+  r = -1;
+}
+void Pipe::close_w() {
+  if (w >= 0) ::close(w);
+  w = -1;
+}
+
+pid_t spawn_child(const std::vector<std::string>& argv, const std::vector<int>& fds, int cpu, int netns_fd) {
+  std::vector<char*> cargv;
+  for (const auto& a : argv) cargv.push_back(const_cast<char*>(a.c_str()));
+  cargv.push_back(nullptr);
+  const pid_t parent = ::getpid();
+  const pid_t pid = ::fork();
+  if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
+  if (pid == 0) {
+    // child: async-signal-safe calls only until exec
+    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
+    if (::getppid() != parent) ::_exit(127);
+    for (int s : {SIGINT, SIGTERM, SIGHUP, SIGPIPE}) ::signal(s, SIG_DFL);
+    if (netns_fd >= 0 && ::setns(netns_fd, CLONE_NEWNET) != 0) ::_exit(125);
+    if (cpu >= 0) {
+      cpu_set_t set;
+      CPU_ZERO(&set);
+      CPU_SET(cpu, &set);
+      if (::sched_setaffinity(0, sizeof set, &set) != 0) ::_exit(126);
+    }
+    int high[8];
+    for (std::size_t i = 0; i < fds.size() && i < 8; ++i)
+      high[i] = fds[i] >= 0 ? ::fcntl(fds[i], F_DUPFD_CLOEXEC, 100) : -1;
+    for (std::size_t i = 0; i < fds.size() && i < 8; ++i)
+      if (high[i] >= 0 && ::dup2(high[i], 3 + static_cast<int>(i)) < 0) ::_exit(125);  // dup2 clears CLOEXEC
+    ::execvp(cargv[0], cargv.data());
+    ::_exit(127);
+  }
+  return pid;
+}
+
 
 std::int64_t now_ns() {
   timespec ts{};

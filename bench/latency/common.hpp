@@ -8,6 +8,8 @@
 // method under test plus a side channel for acks that is not part of the measured time.
 #pragma once
 
+#include <sys/types.h>
+
 #include <cstddef>
 #include <cstdint>
 #include <functional>
@@ -16,6 +18,29 @@
 #include <vector>
 
 namespace lcmxbench {
+
+// ---- child processes (shared by lcmx_bench_latency, _udp and _bridge) ----
+
+// This binary's path (/proc/self/exe), to start its roles.
+std::string self_exe();
+
+// A close-on-exec pipe; both ends closed on destruction.
+struct Pipe {
+  int r = -1, w = -1;
+  Pipe();  // throws std::runtime_error
+  Pipe(const Pipe&) = delete;
+  Pipe& operator=(const Pipe&) = delete;
+  ~Pipe() { close_r(), close_w(); }
+  void close_r();
+  void close_w();
+};
+
+// Starts argv (argv[0] searched in PATH when it has no '/') with fds[i] as fd 3 + i (-1: left
+// closed; at most 8), pinned to `cpu` (-1: not pinned), inside network namespace `netns_fd`
+// (-1: ours). The child gets SIGKILL if this process dies. Throws std::runtime_error if fork
+// fails; exec failures show as exit code 127 (125: setns/dup failed, 126: pinning failed).
+pid_t spawn_child(const std::vector<std::string>& argv, const std::vector<int>& fds, int cpu,
+                  int netns_fd = -1);
 
 // CLOCK_MONOTONIC in ns. Processes on one host share it, so latency = receive - send.
 std::int64_t now_ns();

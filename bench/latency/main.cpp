@@ -79,56 +79,9 @@ void untrack(pid_t pid) {
   }
 }
 
-std::string self_exe() {
-  char buf[4096];
-  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
-  if (n <= 0) return "/proc/self/exe";
-  buf[n] = 0;
-  return buf;
-}
-
-struct Pipe {
-  int r = -1, w = -1;
-  Pipe() {
-    int fds[2];
-    if (::pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error(std::string("pipe: ") + std::strerror(errno));
-    r = fds[0];
-    w = fds[1];
-  }
-  Pipe(const Pipe&) = delete;
-  ~Pipe() { close_r(), close_w(); }
-  void close_r() { if (r >= 0) ::close(r); r = -1; }
-  void close_w() { if (w >= 0) ::close(w); w = -1; }
-};
-
-// Starts argv[0] (PATH lookup) with `fds[i]` as fd 3 + i (-1: left closed), pinned to `cpu`
-// (-1: not pinned). The child gets SIGKILL if this process dies.
+// Starts argv with fds as 3.. (see spawn_child) and tracks it for the signal handler.
 pid_t spawn(const std::vector<std::string>& argv, const std::vector<int>& fds, int cpu) {
-  std::vector<char*> cargv;
-  for (const auto& a : argv) cargv.push_back(const_cast<char*>(a.c_str()));
-  cargv.push_back(nullptr);
-  const pid_t parent = ::getpid();
-  const pid_t pid = ::fork();
-  if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
-  if (pid == 0) {
-    // child: async-signal-safe calls only until exec
-    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
-    if (::getppid() != parent) ::_exit(127);
-    for (int s : {SIGINT, SIGTERM, SIGHUP, SIGPIPE}) ::signal(s, SIG_DFL);
-    if (cpu >= 0) {
-      cpu_set_t set;
-      CPU_ZERO(&set);
-      CPU_SET(cpu, &set);
-      if (::sched_setaffinity(0, sizeof set, &set) != 0) ::_exit(126);
-    }
-    int high[8];
-    for (std::size_t i = 0; i < fds.size() && i < 8; ++i)
-      high[i] = fds[i] >= 0 ? ::fcntl(fds[i], F_DUPFD_CLOEXEC, 100) : -1;
-    for (std::size_t i = 0; i < fds.size() && i < 8; ++i)
-      if (high[i] >= 0) ::dup2(high[i], 3 + static_cast<int>(i));  // dup2 clears CLOEXEC
-    ::execvp(cargv[0], cargv.data());
-    ::_exit(127);
-  }
+  const pid_t pid = spawn_child(argv, fds, cpu);
   track(pid);
   return pid;
 }

@@ -47,56 +47,9 @@ namespace {
 std::atomic<int> g_signal{0};
 void on_signal(int sig) { g_signal.store(sig); }
 
-std::string self_exe() {
-  char buf[4096];
-  const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);
-  if (n <= 0) return "/proc/self/exe";
-  buf[n] = 0;
-  return buf;
-}
-
-struct Pipe {
-  int r = -1, w = -1;
-  Pipe() {
-    int fds[2];
-    if (::pipe2(fds, O_CLOEXEC) != 0) throw std::runtime_error(std::string("pipe: ") + std::strerror(errno));
-    r = fds[0], w = fds[1];
-  }
-  Pipe(const Pipe&) = delete;
-  ~Pipe() { close_r(), close_w(); }
-  void close_r() { if (r >= 0) ::close(r); r = -1; }
-  void close_w() { if (w >= 0) ::close(w); w = -1; }
-};
-
-// Starts this binary's role `argv` inside network namespace `netns_fd`, with fds[i] as 3 + i,
-// pinned to `cpu` (-1: not pinned). SIGKILLed if the orchestrator dies.
+// Starts this binary's role `argv` inside network namespace `netns_fd` (see spawn_child).
 pid_t spawn_in(int netns_fd, const std::vector<std::string>& argv, const std::vector<int>& fds, int cpu) {
-  std::vector<char*> cargv;
-  for (const auto& a : argv) cargv.push_back(const_cast<char*>(a.c_str()));
-  cargv.push_back(nullptr);
-  const pid_t parent = ::getpid();
-  const pid_t pid = ::fork();
-  if (pid < 0) throw std::runtime_error(std::string("fork: ") + std::strerror(errno));
-  if (pid == 0) {
-    ::prctl(PR_SET_PDEATHSIG, SIGKILL);
-    if (::getppid() != parent) ::_exit(127);
-    for (int s : {SIGINT, SIGTERM, SIGHUP, SIGPIPE}) ::signal(s, SIG_DFL);
-    if (::setns(netns_fd, CLONE_NEWNET) != 0) ::_exit(125);
-    if (cpu >= 0) {
-      cpu_set_t set;
-      CPU_ZERO(&set);
-      CPU_SET(cpu, &set);
-      if (::sched_setaffinity(0, sizeof set, &set) != 0) ::_exit(126);
-    }
-    int high[8];
-    for (std::size_t i = 0; i < fds.size() && i < 8; ++i)
-      high[i] = fds[i] >= 0 ? ::fcntl(fds[i], F_DUPFD_CLOEXEC, 100) : -1;
-    for (std::size_t i = 0; i < fds.size() && i < 8; ++i)
-      if (high[i] >= 0) ::dup2(high[i], 3 + static_cast<int>(i));
-    ::execv(cargv[0], cargv.data());
-    ::_exit(127);
-  }
-  return pid;
+  return spawn_child(argv, fds, cpu, netns_fd);
 }
 
 int reap(pid_t pid, int timeout_ms) {
