@@ -1,13 +1,22 @@
-// lcmx-demo: one publisher process with a camera (1920x1080 RGB, ~6 MB, 30 Hz) and a pose
-// (100 Hz) publisher and one in-process camera subscriber; two subscriber processes (this
-// binary again, --role sub). After --seconds it prints, per topic and subscriber: received
-// rate, one-way latency p50/p99, lost messages, and the path, then stops everything.
+// lcmx-demo. Two modes (--mode, default auto = two-chip where network namespaces can be
+// created, else single-host):
+//  - single-host: one publisher process with a camera (1920x1080 RGB, ~6 MB, 30 Hz) and a
+//    pose (100 Hz) publisher and one in-process camera subscriber; two subscriber processes
+//    (this binary again, --role sub).
+//  - two-chip (two_chip.cpp): two emulated chips joined by "eth" and "pcie" links, a Message
+//    Bridge on each; see two_chip.cpp.
+// After --seconds it prints, per topic and subscriber: received rate, one-way latency p50/p99,
+// lost messages, and the path, then stops everything.
 // Exit code 0 when every subscriber received messages on every topic it subscribed to.
 #include <CLI/CLI.hpp>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <pthread.h>
+#include <signal.h>
+
 #include <algorithm>
+#include <atomic>
 #include <condition_variable>
 #include <csignal>
 #include <cstdio>
@@ -20,15 +29,12 @@
 #include <thread>
 #include <vector>
 
+#include "demo.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx_examples/image_t.hpp"
 #include "lcmx_examples/pose_t.hpp"
 
-namespace {
-
-constexpr const char* kCamera = "DEMO_CAMERA";
-constexpr const char* kPose = "DEMO_POSE";
-constexpr const char* kStop = "DEMO_STOP";
+namespace lcmx_demo {
 
 std::int64_t now_ns() {
   timespec ts{};
@@ -76,40 +82,57 @@ std::string path_of(const lcmx::SubscriberStats& s) {
 }
 
 // One result line: "RESULT <subscriber> <topic> <path> <received> <rate> <p50> <p99> <lost> <drops>"
+// `path`: the path seen while the publisher was there (its match goes when it leaves).
 std::string result_line(const std::string& who, const char* topic, Recorder& r,
-                        const lcmx::SubscriberStats& s) {
-  return "RESULT " + who + " " + topic + " " + path_of(s) + " " + r.summary() + " " +
+                        const lcmx::SubscriberStats& s, std::string path = {}) {
+  if (path.empty() || path == "-") path = path_of(s);
+  return "RESULT " + who + " " + topic + " " + path + " " + r.summary() + " " +
          std::to_string(s.drops);
 }
 
-// --role sub: subscribe to camera and pose until the publisher says stop.
-int run_subscriber(const std::string& name, int timeout_s) {
+// --role sub: subscribe to the camera and/or the pose until the publisher says stop (a
+// message on DEMO_STOP) or SIGTERM/SIGINT comes (main() blocked them before any thread
+// started, so only this thread takes them).
+int run_subscriber(const std::string& name, const std::vector<std::string>& topics, int timeout_s) {
+  const bool want_cam = std::find(topics.begin(), topics.end(), "camera") != topics.end();
+  const bool want_pose = std::find(topics.begin(), topics.end(), "pose") != topics.end();
   auto rt = lcmx::Runtime::create();
   // Two nodes, so a 6 MB image being decoded never delays a pose (each node has its own
   // executor thread; one node's callbacks run one at a time).
   auto node = rt.create_node(name);
   auto pose_node = rt.create_node(name + "_pose");
   Recorder cam, pose;
-  auto cam_sub = node.subscribe<lcmx_examples::image_t>(
-      kCamera, [&](const lcmx_examples::image_t& img) { cam.on(img.header); });
-  auto pose_sub = pose_node.subscribe<lcmx_examples::pose_t>(
-      kPose, [&](const lcmx_examples::pose_t& p) { pose.on(p.header); });
-  std::mutex mu;
-  std::condition_variable cv;
-  bool stop = false;
-  auto stop_sub = node.subscribe_raw(kStop, [&](const lcmx::RawMessage&) {
-    std::lock_guard lock(mu);
-    stop = true;
-    cv.notify_all();
-  });
+  lcmx::Subscriber<lcmx_examples::image_t> cam_sub;
+  lcmx::Subscriber<lcmx_examples::pose_t> pose_sub;
+  if (want_cam)
+    cam_sub = node.subscribe<lcmx_examples::image_t>(
+        kCamera, [&](const lcmx_examples::image_t& img) { cam.on(img.header); });
+  if (want_pose)
+    pose_sub = pose_node.subscribe<lcmx_examples::pose_t>(
+        kPose, [&](const lcmx_examples::pose_t& p) { pose.on(p.header); });
+  std::atomic<bool> stop{false};
+  auto stop_sub = node.subscribe_raw(kStop, [&](const lcmx::RawMessage&) { stop = true; });
   std::cout << "READY " << name << std::endl;
-  {
-    std::unique_lock lock(mu);
-    if (!cv.wait_for(lock, std::chrono::seconds(timeout_s), [&] { return stop; }))
-      std::cerr << name << ": no stop message within " << timeout_s << " s\n";
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(timeout_s);
+  const timespec tick{0, 100'000'000};
+  std::string cam_path, pose_path;  // last seen while matched
+  while (!stop && sigtimedwait(&signals, nullptr, &tick) < 0) {
+    if (want_cam)
+      if (auto p = path_of(cam_sub.stats()); p != "-") cam_path = p;
+    if (want_pose)
+      if (auto p = path_of(pose_sub.stats()); p != "-") pose_path = p;
+    if (std::chrono::steady_clock::now() > deadline) {
+      std::cerr << name << ": no stop within " << timeout_s << " s\n";
+      break;
+    }
   }
-  std::cout << result_line(name, kCamera, cam, cam_sub.stats()) << "\n"
-            << result_line(name, kPose, pose, pose_sub.stats()) << std::endl;
+  if (want_cam) std::cout << result_line(name, kCamera, cam, cam_sub.stats(), cam_path) << "\n";
+  if (want_pose) std::cout << result_line(name, kPose, pose, pose_sub.stats(), pose_path) << "\n";
+  std::cout << "END" << std::endl;
   return 0;
 }
 
@@ -128,7 +151,8 @@ Child spawn(const char* self, const std::string& name, int timeout_s) {
     close(fds[0]);
     close(fds[1]);
     const std::string t = std::to_string(timeout_s);
-    execl(self, self, "--role", "sub", "--name", name.c_str(), "--timeout", t.c_str(), nullptr);
+    execl(self, self, "--role", "sub", "--name", name.c_str(), "--timeout", t.c_str(),
+          "--topics", "camera,pose", nullptr);
     _exit(127);
   }
   close(fds[1]);
@@ -143,7 +167,7 @@ std::string read_line(FILE* f) {
   return s;
 }
 
-int run_publisher(const char* self, double seconds, int width, int height, double cam_hz) {
+int run_single_host(const char* self, double seconds, int width, int height, double cam_hz) {
   const int timeout_s = static_cast<int>(seconds) + 30;
   std::vector<Child> children;
   for (const char* name : {"sub_a", "sub_b"}) children.push_back(spawn(self, name, timeout_s));
@@ -181,6 +205,78 @@ int run_publisher(const char* self, double seconds, int width, int height, doubl
             << (width * height * 3) / 1e6 << " MB) at " << cam_hz << " Hz and poses at 100 Hz for "
             << seconds << " s\n";
 
+  publish_loop(cam_pub, pose_pub, seconds, width, height, cam_hz);
+  const std::byte stop{0};
+  stop_pub.publish(std::span<const std::byte>(&stop, 1));
+
+  std::vector<std::string> lines;
+  lines.push_back(result_line("local_viewer", kCamera, local_cam, local_sub.stats()));
+  int rc = 0;
+  for (auto& c : children) {
+    for (int i = 0; i < 3; ++i) {
+      auto line = read_line(c.out);
+      if (line.rfind("RESULT", 0) == 0) lines.push_back(line);
+      else if (line != "END") rc = 1;
+    }
+    int status = 0;
+    waitpid(c.pid, &status, 0);
+    fclose(c.out);
+    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) rc = 1;
+  }
+
+  std::printf("\nlcmx demo (single host): %.0f s, camera %dx%d rgb8 (%.1f MB) at %.0f Hz, pose at 100 Hz\n",
+              seconds, width, height, width * height * 3 / 1e6, cam_hz);
+  std::printf("published: camera %llu, pose %llu\n\n", static_cast<unsigned long long>(cam_pub.published()),
+              static_cast<unsigned long long>(pose_pub.published()));
+  if (!print_results(lines)) rc = 1;
+  return rc;
+}
+
+// Prints the subscriber table from RESULT lines. False if a subscriber received nothing.
+bool print_results(const std::vector<std::string>& lines) {
+  bool ok = true;
+  std::printf("| %-12s | %-12s | %-6s | %8s | %9s | %10s | %10s | %5s | %5s |\n", "subscriber", "topic",
+              "path", "received", "rate Hz", "p50 us", "p99 us", "lost", "drops");
+  std::printf("|--------------|--------------|--------|----------|-----------|------------|------------|-------|-------|\n");
+  for (const auto& l : lines) {
+    std::istringstream in(l);
+    std::string tag, who, topic, path;
+    unsigned long long received = 0, lost = 0, drops = 0;
+    double rate = 0, p50 = 0, p99 = 0;
+    in >> tag >> who >> topic >> path >> received >> rate >> p50 >> p99 >> lost >> drops;
+    if (received == 0) ok = false;
+    std::printf("| %-12s | %-12s | %-6s | %8llu | %9.1f | %10.1f | %10.1f | %5llu | %5llu |\n", who.c_str(),
+                topic.c_str(), path.c_str(), received, rate, p50, p99, lost, drops);
+  }
+  std::printf("\nlost = gaps in sequence numbers seen by the subscriber; drops = messages lcmx\n"
+              "counted as overwritten or dropped before the subscriber read them.\n");
+  return ok;
+}
+
+// --role chip-a (two-chip mode): the camera and pose publishers of chip A. Prints PUBLISHING
+// once it starts and "DONE <camera> <pose>" (messages published) at the end.
+int run_chip_a(double seconds, int width, int height, double cam_hz) {
+  auto rt = lcmx::Runtime::create();
+  auto cam_node = rt.create_node("camera");
+  auto pose_node = rt.create_node("pose");
+  lcmx::PublisherOptions cam_opts;
+  cam_opts.max_message_size = 16u << 20;
+  auto cam_pub = cam_node.advertise<lcmx_examples::image_t>(kCamera, cam_opts);
+  auto pose_pub = pose_node.advertise<lcmx_examples::pose_t>(kPose);
+  if (!cam_pub.wait_for_subscribers(1, std::chrono::seconds(10))) {
+    std::cerr << "chip-a: no camera subscriber within 10 s\n";
+    return 1;
+  }
+  std::cout << "PUBLISHING" << std::endl;
+  const auto [cams, poses] = publish_loop(cam_pub, pose_pub, seconds, width, height, cam_hz);
+  std::cout << "DONE " << cams << " " << poses << std::endl;
+  return 0;
+}
+
+// Publishes camera frames at cam_hz and poses at 100 Hz for `seconds`.
+std::pair<std::uint64_t, std::uint64_t> publish_loop(lcmx::Publisher<lcmx_examples::image_t>& cam_pub,
+                                                     lcmx::Publisher<lcmx_examples::pose_t>& pose_pub,
+                                                     double seconds, int width, int height, double cam_hz) {
   lcmx_examples::image_t frame;
   frame.width = width;
   frame.height = height;
@@ -202,7 +298,7 @@ int run_publisher(const char* self, double seconds, int width, int height, doubl
   while (Clock::now() - start < std::chrono::duration<double>(seconds)) {
     const auto now = Clock::now();
     if (now >= next_cam) {
-      // A new frame each time, handed over by pointer: the in-process viewer gets this very
+      // A new frame each time, handed over by pointer: an in-process viewer gets this very
       // object, other processes read it from shared memory.
       auto img = std::make_shared<lcmx_examples::image_t>(frame);
       img->data[static_cast<std::size_t>(cam_seq % frame.size)] = static_cast<std::uint8_t>(cam_seq);
@@ -220,67 +316,60 @@ int run_publisher(const char* self, double seconds, int width, int height, doubl
     }
     std::this_thread::sleep_until(std::min(next_cam, next_pose));  // pacing, not synchronisation
   }
-  const std::byte stop{0};
-  stop_pub.publish(std::span<const std::byte>(&stop, 1));
-
-  std::vector<std::string> lines;
-  lines.push_back(result_line("local_viewer", kCamera, local_cam, local_sub.stats()));
-  int rc = 0;
-  for (auto& c : children) {
-    for (int i = 0; i < 2; ++i) {
-      auto line = read_line(c.out);
-      if (line.rfind("RESULT", 0) == 0) lines.push_back(line);
-      else rc = 1;
-    }
-    int status = 0;
-    waitpid(c.pid, &status, 0);
-    fclose(c.out);
-    if (!WIFEXITED(status) || WEXITSTATUS(status) != 0) rc = 1;
-  }
-
-  std::printf("\nlcmx demo: %.0f s, camera %dx%d rgb8 (%.1f MB) at %.0f Hz, pose at 100 Hz\n", seconds,
-              width, height, frame.size / 1e6, cam_hz);
-  std::printf("published: camera %llu, pose %llu\n\n", static_cast<unsigned long long>(cam_pub.published()),
-              static_cast<unsigned long long>(pose_pub.published()));
-  std::printf("| %-12s | %-12s | %-6s | %8s | %9s | %10s | %10s | %5s | %5s |\n", "subscriber", "topic",
-              "path", "received", "rate Hz", "p50 us", "p99 us", "lost", "drops");
-  std::printf("|--------------|--------------|--------|----------|-----------|------------|------------|-------|-------|\n");
-  for (const auto& l : lines) {
-    std::istringstream in(l);
-    std::string tag, who, topic, path;
-    unsigned long long received = 0, lost = 0, drops = 0;
-    double rate = 0, p50 = 0, p99 = 0;
-    in >> tag >> who >> topic >> path >> received >> rate >> p50 >> p99 >> lost >> drops;
-    if (received == 0) rc = 1;
-    std::printf("| %-12s | %-12s | %-6s | %8llu | %9.1f | %10.1f | %10.1f | %5llu | %5llu |\n", who.c_str(),
-                topic.c_str(), path.c_str(), received, rate, p50, p99, lost, drops);
-  }
-  std::printf("\nlost = gaps in sequence numbers seen by the subscriber; drops = messages lcmx\n"
-              "counted as overwritten or dropped before the subscriber read them.\n");
-  return rc;
+  return {cam_pub.published(), pose_pub.published()};
 }
 
-}  // namespace
+}  // namespace lcmx_demo
+
+using namespace lcmx_demo;
 
 int main(int argc, char** argv) {
-  CLI::App app{"lcmx-demo: camera + pose publishers, three subscribers in three processes"};
-  std::string role = "pub", name = "sub";
-  double seconds = 5, cam_hz = 30;
+  CLI::App app{"lcmx-demo: a camera (6 MB) and a pose publisher and their subscribers, on one host or\n"
+               "on two emulated chips joined by eth and pcie links through Message Bridges"};
+  std::string role = "pub", name = "sub", mode = "auto", topics = "camera,pose";
+  double seconds = 0, cam_hz = 0;
   int width = 1920, height = 1080, timeout_s = 60;
-  app.add_option("--role", role, "pub (default) or sub (started by the demo itself)")
-      ->check(CLI::IsMember({"pub", "sub"}));
+  app.add_option("--mode", mode,
+                 "auto (two-chip where network namespaces can be created, else single-host), "
+                 "single-host or two-chip")
+      ->check(CLI::IsMember({"auto", "single-host", "two-chip"}))->capture_default_str();
+  app.add_option("--role", role, "pub (default: run the demo) or sub / chip-a (started by the demo itself)")
+      ->check(CLI::IsMember({"pub", "sub", "chip-a"}));
   app.add_option("--name", name, "subscriber name (--role sub)");
+  app.add_option("--topics", topics, "subscriber: camera,pose or one of them (--role sub)");
   app.add_option("--timeout", timeout_s, "subscriber: give up after this many seconds");
-  app.add_option("--seconds", seconds, "how long to publish")->check(CLI::Range(0.5, 3600.0))->capture_default_str();
-  app.add_option("--camera-hz", cam_hz, "camera rate")->check(CLI::Range(1.0, 200.0))->capture_default_str();
+  app.add_option("--seconds", seconds, "how long to publish (default: 5 single-host, 9 two-chip)")
+      ->check(CLI::Range(0.5, 3600.0));
+  app.add_option("--camera-hz", cam_hz, "camera rate (default: 30 single-host, 10 two-chip)")
+      ->check(CLI::Range(1.0, 200.0));
   app.add_option("--width", width, "image width")->check(CLI::Range(16, 8192))->capture_default_str();
   app.add_option("--height", height, "image height")->check(CLI::Range(16, 8192))->capture_default_str();
   CLI11_PARSE(app, argc, argv);
   try {
-    if (role == "sub") return run_subscriber(name, timeout_s);
+    if (role == "sub") {
+      // Before any thread starts: SIGTERM/SIGINT are taken by run_subscriber's sigtimedwait.
+      sigset_t signals;
+      sigemptyset(&signals);
+      sigaddset(&signals, SIGTERM);
+      sigaddset(&signals, SIGINT);
+      pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+      std::vector<std::string> list;
+      std::stringstream in(topics);
+      for (std::string t; std::getline(in, t, ',');) {
+        if (t != "camera" && t != "pose") throw std::invalid_argument("--topics: unknown topic '" + t + "'");
+        list.push_back(t);
+      }
+      return run_subscriber(name, list, timeout_s);
+    }
+    if (role == "chip-a") return run_chip_a(seconds > 0 ? seconds : 9, width, height, cam_hz > 0 ? cam_hz : 10);
     char self[4096] = {};
     if (readlink("/proc/self/exe", self, sizeof self - 1) <= 0) throw std::runtime_error("cannot find own executable");
-    return run_publisher(self, seconds, width, height, cam_hz);
+    std::string why;
+    if (mode == "two-chip" || (mode == "auto" && two_chip_available(&why)))
+      return run_two_chip(self, seconds > 0 ? seconds : 9, width, height, cam_hz > 0 ? cam_hz : 10);
+    if (mode == "auto")
+      std::cerr << "lcmx-demo: two-chip mode not available (" << why << "): running on this host only\n";
+    return run_single_host(self, seconds > 0 ? seconds : 5, width, height, cam_hz > 0 ? cam_hz : 30);
   } catch (const std::exception& e) {
     std::cerr << "lcmx-demo: " << e.what() << "\n";
     return 1;

@@ -1,4 +1,4 @@
-// lcmx: the command-line tool. Verbs: nodes, topics (more verbs come with later issues).
+// lcmx: the command-line tool. Verbs: nodes, topics, bridge (more verbs come with later issues).
 // It listens to discovery as an observer: it asks every participant to beacon at once and
 // never appears as a participant itself.
 #include <CLI/CLI.hpp>
@@ -12,6 +12,7 @@
 
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/discovery.hpp"
+#include "bridge_cmd.hpp"
 #include "topology.hpp"
 
 namespace {
@@ -66,10 +67,41 @@ int main(int argc, char** argv) {
   auto* topics = app.add_subcommand(
       "topics", "list topics: type, publishers, subscribers, path per pair, rate, drops");
 
+  auto* bridge = app.add_subcommand(
+      "bridge", "run this host's Message Bridge (--config FILE), or inspect bridges (status, keygen)");
+  bridge->fallthrough();
+  std::string bridge_config;
+  bool bridge_check = false;
+  bridge->add_option("--config", bridge_config, "bridge config file (TOML, see docs/bridge.md)");
+  bridge->add_flag("--check", bridge_check, "validate the config file and exit (0 ok, 2 bad)");
+  auto* bstatus = bridge->add_subcommand(
+      "status", "per bridge on this host: peers, active link, bytes per link, messages/bytes/drops per channel");
+  std::string status_url = url;
+  int status_wait = 3000;
+  bstatus->add_option("--url", status_url, "host-local discovery group (default: LCMX_DISCOVERY_URL)")
+      ->capture_default_str();
+  bstatus->add_option("--wait", status_wait, "wait up to this long for bridges' status, in milliseconds")
+      ->check(CLI::Range(50, 60000))
+      ->capture_default_str();
+  auto* keygen = bridge->add_subcommand("keygen", "write a CURVE key pair: PREFIX.key (secret, 0600), PREFIX.pub");
+  std::string key_prefix;
+  bool key_force = false;
+  keygen->add_option("--out", key_prefix, "file name prefix")->required();
+  keygen->add_flag("--force", key_force, "overwrite existing files");
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  }
+  if (bridge->parsed()) {
+    if (bstatus->parsed()) return lcmx::cli::bridge_status(status_url, status_wait);
+    if (keygen->parsed()) return lcmx::cli::bridge_keygen(key_prefix, key_force);
+    if (bridge_config.empty()) {
+      std::cerr << "lcmx bridge: --config FILE is required (or: lcmx bridge status | keygen)\n";
+      return 2;
+    }
+    return lcmx::cli::bridge_run(bridge_config, bridge_check);
   }
   spdlog::set_level(spdlog::level::warn);
   try {

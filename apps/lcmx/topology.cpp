@@ -41,6 +41,14 @@ void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& p
         << "  id " << b.participant_id << "  seen on "
         << (b.scope == Beacon::SCOPE_VEHICLE ? "vehicle group" : "host-local group");
     if (!b.vehicle_source.empty()) out << "  vehicle address " << b.vehicle_source;
+    if (b.flags & Beacon::FLAG_BRIDGE) {
+      out << "  MESSAGE BRIDGE";
+      if (!b.carried.empty()) {
+        out << " (carries";
+        for (const auto& c : b.carried) out << " " << c;
+        out << ")";
+      }
+    }
     out << "\n";
     for (const auto& n : b.nodes) {
       out << "  node " << n << "\n";

@@ -129,7 +129,12 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::string shm_base_prefix;  // "lcmx_<host hex>_<pid>_"
   std::shared_ptr<udpm::Group> local_group;    // host-local group (always)
   std::shared_ptr<udpm::Group> vehicle_group;  // vehicle group (null: single host)
+  // Configured class, else large when a bridge of this host carries the channel, else automatic.
+  // Takes only carried_mu (a leaf): callable with publish_mu held.
   TopicClass class_of(const std::string& channel) const;
+  // A Message Bridge runs on this host (or this participant is one): large topics go to
+  // other hosts through it, never as UDP fragments.
+  bool bridge_on_host() const { return options.bridge || bridge_seen.load(); }
 
   std::mutex event_mu;
   std::function<void(const Event&)> on_event;
@@ -153,6 +158,7 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   void match_local_locked(PublisherImpl& pub, SubscriberCore& sub, std::vector<Event>& events);
   void sync_remote_locked(SubscriberCore& sub, std::vector<Event>& events);
   void count_remote_locked(PublisherImpl& pub, std::vector<Event>& events);
+  void update_bridges_locked();
   void report_mismatch_locked(std::uint64_t local_endpoint, std::uint64_t remote_participant,
                               std::uint64_t remote_endpoint, const std::string& channel,
                               const std::string& text, std::vector<std::string>& errors,
@@ -170,6 +176,9 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::set<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>> mismatches_reported;
   struct RateState { std::uint64_t count = 0; std::chrono::steady_clock::time_point when{}; };
   std::map<std::uint64_t, RateState> rates;
+  std::atomic<bool> bridge_seen{false};  // a same-host participant has FLAG_BRIDGE (mu to write)
+  mutable std::mutex carried_mu;          // leaf lock, guards carried
+  std::vector<std::string> carried;       // globs carried by this host's bridges (and ours)
   std::atomic<std::int64_t> revision{0};  // atomic: changed() is called under publish_mu
   std::atomic<bool> stopped{false};
   std::atomic<bool> announce_pending{false};
@@ -214,6 +223,8 @@ class PublisherImpl final : public PublisherCore {
   void remove_intra(const SubscriberCore* sub);
   void set_remote_subscribers(std::size_t shm, std::size_t udp);
   bool large() const { return large_.load(); }
+  // A bridge of this host now carries the topic: it is large from now on (sticky).
+  void mark_large();
 
   const std::shared_ptr<NodeImpl> node;
   const std::uint64_t id;
@@ -250,7 +261,8 @@ class PublisherImpl final : public PublisherCore {
   std::vector<std::byte> udp_buf_;       // guarded by publish_mu
   // Sends encoded bytes on the vehicle group (and host-local mirror) when wanted.
   void send_udp(std::span<const std::byte> encoded);
-  bool wants_udp() const;
+  bool wants_udp() const;      // vehicle or mirror
+  bool wants_vehicle() const;  // other hosts, over UDP (not while a bridge carries the topic)
   void note_size(std::size_t size);
   std::atomic<std::uint64_t> published_{0};
 };

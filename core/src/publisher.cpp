@@ -49,11 +49,20 @@ void PublisherImpl::deliver_intra(const Targets& t, std::shared_ptr<const void> 
   for (const auto& target : t) push_intra(*target.sub, IntraItem{object, &type, target.stats});
 }
 
-bool PublisherImpl::wants_udp() const {
+bool PublisherImpl::wants_vehicle() const {
   const auto& rt = *node->runtime;
-  if (!rt.vehicle_group && !rt.options.mirror) return false;
-  return udp_subscribers_.load() > 0 || rt.options.mirror ||
-         rt.options.vehicle_publish == VehiclePublish::always;
+  if (!rt.vehicle_group) return false;
+  if (large_.load() && rt.bridge_on_host()) return false;  // the Message Bridge carries it
+  return udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always;
+}
+
+bool PublisherImpl::wants_udp() const {
+  return wants_vehicle() || (node->runtime->options.mirror && !large_.load());
+}
+
+void PublisherImpl::mark_large() {
+  if (large_.exchange(true)) return;
+  spdlog::info("lcmx: topic '{}' is now large (carried by this host's Message Bridge)", channel_);
 }
 
 // Classifies by size: an automatic topic whose message exceeds udp_limit becomes large for
@@ -90,12 +99,11 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
       }
     }
   };
-  if (rt.vehicle_group &&
-      (udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always)) {
+  if (wants_vehicle()) {
     if (large_.load() && !warned_large_udp_) {
       warned_large_udp_ = true;
-      spdlog::warn("lcmx: topic '{}' is large but no Message Bridge carries it yet: sending it to "
-                   "other hosts as UDP fragments",
+      spdlog::warn("lcmx: topic '{}' is large and no Message Bridge runs on this host: sending it "
+                   "to other hosts as UDP fragments (start `lcmx bridge` on every host)",
                    channel_);
     }
     send(*rt.vehicle_group, "vehicle");

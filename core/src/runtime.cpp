@@ -1,3 +1,4 @@
+#include <fnmatch.h>
 #include <poll.h>
 #include <spdlog/cfg/env.h>
 #include <sys/epoll.h>
@@ -5,6 +6,7 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstdlib>
 #include <cstring>
 #include <sstream>
@@ -31,6 +33,10 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     : options(std::move(o)), participant_id(discovery::random_participant_id()),
       host(discovery::host_id()) {
   shm_base_prefix = std::string(shm::kPrefix) + hex(host) + "_" + std::to_string(::getpid()) + "_";
+  for (const auto& glob : options.bridge_carry)
+    if (glob.empty() || glob.size() > 255)
+      throw Error(Errc::invalid_argument, "bridge_carry: a topic pattern must have 1..255 characters");
+  carried = options.bridge_carry;
   if (options.reclaim_orphans) {
     const auto r = shm::reclaim_orphans();
     if (r.removed > 0) spdlog::info("lcmx: removed {} shared-memory segments of dead processes", r.removed);
@@ -264,8 +270,11 @@ bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint) {
 }
 
 TopicClass RuntimeImpl::class_of(const std::string& channel) const {
-  auto it = options.topic_class.find(channel);
-  return it == options.topic_class.end() ? TopicClass::automatic : it->second;
+  if (auto it = options.topic_class.find(channel); it != options.topic_class.end()) return it->second;
+  std::lock_guard lock(carried_mu);
+  for (const auto& glob : carried)
+    if (::fnmatch(glob.c_str(), channel.c_str(), 0) == 0) return TopicClass::large;
+  return TopicClass::automatic;
 }
 
 void RuntimeImpl::shutdown() {
@@ -339,6 +348,7 @@ void RuntimeImpl::report_mismatch_locked(std::uint64_t local_endpoint,
 void RuntimeImpl::match_local_locked(PublisherImpl& pub, SubscriberCore& sub,
                                      std::vector<Event>& events) {
   if (pub.channel() != sub.channel()) return;
+  if (options.bridge && !sub.options().from_bridges) return;  // our own republished messages
   if (!compatible(pub.type.fingerprint, sub.type().fingerprint)) {
     const std::string text = "type mismatch on channel '" + sub.channel() + "': publisher (node '" +
                              pub.node->name + "') has " + pub.type.name + ", subscriber (node '" +
@@ -384,6 +394,8 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
   for (const auto* scope_map : {&remotes, &vehicle_remotes})
   for (const auto& [pid, b] : *scope_map) {
     const Path path = scope_map == &remotes ? Path::shm : Path::udp;
+    const bool from_bridge = (b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) != 0;
+    if (from_bridge && !sub.options().from_bridges) continue;
     for (const auto& e : b.endpoints) {
       if (e.kind != lcmx_msgs::endpoint_t::KIND_PUBLISHER || e.topic != sub.channel()) continue;
       if (!compatible(e.fingerprint, sub.type().fingerprint)) {
@@ -398,9 +410,9 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
                                events);
         continue;
       }
-      if (path == Path::shm && e.shm_segment.empty()) continue;
+      if (path == Path::shm && e.shm_segment.empty()) continue;  // bridges' segments too
       wanted.insert({static_cast<std::uint64_t>(b.participant_id), static_cast<std::uint64_t>(e.id)});
-      candidates.push_back({&b, &e, path});
+      candidates.push_back({&b, &e, path == Path::shm && from_bridge ? Path::bridge : path});
     }
   }
   std::lock_guard lock(st.mu);
@@ -428,7 +440,7 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
     m->publisher_participant = key.first;
     m->publisher_endpoint = key.second;
     m->path = path;
-    if (path == Path::shm) {
+    if (path == Path::shm || path == Path::bridge) {
       try {
         m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment));
       } catch (const shm::Error& err) {
@@ -607,6 +619,7 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
       return v;
     };
     const auto v0 = match_versions();
+    if (!vehicle) update_bridges_locked();
     for (auto& [id, sub] : subs) sync_remote_locked(*sub, events);
     for (auto& [id, pub] : pubs) count_remote_locked(*pub, events);
     if (match_versions() != v0) ++revision, announce_pending = true;
@@ -625,11 +638,37 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
   emit(std::move(events));
 }
 
+// The bridges of this host (DESIGN.md "Message Bridge"): while one runs, large topics reach
+// other hosts only through it, and the topics it carries besides the large class become large
+// here (sticky, announced).
+void RuntimeImpl::update_bridges_locked() {
+  bool seen = false;
+  std::vector<std::string> globs = options.bridge_carry;
+  for (const auto& [pid, b] : remotes) {
+    if (!(b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE)) continue;
+    seen = true;
+    for (const auto& g : b.carried)
+      if (!g.empty() && std::find(globs.begin(), globs.end(), g) == globs.end()) globs.push_back(g);
+  }
+  if (seen != bridge_seen.exchange(seen))
+    spdlog::info("lcmx: {} Message Bridge on this host", seen ? "a" : "no");
+  {
+    std::lock_guard lock(carried_mu);
+    carried = std::move(globs);
+  }
+  for (auto& [id, pub] : pubs)
+    if (!pub->large() && class_of(pub->channel()) == TopicClass::large) {
+      pub->mark_large();
+      ++revision;
+      announce_pending = true;
+    }
+}
+
 // Host scope: everything. Vehicle scope: the same endpoints without what only this host can
 // use (shm segment names); addresses as "ip:port", never hostnames.
 lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
   const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
-  lcmx_msgs::beacon_t b;
+  lcmx_msgs::beacon_t b{};
   b.version = discovery::kBeaconVersion;
   b.scope = scope;
   b.local_source = udpm::to_string(local_group->local_source());
@@ -638,7 +677,9 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
   b.host_id = static_cast<std::int64_t>(host);
   b.pid = static_cast<std::int32_t>(::getpid());
   b.process_name = discovery::process_name();
-  b.flags = 0;
+  b.flags = options.bridge ? lcmx_msgs::beacon_t::FLAG_BRIDGE : 0;
+  if (!vehicle) b.carried = options.bridge_carry;
+  b.num_carried = static_cast<std::int32_t>(b.carried.size());
   const auto now = std::chrono::steady_clock::now();
   auto rate = [&](std::uint64_t id, std::uint64_t count) {
     auto& r = rates[id * 2 + (vehicle ? 1 : 0)];
@@ -657,7 +698,12 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
   for (auto& w : nodes)
     if (auto n = w.lock()) b.nodes.push_back(n->name);
   b.num_nodes = static_cast<std::int32_t>(b.nodes.size());
+  // Other hosts see neither a bridge's endpoints nor, while a bridge runs here, large
+  // publishers: those reach them through the bridges (DESIGN.md "Discovery", scopes).
+  const bool hide_large = vehicle && bridge_on_host();
   for (auto& [id, pub] : pubs) {
+    if (vehicle && options.bridge) break;
+    if (hide_large && pub->large()) continue;
     lcmx_msgs::endpoint_t e{};
     e.id = static_cast<std::int64_t>(id);
     e.kind = lcmx_msgs::endpoint_t::KIND_PUBLISHER;
@@ -675,6 +721,7 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
     b.endpoints.push_back(std::move(e));
   }
   for (auto& [id, sub] : subs) {
+    if (vehicle && options.bridge) break;
     lcmx_msgs::endpoint_t e{};
     e.id = static_cast<std::int64_t>(id);
     e.kind = lcmx_msgs::endpoint_t::KIND_SUBSCRIBER;

@@ -92,6 +92,9 @@ bool walk_beacon(Walker& w) {
   if (!w.count(&n, kMinEndpoint)) return false;
   for (std::int32_t i = 0; i < n; ++i)
     if (!walk_endpoint(w)) return false;
+  if (!w.count(&n, kMinString)) return false;  // carried
+  for (std::int32_t i = 0; i < n; ++i)
+    if (!w.str()) return false;
   return w.ok();
 }
 

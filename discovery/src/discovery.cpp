@@ -56,7 +56,7 @@ struct Discovery::Impl {
   }
 
   void send(std::int8_t flags) {
-    lcmx_msgs::beacon_t b;
+    lcmx_msgs::beacon_t b{};  // value-initialised: lcm-gen leaves scalars uninitialised
     if (options.observer) {
       b.participant_id = static_cast<std::int64_t>(self_id);
       b.pid = static_cast<std::int32_t>(::getpid());

@@ -10,6 +10,7 @@
 #include <thread>
 
 #include "lcmx/core.hpp"
+#include "lcmx/discovery/discovery.hpp"
 #include "lcmx_examples/image_t.hpp"
 #include "lcmx_examples/pose_t.hpp"
 
@@ -332,4 +333,54 @@ TEST_CASE("an idle subscriber costs no CPU", "[core][executor]") {
   const double used_us = cpu() - before;
   // Discovery beacons every 100 ms in tests; the executor itself must stay asleep.
   CHECK(used_us < 20000);
+}
+
+// DESIGN.md "Message Bridge": a bridge participant announces itself and the topics it
+// carries; its own subscribers (from_bridges = false) never take what it republishes, while
+// every other subscriber sees such a publisher with the path "bridge".
+TEST_CASE("a bridge participant: flag, carried topics, no self-delivery", "[core][bridge]") {
+  auto opts = test_options();
+  opts.bridge = true;
+  opts.bridge_carry = {"MAP_*"};
+  auto rt = lcmx::Runtime::create(opts);
+
+  lcmx::discovery::Options d;
+  d.group = lcmx::udpm::parse_url(opts.discovery_url);
+  d.observer = true;
+  lcmx::discovery::Discovery observer(d, {}, [](auto, const auto&) {});
+
+  auto node = rt.create_node("bridge", manual());
+  auto republisher = node.advertise_raw("CAMERA");
+  auto carried = node.advertise<lcmx_examples::pose_t>("MAP_TILES");
+  lcmx::SubscriberOptions not_from_bridges;
+  not_from_bridges.from_bridges = false;
+  int own = 0, plain = 0;
+  auto bridge_sub = node.subscribe_raw("CAMERA", [&](const lcmx::RawMessage&) { ++own; },
+                                       not_from_bridges);
+  auto user_sub = node.subscribe_raw("CAMERA", [&](const lcmx::RawMessage&) { ++plain; });
+  REQUIRE(user_sub.publisher_count() == 1);
+  CHECK(bridge_sub.publisher_count() == 0);
+
+  const std::vector<std::byte> payload(100, std::byte{7});
+  republisher.publish(payload);
+  CHECK(eventually([&] {
+    node.spin_once(1ms);
+    return plain == 1;
+  }));
+  CHECK(own == 0);
+
+  // The beacon says "bridge" and what it carries; the carried topic's publisher is large.
+  observer.query();  // and periodic beacons every 100 ms
+  CHECK(eventually([&] {
+    for (const auto& p : observer.participants()) {
+      const auto& b = p.beacon;
+      if (static_cast<std::uint64_t>(b.participant_id) != rt.participant_id()) continue;
+      if (!(b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE)) return false;
+      if (b.carried != std::vector<std::string>{"MAP_*"}) return false;
+      for (const auto& e : b.endpoints)
+        if (e.topic == "MAP_TILES" && e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER)
+          return e.large == 1;
+    }
+    return false;
+  }));
 }

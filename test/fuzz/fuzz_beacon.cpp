@@ -88,6 +88,10 @@ void check_same(const lcmx_msgs::beacon_t& a, const lcmx_msgs::beacon_t& b) {
   FUZZ_CHECK(a.endpoints.size() == static_cast<std::size_t>(a.num_endpoints));
   FUZZ_CHECK(b.endpoints.size() == a.endpoints.size());
   for (std::size_t i = 0; i < a.endpoints.size(); ++i) check_same(a.endpoints[i], b.endpoints[i]);
+  FUZZ_CHECK(a.num_carried == b.num_carried);
+  FUZZ_CHECK(a.carried.size() == static_cast<std::size_t>(a.num_carried));
+  FUZZ_CHECK(b.carried.size() == a.carried.size());
+  for (std::size_t i = 0; i < a.carried.size(); ++i) check_string(a.carried[i], b.carried[i], "carried");
 }
 
 }  // namespace

@@ -110,6 +110,8 @@ lcmx_msgs::beacon_t beacon(int endpoints, int nodes) {
     b.endpoints.push_back(e);
   }
   b.num_endpoints = static_cast<std::int32_t>(b.endpoints.size());
+  if (endpoints > 0) b.carried = {"MAP_*", "CMD"};
+  b.num_carried = static_cast<std::int32_t>(b.carried.size());
   return b;
 }
 

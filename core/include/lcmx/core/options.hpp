@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <map>
 #include <string>
+#include <vector>
 
 namespace lcmx {
 
@@ -48,6 +49,10 @@ enum class QueuePolicy {
 struct SubscriberOptions {
   std::size_t queue_depth = 16;  // in-process / UDP queue per subscriber (shm has its own ring)
   QueuePolicy policy = QueuePolicy::drop_oldest;
+  // false: never matched with publishers of Message Bridge participants (RuntimeOptions::bridge),
+  // including this process's own when it is one. The bridge's own subscribers use it, so a
+  // bridge never forwards what a bridge republished (no loops).
+  bool from_bridges = true;
 };
 
 // A topic's class decides its path to other hosts (DESIGN.md "Delivery").
@@ -82,6 +87,14 @@ struct RuntimeOptions {
   std::chrono::milliseconds beacon_period{1000};
   std::chrono::milliseconds lease{3500};
   bool reclaim_orphans = true;  // remove shm segments of dead processes at start
+
+  // This participant is a Message Bridge (`lcmx bridge`): its beacons carry FLAG_BRIDGE, its
+  // endpoints are never announced to other hosts, and while it runs the other participants of
+  // this host send large topics to other hosts only through it (not as UDP fragments).
+  bool bridge = false;
+  // Bridge only: topic globs (fnmatch) it carries besides the large class. Announced on this
+  // host; every participant here then treats matching topics as large.
+  std::vector<std::string> bridge_carry;
 
   // Defaults overridden by the environment: LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL,
   // LCMX_VEHICLE_PUBLISH (on_demand|always), LCMX_UDP_LIMIT, LCMX_MIRROR (0|1),

@@ -1,0 +1,162 @@
+#include "bridge_cmd.hpp"
+
+#include <signal.h>
+#include <spdlog/cfg/env.h>
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdio>
+#include <iostream>
+#include <map>
+#include <mutex>
+#include <thread>
+
+#include "lcmx/bridge/bridge.hpp"
+#include "lcmx/core.hpp"
+
+namespace lcmx::cli {
+namespace {
+
+std::string human_bytes(std::int64_t b) {
+  char buf[32];
+  const double v = static_cast<double>(b);
+  if (b < 10 * 1024) std::snprintf(buf, sizeof buf, "%lld B", static_cast<long long>(b));
+  else if (b < 10ll * 1024 * 1024) std::snprintf(buf, sizeof buf, "%.1f KiB", v / 1024);
+  else if (b < 10ll * 1024 * 1024 * 1024) std::snprintf(buf, sizeof buf, "%.1f MiB", v / (1024 * 1024));
+  else std::snprintf(buf, sizeof buf, "%.2f GiB", v / (1024.0 * 1024 * 1024));
+  return buf;
+}
+
+std::string pad(std::string s, std::size_t w) {
+  if (s.size() < w) s.append(w - s.size(), ' ');
+  return s;
+}
+
+}  // namespace
+
+int bridge_run(const std::string& config_path, bool check_only) {
+  bridge::Config cfg;
+  try {
+    cfg = bridge::load_config(config_path);
+  } catch (const bridge::ConfigError& e) {
+    std::cerr << "lcmx bridge: bad config: " << e.what() << "\n";
+    return 2;
+  }
+  if (check_only) {
+    std::cout << config_path << ": ok: bridge " << cfg.name << ", " << cfg.channels.size() << " channel(s), "
+              << cfg.peers.size() << " peer(s)" << (cfg.security.curve ? ", CURVE" : "") << "\n";
+    return 0;
+  }
+  spdlog::set_level(spdlog::level::info);
+  spdlog::cfg::load_env_levels();
+  // SIGINT/SIGTERM are taken by sigwait() below: block them before any thread starts.
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGINT);
+  sigaddset(&set, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &set, nullptr);
+  try {
+    auto options = RuntimeOptions::from_env();
+    auto b = bridge::Bridge::start(std::move(cfg), options);
+    std::cout << "bridge " << b.status().name << ": ready" << std::endl;
+    int sig = 0;
+    sigwait(&set, &sig);
+    spdlog::info("bridge: signal {}: stopping", sig);
+    b.stop();
+  } catch (const bridge::ConfigError& e) {
+    std::cerr << "lcmx bridge: bad config: " << e.what() << "\n";
+    return 2;
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx bridge: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}
+
+void print_bridge_status(std::ostream& out, const lcmx_msgs::bridge_status_t& s) {
+  char host[32];
+  std::snprintf(host, sizeof host, "%016llx", static_cast<unsigned long long>(s.host_id));
+  out << "bridge " << s.name << "  pid " << s.pid << "  host " << host << (s.curve ? "  CURVE" : "")
+      << "  bad frames " << s.bad_frames << "\n";
+  out << "  this host wants: ";
+  if (s.demand.empty()) out << "-";
+  for (std::size_t i = 0; i < s.demand.size(); ++i) out << (i ? ", " : "") << s.demand[i];
+  out << "\n";
+  for (const auto& p : s.peers) {
+    out << "  peer " << p.name << "  " << (p.up ? "UP" : "DOWN") << "  active link "
+        << (p.active_link.empty() ? "-" : p.active_link) << "  failovers " << p.failovers << "\n";
+    out << "    " << pad("link", 10) << pad("address", 17) << pad("state", 12) << pad("sent", 13) << pad("received", 13)
+        << pad("heartbeat", 11) << "rtt\n";
+    for (const auto& l : p.links) {
+      std::string state = l.up ? "up" : "down";
+      if (l.active) state += ",active";
+      const std::string age = l.heartbeat_age_ms < 0 ? "never" : std::to_string(l.heartbeat_age_ms) + " ms";
+      const std::string rtt = l.rtt_us < 0 ? "-" : std::to_string(l.rtt_us) + " us";
+      out << "    " << pad(l.name, 10) << pad(l.address, 17) << pad(state, 12) << pad(human_bytes(l.bytes_sent), 13)
+          << pad(human_bytes(l.bytes_received), 13) << pad(age, 11) << rtt << "\n";
+    }
+    out << "    " << pad("channel", 10) << pad("sent msgs", 11) << pad("sent", 13) << pad("drops", 8) << pad("queued", 8)
+        << pad("recv msgs", 11) << pad("received", 13) << "lost\n";
+    for (const auto& c : p.channels)
+      out << "    " << pad(c.name, 10) << pad(std::to_string(c.messages_sent), 11) << pad(human_bytes(c.bytes_sent), 13)
+          << pad(std::to_string(c.drops), 8) << pad(std::to_string(c.queued), 8)
+          << pad(std::to_string(c.messages_received), 11) << pad(human_bytes(c.bytes_received), 13) << c.lost << "\n";
+    out << "    serves: ";
+    if (p.served.empty()) out << "-";
+    for (std::size_t i = 0; i < p.served.size(); ++i) out << (i ? ", " : "") << p.served[i];
+    out << "\n";
+  }
+}
+
+int bridge_status(const std::string& url, int wait_ms) {
+  spdlog::set_level(spdlog::level::warn);
+  std::mutex mu;
+  std::condition_variable cv;
+  std::map<std::int32_t, lcmx_msgs::bridge_status_t> seen;  // by pid
+  try {
+    auto options = RuntimeOptions::from_env();
+    options.discovery_url = url;
+    options.vehicle_url.clear();  // this host's bridges only
+    auto rt = Runtime::create(options);
+    auto node = rt.create_node("bridge_status");
+    auto sub = node.subscribe<lcmx_msgs::bridge_status_t>(bridge::kStatusChannel,
+                                                          [&](const lcmx_msgs::bridge_status_t& s) {
+                                                            std::lock_guard lock(mu);
+                                                            seen[s.pid] = s;
+                                                            cv.notify_all();
+                                                          });
+    // A bridge publishes at once when it sees a new status subscriber; wait for the first
+    // status, then a little longer for other bridges on this host (normally there is one).
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(wait_ms);
+    std::unique_lock lock(mu);
+    if (cv.wait_until(lock, deadline, [&] { return !seen.empty(); })) {
+      const auto more = std::min(deadline, std::chrono::steady_clock::now() + std::chrono::milliseconds(300));
+      cv.wait_until(lock, more, [] { return false; });
+    }
+    if (seen.empty()) {
+      std::cout << "no bridge found on this host within " << wait_ms << " ms\n";
+      return 1;
+    }
+    for (const auto& [pid, s] : seen) print_bridge_status(std::cout, s);
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx bridge status: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}
+
+int bridge_keygen(const std::string& prefix, bool force) {
+  try {
+    const auto keys = bridge::generate_key_pair();
+    bridge::write_key_pair(prefix, keys, force);
+    std::cout << "wrote " << prefix << ".key (secret, mode 0600) and " << prefix << ".pub (public: " << keys.public_key
+              << ")\n";
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx bridge keygen: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
+}
+
+}  // namespace lcmx::cli

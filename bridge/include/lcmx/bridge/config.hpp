@@ -1,0 +1,99 @@
+// The Message Bridge's configuration file (TOML; format and defaults in docs/bridge.md, a
+// commented example in bridge/examples/bridge.toml).
+//
+// load_config() validates everything at once (types, ranges, names, duplicate names and
+// ports, unknown keys, key files) and throws ConfigError naming the file and the bad key,
+// e.g. "bridge.toml: channel[1].hwm: must be an integer from 1 to 1000000 (line 23)".
+#pragma once
+
+#include <chrono>
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <optional>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <vector>
+
+namespace lcmx::bridge {
+
+class ConfigError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+// What a full (peer, channel) queue does with a new message.
+enum class DropPolicy {
+  oldest,  // drop the oldest queued message (keep the newest: state, images)
+  newest,  // drop the new message (keep what is queued: streams that must not skip back)
+};
+
+struct ChannelConfig {
+  std::string name;
+  std::uint16_t port = 0;
+  int priority = 0;          // 0..7, higher = more urgent (thread niceness, IP TOS)
+  std::size_t hwm = 16;      // messages queued per peer before dropping
+  DropPolicy drop = DropPolicy::oldest;
+  std::vector<std::string> topics{"*"};  // fnmatch globs; first matching channel wins
+};
+
+struct EndpointConfig {
+  std::string link;     // e.g. "pcie", "eth"
+  std::string address;  // the peer's IPv4 address on that link
+};
+
+struct PeerConfig {
+  std::string name;
+  std::vector<EndpointConfig> endpoints;  // preference order
+  std::filesystem::path public_key_file;  // absolute (resolved against the config's folder)
+  std::string public_key;                 // Z85, 40 chars; empty unless security.curve
+};
+
+struct SecurityConfig {
+  bool curve = false;
+  std::filesystem::path secret_key_file, public_key_file;
+  std::string secret_key, public_key;  // Z85, 40 chars each; empty unless curve
+};
+
+struct Config {
+  std::filesystem::path file;  // where it was read from ("" for parse_config of a string)
+  std::string name;
+  std::vector<std::string> listen;  // IPv4 addresses
+  std::uint16_t control_port = 0;
+  std::vector<std::string> carry;   // globs
+  std::chrono::milliseconds heartbeat{100};
+  std::chrono::milliseconds link_timeout{500};
+  std::chrono::milliseconds failback_hold{1000};
+  std::chrono::milliseconds status_period{1000};
+  std::vector<ChannelConfig> channels;  // never empty after loading
+  std::vector<PeerConfig> peers;
+  SecurityConfig security;
+
+  // Index of the first channel whose globs match `topic`; nullopt if none does.
+  std::optional<std::size_t> channel_of(std::string_view topic) const;
+  // Whether `topic` matches one of the carry globs.
+  bool carried(std::string_view topic) const;
+};
+
+// Reads and validates a config file. Relative key-file paths are relative to the file's folder.
+// Throws ConfigError.
+Config load_config(const std::filesystem::path& file);
+// Same, from text; `file` names it in messages and anchors relative paths.
+Config parse_config(std::string_view text, const std::filesystem::path& file);
+
+// A CURVE key pair in Z85 text (40 characters each). Throws ConfigError if libzmq lacks CURVE.
+struct KeyPair {
+  std::string public_key, secret_key;
+};
+KeyPair generate_key_pair();
+// Writes PREFIX.key (secret, mode 0600) and PREFIX.pub. Refuses to overwrite existing files
+// unless `overwrite`. Throws ConfigError naming the file.
+void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bool overwrite = false);
+// Reads a key file: the first line that is neither empty nor a '#' comment, which must be a
+// 40-character Z85 key. Throws ConfigError naming the file.
+std::string read_key_file(const std::filesystem::path& file);
+// Whether this libzmq supports CURVE.
+bool curve_available();
+
+}  // namespace lcmx::bridge

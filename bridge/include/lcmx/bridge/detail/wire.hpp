@@ -1,0 +1,55 @@
+// The bridges' wire format (docs/bridge.md "Wire format"). Installed, not stable.
+//
+// Control (control_port, one frame per message, text, '\n'-separated "key value" lines):
+//   LCMXB1 PING | LCMXB1 PONG
+//   from <bridge name>            instance <16 hex>   link <link name>   t <sender ns>
+//   PING only: control <port>, channel <name> <port> (repeated), and on the active link
+//   "demand" followed by "want <topic>" and "offer <topic>" lines (the full sets).
+// Data (channel ports, DEALER -> ROUTER): [topic][header: instance u64 LE, seq u64 LE][payload].
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <set>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+namespace lcmx::bridge::wire {
+
+inline constexpr std::size_t kMaxControlFrame = 4u << 20;  // bytes
+inline constexpr std::size_t kMaxTopic = 63;                // LCM's channel limit
+inline constexpr std::size_t kDataHeader = 16;
+
+struct Control {
+  enum class Kind { ping, pong } kind = Kind::ping;
+  std::string from;
+  std::uint64_t instance = 0;
+  std::string link;
+  std::int64_t t_ns = 0;
+  // PING only. `active`: sent on the link the sender uses for this peer (keeps its demand
+  // alive). `has_demand`: the full state follows (control port, channels, want, offer); sent
+  // when it changed and at least every second, so most pings are a few dozen bytes.
+  bool active = false;
+  int control_port = 0;
+  std::vector<std::pair<std::string, int>> channels;
+  bool has_demand = false;
+  std::set<std::string> want, offer;
+};
+
+// A topic that the text format can carry: 1..63 bytes, no whitespace or control characters.
+bool valid_topic(std::string_view t);
+
+std::string encode(const Control& c);
+// nullopt for anything malformed (unknown kind or key, bad numbers, oversize, bad topics).
+std::optional<Control> decode(std::string_view frame);
+
+struct DataHeader {
+  std::uint64_t instance = 0;
+  std::uint64_t seq = 0;
+};
+void encode_header(const DataHeader& h, unsigned char out[kDataHeader]);
+DataHeader decode_header(const unsigned char in[kDataHeader]);
+
+}  // namespace lcmx::bridge::wire

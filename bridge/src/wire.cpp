@@ -1,0 +1,122 @@
+#include "lcmx/bridge/detail/wire.hpp"
+
+#include <charconv>
+#include <cstdio>
+
+namespace lcmx::bridge::wire {
+namespace {
+
+constexpr std::size_t kMaxLines = 200000;
+
+bool valid_word(std::string_view s, std::size_t max) {
+  if (s.empty() || s.size() > max) return false;
+  for (unsigned char c : s)
+    if (c <= ' ' || c == 0x7f) return false;
+  return true;
+}
+
+template <class T>
+bool parse_num(std::string_view s, T& out, int base = 10) {
+  if (s.empty()) return false;
+  auto [p, ec] = std::from_chars(s.data(), s.data() + s.size(), out, base);
+  return ec == std::errc() && p == s.data() + s.size();
+}
+
+}  // namespace
+
+bool valid_topic(std::string_view t) { return valid_word(t, kMaxTopic); }
+
+std::string encode(const Control& c) {
+  std::string s = c.kind == Control::Kind::ping ? "LCMXB1 PING\n" : "LCMXB1 PONG\n";
+  char hex[32];
+  std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(c.instance));
+  s += "from " + c.from + "\ninstance " + hex + "\nlink " + c.link + "\nt " + std::to_string(c.t_ns) + "\n";
+  if (c.kind == Control::Kind::ping) {
+    if (c.active) s += "active\n";
+    if (c.has_demand) {
+      s += "control " + std::to_string(c.control_port) + "\n";
+      for (const auto& [name, port] : c.channels) s += "channel " + name + " " + std::to_string(port) + "\n";
+      s += "demand\n";
+      for (const auto& t : c.want) s += "want " + t + "\n";
+      for (const auto& t : c.offer) s += "offer " + t + "\n";
+    }
+  }
+  return s;
+}
+
+std::optional<Control> decode(std::string_view f) {
+  if (f.size() > kMaxControlFrame) return std::nullopt;
+  Control c;
+  std::size_t pos = 0, lines = 0;
+  bool first = true, have_from = false, have_instance = false, have_link = false, have_t = false;
+  while (pos < f.size()) {
+    if (++lines > kMaxLines) return std::nullopt;
+    const auto nl = f.find('\n', pos);
+    const std::string_view line = f.substr(pos, nl == std::string_view::npos ? std::string_view::npos : nl - pos);
+    pos = nl == std::string_view::npos ? f.size() : nl + 1;
+    if (first) {
+      if (line == "LCMXB1 PING") c.kind = Control::Kind::ping;
+      else if (line == "LCMXB1 PONG") c.kind = Control::Kind::pong;
+      else return std::nullopt;
+      first = false;
+      continue;
+    }
+    const auto sp = line.find(' ');
+    const std::string_view key = line.substr(0, sp);
+    const std::string_view val = sp == std::string_view::npos ? std::string_view{} : line.substr(sp + 1);
+    if (key == "from") {
+      if (!valid_word(val, 32)) return std::nullopt;
+      c.from = val, have_from = true;
+    } else if (key == "instance") {
+      if (val.size() != 16 || !parse_num(val, c.instance, 16)) return std::nullopt;
+      have_instance = true;
+    } else if (key == "link") {
+      if (!valid_word(val, 32)) return std::nullopt;
+      c.link = val, have_link = true;
+    } else if (key == "t") {
+      if (!parse_num(val, c.t_ns)) return std::nullopt;
+      have_t = true;
+    } else if (c.kind != Control::Kind::ping) {
+      return std::nullopt;
+    } else if (key == "control") {
+      if (!parse_num(val, c.control_port) || c.control_port < 1 || c.control_port > 65535) return std::nullopt;
+    } else if (key == "channel") {
+      const auto sp2 = val.find(' ');
+      if (sp2 == std::string_view::npos) return std::nullopt;
+      int port = 0;
+      if (!valid_word(val.substr(0, sp2), 32) || !parse_num(val.substr(sp2 + 1), port) || port < 1 || port > 65535)
+        return std::nullopt;
+      if (c.channels.size() >= 256) return std::nullopt;
+      c.channels.emplace_back(std::string(val.substr(0, sp2)), port);
+    } else if (key == "active" && val.empty()) {
+      c.active = true;
+    } else if (key == "demand" && val.empty()) {
+      c.has_demand = true;
+    } else if ((key == "want" || key == "offer") && c.has_demand) {
+      if (!valid_topic(val)) return std::nullopt;
+      (key == "want" ? c.want : c.offer).emplace(val);
+    } else {
+      return std::nullopt;
+    }
+  }
+  if (first || !have_from || !have_instance || !have_link || !have_t) return std::nullopt;
+  return c;
+}
+
+void encode_header(const DataHeader& h, unsigned char out[kDataHeader]) {
+  for (int i = 0; i < 8; ++i) {
+    out[i] = static_cast<unsigned char>(h.instance >> (8 * i));
+    out[8 + i] = static_cast<unsigned char>(h.seq >> (8 * i));
+  }
+}
+
+DataHeader decode_header(const unsigned char in[kDataHeader]) {
+  DataHeader h;
+  for (int i = 0; i < 8; ++i) {
+    h.instance |= std::uint64_t{in[i]} << (8 * i);
+    h.seq |= std::uint64_t{in[8 + i]} << (8 * i);
+  }
+  return h;
+}
+
+}  // namespace lcmx::bridge::wire

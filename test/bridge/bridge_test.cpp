@@ -1,0 +1,672 @@
+// Message Bridge across emulated hosts (DESIGN.md "Message Bridge", issue 4 "Tests"): real
+// `lcmx bridge` daemons, lcmx_test_peer subscribers and a driven publisher
+// (lcmx_bridge_test_pub) in network namespaces joined by two links, "pcie" and "eth". No
+// vehicle group: everything that crosses hosts here goes through the bridges, so the veth
+// byte counters measure the bridge alone.
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "lcmx/test/netns.hpp"
+#include "lcmx/test/watchdog.hpp"
+#include "support.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+using lcmx::it::Child;
+using lcmx::it::Clock;
+using lcmx::it::ms;
+using lcmx::it::Summary;
+namespace fs = std::filesystem;
+
+#define BRIDGE_REQUIRE_NETNS()                               \
+  do {                                                       \
+    std::string why_;                                        \
+    if (!lcmx::test::netns_available(&why_)) {              \
+      WARN("skipped: no network namespaces here: " << why_); \
+      return;                                                \
+    }                                                        \
+  } while (0)
+
+const char* kHostNames[] = {"chipA", "chipB", "chipC", "chipD"};
+
+struct BridgeOpts {
+  std::string channels;  // [[channel]] tables ("" = default channel)
+  std::string extra;     // more top-level keys
+  bool curve = false;
+  std::string own_key = "";                  // key file prefix of this bridge (curve)
+  std::map<int, std::string> peer_keys = {};  // host -> key file prefix it expects (curve)
+};
+
+// One test's world: hosts (namespaces), links, a temp folder for configs and keys, a
+// discovery group of its own, every child killed and shm cleaned on every exit path.
+class World {
+ public:
+  World(int hosts, int index, std::vector<lcmx::test::LinkSpec> links, ms timeout = 40000ms)
+      : index_(index),
+        watchdog_(timeout, "bridge test " + std::to_string(index)),
+        emu_(lcmx::test::Emulation::create({.hosts = hosts, .links = std::move(links)})),
+        discovery_url(lcmx::it::unique_url(index)) {
+    std::string t = (fs::temp_directory_path() / "lcmx_bridge_test_XXXXXX").string();
+    REQUIRE(::mkdtemp(t.data()) != nullptr);
+    dir = t;
+  }
+  World(const World&) = delete;
+  World& operator=(const World&) = delete;
+  ~World() {
+    std::vector<pid_t> pids;
+    for (auto& c : children_) pids.push_back(c->started_pid());
+    children_.clear();
+    for (auto p : pids) lcmx::it::remove_shm_of(p);
+    std::error_code ec;
+    fs::remove_all(dir, ec);
+  }
+
+  lcmx::test::Emulation& emu() { return emu_; }
+
+  std::string channel(const std::string& base) const {
+    return "BR_" + base + "_" + std::to_string(::getpid()) + "_" + std::to_string(index_);
+  }
+
+  std::vector<std::string> env() const {
+    return {"LCMX_DISCOVERY_URL=" + discovery_url, "LCMX_VEHICLE_URL", "LCMX_BEACON_PERIOD_MS=100",
+            "LCMX_LEASE_MS=800", "SPDLOG_LEVEL=info"};
+  }
+
+  Child& spawn(int host, std::vector<std::string> argv, bool merge_stderr = false) {
+    argv.insert(argv.begin(), {LCMX_IP, "netns", "exec", emu_.ns(host)});
+    auto c = std::make_unique<Child>(argv, env(), merge_stderr);
+    c->set_started();
+    children_.push_back(std::move(c));
+    return *children_.back();
+  }
+
+  // Writes host `host`'s bridge config: peers = `peers` (every link, in the emulation's order).
+  std::string write_config(int host, const std::vector<int>& peers, const BridgeOpts& o = {}) {
+    std::ostringstream s;
+    s << "name = \"" << kHostNames[host] << "\"\nlisten = [";
+    for (std::size_t i = 0; i < emu_.links().size(); ++i)
+      s << (i ? ", " : "") << "\"" << emu_.address(host, emu_.links()[i].name) << "\"";
+    s << "]\ncontrol_port = 7700\nheartbeat_ms = 50\nlink_timeout_ms = 300\nfailback_hold_ms = 600\n"
+      << "status_period_ms = 200\n"
+      << o.extra << "\n"
+      << o.channels << "\n";
+    for (int p : peers) {
+      s << "[[peer]]\nname = \"" << kHostNames[p] << "\"\nendpoints = [";
+      for (std::size_t i = 0; i < emu_.links().size(); ++i)
+        s << (i ? ", " : "") << "{ link = \"" << emu_.links()[i].name << "\", address = \""
+          << emu_.address(p, emu_.links()[i].name) << "\" }";
+      s << "]\n";
+      if (o.curve) {
+        auto it = o.peer_keys.find(p);
+        s << "public_key_file = \"" << (it != o.peer_keys.end() ? it->second : std::string(kHostNames[p])) << ".pub\"\n";
+      }
+    }
+    if (o.curve) {
+      const std::string own = o.own_key.empty() ? kHostNames[host] : o.own_key;
+      s << "[security]\ncurve = true\nsecret_key_file = \"" << own << ".key\"\npublic_key_file = \"" << own << ".pub\"\n";
+    }
+    const auto path = dir / (std::string(kHostNames[host]) + ".toml");
+    std::ofstream(path) << s.str();
+    return path.string();
+  }
+
+  // Starts the bridge of `host` and waits for its "ready" line.
+  Child& bridge(int host, const std::vector<int>& peers, const BridgeOpts& o = {}) {
+    const auto cfg = write_config(host, peers, o);
+    Child& b = spawn(host, {LCMX_TOOL, "bridge", "--config", cfg}, true);
+    const auto ready = b.expect("bridge " + std::string(kHostNames[host]) + ": ready", 10000ms);
+    INFO(b.output());
+    REQUIRE(ready);
+    return b;
+  }
+
+  // A subscriber (lcmx_test_peer sub --type bench) on `host`.
+  Child& sub(int host, const std::vector<std::string>& channels, std::vector<std::string> extra = {}) {
+    std::vector<std::string> a = {LCMX_TEST_PEER, "sub", "--type", "bench", "--queue-depth", "4096",
+                                  "--timeout-ms", "45000"};
+    for (const auto& c : channels) a.insert(a.end(), {"--channel", c});
+    a.insert(a.end(), extra.begin(), extra.end());
+    Child& s = spawn(host, a);
+    REQUIRE(s.expect("READY", 10000ms));
+    return s;
+  }
+
+  // A driven publisher (lcmx_bridge_test_pub) on `host`.
+  Child& pub(int host, const std::string& channel, std::size_t size, const std::string& id) {
+    Child& p = spawn(host, {LCMX_BRIDGE_PUB, "--channel", channel, "--size", std::to_string(size), "--id", id});
+    REQUIRE(p.expect("READY", 10000ms));
+    return p;
+  }
+
+  void keygen(const std::string& prefix) {
+    auto& k = spawn(0, {LCMX_TOOL, "bridge", "keygen", "--out", (dir / prefix).string()}, true);
+    REQUIRE(k.wait(10000ms) == 0);
+  }
+
+  const int index_;
+
+ private:
+  lcmx::test::Watchdog watchdog_;
+  lcmx::test::Emulation emu_;
+
+ public:
+  const std::string discovery_url;
+  fs::path dir;
+
+ private:
+  std::vector<std::unique_ptr<Child>> children_;
+};
+
+
+// The latest summary of `channel` from a subscriber ("status").
+Summary status_of(Child& sub, const std::string& channel) {
+  for (const auto& s : sub.summaries("status", 10000ms))
+    if (s.str("channel") == channel) return s;
+  FAIL("no summary for " << channel << "\n" << sub.output());
+  return {};
+}
+
+// Waits until `pred(summary)` holds (deadline); returns the last summary and whether it held.
+std::pair<Summary, bool> wait_sub(Child& sub, const std::string& channel, const std::function<bool(const Summary&)>& pred,
+                                  ms timeout) {
+  const auto deadline = Clock::now() + timeout;
+  for (;;) {
+    auto s = status_of(sub, channel);
+    if (pred(s)) return {s, true};
+    if (Clock::now() >= deadline) return {s, false};
+    std::this_thread::sleep_for(20ms);  // polling a condition with a deadline
+  }
+}
+
+// Reads a child's output until a line contains `needle` (true) or the deadline passes.
+bool log_has(Child& c, const std::string& needle, ms timeout) {
+  if (c.text().find(needle) != std::string::npos) return true;
+  const auto deadline = Clock::now() + timeout;
+  while (auto line = c.read_line(std::chrono::duration_cast<ms>(std::max<Clock::duration>(0ms, deadline - Clock::now()))))
+    if (line->find(needle) != std::string::npos) return true;
+  return false;
+}
+
+#define REQUIRE_LOG(child, needle, timeout)              \
+  do {                                                     \
+    const bool found_ = log_has((child), (needle), (timeout)); \
+    INFO("waited for \"" << (needle) << "\" in:\n" << (child).text()); \
+    REQUIRE(found_);                                       \
+  } while (0)
+
+std::string pub_cmd(long n, double rate) { return "pub " + std::to_string(n) + " " + std::to_string(rate); }
+
+long long published_total(Child& pub, ms timeout = 20000ms) {
+  auto line = pub.expect("PUBLISHED", timeout);
+  INFO(pub.output());
+  REQUIRE(line);
+  return std::stoll(line->substr(10));
+}
+
+// Publishes single messages until every subscriber has received one (the whole chain —
+// discovery, demand, subscription, republisher, matching — is up); returns messages published.
+long long warm_up(Child& pub, std::vector<Child*> subs, const std::string& channel, ms timeout = 15000ms) {
+  const auto deadline = Clock::now() + timeout;
+  long long sent = 0;
+  for (;;) {
+    pub.send(pub_cmd(1, 0));
+    sent = published_total(pub);
+    bool all = true;
+    for (auto* s : subs) all = all && status_of(*s, channel).num("received") > 0;
+    if (all) return sent;
+    if (Clock::now() >= deadline) {
+      for (auto* s : subs) UNSCOPED_INFO("subscriber:\n" << s->output());
+      FAIL("the bridge chain did not come up within " << timeout.count() << " ms");
+    }
+    std::this_thread::sleep_for(50ms);  // a new probe message per poll
+  }
+}
+
+void check_clean(const Summary& s) {
+  CHECK(s.num("duplicates") == 0);
+  CHECK(s.num("out_of_order") == 0);
+  CHECK(s.num("bad_content") == 0);
+  CHECK(s.num("decode_errors") == 0);
+}
+
+// Two or four subscribers on host B, publisher on host A: every message crosses the link once.
+void one_transmission_per_message(int index, int subscribers) {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, index, {{.name = "eth"}});
+  const auto ch = w.channel("ONCE");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  std::vector<Child*> subs;
+  for (int i = 0; i < subscribers; ++i) subs.push_back(&w.sub(1, {ch}));
+  constexpr std::size_t kSize = 200000;  // large: above the 65000-byte UDP limit
+  auto& pub = w.pub(0, ch, kSize, "A");
+  const long long warm = warm_up(pub, subs, ch);
+
+  // Let the warm-up traffic drain, then measure N messages.
+  // (Probes published before a subscriber matched the bridge's republisher are not delivered.)
+  std::vector<long long> before;
+  for (auto* s : subs) {
+    auto [st, ok] = wait_sub(*s, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms);
+    REQUIRE(ok);
+    before.push_back(st.num("received"));
+  }
+  constexpr long kN = 60;
+  const auto tx0 = w.emu().tx_bytes(0, "eth");
+  const auto t0 = Clock::now();
+  pub.send(pub_cmd(kN, 100));
+  REQUIRE(published_total(pub) == warm + kN);
+  for (std::size_t i = 0; i < subs.size(); ++i) {
+    auto* s = subs[i];
+    auto [st, ok] = wait_sub(*s, ch, [&](const Summary& x) { return x.num("received") == before[i] + kN; }, 10000ms);
+    INFO("subscriber:\n" << s->output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+    REQUIRE(ok);
+    check_clean(st);
+    CHECK(st.num("last") == warm + kN - 1);
+    CHECK(st.str("paths") == "bridge");
+  }
+  const auto tx = w.emu().tx_bytes(0, "eth") - tx0;
+  const double secs = std::chrono::duration<double>(Clock::now() - t0).count();
+  // Payload: the LCM encoding of bench_t (8 fingerprint + 8 + 8 + 4 + data) plus the bridge's
+  // frames (topic, 16-byte header). Protocol overhead: TCP/IP/Ethernet headers per segment
+  // (66 bytes per 1448-byte segment at most, far fewer with segmentation offload), ZMTP
+  // framing, heartbeats of both bridges (< 200 bytes every 50 ms per link) and ARP.
+  const double payload = static_cast<double>(kN) * (kSize + 28 + ch.size() + 16);
+  const double overhead = static_cast<double>(kN) * std::ceil(static_cast<double>(kSize) / 1448.0) * 66.0 +
+                          secs * 20 * 2 * 400 + 4096;
+  INFO("tx bytes on A's link: " << tx << " for " << kN << " messages of " << kSize << " bytes to " << subscribers
+                                << " subscribers: " << tx / static_cast<double>(kN) << " per message, ratio "
+                                << tx / payload);
+  CHECK(static_cast<double>(tx) >= payload);               // it did cross this link
+  CHECK(static_cast<double>(tx) <= 1.01 * payload + overhead);  // once, not once per subscriber
+  pub.send("quit");
+}
+
+}  // namespace
+
+TEST_CASE("two subscribers on host B cost one transmission per message on the link", "[bridge][multihost]") {
+  one_transmission_per_message(1, 2);
+}
+
+TEST_CASE("four subscribers on host B cost one transmission per message on the link", "[bridge][multihost]") {
+  one_transmission_per_message(2, 4);
+}
+
+namespace {
+
+// "A:12,C:5" -> {A: 12, C: 5}
+std::map<std::string, long long> sources_of(const Summary& s) {
+  std::map<std::string, long long> out;
+  std::istringstream in(s.str("sources"));
+  for (std::string item; std::getline(in, item, ',');)
+    if (const auto c = item.find(':'); c != std::string::npos) out[item.substr(0, c)] = std::stoll(item.substr(c + 1));
+  return out;
+}
+
+long long rss_kib(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  for (std::string line; std::getline(in, line);)
+    if (line.rfind("VmRSS:", 0) == 0) return std::stoll(line.substr(6));
+  return -1;
+}
+
+// Runs `lcmx bridge status` in `host` and returns its output.
+std::string bridge_status(World& w, int host) {
+  auto& c = w.spawn(host, {LCMX_TOOL, "bridge", "status", "--wait", "5000"}, true);
+  const int rc = c.wait(10000ms);
+  INFO(c.text());
+  CHECK(rc == 0);
+  return c.text();
+}
+
+}  // namespace
+
+TEST_CASE("three hosts, publishers on A and C, subscribers on B and C: no loops, no duplicates, in order",
+          "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(3, 3, {{.name = "eth"}});
+  const auto ch = w.channel("MESH");
+  auto& ba = w.bridge(0, {1, 2});
+  auto& bb = w.bridge(1, {0, 2});
+  auto& bc = w.bridge(2, {0, 1});
+  auto& sub_b = w.sub(1, {ch});
+  auto& sub_c = w.sub(2, {ch});
+  constexpr std::size_t kSize = 100000;
+  auto& pa = w.pub(0, ch, kSize, "A");
+  auto& pc = w.pub(2, ch, kSize, "C");
+
+  // Warm up: probes from both publishers until both subscribers have heard from both.
+  const auto deadline = Clock::now() + 15000ms;
+  long long na = 0, nc = 0;
+  for (;;) {
+    pa.send(pub_cmd(1, 0));
+    pc.send(pub_cmd(1, 0));
+    na = published_total(pa);
+    nc = published_total(pc);
+    const auto sb = sources_of(status_of(sub_b, ch)), sc = sources_of(status_of(sub_c, ch));
+    if (sb.count("A") && sb.count("C") && sc.count("A") && sc.count("C")) break;
+    INFO("B: " << ba.output() << "\nC: " << bc.output() << "\nsub B: " << sub_b.output() << "\nsub C: " << sub_c.output());
+    REQUIRE(Clock::now() < deadline);
+    std::this_thread::sleep_for(50ms);  // a new probe per poll
+  }
+  // Settle: the last probes arrived everywhere.
+  auto settled = [&](const Summary& s) {
+    const auto src = sources_of(s);
+    return s.num("last") >= std::min(na, nc) - 1 && src.count("A") && src.count("C");
+  };
+  REQUIRE(wait_sub(sub_b, ch, settled, 5000ms).second);
+  REQUIRE(wait_sub(sub_c, ch, settled, 5000ms).second);
+  const auto b0 = sources_of(status_of(sub_b, ch)), c0 = sources_of(status_of(sub_c, ch));
+
+  constexpr long kN = 80;
+  const auto txa0 = w.emu().tx_bytes(0, "eth"), txc0 = w.emu().tx_bytes(2, "eth");
+  pa.send(pub_cmd(kN, 100));
+  pc.send(pub_cmd(kN, 100));
+  REQUIRE(published_total(pa) == na + kN);
+  REQUIRE(published_total(pc) == nc + kN);
+  for (auto* s : {&sub_b, &sub_c}) {
+    const auto& base = s == &sub_b ? b0 : c0;
+    auto [st, ok] = wait_sub(*s, ch, [&](const Summary& x) {
+      const auto src = sources_of(x);
+      return src.count("A") && src.count("C") && src.at("A") >= base.at("A") + kN && src.at("C") >= base.at("C") + kN;
+    }, 10000ms);
+    INFO((s == &sub_b ? "subscriber on B" : "subscriber on C") << ":\n" << s->output() << "\nbridge A:\n" << ba.output()
+                                                                 << "\nbridge B:\n" << bb.output() << "\nbridge C:\n"
+                                                                 << bc.output());
+    REQUIRE(ok);
+    check_clean(st);
+    const auto src = sources_of(st);
+    CHECK(src.at("A") == base.at("A") + kN);  // exactly once each: no loop brought a second copy
+    CHECK(src.at("C") == base.at("C") + kN);
+  }
+  // Bytes: A sends each message once to B and once to C; C sends its own once (to B), never
+  // A's that it republished.
+  const double per = static_cast<double>(kSize + 28 + ch.size() + 16);
+  const auto txa = w.emu().tx_bytes(0, "eth") - txa0, txc = w.emu().tx_bytes(2, "eth") - txc0;
+  INFO("A sent " << txa << " bytes, C sent " << txc << " for " << kN << " messages of " << per << " each");
+  CHECK(static_cast<double>(txa) >= 2 * kN * per);
+  CHECK(static_cast<double>(txa) <= 2 * kN * per * 1.06 + 200000);
+  CHECK(static_cast<double>(txc) >= kN * per);
+  CHECK(static_cast<double>(txc) <= kN * per * 1.06 + 200000);
+}
+
+TEST_CASE("a peer bridge killed (SIGKILL) and restarted: traffic resumes, no duplicates", "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, 4, {{.name = "eth"}});
+  const auto ch = w.channel("RESTART");
+  Child* ba = &w.bridge(0, {1});
+  Child* bb = &w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 80000, "A");
+  warm_up(pub, {&sub}, ch);
+  pub.send(pub_cmd(100000, 50));  // runs in the background for the rest of the test
+
+  auto resumes = [&](const std::string& what) {
+    const long long r0 = status_of(sub, ch).num("received");
+    auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= r0 + 25; }, 10000ms);
+    INFO(what << ": subscriber:\n" << sub.output() << "\nbridge A:\n" << ba->output() << "\nbridge B:\n" << bb->output());
+    REQUIRE(ok);
+    check_clean(st);
+  };
+  resumes("before any kill");
+  bb->kill9();  // the receiving side
+  bb = &w.bridge(1, {0});
+  resumes("after B's bridge was killed and restarted");
+  ba->kill9();  // the serving side
+  ba = &w.bridge(0, {1});
+  resumes("after A's bridge was killed and restarted");
+  CHECK(log_has(*bb, "peer chipA restarted", 5000ms));
+  // SIGTERM: a clean exit (0), and the subscriber hears the republisher's goodbye at once
+  // (well before the 800 ms lease).
+  const auto t_term = Clock::now();
+  bb->signal(SIGTERM);
+  CHECK(bb->wait(5000ms) == 0);
+  REQUIRE(log_has(sub, "EVENT publisher_unmatched", 3000ms));
+  CHECK(Clock::now() - t_term < 2000ms);
+  ba->signal(SIGINT);
+  CHECK(ba->wait(5000ms) == 0);
+}
+
+TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to eth and back",
+          "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, 5, {{.name = "pcie"}, {.name = "eth"}});
+  const auto ch = w.channel("FAILOVER");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  constexpr std::size_t kSize = 100000;
+  auto& pub = w.pub(0, ch, kSize, "A");
+  warm_up(pub, {&sub}, ch);
+  pub.send(pub_cmd(100000, 50));  // in the background for the rest of the test
+  INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output() << "\nsubscriber:\n" << sub.output());
+
+  // Bytes A sends on each link while B receives `n` more messages.
+  struct Window {
+    std::uint64_t pcie, eth;
+  };
+  auto window = [&](long n) {
+    const long long r0 = status_of(sub, ch).num("received");
+    const auto p0 = w.emu().tx_bytes(0, "pcie"), e0 = w.emu().tx_bytes(0, "eth");
+    auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= r0 + n; }, 10000ms);
+    REQUIRE(ok);
+    return Window{w.emu().tx_bytes(0, "pcie") - p0, w.emu().tx_bytes(0, "eth") - e0};
+  };
+  const double data = 20.0 * kSize;
+
+  // pcie preferred: the data goes there.
+  REQUIRE_LOG(ba, "peer chipB: active link pcie", 5000ms);
+  auto w1 = window(20);
+  CHECK(static_cast<double>(w1.pcie) >= 0.8 * data);  // (a message may be in flight at either end)
+  CHECK(static_cast<double>(w1.eth) < 0.05 * data);
+
+  // pcie down: data moves to eth within about link_timeout + heartbeat.
+  const auto t_down = Clock::now();
+  w.emu().set_link_up(0, "pcie", false);
+  const long long r_down = status_of(sub, ch).num("received");
+  REQUIRE_LOG(ba, "peer chipB: active link eth", 5000ms);
+  REQUIRE(wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") > r_down + 1; }, 5000ms).second);
+  const auto failover = std::chrono::duration_cast<ms>(Clock::now() - t_down);
+  INFO("failover took " << failover.count() << " ms");
+  CHECK(failover < 2500ms);  // link_timeout 300 + heartbeat 50 + reconnect, with margin for a loaded machine
+  auto w2 = window(20);
+  CHECK(static_cast<double>(w2.eth) >= 0.8 * data);
+  CHECK(w2.pcie < 20000u);
+
+  // pcie up again: back to pcie after the hold-down.
+  w.emu().set_link_up(0, "pcie", true);
+  REQUIRE_LOG(ba, "(was eth)", 8000ms);  // "peer chipB: active link pcie (<address>) (was eth)"
+  window(5);  // whatever was queued on eth drains
+  auto w3 = window(20);
+  CHECK(static_cast<double>(w3.pcie) >= 0.8 * data);
+  CHECK(static_cast<double>(w3.eth) < 0.05 * data);
+
+  const auto st = status_of(sub, ch);
+  check_clean(st);
+  // lcmx bridge status on A shows the peer, its active link and per-link bytes.
+  const auto out = bridge_status(w, 0);
+  CHECK(out.find("bridge chipA") != std::string::npos);
+  CHECK(out.find("peer chipB  UP  active link pcie  failovers 2") != std::string::npos);
+  CHECK(out.find("pcie      " + w.emu().address(1, "pcie")) != std::string::npos);
+  CHECK(out.find("eth       " + w.emu().address(1, "eth")) != std::string::npos);
+  // lcmx topics on B shows the bridged pair; lcmx nodes marks the bridge.
+  auto& topics = w.spawn(1, {LCMX_TOOL, "topics", "--wait", "800"}, true);
+  REQUIRE(topics.wait(10000ms) == 0);
+  INFO(topics.text());
+  CHECK(topics.text().find("path bridge") != std::string::npos);
+  auto& nodes = w.spawn(1, {LCMX_TOOL, "nodes", "--wait", "800"}, true);
+  REQUIRE(nodes.wait(10000ms) == 0);
+  INFO(nodes.text());
+  CHECK(nodes.text().find("MESSAGE BRIDGE") != std::string::npos);
+}
+
+TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's other peer C nor A's memory",
+          "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(3, 6, {{.name = "eth"}});
+  const auto ch = w.channel("SLOW");
+  const BridgeOpts o{.channels = "[[channel]]\nname = \"bulk\"\nport = 7701\nhwm = 4\ntopics = [\"*\"]\n"};
+  auto& ba = w.bridge(0, {1, 2}, o);
+  auto& bb = w.bridge(1, {0, 2}, o);
+  w.bridge(2, {0, 1}, o);
+  auto& sub_b = w.sub(1, {ch});
+  auto& sub_c = w.sub(2, {ch});
+  constexpr std::size_t kSize = 200000;
+  auto& pub = w.pub(0, ch, kSize, "A");
+  const long long warm = warm_up(pub, {&sub_b, &sub_c}, ch);
+  REQUIRE(wait_sub(sub_c, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms).second);
+  const long long c0 = status_of(sub_c, ch).num("received");
+  const long long b0 = status_of(sub_b, ch).num("received");
+
+  sub_b.signal(SIGSTOP);
+  bb.signal(SIGSTOP);
+  const long long rss0 = rss_kib(ba.pid());
+  constexpr long kN = 300;  // 60 MB: far more than the stopped peer's queues may hold
+  pub.send(pub_cmd(kN, 100));
+  REQUIRE(published_total(pub) == warm + kN);
+  auto [st, ok] = wait_sub(sub_c, ch, [&](const Summary& x) { return x.num("received") >= c0 + kN; }, 10000ms);
+  INFO("subscriber on C:\n" << sub_c.output() << "\nbridge A:\n" << ba.output());
+  REQUIRE(ok);
+  CHECK(st.num("received") == c0 + kN);  // C lost nothing while B was stopped
+  CHECK(st.num("last") == warm + kN - 1);
+  check_clean(st);
+  const long long rss1 = rss_kib(ba.pid());
+  INFO("bridge A RSS " << rss0 << " KiB -> " << rss1 << " KiB");
+  CHECK(rss1 - rss0 < 24 * 1024);  // hwm 4 x 200 KB queued for B + buffers; 60 MB if unbounded
+  CHECK(log_has(ba, "to chipB dropped on channel bulk", 5000ms));
+
+  // B comes back and receives again.
+  bb.signal(SIGCONT);
+  sub_b.signal(SIGCONT);
+  pub.send(pub_cmd(100000, 50));
+  auto [sb, okb] = wait_sub(sub_b, ch, [&](const Summary& x) { return x.num("received") >= b0 + 20; }, 10000ms);
+  INFO("subscriber on B:\n" << sub_b.output() << "\nbridge B:\n" << bb.output());
+  CHECK(okb);
+  check_clean(sb);
+}
+
+TEST_CASE("CURVE: a peer with the wrong key is refused and logged, with the right keys traffic passes",
+          "[bridge][multihost][curve]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, 7, {{.name = "eth"}});
+  for (const char* k : {"chipA", "chipB", "intruder"}) w.keygen(k);
+  const auto ch = w.channel("CURVE");
+  auto& ba = w.bridge(0, {1}, {.curve = true});
+  // B uses a key pair A does not know.
+  Child* bb = &w.bridge(1, {0}, {.curve = true, .own_key = "intruder"});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 80000, "A");
+  const std::string refused = "refused a CURVE connection from " + w.emu().address(1, "eth");
+  {
+    INFO("bridge A:\n" << ba.output());
+    CHECK(log_has(ba, refused, 5000ms));
+  }
+  pub.send(pub_cmd(20, 50));
+  published_total(pub);
+  CHECK(status_of(sub, ch).num("received") == 0);
+  CHECK(!log_has(*bb, "link eth to chipA", 0ms));  // never up
+
+  // The right key: the link comes up and data passes, encrypted.
+  bb->kill9();
+  bb = &w.bridge(1, {0}, {.curve = true});
+  warm_up(pub, {&sub}, ch);
+  const long long r0 = status_of(sub, ch).num("received");
+  pub.send(pub_cmd(20, 100));
+  published_total(pub);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= r0 + 20; }, 10000ms);
+  INFO("bridge B:\n" << bb->output());
+  CHECK(ok);
+  check_clean(st);
+  CHECK(bridge_status(w, 1).find("CURVE") != std::string::npos);
+}
+
+TEST_CASE("lcmx bridge --check: good config 0, bad config 2 with the key named, and the daemon refuses a bad one too",
+          "[bridge][cli]") {
+  std::string t = (fs::temp_directory_path() / "lcmx_bridge_cli_XXXXXX").string();
+  REQUIRE(::mkdtemp(t.data()) != nullptr);
+  const fs::path dir = t;
+  struct Cleanup {
+    fs::path p;
+    ~Cleanup() {
+      std::error_code ec;
+      fs::remove_all(p, ec);
+    }
+  } cleanup{dir};
+  std::ofstream(dir / "good.toml") << "name = \"a\"\nlisten = [\"127.0.0.1\"]\ncontrol_port = 7700\n";
+  std::ofstream(dir / "bad.toml") << "name = \"a\"\nlisten = [\"127.0.0.1\"]\ncontrol_port = 7700\n[[channel]]\n"
+                                     "name = \"c\"\nport = 7701\ndrop = \"sometimes\"\n";
+  auto run = [](std::vector<std::string> argv) {
+    Child c(argv, {"LCMX_VEHICLE_URL"}, true);
+    const int rc = c.wait(10000ms);
+    return std::pair{rc, c.text()};
+  };
+  auto [rc_good, out_good] = run({LCMX_TOOL, "bridge", "--config", (dir / "good.toml").string(), "--check"});
+  INFO(out_good);
+  CHECK(rc_good == 0);
+  auto [rc_bad, out_bad] = run({LCMX_TOOL, "bridge", "--config", (dir / "bad.toml").string(), "--check"});
+  INFO(out_bad);
+  CHECK(rc_bad == 2);
+  CHECK(out_bad.find((dir / "bad.toml").string() + ": channel[0].drop: must be \"oldest\" or \"newest\"") !=
+        std::string::npos);
+  auto [rc_run, out_run] = run({LCMX_TOOL, "bridge", "--config", (dir / "bad.toml").string()});
+  INFO(out_run);
+  CHECK(rc_run == 2);
+  auto [rc_missing, out_missing] = run({LCMX_TOOL, "bridge", "--config", (dir / "none.toml").string(), "--check"});
+  CHECK(rc_missing == 2);
+  CHECK(out_missing.find("cannot read") != std::string::npos);
+}
+
+TEST_CASE("channels: 6 MB images on bulk do not cost a pose on control, and carry bridges a small topic",
+          "[bridge][multihost]") {
+  BRIDGE_REQUIRE_NETNS();
+  World w(2, 8, {{.name = "eth"}});
+  const auto pose = w.channel("POSE"), image = w.channel("IMAGE");
+  const BridgeOpts o{.channels = "[[channel]]\nname = \"control\"\nport = 7701\npriority = 1\nhwm = 100\n"
+                                 "topics = [\"BR_POSE*\"]\n"
+                                 "[[channel]]\nname = \"bulk\"\nport = 7702\nhwm = 2\ntopics = [\"*\"]\n",
+                     .extra = "carry = [\"BR_POSE*\"]\n"};
+  auto& ba = w.bridge(0, {1}, o);
+  w.bridge(1, {0}, o);
+  auto& sub = w.sub(1, {pose, image});
+  auto& pp = w.pub(0, pose, 200, "P");  // small, but carried
+  auto& pi = w.pub(0, image, 6u << 20, "I");
+  const long long np = warm_up(pp, {&sub}, pose);
+  const long long ni = warm_up(pi, {&sub}, image);
+  REQUIRE(wait_sub(sub, pose, [&](const Summary& x) { return x.num("last") == np - 1; }, 5000ms).second);
+  const long long p0 = status_of(sub, pose).num("received");
+
+  constexpr long kPoses = 300;
+  pp.send(pub_cmd(kPoses, 100));
+  pi.send(pub_cmd(60, 20));
+  REQUIRE(published_total(pp) == np + kPoses);
+  REQUIRE(published_total(pi) == ni + 60);
+  auto [sp, okp] = wait_sub(sub, pose, [&](const Summary& x) { return x.num("received") >= p0 + kPoses; }, 10000ms);
+  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.text());
+  REQUIRE(okp);
+  CHECK(sp.num("received") == p0 + kPoses);  // every pose, while images filled the bulk channel
+  check_clean(sp);
+  auto [si, oki] = wait_sub(sub, image, [&](const Summary& x) { return x.num("last") == ni + 59; }, 10000ms);
+  CHECK(oki);  // the newest image arrives (older ones may be dropped: hwm 2, drop oldest)
+  check_clean(si);
+
+  // Per-channel counters: poses went on control, images on bulk.
+  const auto out = bridge_status(w, 0);
+  INFO(out);
+  std::istringstream in(out);
+  long long control_sent = -1, bulk_sent = -1;
+  for (std::string line; std::getline(in, line);) {
+    std::istringstream f(line);
+    std::string name;
+    long long sent = -1;
+    f >> name >> sent;
+    if (name == "control") control_sent = sent;
+    if (name == "bulk") bulk_sent = sent;
+  }
+  CHECK(control_sent >= kPoses);
+  CHECK(bulk_sent >= 1);
+  CHECK(bulk_sent <= ni + 60);
+}

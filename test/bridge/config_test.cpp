@@ -1,0 +1,314 @@
+// Config validation (every bad key gives an error naming the file and the key), defaults,
+// channel choice, CURVE key files, and the control wire format against hostile input.
+#include <catch2/catch.hpp>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <string>
+
+#include "lcmx/bridge/config.hpp"
+#include "lcmx/bridge/detail/wire.hpp"
+
+using namespace lcmx::bridge;
+namespace fs = std::filesystem;
+
+namespace {
+
+const char* kBase = R"(
+name = "chipA"
+listen = ["10.1.0.1"]
+control_port = 7700
+)";
+
+const char* kPeer = R"(
+[[peer]]
+name = "chipB"
+endpoints = [ { link = "pcie", address = "10.1.0.2" }, { link = "eth", address = "10.0.0.2" } ]
+)";
+
+// A temporary folder of this test, removed at the end.
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    std::string t = (fs::temp_directory_path() / "lcmx_bridge_cfg_XXXXXX").string();
+    REQUIRE(::mkdtemp(t.data()) != nullptr);
+    path = t;
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+std::string error_of(const std::string& text, const fs::path& file = "/etc/lcmx/test.toml") {
+  try {
+    parse_config(text, file);
+  } catch (const ConfigError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST_CASE("the example config is valid and means what its comments say", "[bridge][config]") {
+  const auto c = load_config(LCMX_BRIDGE_EXAMPLE);
+  CHECK(c.name == "chipA");
+  CHECK(c.listen == std::vector<std::string>{"10.1.0.1", "10.0.0.1"});
+  CHECK(c.control_port == 7700);
+  CHECK(c.carry == std::vector<std::string>{"MAP_*"});
+  REQUIRE(c.channels.size() == 2);
+  CHECK(c.channels[0].name == "control");
+  CHECK(c.channels[0].priority == 1);
+  CHECK(c.channels[0].hwm == 100);
+  CHECK(c.channels[1].hwm == 4);
+  REQUIRE(c.peers.size() == 1);
+  CHECK(c.peers[0].endpoints.size() == 2);
+  CHECK(c.peers[0].endpoints[0].link == "pcie");
+  CHECK_FALSE(c.security.curve);
+  CHECK(c.channel_of("POSE") == 0u);
+  CHECK(c.channel_of("CMD_STEER") == 0u);
+  CHECK(c.channel_of("CAMERA") == 1u);
+  CHECK(c.carried("MAP_TILES"));
+  CHECK_FALSE(c.carried("CAMERA"));
+}
+
+TEST_CASE("defaults: one channel on control_port+1 for every topic", "[bridge][config]") {
+  const auto c = parse_config(std::string(kBase) + kPeer, "x.toml");
+  CHECK(c.heartbeat.count() == 100);
+  CHECK(c.link_timeout.count() == 500);
+  CHECK(c.failback_hold.count() == 1000);
+  CHECK(c.status_period.count() == 1000);
+  REQUIRE(c.channels.size() == 1);
+  CHECK(c.channels[0].name == "default");
+  CHECK(c.channels[0].port == 7701);
+  CHECK(c.channels[0].hwm == 16);
+  CHECK(c.channels[0].drop == DropPolicy::oldest);
+  CHECK(c.channel_of("ANYTHING") == 0u);
+  CHECK(c.carry.empty());
+}
+
+TEST_CASE("first matching channel wins, and a topic may match none", "[bridge][config]") {
+  const auto c = parse_config(std::string(kBase) + R"(
+[[channel]]
+name = "fast"
+port = 7710
+topics = ["POSE*"]
+[[channel]]
+name = "img"
+port = 7711
+drop = "newest"
+topics = ["CAM*", "POSE_BIG"]
+)",
+                              "x.toml");
+  CHECK(c.channel_of("POSE_BIG") == 0u);
+  CHECK(c.channel_of("CAMERA") == 1u);
+  CHECK(c.channels[1].drop == DropPolicy::newest);
+  CHECK_FALSE(c.channel_of("LIDAR").has_value());
+}
+
+TEST_CASE("every bad key is an error naming the file and the key", "[bridge][config]") {
+  struct Case {
+    const char* what;
+    std::string text;
+    std::string expect;  // substring of the message, after "<file>: "
+  };
+  const std::string b = kBase;
+  const std::vector<Case> cases = {
+      {"toml syntax", "name = \"chipA\nlisten = [", "line "},
+      {"unknown top-level key", b + "heartbeat = 100\n", "heartbeat: unknown key"},
+      {"missing name", "listen = [\"10.0.0.1\"]\ncontrol_port = 7700\n", "name: missing (required)"},
+      {"name type", "name = 3\nlisten = [\"10.0.0.1\"]\ncontrol_port = 7700\n", "name: must be a string"},
+      {"name chars", "name = \"chip A\"\nlisten = [\"10.0.0.1\"]\ncontrol_port = 7700\n", "name: must be 1 to 32"},
+      {"name too long", "name = \"" + std::string(33, 'a') + "\"\nlisten = [\"10.0.0.1\"]\ncontrol_port = 7700\n",
+       "name: must be 1 to 32"},
+      {"missing listen", "name = \"a\"\ncontrol_port = 7700\n", "listen: missing"},
+      {"empty listen", "name = \"a\"\nlisten = []\ncontrol_port = 7700\n", "listen: must list at least one"},
+      {"listen not ipv4", "name = \"a\"\nlisten = [\"chipA.local\"]\ncontrol_port = 7700\n", "listen[0]: not an IPv4"},
+      {"listen element type", "name = \"a\"\nlisten = [10]\ncontrol_port = 7700\n", "listen[0]: must be a string"},
+      {"listen duplicate", "name = \"a\"\nlisten = [\"10.0.0.1\", \"10.0.0.1\"]\ncontrol_port = 7700\n",
+       "listen[1]: duplicate"},
+      {"missing control_port", "name = \"a\"\nlisten = [\"10.0.0.1\"]\n", "control_port: missing"},
+      {"control_port range", "name = \"a\"\nlisten = [\"10.0.0.1\"]\ncontrol_port = 70000\n",
+       "control_port: must be an integer from 1 to 65535 (got 70000)"},
+      {"control_port type", "name = \"a\"\nlisten = [\"10.0.0.1\"]\ncontrol_port = \"7700\"\n",
+       "control_port: must be an integer"},
+      {"carry type", b + "carry = \"MAP_*\"\n", "carry: must be an array of strings"},
+      {"carry empty pattern", b + "carry = [\"\"]\n", "carry[0]: empty pattern"},
+      {"heartbeat range", b + "heartbeat_ms = 0\n", "heartbeat_ms: must be an integer from 10"},
+      {"link_timeout < 2 heartbeats", b + "heartbeat_ms = 100\nlink_timeout_ms = 150\n",
+       "link_timeout_ms: must be at least twice heartbeat_ms"},
+      {"failback_hold type", b + "failback_hold_ms = 1.5\n", "failback_hold_ms: must be an integer"},
+      {"status_period range", b + "status_period_ms = 10\n", "status_period_ms: must be an integer from 50"},
+      {"channel not a table array", b + "channel = 3\n", "channel: must be an array of tables"},
+      {"channel unknown key", b + "[[channel]]\nname = \"c\"\nport = 7701\nhwn = 3\n", "channel[0].hwn: unknown key"},
+      {"channel missing name", b + "[[channel]]\nport = 7701\n", "channel[0].name: missing"},
+      {"channel missing port", b + "[[channel]]\nname = \"c\"\n", "channel[0].port: missing"},
+      {"channel port = control_port", b + "[[channel]]\nname = \"c\"\nport = 7700\n",
+       "channel[0].port: port 7700 is already used"},
+      {"channel duplicate port", b + "[[channel]]\nname = \"c\"\nport = 7701\n[[channel]]\nname = \"d\"\nport = 7701\n",
+       "channel[1].port: port 7701 is already used"},
+      {"channel duplicate name", b + "[[channel]]\nname = \"c\"\nport = 7701\n[[channel]]\nname = \"c\"\nport = 7702\n",
+       "channel[1].name: duplicate channel name"},
+      {"channel priority range", b + "[[channel]]\nname = \"c\"\nport = 7701\npriority = 8\n",
+       "channel[0].priority: must be an integer from 0 to 7 (got 8)"},
+      {"channel hwm range", b + "[[channel]]\nname = \"c\"\nport = 7701\nhwm = 0\n",
+       "channel[0].hwm: must be an integer from 1 to 1000000 (got 0)"},
+      {"channel drop value", b + "[[channel]]\nname = \"c\"\nport = 7701\ndrop = \"old\"\n",
+       "channel[0].drop: must be \"oldest\" or \"newest\" (got \"old\")"},
+      {"channel topics empty", b + "[[channel]]\nname = \"c\"\nport = 7701\ntopics = []\n",
+       "channel[0].topics: must list at least one pattern"},
+      {"peer unknown key", b + "[[peer]]\nname = \"b\"\nendpoints = [{link = \"eth\", address = \"10.0.0.2\"}]\nkey = 1\n",
+       "peer[0].key: unknown key"},
+      {"peer missing name", b + "[[peer]]\nendpoints = [{link = \"eth\", address = \"10.0.0.2\"}]\n", "peer[0].name: missing"},
+      {"peer own name", b + "[[peer]]\nname = \"chipA\"\nendpoints = [{link = \"eth\", address = \"10.0.0.2\"}]\n",
+       "peer[0].name: is this bridge's own name"},
+      {"peer duplicate", b + kPeer + kPeer, "peer[1].name: duplicate peer \"chipB\""},
+      {"peer no endpoints", b + "[[peer]]\nname = \"b\"\nendpoints = []\n", "peer[0].endpoints: must list at least one"},
+      {"peer missing endpoints", b + "[[peer]]\nname = \"b\"\n", "peer[0].endpoints: must list at least one"},
+      {"endpoint unknown key", b + "[[peer]]\nname = \"b\"\nendpoints = [{link = \"eth\", addr = \"10.0.0.2\"}]\n",
+       "peer[0].endpoints[0].addr: unknown key"},
+      {"endpoint address", b + "[[peer]]\nname = \"b\"\nendpoints = [{link = \"eth\", address = \"10.0.0.256\"}]\n",
+       "peer[0].endpoints[0].address: not an IPv4 address"},
+      {"endpoint missing link", b + "[[peer]]\nname = \"b\"\nendpoints = [{address = \"10.0.0.2\"}]\n",
+       "peer[0].endpoints[0].link: missing"},
+      {"endpoint duplicate link",
+       b + "[[peer]]\nname = \"b\"\nendpoints = [{link = \"eth\", address = \"10.0.0.2\"}, {link = \"eth\", address = \"10.1.0.2\"}]\n",
+       "peer[0].endpoints[1].link: duplicate link"},
+      {"endpoint not a table", b + "[[peer]]\nname = \"b\"\nendpoints = [\"10.0.0.2\"]\n",
+       "peer[0].endpoints[0]: must be a table"},
+      {"security type", b + "security = true\n", "security: must be a table"},
+      {"security unknown key", b + "[security]\ncurve = false\nsecret = \"x\"\n", "security.secret: unknown key"},
+      {"security curve type", b + "[security]\ncurve = \"yes\"\n", "security.curve: must be true or false"},
+      {"curve without key files", b + "[security]\ncurve = true\n", "security.secret_key_file: missing (required)"},
+      {"curve key file missing", b + "[security]\ncurve = true\nsecret_key_file = \"nope.key\"\npublic_key_file = \"nope.pub\"\n",
+       "security.secret_key_file: /etc/lcmx/nope.key: cannot read"},
+  };
+  for (const auto& c : cases) {
+    INFO(c.what << "\n--- config:\n" << c.text);
+    const auto msg = error_of(c.text);
+    INFO("error: " << msg);
+    REQUIRE(!msg.empty());
+    CHECK(msg.rfind("/etc/lcmx/test.toml: ", 0) == 0);
+    CHECK(msg.find(c.expect) != std::string::npos);
+  }
+}
+
+TEST_CASE("errors give the line of the bad value", "[bridge][config]") {
+  const auto msg = error_of(std::string(kBase) + "\n\n[[channel]]\nname = \"c\"\nport = 7701\nhwm = -3\n");
+  CHECK(msg.find("channel[0].hwm: must be an integer from 1 to 1000000 (got -3) (line 10)") != std::string::npos);
+}
+
+TEST_CASE("a missing config file is a clear error", "[bridge][config]") {
+  try {
+    load_config("/nonexistent/lcmx/bridge.toml");
+    FAIL("no error");
+  } catch (const ConfigError& e) {
+    CHECK(std::string(e.what()).find("/nonexistent/lcmx/bridge.toml: cannot read") == 0);
+  }
+}
+
+TEST_CASE("CURVE keys: keygen files, config with keys, wrong pairs and bad files", "[bridge][config][curve]") {
+  if (!curve_available()) {
+    WARN("skipped: libzmq without CURVE");
+    return;
+  }
+  TempDir dir;
+  const auto a = generate_key_pair(), b = generate_key_pair();
+  CHECK(a.public_key.size() == 40);
+  CHECK(a.secret_key.size() == 40);
+  CHECK(a.public_key != b.public_key);
+  write_key_pair(dir.path / "chipA", a);
+  write_key_pair(dir.path / "chipB", b);
+  struct stat st {};
+  REQUIRE(::stat((dir.path / "chipA.key").c_str(), &st) == 0);
+  CHECK((st.st_mode & 0777) == 0600);
+  CHECK(read_key_file(dir.path / "chipA.key") == a.secret_key);
+  CHECK(read_key_file(dir.path / "chipA.pub") == a.public_key);
+  CHECK_THROWS_AS(write_key_pair(dir.path / "chipA", a), ConfigError);  // no silent overwrite
+  write_key_pair(dir.path / "chipA", a, true);
+
+  const std::string good = std::string(kBase) + kPeer + "public_key_file = \"chipB.pub\"\n" +
+                           "[security]\ncurve = true\nsecret_key_file = \"chipA.key\"\npublic_key_file = \"chipA.pub\"\n";
+  const auto c = parse_config(good, dir.path / "a.toml");  // relative to the config's folder
+  CHECK(c.security.curve);
+  CHECK(c.security.secret_key == a.secret_key);
+  CHECK(c.peers[0].public_key == b.public_key);
+
+  // A peer without its key file, a public key that is not the secret's, a corrupt key.
+  CHECK(error_of(std::string(kBase) + kPeer + "[security]\ncurve = true\nsecret_key_file = \"chipA.key\"\n" +
+                     "public_key_file = \"chipA.pub\"\n",
+                 dir.path / "a.toml")
+            .find("peer[0].public_key_file: missing (required)") != std::string::npos);
+  CHECK(error_of(std::string(kBase) + kPeer + "public_key_file = \"chipB.pub\"\n" +
+                     "[security]\ncurve = true\nsecret_key_file = \"chipA.key\"\npublic_key_file = \"chipB.pub\"\n",
+                 dir.path / "a.toml")
+            .find("security.public_key_file: does not hold the public key") != std::string::npos);
+  {
+    std::ofstream(dir.path / "bad.pub") << "# comment\nnot-a-key\n";
+  }
+  CHECK(error_of(std::string(kBase) + kPeer + "public_key_file = \"bad.pub\"\n" +
+                     "[security]\ncurve = true\nsecret_key_file = \"chipA.key\"\npublic_key_file = \"chipA.pub\"\n",
+                 dir.path / "a.toml")
+            .find("peer[0].public_key_file: " + (dir.path / "bad.pub").string() + ": not a CURVE key") !=
+        std::string::npos);
+  // Without CURVE the key files are not needed (nor read).
+  CHECK_NOTHROW(parse_config(std::string(kBase) + kPeer + "public_key_file = \"missing.pub\"\n", dir.path / "a.toml"));
+}
+
+TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[bridge][wire]") {
+  wire::Control c;
+  c.from = "chipA";
+  c.instance = 0x0123456789abcdefull;
+  c.link = "pcie";
+  c.t_ns = 42;
+  c.control_port = 7700;
+  c.channels = {{"control", 7701}, {"bulk", 7702}};
+  c.has_demand = true;
+  c.want = {"CAMERA", "POSE"};
+  c.offer = {"MAP_1"};
+  const auto text = wire::encode(c);
+  auto d = wire::decode(text);
+  REQUIRE(d);
+  CHECK(d->from == "chipA");
+  CHECK(d->instance == c.instance);
+  CHECK(d->channels == c.channels);
+  CHECK(d->want == c.want);
+  CHECK(d->offer == c.offer);
+  CHECK(d->has_demand);
+
+  CHECK_FALSE(wire::decode(""));
+  CHECK_FALSE(wire::decode("LCMXB2 PING\n"));
+  CHECK_FALSE(wire::decode("LCMXB1 PING\nfrom a\n"));                                  // fields missing
+  CHECK_FALSE(wire::decode("LCMXB1 PONG\nfrom a\ninstance 0000000000000001\nlink l\nt x\n"));
+  CHECK_FALSE(wire::decode(text + "want X\n" + "bogus 1\n"));                        // unknown key
+  CHECK_FALSE(wire::decode(text + "want " + std::string(64, 'T') + "\n"));           // topic too long
+  CHECK_FALSE(wire::decode("LCMXB1 PING\nfrom a\ninstance 1\nlink l\nt 1\n"));       // short instance
+  CHECK_FALSE(wire::decode("LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nwant X\n"));  // no demand
+  CHECK_FALSE(wire::decode(std::string(wire::kMaxControlFrame + 1, 'x')));
+  // Truncations of a valid frame never crash (and never decode to something else's fields).
+  for (std::size_t n = 0; n < text.size(); ++n) (void)wire::decode(text.substr(0, n));
+
+  // A heartbeat without the full state ("active" only) is small: the idle link stays quiet.
+  wire::Control light;
+  light.from = "chipA";
+  light.instance = c.instance;
+  light.link = "pcie";
+  light.t_ns = 1'700'000'000'000'000'000;
+  light.active = true;
+  const auto light_text = wire::encode(light);
+  CHECK(light_text.size() < 100);
+  auto l = wire::decode(light_text);
+  REQUIRE(l);
+  CHECK(l->active);
+  CHECK_FALSE(l->has_demand);
+  CHECK(l->channels.empty());
+
+  unsigned char h[wire::kDataHeader];
+  wire::encode_header({0xfedcba9876543210ull, 77}, h);
+  const auto back = wire::decode_header(h);
+  CHECK(back.instance == 0xfedcba9876543210ull);
+  CHECK(back.seq == 77u);
+}
