@@ -45,8 +45,11 @@ struct SubscriberState {
   std::mutex mu;                        // guards queue, matches, version, errors
   std::condition_variable matched_cv;   // matches changed (wait_for_publishers)
   std::deque<IntraItem> queue;          // intra-process messages waiting for the executor
+  // !queue.empty(), written under `mu` (release), read by the executor without it (acquire),
+  // so a wake-up with nothing queued and no match change takes no lock (NodeImpl::poll_one).
+  std::atomic<bool> queued{false};
   std::vector<std::shared_ptr<Match>> matches;
-  std::uint64_t version = 0;            // +1 whenever matches change
+  std::atomic<std::uint64_t> version{0};  // +1 whenever matches change (written under `mu`)
   std::vector<std::string> errors;
   std::uint64_t retired_drops = 0;      // drops of matches already forgotten
 
@@ -80,6 +83,7 @@ class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
  private:
   std::size_t poll_all(std::vector<std::shared_ptr<SubscriberCore>>& subs);
   std::size_t poll_one(SubscriberCore& sub);
+  std::size_t poll_intra(SubscriberCore& sub);
   void refresh(std::vector<std::shared_ptr<SubscriberCore>>& local, std::uint64_t& version);
 
   std::mutex mu;

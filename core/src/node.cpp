@@ -72,7 +72,7 @@ void NodeImpl::ring() {
   // The same holds for a thread in wait_udp() with `fd_sleepers`: it is woken by wake_fd.
   doorbell.fetch_add(1, std::memory_order_seq_cst);
   if (sleepers.load(std::memory_order_seq_cst) > 0) {
-    shm::futex_wake_all(&doorbell);
+    shm::futex_wake_all_private(&doorbell);  // waited on as process_private (run_once)
     if (fd_sleepers.load(std::memory_order_seq_cst) > 0) {
       const std::uint64_t one = 1;
       [[maybe_unused]] auto n = ::write(wake_fd, &one, sizeof one);
@@ -162,21 +162,22 @@ void NodeImpl::refresh(std::vector<std::shared_ptr<SubscriberCore>>& local,
   version = subs_version.load();
 }
 
-// Polls one subscriber: intra-process queue first, then each shm reader (bounded batch per
-// reader so one busy publisher cannot starve the others). `busy` must be held.
-std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
+// Takes the intra-process queue and refreshes the snapshot of matches, under st.mu. Out of
+// line: the common shm wake-up (nothing queued, no match change) skips it and its deque.
+// `busy` must be held.
+[[gnu::noinline]] std::size_t NodeImpl::poll_intra(SubscriberCore& sub) {
   auto& st = *sub.state;
   std::deque<IntraItem> items;
   {
     std::lock_guard lock(st.mu);
     items.swap(st.queue);
-    if (st.snapshot_version != st.version) {
+    st.queued.store(false, std::memory_order_relaxed);
+    if (st.snapshot_version != st.version.load(std::memory_order_relaxed)) {
       st.snapshot = st.matches;
-      st.snapshot_version = st.version;
+      st.snapshot_version = st.version.load(std::memory_order_relaxed);
     }
   }
   std::size_t n = 0;
-  st.running_on = std::this_thread::get_id();
   while (!items.empty() && !st.removed.load()) {
     // Moved out first: the message is released as soon as its callback returns, so a
     // publisher reusing its object does not find lcmx still holding it.
@@ -188,6 +189,21 @@ std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
       ++n;
     }
   }
+  return n;
+}
+
+// Polls one subscriber: intra-process queue first, then each shm reader (bounded batch per
+// reader so one busy publisher cannot starve the others). `busy` must be held.
+std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
+  auto& st = *sub.state;
+  std::size_t n = 0;
+  st.running_on = std::this_thread::get_id();
+  // `queued` and `version` are stored under st.mu (release / seq_cst RMW) after the queue or
+  // the matches changed; these acquire loads see them, or the change is newer than this poll
+  // and its ring() (doorbell, Dekker in ring()) makes the executor poll again.
+  if (st.queued.load(std::memory_order_acquire) ||
+      st.version.load(std::memory_order_acquire) != st.snapshot_version)
+    n += poll_intra(sub);
   constexpr int kBatch = 64;
   for (auto& m : st.snapshot) {
     if (!m->reader) continue;
@@ -255,8 +271,9 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     local_version = ~0ull;
     local_owner = this;
   }
-  std::vector<shm::WaitToken> tokens;
-  std::vector<std::pair<SubscriberCore*, std::shared_ptr<Match>>> armed;
+  // Reused (no allocation per call); `armed` is emptied after every wait.
+  thread_local std::vector<shm::WaitToken> tokens;
+  thread_local std::vector<std::pair<SubscriberCore*, std::shared_ptr<Match>>> armed;
 
   for (;;) {
     const std::uint32_t bell = doorbell.load(std::memory_order_seq_cst);
@@ -265,18 +282,18 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     const auto now = Clock::now();
     if (now >= deadline || stopping.load(std::memory_order_acquire)) return 0;
     const auto& ex = options.executor;
-    // Does any subscriber of ours receive over UDP (from another host or a stock LCM
-    // program)? Read from the snapshots, under `busy` like poll_one().
-    bool udp = false;
-    for (auto& sub : local) {
-      auto& st = *sub->state;
-      if (st.busy.exchange(true, std::memory_order_acquire)) continue;  // another thread has it
-      for (auto& m : st.snapshot) udp = udp || (m->path == Path::udp && !m->reader);
-      st.busy.store(false, std::memory_order_release);
-      st.busy.notify_all();
-    }
     if (ex.wait == WaitStrategy::busy_poll ||
         (ex.wait == WaitStrategy::spin_then_block && now - start < ex.spin)) {
+      // Does any subscriber of ours receive over UDP (from another host or a stock LCM
+      // program)? Read from the snapshots, under `busy` like poll_one().
+      bool udp = false;
+      for (auto& sub : local) {
+        auto& st = *sub->state;
+        if (st.busy.exchange(true, std::memory_order_acquire)) continue;  // another thread has it
+        for (auto& m : st.snapshot) udp = udp || (m->path == Path::udp && !m->reader);
+        st.busy.store(false, std::memory_order_release);
+        st.busy.notify_all();
+      }
       if (udp) runtime->drain_udp(/*try_only=*/true);  // spinning covers UDP too
       continue;
     }
@@ -284,17 +301,22 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     // Block: doorbell (in-process messages, changes) + every shm reader's futex word.
     // A Reader is used by one thread at a time, so arm() and disarm() run with the
     // subscriber's `busy` held, like take(); `armed` keeps the matches alive meanwhile.
+    // The same pass notes UDP subscribers (from the snapshots, under `busy` like poll_one).
+    bool udp = false;
     tokens.clear();
     armed.clear();
-    tokens.push_back({&doorbell, bell});
+    tokens.push_back({&doorbell, bell, /*process_private=*/true});
     for (auto& sub : local) {
       auto& st = *sub->state;
       if (st.busy.exchange(true, std::memory_order_acquire)) continue;  // another thread has it
-      for (auto& m : st.snapshot)
+      for (auto& m : st.snapshot) {
         if (m->reader) {
           tokens.push_back(m->reader->arm());
           armed.push_back({sub.get(), m});
+        } else {
+          udp = udp || m->path == Path::udp;
         }
+      }
       st.busy.store(false, std::memory_order_release);
       st.busy.notify_all();
     }
@@ -314,6 +336,7 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
       st.busy.store(false, std::memory_order_release);
       st.busy.notify_all();
     }
+    armed.clear();
   }
 }
 
@@ -365,6 +388,7 @@ void remove_subscriber(const std::shared_ptr<SubscriberCore>& sub) {
   }
   std::lock_guard lock(st.mu);
   st.queue.clear();
+  st.queued.store(false, std::memory_order_relaxed);
 }
 
 SubscriberStats subscriber_stats(const SubscriberCore& core) {

@@ -264,6 +264,7 @@ void push_intra(SubscriberCore& sub, IntraItem item) {
       st.queue.pop_front();
     }
     st.queue.push_back(std::move(item));
+    st.queued.store(true, std::memory_order_release);
     node = st.node;
   }
   if (node) node->ring();

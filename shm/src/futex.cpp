@@ -1,5 +1,6 @@
-// Process-shared futex helpers. Never FUTEX_PRIVATE_FLAG: the words live in shared memory
-// mapped by several processes, and private futexes are keyed by (mm, address).
+// Futex helpers. Words in shared memory (mapped by several processes) are never waited on or
+// woken with FUTEX_PRIVATE_FLAG: private futexes are keyed by (mm, address). Words a caller
+// marks process_private (e.g. a node's doorbell) use it: cheaper keys on wait and wake.
 #include "lcmx/shm/futex.hpp"
 
 #include <linux/futex.h>
@@ -56,7 +57,8 @@ std::chrono::nanoseconds mono_now() {
 // FUTEX_WAIT (shared) with a relative timeout (negative: forever).
 WaitResult wait_one(const WaitToken& t, std::chrono::nanoseconds timeout) {
   timespec ts = to_timespec(timeout.count() < 0 ? std::chrono::nanoseconds(0) : timeout);
-  long rc = ::syscall(SYS_futex, addr(t.word), FUTEX_WAIT, t.expected,
+  long rc = ::syscall(SYS_futex, addr(t.word), t.process_private ? FUTEX_WAIT_PRIVATE : FUTEX_WAIT,
+                      t.expected,
                       timeout.count() < 0 ? nullptr : &ts, nullptr, 0);
   if (rc == 0) return WaitResult::woken;
   switch (errno) {
@@ -96,6 +98,11 @@ int futex_wake_all(const std::atomic<std::uint32_t>* word) noexcept {
   return rc < 0 ? 0 : static_cast<int>(rc);
 }
 
+int futex_wake_all_private(const std::atomic<std::uint32_t>* word) noexcept {
+  long rc = ::syscall(SYS_futex, addr(word), FUTEX_WAKE_PRIVATE, INT_MAX, nullptr, nullptr, 0);
+  return rc < 0 ? 0 : static_cast<int>(rc);
+}
+
 bool futex_waitv_supported() noexcept {
   int s = g_waitv_state.load(std::memory_order_relaxed);
   if (s == 0) {
@@ -119,11 +126,11 @@ WaitResult wait_any(std::span<const WaitToken> tokens, std::chrono::nanoseconds 
   if (!futex_waitv_supported()) return wait_fallback(tokens, timeout);
 
   futex_waitv w[FUTEX_WAITV_MAX];
-  std::memset(w, 0, sizeof(w));
+  std::memset(w, 0, tokens.size() * sizeof(w[0]));
   for (std::size_t i = 0; i < tokens.size(); ++i) {
     w[i].val = tokens[i].expected;
     w[i].uaddr = reinterpret_cast<std::uintptr_t>(addr(tokens[i].word));
-    w[i].flags = FUTEX_32;  // shared: no FUTEX_PRIVATE_FLAG
+    w[i].flags = FUTEX_32 | (tokens[i].process_private ? FUTEX_PRIVATE_FLAG : 0);
   }
   timespec abs{};
   if (timeout.count() >= 0) abs = to_timespec(mono_now() + timeout);  // absolute, MONOTONIC

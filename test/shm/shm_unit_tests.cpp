@@ -438,6 +438,56 @@ TEST_CASE("wait_any wakes a waiting thread on commit (one and several tokens)",
   CHECK_THROWS_AS(wait_any({}, 1ms), Error);
 }
 
+TEST_CASE("a Reader re-armed without disarming is woken by every later commit",
+          "[shm][futex]") {
+  Watchdog wd(20s);
+  const auto base = unique_base("rearm");
+  ShmGuard g(base);
+  auto w = Writer::create(base, small_opts());
+  auto r = Reader::open(w.segment_name());
+  for (int round = 0; round < 20; ++round) {
+    std::atomic<int> state{0};  // 1: (re-)armed and about to wait; 2: woke with data
+    std::thread waiter([&] {
+      WaitToken t = r.arm();  // still armed from the previous round
+      state.store(1);
+      const auto deadline = Clock::now() + 10s;
+      while (!r.has_data() && Clock::now() < deadline) {
+        wait_any({&t, 1}, 1s);
+        t = r.arm();
+      }
+      state.store(r.has_data() ? 2 : 3);  // no disarm: stays armed into the next round
+    });
+    while (state.load() == 0) std::this_thread::yield();
+    w.write("x", 1);
+    waiter.join();
+    CHECK(state.load() == 2);
+    while (r.take()) {
+    }
+  }
+  r.disarm();
+  r.disarm();  // idempotent
+}
+
+TEST_CASE("process-private futex words: wait_any and futex_wake_all_private", "[shm][futex]") {
+  Watchdog wd(20s);
+  std::atomic<std::uint32_t> word{0}, other{0};
+  std::atomic<int> state{0};
+  std::thread waiter([&] {
+    std::array<WaitToken, 2> t{WaitToken{&other, 0, true}, WaitToken{&word, 0, true}};
+    state.store(1);
+    const auto deadline = Clock::now() + 10s;
+    while (word.load() == 0 && Clock::now() < deadline) wait_any({t.data(), 2u}, 1s);
+    state.store(word.load() != 0 ? 2 : 3);
+  });
+  while (state.load() == 0) std::this_thread::yield();
+  word.store(1);
+  futex_wake_all_private(&word);
+  waiter.join();
+  CHECK(state.load() == 2);
+  WaitToken one{&word, 1, true};
+  CHECK(wait_any({&one, 1}, 50ms) == WaitResult::timeout);
+}
+
 TEST_CASE("a Writer growing wakes Readers sleeping on the old generation", "[shm][futex]") {
   Watchdog wd(10s);
   const auto base = unique_base("growwake");

@@ -13,6 +13,9 @@ namespace lcmx::shm {
 
 // Wakes every thread (any process) waiting on `word`. Returns the number woken.
 int futex_wake_all(const std::atomic<std::uint32_t>* word) noexcept;
+// Same for a word in process-private memory waited on with WaitToken::process_private (a
+// private wake does not reach shared waiters and vice versa).
+int futex_wake_all_private(const std::atomic<std::uint32_t>* word) noexcept;
 
 enum class WaitResult { woken, timeout };
 

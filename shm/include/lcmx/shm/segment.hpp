@@ -158,6 +158,10 @@ class ReadSample {
 struct WaitToken {
   const std::atomic<std::uint32_t>* word = nullptr;
   std::uint32_t expected = 0;
+  // The word is in this process's private memory and woken with futex_wake_all_private
+  // (FUTEX_PRIVATE_FLAG: the kernel keys it by address, no page lookup). Default: a word in
+  // shared memory, woken with futex_wake_all from any process.
+  bool process_private = false;
 };
 
 class Reader {
