@@ -261,6 +261,12 @@ bool Reader::has_data() const noexcept {
   return !r.dead_end && h.next_generation.load(std::memory_order_acquire) != 0;
 }
 
+std::uint32_t Reader::armed_readers() const noexcept {
+  const auto& r = *impl_;
+  if (!r.armed) return 0;
+  return static_cast<std::uint32_t>(r.armed->seg->hdr->waiters.load(std::memory_order_relaxed));
+}
+
 std::uint64_t Reader::drops() const noexcept { return impl_->drops; }
 std::uint64_t Reader::received() const noexcept { return impl_->received; }
 

@@ -186,6 +186,9 @@ class Reader {
   std::optional<ReadSample> take();
 
   bool has_data() const noexcept;             // take() would return a message now (hint)
+  // While armed: how many Readers (this one included) are armed on this segment, i.e. were
+  // woken together by the last commit (hint, for fan-out scheduling). 0 when not armed.
+  std::uint32_t armed_readers() const noexcept;
   std::uint64_t drops() const noexcept;       // messages this Reader lost
   std::uint64_t received() const noexcept;    // messages returned by take()
   bool writer_alive() const;                  // the Writer's process still runs
