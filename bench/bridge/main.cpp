@@ -61,20 +61,7 @@ bool interrupted() { return g_signal.load() != 0; }
 
 void progress(const std::string& s) { std::cerr << "[bench-bridge] " << s << std::endl; }
 
-std::size_t parse_size(const std::string& text) {
-  std::size_t pos = 0;
-  const double v = std::stod(text, &pos);
-  std::string unit = text.substr(pos);
-  for (auto& c : unit) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  double mul = 1;
-  if (unit == "K" || unit == "KB") mul = 1024;
-  else if (unit == "M" || unit == "MB") mul = 1024.0 * 1024;
-  else if (!unit.empty() && unit != "B") throw std::invalid_argument("bad size '" + text + "'");
-  const auto bytes = static_cast<std::size_t>(v * mul);
-  if (bytes < sizeof(Header) || bytes > (64u << 20))
-    throw std::invalid_argument("size '" + text + "' out of 24 B..64 MB");
-  return bytes;
-}
+std::size_t parse_size(const std::string& text) { return lcmxbench::parse_size(text, sizeof(Header)); }
 
 // "2gbit", "400mbit", "10gbps" -> bits per second (0 if empty or unknown).
 double rate_bps(const std::string& rate) {

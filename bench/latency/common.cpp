@@ -6,6 +6,7 @@
 #include <sys/prctl.h>
 
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
 
 #include <poll.h>
@@ -20,6 +21,26 @@
 #include <stdexcept>
 
 namespace lcmxbench {
+
+std::size_t parse_size(const std::string& text, std::size_t min_bytes) {
+  std::size_t pos = 0;
+  double v = 0;
+  try {
+    v = std::stod(text, &pos);
+  } catch (const std::exception&) {
+    throw std::invalid_argument("bad size '" + text + "'");
+  }
+  std::string unit = text.substr(pos);
+  for (auto& c : unit) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
+  double mul = 1;
+  if (unit == "K" || unit == "KB") mul = 1024;
+  else if (unit == "M" || unit == "MB") mul = 1024.0 * 1024;
+  else if (!unit.empty() && unit != "B") throw std::invalid_argument("bad size '" + text + "'");
+  const auto bytes = static_cast<std::size_t>(v * mul);
+  if (v < 0 || bytes < min_bytes || bytes > (64u << 20))
+    throw std::invalid_argument("size '" + text + "' out of " + std::to_string(min_bytes) + " B..64 MB");
+  return bytes;
+}
 
 std::string self_exe() {
   char buf[4096];

@@ -54,6 +54,9 @@ struct SizePlan {
 std::string plan_to_string(const std::vector<SizePlan>& plan);    // "1024:20:200,..."
 std::size_t max_size(const std::vector<SizePlan>& plan);          // largest size in the plan
 std::vector<SizePlan> plan_from_string(const std::string& text);  // throws std::invalid_argument
+// "100K", "6M", "1500" (K = 1024, M = 1024*1024, optional B) -> bytes in [min_bytes, 64 MB].
+// Throws std::invalid_argument naming the text.
+std::size_t parse_size(const std::string& text, std::size_t min_bytes);
 std::string size_label(std::size_t bytes);                        // "1 KB", "6 MB"
 std::string fmt_us(double us);                                    // "4.3", "857" (table cells)
 

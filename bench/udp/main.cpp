@@ -191,19 +191,7 @@ struct Options {
   std::string markdown;
 };
 
-std::size_t parse_size(const std::string& text) {
-  std::size_t pos = 0;
-  const double v = std::stod(text, &pos);
-  std::string unit = text.substr(pos);
-  for (auto& c : unit) c = static_cast<char>(std::toupper(static_cast<unsigned char>(c)));
-  double mul = 1;
-  if (unit == "K" || unit == "KB") mul = 1024;
-  else if (unit == "M" || unit == "MB") mul = 1024.0 * 1024;
-  else if (!unit.empty() && unit != "B") throw std::invalid_argument("bad size '" + text + "'");
-  const auto bytes = static_cast<std::size_t>(v * mul);
-  if (bytes < 16 || bytes > (64u << 20)) throw std::invalid_argument("size '" + text + "' out of 16 B..64 MB");
-  return bytes;
-}
+std::size_t parse_size(const std::string& text) { return lcmxbench::parse_size(text, 16); }
 
 void progress(const std::string& s) { std::cerr << "[bench-udp] " << s << std::endl; }
 
