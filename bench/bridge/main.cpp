@@ -100,24 +100,20 @@ class Proc {
     pid_ = spawn_child(argv, {rep[1], ctl[0]}, cpu, netns_fd);  // fd 3 = kReportFd, fd 4 = kCtlIn
     ::close(rep[1]);
     ::close(ctl[0]);
-    rep_ = rep[0];
+    out_.fd = rep[0];
     ctl_ = ctl[1];
   }
   Proc(const Proc&) = delete;
   Proc& operator=(const Proc&) = delete;
   ~Proc() {
     close_ctl();
-    if (rep_ >= 0) ::close(rep_);
-    if (pid_ > 0 && !reaped_) {
-      ::kill(pid_, SIGKILL);
-      int st;
-      while (::waitpid(pid_, &st, 0) < 0 && errno == EINTR) {}
-    }
+    if (out_.fd >= 0) ::close(out_.fd);
+    if (pid_ > 0 && !reaped_) reap_child(pid_, 0, g_signal);
   }
 
   const std::string& name() const { return name_; }
-  int fd() const { return rep_; }
-  bool eof() const { return eof_; }
+  int fd() const { return out_.fd; }
+  bool eof() const { return out_.eof; }
 
   // Writes one command line; false if the child is gone.
   bool command(const std::string& line) {
@@ -133,40 +129,14 @@ class Proc {
     ctl_ = -1;
   }
   // Reads what is available (call when poll says so); complete lines go to lines().
-  void pump() {
-    char tmp[65536];
-    const ssize_t n = ::read(rep_, tmp, sizeof tmp);
-    if (n < 0 && (errno == EINTR || errno == EAGAIN)) return;
-    if (n <= 0) {
-      eof_ = true;
-      return;
-    }
-    buf_.append(tmp, static_cast<std::size_t>(n));
-    std::size_t start = 0;
-    for (auto pos = buf_.find('\n'); pos != std::string::npos; pos = buf_.find('\n', start)) {
-      lines_.push_back(buf_.substr(start, pos - start));
-      start = pos + 1;
-    }
-    buf_.erase(0, start);
-  }
-  std::vector<std::string>& lines() { return lines_; }
+  void pump() { out_.pump(); }
+  std::vector<std::string>& lines() { return out_.lines; }
 
   // Waits for the exit (killing it at the deadline). Returns a failure text or "".
   std::string reap(int timeout_ms) {
     if (pid_ <= 0 || reaped_) return "";
-    int st = 0;
-    const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_ms) * 1'000'000;
     bool killed = false;
-    for (;;) {
-      const pid_t r = ::waitpid(pid_, &st, WNOHANG);
-      if (r == pid_ || (r < 0 && errno != EINTR)) break;
-      if (!killed && (now_ns() > deadline || interrupted())) {
-        ::kill(pid_, SIGKILL);
-        killed = true;
-      }
-      pollfd none{-1, 0, 0};
-      ::poll(&none, 0, 5);
-    }
+    const int st = reap_child(pid_, timeout_ms, g_signal, &killed);
     reaped_ = true;
     if (killed) return name_ + " did not exit within " + std::to_string(timeout_ms) + " ms (killed)";
     if (WIFEXITED(st) && WEXITSTATUS(st) >= 125) return name_ + " could not start (exit " + std::to_string(WEXITSTATUS(st)) + ")";
@@ -178,10 +148,9 @@ class Proc {
  private:
   std::string name_;
   pid_t pid_ = -1;
-  int rep_ = -1, ctl_ = -1;
-  bool eof_ = false, reaped_ = false;
-  std::string buf_;
-  std::vector<std::string> lines_;
+  int ctl_ = -1;
+  bool reaped_ = false;
+  LineReader out_;  // the child's report pipe
 };
 
 // ---- results ----

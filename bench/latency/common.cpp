@@ -4,6 +4,7 @@
 #include <sched.h>
 #include <signal.h>
 #include <sys/prctl.h>
+#include <sys/wait.h>
 
 #include <algorithm>
 #include <cctype>
@@ -40,6 +41,65 @@ std::size_t parse_size(const std::string& text, std::size_t min_bytes) {
   if (v < 0 || bytes < min_bytes || bytes > (64u << 20))
     throw std::invalid_argument("size '" + text + "' out of " + std::to_string(min_bytes) + " B..64 MB");
   return bytes;
+}
+
+void LineReader::pump() {
+  char tmp[65536];
+  const ssize_t n = ::read(fd, tmp, sizeof tmp);
+  if (n < 0 && (errno == EINTR || errno == EAGAIN)) return;
+  if (n <= 0) {
+    eof = true;
+    return;
+  }
+  buf.append(tmp, static_cast<std::size_t>(n));
+  std::size_t start = 0;
+  for (auto pos = buf.find('\n'); pos != std::string::npos; pos = buf.find('\n', start)) {
+    lines.push_back(buf.substr(start, pos - start));
+    start = pos + 1;
+  }
+  buf.erase(0, start);
+}
+
+bool LineReader::has(const std::string& prefix) const {
+  return std::any_of(lines.begin(), lines.end(), [&](const std::string& l) { return l.rfind(prefix, 0) == 0; });
+}
+
+bool pump_until(const std::vector<LineReader*>& readers, std::int64_t deadline,
+                const std::function<bool()>& until, const std::atomic<int>& stop) {
+  std::vector<pollfd> p;
+  for (;;) {
+    if (stop.load() != 0) return false;
+    if (until()) return true;
+    p.clear();
+    for (auto* r : readers)
+      if (!r->eof) p.push_back({r->fd, POLLIN, 0});
+    if (p.empty()) return true;
+    const std::int64_t left = deadline - now_ns();
+    if (left <= 0) return false;
+    if (::poll(p.data(), p.size(), static_cast<int>(std::min<std::int64_t>(left / 1'000'000 + 1, 100))) <= 0)
+      continue;
+    for (auto* r : readers)
+      for (const auto& q : p)
+        if (q.fd == r->fd && q.revents) r->pump();
+  }
+}
+
+int reap_child(pid_t pid, int timeout_ms, const std::atomic<int>& stop, bool* killed) {
+  int status = 0;
+  const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_ms) * 1'000'000;
+  if (killed) *killed = false;
+  for (;;) {
+    const pid_t r = ::waitpid(pid, &status, WNOHANG);
+    if (r == pid || (r < 0 && errno != EINTR)) return status;
+    if (now_ns() > deadline || stop.load() != 0) {
+      ::kill(pid, SIGKILL);
+      if (killed) *killed = true;
+      while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {}
+      return status;
+    }
+    pollfd none{-1, 0, 0};
+    ::poll(&none, 0, 5);  // children of ours exit within ms after "done"
+  }
 }
 
 std::string self_exe() {

@@ -10,6 +10,7 @@
 
 #include <sys/types.h>
 
+#include <atomic>
 #include <cstddef>
 #include <cstdint>
 #include <functional>
@@ -41,6 +42,26 @@ struct Pipe {
 // fails; exec failures show as exit code 127 (125: setns/dup failed, 126: pinning failed).
 pid_t spawn_child(const std::vector<std::string>& argv, const std::vector<int>& fds, int cpu,
                   int netns_fd = -1);
+
+// Lines a child writes to a pipe (its report fd), read without blocking: call pump() when
+// poll() says `fd` is readable. Complete lines go to `lines`; `eof` once the child closed it.
+struct LineReader {
+  int fd = -1;
+  std::string buf;
+  bool eof = false;
+  std::vector<std::string> lines;
+  void pump();
+  bool has(const std::string& prefix) const;  // a line starting with prefix arrived
+};
+
+// Polls the readers until every one is at EOF or until() holds (true), or the deadline passes
+// or `stop` is set (false).
+bool pump_until(const std::vector<LineReader*>& readers, std::int64_t deadline,
+                const std::function<bool()>& until, const std::atomic<int>& stop);
+
+// Waits for child `pid` to exit; SIGKILLs it once `timeout_ms` passed or `stop` is set.
+// Returns its wait status; *killed (if given) tells whether it had to be killed.
+int reap_child(pid_t pid, int timeout_ms, const std::atomic<int>& stop, bool* killed = nullptr);
 
 // CLOCK_MONOTONIC in ns. Processes on one host share it, so latency = receive - send.
 std::int64_t now_ns();

@@ -88,19 +88,7 @@ pid_t spawn(const std::vector<std::string>& argv, const std::vector<int>& fds, i
 
 // Waits for pid up to timeout_ms, then SIGKILLs it. Returns the wait status.
 int reap(pid_t pid, int timeout_ms) {
-  int status = 0;
-  const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_ms) * 1'000'000;
-  for (;;) {
-    const pid_t r = ::waitpid(pid, &status, WNOHANG);
-    if (r == pid || (r < 0 && errno == ECHILD)) break;
-    if (now_ns() > deadline || g_signal.load() != 0) {
-      ::kill(pid, SIGKILL);
-      while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {}
-      break;
-    }
-    pollfd none{-1, 0, 0};
-    ::poll(&none, 0, 5);  // WNOHANG poll: children of ours exit within ms after "done"
-  }
+  const int status = reap_child(pid, timeout_ms, g_signal);
   untrack(pid);
   return status;
 }
@@ -260,52 +248,11 @@ void parse_line(MethodResult& r, const std::string& line) {
   }
 }
 
-// Reads report lines from a child.
-struct Reader {
-  int fd = -1;
-  std::string buf;
-  bool eof = false;
-  std::vector<std::string> lines;
-  void pump() {
-    char tmp[65536];
-    const ssize_t n = ::read(fd, tmp, sizeof tmp);
-    if (n < 0 && (errno == EINTR || errno == EAGAIN)) return;
-    if (n <= 0) {
-      eof = true;
-      return;
-    }
-    buf.append(tmp, static_cast<std::size_t>(n));
-    std::size_t pos;
-    while ((pos = buf.find('\n')) != std::string::npos) {
-      lines.push_back(buf.substr(0, pos));
-      buf.erase(0, pos + 1);
-    }
-  }
-};
-
-// Polls readers until all hit EOF, `until` returns true, or the deadline. Returns false on
-// deadline.
-template <class Until>
-bool pump_until(std::vector<Reader*> rs, std::int64_t deadline, Until until) {
-  for (;;) {
-    check_signal();
-    if (until()) return true;
-    bool all_eof = true;
-    std::vector<pollfd> p;
-    for (auto* r : rs)
-      if (!r->eof) {
-        all_eof = false;
-        p.push_back({r->fd, POLLIN, 0});
-      }
-    if (all_eof) return true;
-    const std::int64_t left = deadline - now_ns();
-    if (left <= 0) return false;
-    const int n = ::poll(p.data(), p.size(), static_cast<int>(std::min<std::int64_t>(left / 1'000'000 + 1, 100)));
-    if (n <= 0) continue;
-    for (auto* r : rs)
-      for (const auto& q : p)
-        if (q.fd == r->fd && q.revents) r->pump();
-  }
+// Polls the children's report lines (see lcmxbench::pump_until); throws Interrupted on a signal.
+bool pump_until(const std::vector<LineReader*>& rs, std::int64_t deadline, const std::function<bool()>& until) {
+  const bool ok = lcmxbench::pump_until(rs, deadline, until, g_signal);
+  check_signal();
+  return ok;
 }
 
 // ---------------------------------------------------------------- orchestration
@@ -391,7 +338,7 @@ MethodResult run_method(const Run& run, const std::string& method) {
   const std::int64_t t0 = now_ns();
   const std::int64_t deadline = t0 + static_cast<std::int64_t>(method_deadline_ms(run)) * 1'000'000;
   std::vector<pid_t> pids;
-  std::vector<std::unique_ptr<Reader>> readers;
+  std::vector<std::unique_ptr<LineReader>> readers;
   bool timed_out = false;
 
   try {
@@ -401,7 +348,7 @@ MethodResult run_method(const Run& run, const std::string& method) {
       const int cpu = run.sub_cpu;
       pids.push_back(spawn(role_args(run, "lcmx-intra", false), {rep.w}, cpu));
       rep.close_w();
-      auto r = std::make_unique<Reader>();
+      auto r = std::make_unique<LineReader>();
       r->fd = rep.r;
       rep.r = -1;
       readers.push_back(std::move(r));
@@ -418,10 +365,10 @@ MethodResult run_method(const Run& run, const std::string& method) {
       rep_sub.close_w();
       ack.close_w();
       ctl.close_r();
-      auto rs = std::make_unique<Reader>();
+      auto rs = std::make_unique<LineReader>();
       rs->fd = rep_sub.r;
       rep_sub.r = -1;
-      Reader* sub = rs.get();
+      LineReader* sub = rs.get();
       readers.push_back(std::move(rs));
       // never sleep to synchronise: wait for the subscriber's "ready" line (or its failure)
       const std::int64_t ready_deadline = std::min(deadline, now_ns() + 20'000'000'000);
@@ -444,12 +391,12 @@ MethodResult run_method(const Run& run, const std::string& method) {
       rep_pub.close_w();
       ack.close_r();
       ctl.close_w();
-      auto rp = std::make_unique<Reader>();
+      auto rp = std::make_unique<LineReader>();
       rp->fd = rep_pub.r;
       rep_pub.r = -1;
       readers.push_back(std::move(rp));
     }
-    std::vector<Reader*> rs;
+    std::vector<LineReader*> rs;
     for (auto& r : readers) rs.push_back(r.get());
     timed_out = !pump_until(rs, deadline, [] { return false; });
   } catch (const Interrupted&) {

@@ -52,64 +52,7 @@ pid_t spawn_in(int netns_fd, const std::vector<std::string>& argv, const std::ve
   return spawn_child(argv, fds, cpu, netns_fd);
 }
 
-int reap(pid_t pid, int timeout_ms) {
-  int status = 0;
-  const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_ms) * 1'000'000;
-  for (;;) {
-    const pid_t r = ::waitpid(pid, &status, WNOHANG);
-    if (r == pid || (r < 0 && errno != EINTR)) return status;
-    if (now_ns() > deadline || g_signal.load()) {
-      ::kill(pid, SIGKILL);
-      while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {}
-      return status;
-    }
-    pollfd none{-1, 0, 0};
-    ::poll(&none, 0, 5);
-  }
-}
 
-struct Reader {
-  int fd = -1;
-  std::string buf;
-  bool eof = false;
-  std::vector<std::string> lines;
-  void pump() {
-    char tmp[65536];
-    const ssize_t n = ::read(fd, tmp, sizeof tmp);
-    if (n < 0 && (errno == EINTR || errno == EAGAIN)) return;
-    if (n <= 0) {
-      eof = true;
-      return;
-    }
-    buf.append(tmp, static_cast<std::size_t>(n));
-    for (auto pos = buf.find('\n'); pos != std::string::npos; pos = buf.find('\n')) {
-      lines.push_back(buf.substr(0, pos));
-      buf.erase(0, pos + 1);
-    }
-  }
-  bool has(const std::string& prefix) const {
-    return std::any_of(lines.begin(), lines.end(), [&](const std::string& l) { return l.rfind(prefix, 0) == 0; });
-  }
-};
-
-// Polls readers until every one is at EOF, `until` holds, or the deadline (false).
-template <class Until>
-bool pump_until(const std::vector<Reader*>& rs, std::int64_t deadline, Until until) {
-  for (;;) {
-    if (g_signal.load()) return false;
-    if (until()) return true;
-    std::vector<pollfd> p;
-    for (auto* r : rs)
-      if (!r->eof) p.push_back({r->fd, POLLIN, 0});
-    if (p.empty()) return true;
-    const std::int64_t left = deadline - now_ns();
-    if (left <= 0) return false;
-    if (::poll(p.data(), p.size(), static_cast<int>(std::min<std::int64_t>(left / 1'000'000 + 1, 100))) <= 0) continue;
-    for (auto* r : rs)
-      for (const auto& q : p)
-        if (q.fd == r->fd && q.revents) r->pump();
-  }
-}
 
 // ---- results ----
 
@@ -240,7 +183,7 @@ MethodResult run_method(Run& run, const std::string& method, const Scenario& sc 
   const std::string sub_role = base + (stream ? "-stream-sub" : "-sub");
   const std::string pub_role = base + (stream ? "-stream-pub" : "-pub");
   std::vector<pid_t> pids, hogs;
-  Reader sub, pub;
+  LineReader sub, pub;
   bool timed_out = false;
   try {
     // Hogs first, unpinned, so the subscriber starts on an already busy host.
@@ -250,23 +193,23 @@ MethodResult run_method(Run& run, const std::string& method, const Scenario& sc 
     rep_sub.close_w();
     sub.fd = std::exchange(rep_sub.r, -1);
     const auto ready = [&] { return sub.has("ready") || sub.has("error"); };
-    if (!pump_until({&sub}, std::min(deadline, now_ns() + 20'000'000'000), ready) || !sub.has("ready"))
+    if (!pump_until({&sub}, std::min(deadline, now_ns() + 20'000'000'000), ready, g_signal) || !sub.has("ready"))
       throw std::runtime_error("subscriber not ready (or failed) within 20 s");
     pids.push_back(spawn_in(run.emu->ns_fd(0), args(pub_role), {rep_pub.w, ack.r, ctl.w}, run.pub_cpu));
     rep_pub.close_w();
     ack.close_r(), ack.close_w(), ctl.close_r(), ctl.close_w();
     pub.fd = std::exchange(rep_pub.r, -1);
-    timed_out = !pump_until({&sub, &pub}, deadline, [] { return false; });
+    timed_out = !pump_until({&sub, &pub}, deadline, [] { return false; }, g_signal);
   } catch (const std::exception& e) {
     res.errors.push_back(e.what());
   }
-  for (auto p : hogs) reap(p, 0);  // SIGKILLed and reaped
+  for (auto p : hogs) reap_child(p, 0, g_signal);  // SIGKILLed and reaped
   for (auto p : pids) {
-    const int st = reap(p, timed_out ? 0 : 5000);
+    const int st = reap_child(p, timed_out ? 0 : 5000, g_signal);
     if (WIFEXITED(st) && WEXITSTATUS(st) >= 125) res.errors.push_back("a child could not start (exit " + std::to_string(WEXITSTATUS(st)) + ")");
     else if (WIFSIGNALED(st) && !timed_out) res.errors.push_back("a child died of signal " + std::to_string(WTERMSIG(st)));
   }
-  for (Reader* r : {&sub, &pub}) {
+  for (LineReader* r : {&sub, &pub}) {
     for (const auto& l : r->lines)
       if (l != "ready" && l != "done") parse_line(res, l);
     if (r->fd >= 0) ::close(r->fd);
