@@ -10,6 +10,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "lcmx/test/catch_netns.hpp"
 #include "lcmx/test/netns.hpp"
 #include "lcmx/test/watchdog.hpp"
 #include "support.hpp"
@@ -22,15 +23,6 @@ using lcmx::it::Clock;
 using lcmx::it::ms;
 using lcmx::it::Summary;
 namespace fs = std::filesystem;
-
-#define BRIDGE_REQUIRE_NETNS()                               \
-  do {                                                       \
-    std::string why_;                                        \
-    if (!lcmx::test::netns_available(&why_)) {              \
-      WARN("skipped: no network namespaces here: " << why_); \
-      return;                                                \
-    }                                                        \
-  } while (0)
 
 const char* kHostNames[] = {"chipA", "chipB", "chipC", "chipD"};
 
@@ -236,7 +228,7 @@ void check_clean(const Summary& s) {
 
 // Two or four subscribers on host B, publisher on host A: every message crosses the link once.
 void one_transmission_per_message(int index, int subscribers) {
-  BRIDGE_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   World w(2, index, {{.name = "eth"}});
   const auto ch = w.channel("ONCE");
   auto& ba = w.bridge(0, {1});
@@ -327,7 +319,7 @@ std::string bridge_status(World& w, int host) {
 
 TEST_CASE("three hosts, publishers on A and C, subscribers on B and C: no loops, no duplicates, in order",
           "[bridge][multihost]") {
-  BRIDGE_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   World w(3, 3, {{.name = "eth"}});
   const auto ch = w.channel("MESH");
   auto& ba = w.bridge(0, {1, 2});
@@ -395,7 +387,7 @@ TEST_CASE("three hosts, publishers on A and C, subscribers on B and C: no loops,
 }
 
 TEST_CASE("a peer bridge killed (SIGKILL) and restarted: traffic resumes, no duplicates", "[bridge][multihost]") {
-  BRIDGE_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   World w(2, 4, {{.name = "eth"}});
   const auto ch = w.channel("RESTART");
   Child* ba = &w.bridge(0, {1});
@@ -433,7 +425,7 @@ TEST_CASE("a peer bridge killed (SIGKILL) and restarted: traffic resumes, no dup
 
 TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to eth and back",
           "[bridge][multihost]") {
-  BRIDGE_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   World w(2, 5, {{.name = "pcie"}, {.name = "eth"}});
   const auto ch = w.channel("FAILOVER");
   auto& ba = w.bridge(0, {1});
@@ -516,7 +508,7 @@ TEST_CASE("pcie link down and up: failover to eth and fail-back, bytes move to e
 
 TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's other peer C nor A's memory",
           "[bridge][multihost]") {
-  BRIDGE_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   World w(3, 6, {{.name = "eth"}});
   const auto ch = w.channel("SLOW");
   const BridgeOpts o{.channels = "[[channel]]\nname = \"bulk\"\nport = 7701\nhwm = 4\ntopics = [\"*\"]\n"};
@@ -561,7 +553,7 @@ TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's ot
 
 TEST_CASE("CURVE: a peer with the wrong key is refused and logged, with the right keys traffic passes",
           "[bridge][multihost][curve]") {
-  BRIDGE_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   World w(2, 7, {{.name = "eth"}});
   for (const char* k : {"chipA", "chipB", "intruder"}) w.keygen(k);
   const auto ch = w.channel("CURVE");
@@ -632,7 +624,7 @@ TEST_CASE("lcmx bridge --check: good config 0, bad config 2 with the key named, 
 
 TEST_CASE("channels: 6 MB images on bulk do not cost a pose on control, and carry bridges a small topic",
           "[bridge][multihost]") {
-  BRIDGE_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   World w(2, 8, {{.name = "eth"}});
   const auto pose = w.channel("POSE"), image = w.channel("IMAGE");
   const BridgeOpts o{.channels = "[[channel]]\nname = \"control\"\nport = 7701\npriority = 1\nhwm = 100\n"

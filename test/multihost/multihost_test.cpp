@@ -2,20 +2,12 @@
 // namespaces joined by a bridge), DESIGN.md "Delivery", "LCM UDP multicast", "Discovery",
 // "Identity". Fragment loss dropping only that message is covered at unit level
 // (test/udpm/group_test.cpp "A missing fragment drops only that message").
+#include "lcmx/test/catch_netns.hpp"
 #include "multihost.hpp"
 
 using namespace lcmx::mh;
 using lcmx::it::parse_kv;
 using lcmx::it::wait_until;
-
-#define MH_REQUIRE_NETNS()                                   \
-  do {                                                       \
-    std::string why_;                                        \
-    if (!lcmx::test::netns_available(&why_)) {               \
-      WARN("skipped: no network namespaces here: " << why_); \
-      return;                                                \
-    }                                                        \
-  } while (0)
 
 namespace {
 
@@ -33,7 +25,7 @@ void check_exact(const Summary& s, long long n) {
 
 TEST_CASE("small topic from host A: exactly once and in order on B and C (udp) and on A (shm)",
           "[multihost][delivery]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(3, 1);
   const auto ch = h.channel("SMALL");
   const std::string n = "400";
@@ -67,7 +59,7 @@ TEST_CASE("small topic from host A: exactly once and in order on B and C (udp) a
 TEST_CASE("two nodes of one process on another host subscribe over udp: each gets every message once, in order",
           "[multihost][delivery]") {
   // Whichever executor (or the receive thread) drains the socket dispatches to both nodes.
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 1);
   const auto ch = h.channel("TWO_NODES");
   const std::string n = "400";
@@ -94,7 +86,7 @@ TEST_CASE("two nodes of one process on another host subscribe over udp: each get
 }
 
 TEST_CASE("vehicle group: stock liblcm -> lcmx subscriber on another host", "[multihost][interop]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 2);
   const auto ch = h.channel("LCM_TO_LCMX");
   auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "bench", "--expect", "200",
@@ -113,7 +105,7 @@ TEST_CASE("vehicle group: stock liblcm -> lcmx subscriber on another host", "[mu
 
 TEST_CASE("vehicle group: lcmx publisher (LCMX_VEHICLE_PUBLISH=always) -> stock liblcm on another host",
           "[multihost][interop]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 3);
   const auto ch = h.channel("LCMX_TO_LCM");
   auto& lcm = h.lcm_peer(1, {"sub", without_iface(h.vehicle_url), ch, "200", "20000"});
@@ -134,7 +126,7 @@ TEST_CASE("vehicle group: lcmx publisher (LCMX_VEHICLE_PUBLISH=always) -> stock 
 
 TEST_CASE("host-local group: stock liblcm -> lcmx on the same host, and not on another host",
           "[multihost][interop]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 4);
   h.route_local_group_to_lo();
   const auto ch = h.channel("LOCAL_LCM_TO_LCMX");
@@ -158,7 +150,7 @@ TEST_CASE("host-local group: stock liblcm -> lcmx on the same host, and not on a
 
 TEST_CASE("host-local group: lcmx with LCMX_MIRROR=1 -> stock liblcm on the same host",
           "[multihost][interop]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 5);
   h.route_local_group_to_lo();
   const auto ch = h.channel("MIRROR");
@@ -186,7 +178,7 @@ TEST_CASE("host-local group: lcmx with LCMX_MIRROR=1 -> stock liblcm on the same
 
 TEST_CASE("200 KB messages across hosts: the topic becomes large, UDP fragments arrive, one warning",
           "[multihost][large]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 6);
   const auto ch = h.channel("LARGE");
   auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "bench", "--publishers", "1", "--expect",
@@ -218,7 +210,7 @@ TEST_CASE("200 KB messages across hosts: the topic becomes large, UDP fragments 
 TEST_CASE("host A killed -9: gone from B and C after the lease - lcmx nodes/topics with "
           "LCMX_VEHICLE_URL show the hosts and the udp path per pair",
           "[multihost][discovery][cli]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
 #ifndef LCMX_TOOL
   WARN("lcmx tool not built");
 #else
@@ -299,7 +291,7 @@ TEST_CASE("host A killed -9: gone from B and C after the lease - lcmx nodes/topi
 
 TEST_CASE("lcmx nodes/topics --vehicle-url show the other hosts' participants and the udp path",
           "[multihost][cli]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
 #ifndef LCMX_TOOL
   WARN("lcmx tool not built");
 #else
@@ -326,7 +318,7 @@ TEST_CASE("lcmx nodes/topics --vehicle-url show the other hosts' participants an
 
 TEST_CASE("type mismatch across hosts: reported on both sides, not matched, nothing delivered",
           "[multihost][types]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 9);
   const auto ch = h.channel("MISMATCH");
   auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "image"});
@@ -369,7 +361,7 @@ TEST_CASE("type mismatch across hosts: reported on both sides, not matched, noth
 // another host gets publishers=2 for one publisher. Found: decode_errors=172, publishers 2.
 TEST_CASE("always-publisher already sending: a late subscriber of another type on another host gets nothing",
           "[multihost][types]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 10);
   const auto ch = h.channel("LATE_MISMATCH");
   auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "2000",
@@ -394,7 +386,7 @@ TEST_CASE("always-publisher already sending: a late subscriber of another type o
 TEST_CASE("always-publisher already sending: late subscribers on its host (shm only) and on another "
           "host (one udp publisher)",
           "[multihost][delivery]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 11);
   const auto ch = h.channel("LATE_ALWAYS");
   auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "2000",
@@ -426,7 +418,7 @@ TEST_CASE("always-publisher already sending: late subscribers on its host (shm o
 
 TEST_CASE("the vehicle link of the publishing host goes down and comes back: publishing goes on, delivery resumes",
           "[multihost][links]") {
-  MH_REQUIRE_NETNS();
+  LCMX_REQUIRE_NETNS();
   Hosts h(2, 14);
   const auto ch = h.channel("LINK_FLAP");
   auto& sub = h.peer(1, {"sub", "--channel", ch, "--type", "pose", "--queue-depth", "4096"});

@@ -18,6 +18,7 @@
 #include <thread>
 #include <vector>
 
+#include "lcmx/test/catch_netns.hpp"
 #include "lcmx/test/netns.hpp"
 #include "lcmx/test/watchdog.hpp"
 
@@ -31,15 +32,6 @@ using lcmx::test::Watchdog;
 using Clock = std::chrono::steady_clock;
 
 namespace {
-
-#define SKIP_WITHOUT_NETNS()                                  \
-  do {                                                        \
-    std::string why_;                                         \
-    if (!lcmx::test::netns_available(&why_)) {                \
-      WARN("skipped: network namespaces unavailable: " << why_); \
-      return;                                                 \
-    }                                                         \
-  } while (0)
 
 Watchdog watchdog(std::chrono::milliseconds t = 25s) {
   return Watchdog(t, Catch::getResultCapture().getCurrentTestName());
@@ -161,7 +153,7 @@ std::string prefix_of(const Emulation& e) { return e.ns(0).substr(0, e.ns(0).rfi
 }  // namespace
 
 TEST_CASE("two hosts x one link: names and addresses and unicast UDP across the bridge", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   const auto t0 = Clock::now();
   auto emu = Emulation::create({});
@@ -198,7 +190,7 @@ TEST_CASE("two hosts x one link: names and addresses and unicast UDP across the 
 
 TEST_CASE("each host has its own network namespace inode hence its own lcmx host id",
           "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   auto emu = Emulation::create({.hosts = 2});
   auto inode_of = [&](int host) {
@@ -240,7 +232,7 @@ TEST_CASE("each host has its own network namespace inode hence its own lcmx host
 
 TEST_CASE("four hosts x two links: unicast on both and multicast floods the first link once",
           "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   const auto t0 = Clock::now();
   auto emu = Emulation::create({.hosts = 4, .links = {{.name = "eth"}, {.name = "pcie"}}});
@@ -289,7 +281,7 @@ TEST_CASE("four hosts x two links: unicast on both and multicast floods the firs
 }
 
 TEST_CASE("host-local multicast on lo stays inside its host", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   auto emu = Emulation::create({.hosts = 2});
   const std::string group = "239.255.92." + std::to_string(::getpid() % 250 + 1);
@@ -311,7 +303,7 @@ TEST_CASE("host-local multicast on lo stays inside its host", "[multihost]") {
 }
 
 TEST_CASE("link down stops traffic and link up resumes it", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   auto emu = Emulation::create({.hosts = 2});
   const auto a1 = emu.address(1, "eth");
@@ -398,7 +390,7 @@ double tcp_transfer_seconds(Emulation& emu, const std::string& link, std::size_t
 }  // namespace
 
 TEST_CASE("a rate-limited link measurably slows a bulk transfer", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   auto emu = Emulation::create({.hosts = 2, .links = {{.name = "eth"}, {.name = "slow", .rate = "40mbit"}}});
   constexpr std::size_t kBytes = 2 << 20;
@@ -413,7 +405,7 @@ TEST_CASE("a rate-limited link measurably slows a bulk transfer", "[multihost]")
 }
 
 TEST_CASE("link delay: netem when the kernel has it or a clear error otherwise", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   std::string why;
   const EmulationSpec spec{.hosts = 2, .links = {{.name = "eth", .delay = "2ms"}}};
@@ -438,7 +430,7 @@ TEST_CASE("link delay: netem when the kernel has it or a clear error otherwise",
 }
 
 TEST_CASE("destruction removes namespaces and kills processes left inside", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   std::vector<std::string> names;
   std::optional<Child> survivor;
@@ -456,7 +448,7 @@ TEST_CASE("destruction removes namespaces and kills processes left inside", "[mu
 
 TEST_CASE("a child killed by a watchdog and a creator killed outright still get cleaned up",
           "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   // 1. The test's own watchdog kills a hung child: the emulation still tears down normally.
   std::string name;
@@ -505,7 +497,7 @@ TEST_CASE("a child killed by a watchdog and a creator killed outright still get 
 }
 
 TEST_CASE("emulations created in parallel do not collide", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   std::optional<Emulation> a, b;
   std::thread ta([&] { a.emplace(Emulation::create({.hosts = 2})); });
@@ -529,7 +521,7 @@ TEST_CASE("emulations created in parallel do not collide", "[multihost]") {
 }
 
 TEST_CASE("setup faults throw SetupError naming the problem and run_in rethrows", "[multihost]") {
-  SKIP_WITHOUT_NETNS();
+  LCMX_REQUIRE_NETNS();
   auto wd = watchdog();
   CHECK_THROWS_AS(Emulation::create({.hosts = 0}), SetupError);
   CHECK_THROWS_WITH(Emulation::create({.links = {{.name = "Bad-Name"}}}), Catch::Contains("Bad-Name"));
