@@ -700,9 +700,12 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
   b.num_nodes = static_cast<std::int32_t>(b.nodes.size());
   // Other hosts see neither a bridge's endpoints nor, while a bridge runs here, large
   // publishers: those reach them through the bridges (DESIGN.md "Discovery", scopes).
+  if (vehicle && options.bridge) {
+    b.num_endpoints = 0;
+    return b;
+  }
   const bool hide_large = vehicle && bridge_on_host();
   for (auto& [id, pub] : pubs) {
-    if (vehicle && options.bridge) break;
     if (hide_large && pub->large()) continue;
     lcmx_msgs::endpoint_t e{};
     e.id = static_cast<std::int64_t>(id);
@@ -721,7 +724,6 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
     b.endpoints.push_back(std::move(e));
   }
   for (auto& [id, sub] : subs) {
-    if (vehicle && options.bridge) break;
     lcmx_msgs::endpoint_t e{};
     e.id = static_cast<std::int64_t>(id);
     e.kind = lcmx_msgs::endpoint_t::KIND_SUBSCRIBER;
