@@ -13,6 +13,7 @@
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/discovery.hpp"
 #include "bridge_cmd.hpp"
+#include "log_cmds.hpp"
 #include "topology.hpp"
 
 namespace {
@@ -89,11 +90,14 @@ int main(int argc, char** argv) {
   keygen->add_option("--out", key_prefix, "file name prefix")->required();
   keygen->add_flag("--force", key_force, "overwrite existing files");
 
+  const auto log_verbs = lcmx::cli::add_log_verbs(app, url, vehicle_url);  // record, play, log
+
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  if (auto rc = lcmx::cli::run_log_verbs(log_verbs)) return *rc;
   if (bridge->parsed()) {
     if (bstatus->parsed()) return lcmx::cli::bridge_status(status_url, status_wait);
     if (keygen->parsed()) return lcmx::cli::bridge_keygen(key_prefix, key_force);

@@ -107,6 +107,20 @@ class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
 
 class PublisherImpl;
 
+// Node::subscribe_channels: the filter and the per-channel raw subscribers made from it.
+struct ChannelSubscriptionCore {
+  std::function<bool(const std::string&)> filter;
+  std::shared_ptr<const std::function<void(const RawMessage&)>> callback;
+  SubscriberOptions options;
+  std::size_t max_channels = 0;
+  std::shared_ptr<NodeImpl> node;  // strong, like SubscriberState::node
+  // Guarded by RuntimeImpl::mu.
+  std::map<std::string, std::shared_ptr<SubscriberCore>> children;
+  std::set<std::string> declined;  // names the filter refused (a cache, cleared when large)
+  std::uint64_t refused = 0;       // accepted but over max_channels
+  bool removed = false;
+};
+
 class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
  public:
   explicit RuntimeImpl(RuntimeOptions options);
@@ -122,6 +136,13 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   void add_subscriber(const std::shared_ptr<SubscriberCore>& sub);
   void remove_subscriber(const SubscriberCore* sub);
   void add_node(const std::shared_ptr<NodeImpl>& node);
+  // Node::subscribe_channels: registers `p` and subscribes every channel known now.
+  void add_channel_subscription(const std::shared_ptr<ChannelSubscriptionCore>& p);
+  // Unregisters `p`; returns its subscribers (the caller removes them, with no lock held).
+  std::vector<std::shared_ptr<SubscriberCore>> remove_channel_subscription(ChannelSubscriptionCore* p);
+  std::vector<std::pair<std::string, std::shared_ptr<SubscriberCore>>> channel_children(
+      const ChannelSubscriptionCore& p);
+  std::uint64_t channel_refused(const ChannelSubscriptionCore& p);
   // Announce now. Takes no lock: publishers call it with publish_mu held, and the beacon
   // builder takes publish_mu under mu.
   void changed();
@@ -163,6 +184,9 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   void sync_remote_locked(SubscriberCore& sub, std::vector<Event>& events);
   void count_remote_locked(PublisherImpl& pub, std::vector<Event>& events);
   void update_bridges_locked();
+  // Channel subscriptions: subscribes `channel` for every one whose filter accepts it and
+  // that has no subscriber of it yet. Sets announce_pending when it did.
+  void expand_locked(const std::string& channel, std::vector<Event>& events);
   void report_mismatch_locked(std::uint64_t local_endpoint, std::uint64_t remote_participant,
                               std::uint64_t remote_endpoint, const std::string& channel,
                               const std::string& text, std::vector<std::string>& errors,
@@ -173,6 +197,7 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::map<std::uint64_t, PublisherImpl*> pubs;
   std::map<std::uint64_t, std::shared_ptr<SubscriberCore>> subs;
   std::vector<std::weak_ptr<NodeImpl>> nodes;
+  std::vector<std::shared_ptr<ChannelSubscriptionCore>> channel_subs;
   std::map<std::int64_t, lcmx_msgs::beacon_t> remotes;          // same-host participants
   std::map<std::int64_t, lcmx_msgs::beacon_t> vehicle_remotes;  // participants of other hosts
   std::map<std::string, std::int64_t> host_sources;     // "ip:port" of same-host participants

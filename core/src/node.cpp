@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <map>
 
 #include "internal.hpp"
 #include "lcmx/shm/futex.hpp"
@@ -449,7 +450,7 @@ RawSubscriberCore::RawSubscriberCore(std::string channel, SubscriberOptions o,
 }
 
 bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
-  if (item.type->raw()) {
+  if (item.type->carries_bytes()) {
     const auto& bytes = *std::static_pointer_cast<const Bytes>(item.object);
     return deliver_bytes(bytes);
   }
@@ -467,6 +468,32 @@ bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes) {
 const TypeInfo& raw_type_info() {
   static const TypeInfo info{"", 0, nullptr, nullptr};
   return info;
+}
+
+const TypeInfo& announced_type_info(const std::string& name, std::int64_t fingerprint) {
+  static std::mutex mu;
+  static std::map<std::pair<std::string, std::int64_t>, std::unique_ptr<TypeInfo>> interned;
+  std::lock_guard lock(mu);
+  auto& slot = interned[{name, fingerprint}];
+  if (!slot) slot = std::make_unique<TypeInfo>(TypeInfo{name, fingerprint, nullptr, nullptr});
+  return *slot;
+}
+
+void remove_channel_subscription(const std::shared_ptr<ChannelSubscriptionCore>& core) {
+  for (auto& sub : core->node->runtime->remove_channel_subscription(core.get()))
+    remove_subscriber(sub);
+}
+
+std::vector<std::pair<std::string, SubscriberStats>> channel_subscription_stats(
+    const ChannelSubscriptionCore& core) {
+  std::vector<std::pair<std::string, SubscriberStats>> out;
+  for (auto& [channel, sub] : core.node->runtime->channel_children(core))
+    out.emplace_back(channel, subscriber_stats(*sub));
+  return out;
+}
+
+std::uint64_t channel_subscription_refused(const ChannelSubscriptionCore& core) {
+  return core.node->runtime->channel_refused(core);
 }
 
 }  // namespace detail
@@ -487,6 +514,27 @@ RawSubscriber Node::subscribe_raw(std::string channel,
                                                           std::move(callback));
   detail::add_subscriber(*impl_, core);
   return RawSubscriber(std::move(core));
+}
+
+RawPublisher Node::advertise_raw(std::string channel, const std::string& type_name,
+                                 std::int64_t fingerprint, PublisherOptions options) {
+  return RawPublisher(detail::create_publisher(
+      *impl_, std::move(channel), detail::announced_type_info(type_name, fingerprint), options));
+}
+
+ChannelSubscription Node::subscribe_channels(std::function<bool(const std::string&)> filter,
+                                             std::function<void(const RawMessage&)> callback,
+                                             SubscriberOptions options, std::size_t max_channels) {
+  if (!filter || !callback)
+    throw Error(Errc::invalid_argument, "subscribe_channels: empty filter or callback");
+  auto core = std::make_shared<detail::ChannelSubscriptionCore>();
+  core->filter = std::move(filter);
+  core->callback = std::make_shared<const std::function<void(const RawMessage&)>>(std::move(callback));
+  core->options = options;
+  core->max_channels = max_channels;
+  core->node = impl_;
+  impl_->runtime->add_channel_subscription(core);
+  return ChannelSubscription(std::move(core));
 }
 
 std::size_t Node::spin_once(std::chrono::nanoseconds timeout) {

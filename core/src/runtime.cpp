@@ -213,6 +213,7 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   {
     std::lock_guard lock(mu);
     if (host_sources.count(source)) return;  // a participant of this host: shm path
+    if (!channel_subs.empty()) expand_locked(std::string(m.channel), events);
     std::int64_t participant = 0;
     if (vehicle) {
       auto it = vehicle_sources.find(source);
@@ -254,6 +255,10 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
       }
       targets.push_back({sub, match->stats});
     }
+  }
+  if (announce_pending.exchange(false)) {
+    if (disco) disco->announce_now();
+    if (disco_vehicle) disco_vehicle->announce_now();
   }
   emit(std::move(events));
   if (targets.empty()) return;
@@ -504,6 +509,7 @@ void RuntimeImpl::add_publisher(PublisherImpl* pub) {
   std::vector<Event> events;
   {
     std::lock_guard lock(mu);
+    expand_locked(pub->channel(), events);  // before: the loop below matches the new subscribers
     pubs[pub->id] = pub;
     for (auto& [id, sub] : subs) match_local_locked(*pub, *sub, events);
     count_remote_locked(*pub, events);
@@ -619,6 +625,9 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
       return v;
     };
     const auto v0 = match_versions();
+    if (change != discovery::Change::left && !channel_subs.empty())
+      for (const auto& e : b.endpoints)
+        if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) expand_locked(e.topic, events);
     if (!vehicle) update_bridges_locked();
     for (auto& [id, sub] : subs) sync_remote_locked(*sub, events);
     for (auto& [id, pub] : pubs) count_remote_locked(*pub, events);
@@ -636,6 +645,92 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
                    b.process_name, b.pid);
   }
   emit(std::move(events));
+}
+
+// Channel subscriptions (Node::subscribe_channels): a raw subscriber per accepted channel,
+// created the first time the channel shows up (a publisher here, in a beacon, or a stock LCM
+// sender's datagram, which is then delivered to it too: on_udp expands before dispatching).
+void RuntimeImpl::expand_locked(const std::string& channel, std::vector<Event>& events) {
+  if (channel.empty() || channel.size() > kMaxChannelLength ||
+      channel.find('\0') != std::string::npos || channel == discovery::kBeaconChannel)
+    return;
+  for (const auto& p : channel_subs) {
+    if (p->removed || p->children.count(channel) || p->declined.count(channel)) continue;
+    bool accept = false;
+    try {
+      accept = p->filter(channel);
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx: channel filter threw on '{}': {}", channel, e.what());
+    }
+    if (!accept) {
+      if (p->declined.size() >= 4096) p->declined.clear();  // bounded (hostile senders)
+      p->declined.insert(channel);
+      continue;
+    }
+    if (p->children.size() >= p->max_channels) {
+      if (p->refused++ == 0)
+        spdlog::warn("lcmx: channel subscription of node '{}' is at its limit of {} channels: "
+                     "'{}' and later new channels are not subscribed",
+                     p->node->name, p->max_channels, channel);
+      if (p->declined.size() >= 4096) p->declined.clear();
+      p->declined.insert(channel);
+      continue;
+    }
+    auto cb = p->callback;
+    auto sub = std::make_shared<RawSubscriberCore>(
+        channel, p->options, [cb](const RawMessage& m) { (*cb)(m); });
+    sub->state = std::make_shared<SubscriberState>();
+    sub->state->node = p->node;
+    sub->state->node_name = p->node->name;
+    sub->id = new_endpoint_id();
+    p->node->add(sub);  // NodeImpl::mu after RuntimeImpl::mu: the lock order
+    subs[sub->id] = sub;
+    p->children[channel] = sub;
+    for (auto& [id, pub] : pubs) match_local_locked(*pub, *sub, events);
+    sync_remote_locked(*sub, events);
+    ++revision;
+    announce_pending = true;
+  }
+}
+
+void RuntimeImpl::add_channel_subscription(const std::shared_ptr<ChannelSubscriptionCore>& p) {
+  std::vector<Event> events;
+  {
+    std::lock_guard lock(mu);
+    channel_subs.push_back(p);
+    std::set<std::string> known;
+    for (auto& [id, pub] : pubs) known.insert(pub->channel());
+    for (const auto* scope_map : {&remotes, &vehicle_remotes})
+      for (const auto& [pid, b] : *scope_map)
+        for (const auto& e : b.endpoints)
+          if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) known.insert(e.topic);
+    for (const auto& c : known) expand_locked(c, events);
+    announce_pending = false;
+  }
+  changed();
+  emit(std::move(events));
+}
+
+std::vector<std::shared_ptr<SubscriberCore>> RuntimeImpl::remove_channel_subscription(
+    ChannelSubscriptionCore* p) {
+  std::vector<std::shared_ptr<SubscriberCore>> out;
+  std::lock_guard lock(mu);
+  p->removed = true;
+  std::erase_if(channel_subs, [&](const auto& x) { return x.get() == p; });
+  for (auto& [c, sub] : p->children) out.push_back(std::move(sub));
+  p->children.clear();
+  return out;
+}
+
+std::vector<std::pair<std::string, std::shared_ptr<SubscriberCore>>> RuntimeImpl::channel_children(
+    const ChannelSubscriptionCore& p) {
+  std::lock_guard lock(mu);
+  return {p.children.begin(), p.children.end()};
+}
+
+std::uint64_t RuntimeImpl::channel_refused(const ChannelSubscriptionCore& p) {
+  std::lock_guard lock(mu);
+  return p.refused;
 }
 
 // The bridges of this host (DESIGN.md "Message Bridge"): while one runs, large topics reach

@@ -57,6 +57,26 @@ class Node {
   RawPublisher advertise_raw(std::string channel, PublisherOptions options = {});
   RawSubscriber subscribe_raw(std::string channel, std::function<void(const RawMessage&)> callback,
                               SubscriberOptions options = {});
+  // A raw publisher that announces a type (name and lcm-gen fingerprint) in discovery, so
+  // typed subscribers of that type match it and others get a type-mismatch error; it
+  // publishes encodings (bytes starting with that fingerprint). Used by `lcmx play`.
+  RawPublisher advertise_raw(std::string channel, const std::string& type_name,
+                             std::int64_t fingerprint, PublisherOptions options = {});
+
+  // Subscribes raw to every channel whose name `filter` accepts, on every path: channels of
+  // lcmx publishers in this process, on this host (shm, bridges) and on other hosts (UDP),
+  // and channels that stock LCM programs send on either group (from their first message on).
+  // One raw subscriber (with `options`) per channel is created when the channel is first
+  // seen, at most `max_channels` (more are counted as refused and logged once); they show in
+  // discovery like any subscriber (`lcmx topics`). The discovery channel LCMX_BEACON is never
+  // delivered. Used by `lcmx record`.
+  // `filter` is called once per new channel name, under the runtime's lock, from any lcmx
+  // thread: keep it fast, thread-safe, and never call lcmx from it. `callback` runs on this
+  // node's executor like a raw subscriber's (RawMessage::channel names the channel).
+  ChannelSubscription subscribe_channels(std::function<bool(const std::string&)> filter,
+                                         std::function<void(const RawMessage&)> callback,
+                                         SubscriberOptions options = {},
+                                         std::size_t max_channels = 10000);
 
   // Manual executor only: waits up to `timeout` for messages and runs the callbacks of what
   // arrived. Returns the number of callbacks run. Throws Error(invalid_argument) on a node

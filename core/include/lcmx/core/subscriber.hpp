@@ -13,6 +13,8 @@
 #include <functional>
 #include <memory>
 #include <type_traits>
+#include <utility>
+#include <vector>
 
 #include <spdlog/spdlog.h>
 
@@ -38,7 +40,7 @@ class TypedSubscriberCore final : public SubscriberCore {
         shared_(std::move(shared)), ref_(std::move(ref)) {}
 
   bool deliver_intra(const IntraItem& item) override {
-    if (item.type->fingerprint == T::getHash()) {
+    if (!item.type->carries_bytes() && item.type->fingerprint == T::getHash()) {
       auto p = std::static_pointer_cast<const T>(item.object);
       if (shared_) shared_(p); else ref_(*p);
       return true;
@@ -121,6 +123,45 @@ class RawSubscriberCore final : public SubscriberCore {
   std::function<void(const RawMessage&)> cb_;
   Bytes scratch_;
 };
+
+struct ChannelSubscriptionCore;
+void remove_channel_subscription(const std::shared_ptr<ChannelSubscriptionCore>& core);
+std::vector<std::pair<std::string, SubscriberStats>> channel_subscription_stats(
+    const ChannelSubscriptionCore& core);
+std::uint64_t channel_subscription_refused(const ChannelSubscriptionCore& core);
 }  // namespace detail
+
+// Raw subscription to every channel whose name a filter accepts (Node::subscribe_channels):
+// one raw subscriber per channel, created as channels appear. Destroying the handle removes
+// them all and waits for running callbacks (as Subscriber does).
+class ChannelSubscription {
+ public:
+  ChannelSubscription() = default;
+  ChannelSubscription(ChannelSubscription&&) noexcept = default;
+  ChannelSubscription& operator=(ChannelSubscription&& o) noexcept {
+    reset();
+    core_ = std::move(o.core_);
+    return *this;
+  }
+  ~ChannelSubscription() { reset(); }
+
+  // Per channel subscribed so far: its statistics (drops per publisher pair, ...).
+  std::vector<std::pair<std::string, SubscriberStats>> stats() const {
+    return detail::channel_subscription_stats(*core_);
+  }
+  // Channels the filter accepted but that were not subscribed (over max_channels).
+  std::uint64_t refused() const { return detail::channel_subscription_refused(*core_); }
+  explicit operator bool() const { return core_ != nullptr; }
+  void reset() {
+    if (core_) detail::remove_channel_subscription(core_);
+    core_.reset();
+  }
+
+ private:
+  friend class Node;
+  explicit ChannelSubscription(std::shared_ptr<detail::ChannelSubscriptionCore> c)
+      : core_(std::move(c)) {}
+  std::shared_ptr<detail::ChannelSubscriptionCore> core_;
+};
 
 }  // namespace lcmx

@@ -25,7 +25,9 @@ class NodeImpl;
 struct SubscriberState;
 
 // What a publisher or subscriber knows about its message type. Raw byte channels have
-// fingerprint 0 and no encode functions; they match any fingerprint.
+// fingerprint 0 and no encode functions; they match any fingerprint. A raw publisher may
+// announce a type (name + fingerprint, e.g. `lcmx play` replaying a log): it then matches
+// like a typed one, but still carries bytes (no encode functions).
 struct TypeInfo {
   std::string name;
   std::int64_t fingerprint = 0;
@@ -33,6 +35,8 @@ struct TypeInfo {
   std::size_t (*encoded_size)(const void* object) = nullptr;
   void (*encode)(const void* object, std::byte* out, std::size_t size) = nullptr;
   bool raw() const { return fingerprint == 0; }
+  // The publisher's intra-process objects are bytes (Bytes), not a T.
+  bool carries_bytes() const { return encode == nullptr; }
 };
 
 template <class T>
@@ -91,6 +95,9 @@ class SubscriberCore {
 };
 
 const TypeInfo& raw_type_info();
+// A byte-carrying TypeInfo that announces `name` and `fingerprint`; interned (lives forever,
+// one per distinct pair).
+const TypeInfo& announced_type_info(const std::string& name, std::int64_t fingerprint);
 
 // Copies in, for intra-process delivery of raw bytes.
 std::shared_ptr<const Bytes> make_bytes(std::span<const std::byte> data);
