@@ -41,6 +41,7 @@ struct RecordOptions {
   bool force = false;
   bool append = false;
   bool strftime_name = false;
+  int rotate = 0;
   double split_mb = 0;
   double split_s = 0;
   double max_duration_s = 0;
@@ -72,17 +73,27 @@ std::string apply_strftime(const std::string& pattern) {
   return n == 0 ? pattern : std::string(buf.data(), n);
 }
 
-// File names as lcm-logger: FILE, or with --increment FILE.NN (first unused NN from 00).
+// File names as lcm-logger: FILE; with --increment FILE.NN (first unused NN from 00); with
+// --rotate N always FILE.0, older files moved to FILE.1 … FILE.N-1 (the oldest deleted).
 class Namer {
  public:
   explicit Namer(const RecordOptions& o) : o_(o) {
     use_default_ = o.file.empty();
-    increment_ = use_default_ || o.increment || o.split_mb > 0 || o.split_s > 0;
+    increment_ = o.rotate == 0 && (use_default_ || o.increment || o.split_mb > 0 || o.split_s > 0);
   }
-  bool increment() const { return increment_; }
+  bool increment() const { return increment_ || o_.rotate > 0; }
   std::string next() {
     std::string base = use_default_ ? "lcmxlog-%Y-%m-%d" : o_.file;
     if (use_default_ || o_.strftime_name) base = apply_strftime(base);
+    if (o_.rotate > 0) {
+      for (int k = o_.rotate - 1; k >= 0; --k) {
+        const std::string from = base + "." + std::to_string(k);
+        if (!exists(from)) continue;
+        if (k == o_.rotate - 1) ::unlink(from.c_str());
+        else ::rename(from.c_str(), (base + "." + std::to_string(k + 1)).c_str());
+      }
+      return base + ".0";
+    }
     if (!increment_) return base;
     if (base != last_base_) last_base_ = base, index_ = 0;
     for (;; ++index_) {
@@ -308,8 +319,12 @@ CLI::App* add_record(CLI::App& app, Globals g) {
   c->add_flag("-f,--force", g_rec.force, "overwrite an existing FILE");
   c->add_flag("-a,--append", g_rec.append, "append to FILE (event numbers continue)");
   c->add_flag("-s,--strftime", g_rec.strftime_name, "format FILE with strftime (e.g. run-%H%M%S.lcmlog)");
+  c->add_option("--rotate", g_rec.rotate,
+                "keep NUM files: always write FILE.0, moving older ones to FILE.1 ... FILE.NUM-1 "
+                "(the oldest is deleted) when a new file starts")
+      ->check(CLI::Range(1, 10000));
   c->add_option("--split-mb", g_rec.split_mb,
-                "start the next file (FILE.NN+1) when this one reaches this many MB")
+                "start the next file (FILE.NN+1, or FILE.0 with --rotate) when this one reaches this many MB")
       ->check(CLI::NonNegativeNumber);
   c->add_option("--split-duration", g_rec.split_s, "start the next file after this many seconds")
       ->check(CLI::NonNegativeNumber);
@@ -339,8 +354,12 @@ CLI::App* add_record(CLI::App& app, Globals g) {
 int run_record() {
   const auto& o = g_rec;
   spdlog::set_level(spdlog::level::warn);
-  if (o.append && (o.force || o.split_mb > 0 || o.split_s > 0)) {
-    std::cerr << "lcmx record: --append cannot be combined with --force or --split-*\n";
+  if (o.append && (o.force || o.split_mb > 0 || o.split_s > 0 || o.rotate > 0)) {
+    std::cerr << "lcmx record: --append cannot be combined with --force, --rotate or --split-*\n";
+    return 2;
+  }
+  if (o.rotate > 0 && o.increment) {
+    std::cerr << "lcmx record: --rotate and --increment exclude each other\n";
     return 2;
   }
   std::optional<ChannelFilter> filter;

@@ -6,6 +6,7 @@
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <condition_variable>
+#include <map>
 #include <mutex>
 #include <thread>
 
@@ -383,4 +384,66 @@ TEST_CASE("a bridge participant: flag, carried topics, no self-delivery", "[core
     }
     return false;
   }));
+}
+
+TEST_CASE("subscribe_channels: every channel the filter accepts, with its name; announced types match",
+          "[core][raw][channels]") {
+  auto rt = lcmx::Runtime::create(test_options());
+  auto node = rt.create_node("rec");
+  auto pubs_node = rt.create_node("pubs");
+  std::mutex mu;
+  std::map<std::string, int> got;
+  // A publisher that exists before the subscription, one that comes after it.
+  auto early = pubs_node.advertise<lcmx_examples::pose_t>("CH_EARLY");
+  auto sub = node.subscribe_channels(
+      [](const std::string& c) { return c.rfind("CH_", 0) == 0 && c != "CH_SKIP"; },
+      [&](const lcmx::RawMessage& m) {
+        lcmx_examples::pose_t p;
+        REQUIRE(p.decode(m.data.data(), 0, static_cast<int>(m.data.size())) > 0);
+        std::lock_guard lock(mu);
+        ++got[std::string(m.channel)];
+      });
+  auto late = pubs_node.advertise_raw("CH_LATE");
+  auto skip = pubs_node.advertise<lcmx_examples::pose_t>("CH_SKIP");
+  auto other = pubs_node.advertise<lcmx_examples::pose_t>("OTHER");
+  REQUIRE(early.wait_for_subscribers(1, 2000ms));
+  REQUIRE(late.wait_for_subscribers(1, 2000ms));
+  CHECK(skip.subscriber_count() == 0);
+  CHECK(other.subscriber_count() == 0);
+  lcmx_examples::pose_t pose{};
+  std::vector<std::byte> enc(static_cast<std::size_t>(pose.getEncodedSize()));
+  pose.encode(enc.data(), 0, static_cast<int>(enc.size()));
+  for (int i = 0; i < 5; ++i) {
+    early.publish(pose);
+    late.publish(enc);
+    skip.publish(pose);
+    other.publish(pose);
+  }
+  REQUIRE(eventually([&] {
+    std::lock_guard lock(mu);
+    return got["CH_EARLY"] == 5 && got["CH_LATE"] == 5;
+  }));
+  {
+    std::lock_guard lock(mu);
+    CHECK(got.size() == 2);
+  }
+  const auto st = sub.stats();
+  REQUIRE(st.size() == 2);
+  CHECK(st[0].first == "CH_EARLY");
+  CHECK(st[1].first == "CH_LATE");
+
+  // A raw publisher announcing pose_t's fingerprint matches typed pose_t subscribers and
+  // delivers to them (bytes decoded); a subscriber of another type is not matched.
+  std::atomic<int> typed{0};
+  auto tsub = node.subscribe<lcmx_examples::pose_t>("ANNOUNCED", [&](const lcmx_examples::pose_t&) { ++typed; });
+  auto isub = node.subscribe<lcmx_examples::image_t>("ANNOUNCED", [](const lcmx_examples::image_t&) {});
+  auto apub = pubs_node.advertise_raw("ANNOUNCED", "lcm-log:pose", lcmx_examples::pose_t::getHash());
+  REQUIRE(apub.wait_for_subscribers(1, 2000ms));
+  apub.publish(enc);
+  REQUIRE(eventually([&] { return typed.load() == 1; }));
+  CHECK(apub.subscriber_count() == 1);
+  CHECK_FALSE(isub.stats().errors.empty());
+
+  sub.reset();  // unsubscribes every channel
+  CHECK(early.subscriber_count() == 0);
 }

@@ -1,0 +1,430 @@
+// `lcmx record`, `lcmx play`, `lcmx log info` with real processes: lcmx peers over shared
+// memory, stock liblcm peers and Debian's lcm-logger / lcm-logplayer (inside network
+// namespaces the tests create, on LCM's default URL).
+#include <lcm/eventlog.h>
+#include <sys/stat.h>
+
+#include <cmath>
+#include <fstream>
+#include <iterator>
+
+#include "lcmx/log/eventlog.hpp"
+#include "lcmx_examples/bench_t.hpp"
+#include "support.hpp"
+
+using namespace lcmx::it;
+namespace el = lcmx::eventlog;
+
+namespace {
+
+const std::string kLcmDefaultUrl = "udpm://239.255.76.67:7667?ttl=0";
+
+struct TmpDir {
+  std::string path;
+  TmpDir() {
+    char t[] = "/tmp/lcmx_it_logs_XXXXXX";
+    REQUIRE(::mkdtemp(t) != nullptr);
+    path = t;
+    ::chmod(path.c_str(), 0755);
+  }
+  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
+  std::string file(const std::string& n) const { return path + "/" + n; }
+};
+
+std::vector<el::Event> read_log(const std::string& path, el::Reader* keep = nullptr) {
+  std::vector<el::Event> out;
+  try {
+    auto r = el::Reader::open(path);
+    el::Event e;
+    while (r.next(e)) out.push_back(e);
+    if (keep) *keep = std::move(r);
+  } catch (const el::Error&) {
+  }
+  return out;
+}
+
+std::size_t count_channel(const std::string& path, const std::string& channel) {
+  std::size_t n = 0;
+  for (const auto& e : read_log(path))
+    if (e.channel == channel) ++n;
+  return n;
+}
+
+std::uint64_t file_size(const std::string& p) {
+  struct stat st{};
+  return ::stat(p.c_str(), &st) == 0 ? static_cast<std::uint64_t>(st.st_size) : 0;
+}
+
+// The last line of `text` that starts with '{' (the --json summary).
+std::string json_line(const std::string& text) {
+  std::string last;
+  std::istringstream in(text);
+  for (std::string l; std::getline(in, l);)
+    if (!l.empty() && l[0] == '{') last = l;
+  return last;
+}
+
+// A number field "key":N of a flat JSON line (first occurrence).
+long long json_num(const std::string& j, const std::string& key) {
+  const auto p = j.find("\"" + key + "\":");
+  if (p == std::string::npos) FAIL("no " << key << " in " << j);
+  return std::stoll(j.substr(p + key.size() + 3));
+}
+
+std::vector<std::byte> bench_bytes(std::int64_t seq, std::size_t size, const std::string& id) {
+  lcmx_examples::bench_t m;
+  m.seq = seq;
+  m.send_ns = seq;
+  m.size = static_cast<std::int32_t>(size);
+  m.data.resize(size);
+  for (std::size_t i = 0; i < size; ++i)
+    m.data[i] = i < 8 ? (i < id.size() ? static_cast<std::uint8_t>(id[i]) : 0)
+                      : static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(seq) * 7u) & 0xffu);
+  std::vector<std::byte> b(static_cast<std::size_t>(m.getEncodedSize()));
+  m.encode(b.data(), 0, static_cast<int>(b.size()));
+  return b;
+}
+
+#define REQUIRE_NETNS_OR_SKIP(ns)                                                              \
+  if (!(ns).ok()) {                                                                            \
+    if (contains_any((ns).error(), {"Operation not permitted", "Permission denied"})) {        \
+      WARN("skipped: cannot create a network namespace here: " << (ns).error());              \
+      return;                                                                                  \
+    }                                                                                          \
+    FAIL("ip netns add failed: " << (ns).error());                                             \
+  }
+
+}  // namespace
+
+TEST_CASE("lcm-logger's log played by lcmx play reaches a typed lcmx subscriber over shm", "[integration][log]") {
+  Session s(80, 60000ms);
+  Netns ns;
+  REQUIRE_NETNS_OR_SKIP(ns);
+  TmpDir d;
+  const std::string log = d.file("stock.lcmlog");
+  const std::string ch = unique_channel("LOGGED", 80);
+  const int n = 200;
+  auto& logger = s.spawn({LCMX_IP, "netns", "exec", ns.name(), LCMX_LCM_LOGGER, "-q", "-f", "--flush-interval=10", log},
+                         {"LCM_DEFAULT_URL"});
+  // lcm-logger prints no ready line: a stock publisher sends until the log holds its messages.
+  auto& warmup = s.spawn({LCMX_IP, "netns", "exec", ns.name(), LCMX_LCM_PEER, "pub", kLcmDefaultUrl,
+                          ch + "_WARMUP", "400", "50", "16", "W"});
+  REQUIRE(wait_until([&] { return count_channel(log, ch + "_WARMUP") > 0; }, 10000ms, 20ms));
+  warmup.send("quit");
+  auto& pub = s.spawn({LCMX_IP, "netns", "exec", ns.name(), LCMX_LCM_PEER, "pub", kLcmDefaultUrl, ch,
+                       std::to_string(n), "500", "300", "S1"});
+  REQUIRE(pub.expect("done", 20000ms) == "done " + std::to_string(n));
+  REQUIRE(wait_until([&] { return count_channel(log, ch) == static_cast<std::size_t>(n); }, 10000ms, 20ms));
+  logger.signal(SIGINT);
+  CHECK(logger.wait(5000ms) == 0);
+
+  auto& sub = s.peer({"sub", "--channel", ch, "--type", "bench", "--expect", std::to_string(n)});
+  REQUIRE(sub.expect("READY"));
+  const auto r = s.run({LCMX_TOOL, "play", log, "-c", ch, "--wait-subscribers", "1", "--delay", "0.1", "--speed",
+                        "4", "--json"},
+                       {}, 30000ms);
+  INFO(r.out);
+  CHECK(r.rc == 0);
+  const auto sum = sub.read_summaries(20000ms);
+  REQUIRE(sum.size() == 1);
+  CHECK(sum[0].num("received") == n);
+  CHECK(sum[0].num("duplicates") == 0);
+  CHECK(sum[0].num("out_of_order") == 0);
+  CHECK(sum[0].num("bad_content") == 0);
+  CHECK(sum[0].num("decode_errors") == 0);
+  CHECK(sum[0].str("paths").find("shm") != std::string::npos);
+  const auto j = json_line(r.out);
+  CHECK(json_num(j, "published") == n);
+  // The fingerprint announced is bench_t's.
+  char fp[20];
+  std::snprintf(fp, sizeof fp, "%016llx", static_cast<unsigned long long>(lcmx_examples::bench_t::getHash()));
+  CHECK(j.find(fp) != std::string::npos);
+}
+
+TEST_CASE("lcmx record of shm traffic is played by lcm-logplayer to a stock subscriber", "[integration][log]") {
+  Session s(81, 60000ms);
+  TmpDir d;
+  const std::string log = d.file("rec.lcmlog");
+  const std::string ch = unique_channel("REC", 81);
+  const int n = 150;
+  auto& rec = s.spawn({LCMX_TOOL, "record", log, "-c", ch, "--json"}, {}, true);
+  REQUIRE(rec.expect("lcmx record: recording to"));
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "bench", "--size", "200", "--count", std::to_string(n),
+                      "--rate", "300", "--subscribers", "1", "--id", "R1"});
+  REQUIRE(pub.expect("PUBLISHED", 20000ms));
+  REQUIRE(wait_until([&] { return count_channel(log, ch) == static_cast<std::size_t>(n); }, 10000ms, 20ms));
+  rec.signal(SIGINT);
+  REQUIRE(rec.wait(10000ms) == 0);
+  const auto j = json_line(rec.text());
+  INFO(rec.text());
+  CHECK(json_num(j, "messages") == n);
+  CHECK(json_num(j, "lost") == 0);
+
+  Netns ns;
+  REQUIRE_NETNS_OR_SKIP(ns);
+  auto& sub = s.spawn({LCMX_IP, "netns", "exec", ns.name(), LCMX_LCM_PEER, "sub", kLcmDefaultUrl, ch,
+                       std::to_string(n), "30000"});
+  REQUIRE(sub.expect("ready"));
+  const auto r = s.run({LCMX_IP, "netns", "exec", ns.name(), LCMX_LCM_LOGPLAYER, "-s", "4", log},
+                       {"LCM_DEFAULT_URL"}, 30000ms);
+  INFO(r.out);
+  CHECK(r.rc == 0);
+  const auto sum = sub.read_summaries(20000ms);
+  REQUIRE(sum.size() == 1);
+  CHECK(sum[0].num("received") == n);
+  CHECK(sum[0].num("bad_content") == 0);
+  CHECK(sum[0].num("duplicates") == 0);
+  CHECK(sum[0].num("out_of_order") == 0);
+}
+
+TEST_CASE("2.5 MB messages recorded from shared memory play back intact", "[integration][log]") {
+  Session s(82, 60000ms);
+  TmpDir d;
+  const std::string log = d.file("big.lcmlog");
+  const std::string ch = unique_channel("BIG", 82);
+  const int n = 12;
+  auto& rec = s.spawn({LCMX_TOOL, "record", log, "-c", ch, "--json"}, {}, true);
+  REQUIRE(rec.expect("lcmx record: recording to"));
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "bench", "--size", "2500000", "--count", std::to_string(n),
+                      "--rate", "20", "--subscribers", "1", "--id", "BIG"});
+  REQUIRE(pub.expect("PUBLISHED", 30000ms));
+  REQUIRE(wait_until([&] { return count_channel(log, ch) == static_cast<std::size_t>(n); }, 15000ms, 50ms));
+  rec.signal(SIGINT);
+  REQUIRE(rec.wait(10000ms) == 0);
+  CHECK(json_num(json_line(rec.text()), "lost") == 0);
+  for (const auto& e : read_log(log)) CHECK(e.data.size() > 2'500'000u);
+
+  auto& sub = s.peer({"sub", "--channel", ch, "--type", "bench", "--expect", std::to_string(n)});
+  REQUIRE(sub.expect("READY"));
+  const auto r = s.run({LCMX_TOOL, "play", log, "--wait-subscribers", "1", "--delay", "0.1", "--json"}, {}, 30000ms);
+  INFO(r.out);
+  CHECK(r.rc == 0);
+  const auto sum = sub.read_summaries(20000ms);
+  REQUIRE(sum.size() == 1);
+  CHECK(sum[0].num("received") == n);
+  CHECK(sum[0].num("bad_content") == 0);
+  CHECK(sum[0].num("decode_errors") == 0);
+}
+
+TEST_CASE("record/play round trip: channel, data and order identical, timestamps within 1 ms at speed 1",
+          "[integration][log]") {
+  Session s(83, 60000ms);
+  TmpDir d;
+  const std::string src = d.file("src.lcmlog"), out = d.file("out.lcmlog");
+  const std::string a = unique_channel("RT_A", 83), b = unique_channel("RT_B", 83), c = unique_channel("RT_C", 83);
+  // 150 events over ~1.2 s on three channels, 3..13 ms apart, sizes 16 B .. 300 KB.
+  {
+    auto w = el::Writer::open(src, el::OpenMode::create);
+    std::int64_t ts = 1'700'000'000'000'000;
+    for (int i = 0; i < 150; ++i) {
+      const std::string& ch = i % 3 == 0 ? a : (i % 3 == 1 ? b : c);
+      const std::size_t size = i % 25 == 24 ? 300'000 : 16 + static_cast<std::size_t>(i) * 11;
+      w.write(ts, ch, bench_bytes(i, size, "RT"));
+      ts += 3000 + (i * 7919) % 10000;
+    }
+    w.close();
+  }
+  auto& rec = s.spawn({LCMX_TOOL, "record", out, "-c", unique_channel("RT_.", 83), "--json"}, {}, true);
+  REQUIRE(rec.expect("lcmx record: recording to"));
+  const auto r = s.run({LCMX_TOOL, "play", src, "--wait-subscribers", "3", "--delay", "0.2", "--json"}, {}, 30000ms);
+  INFO(r.out);
+  REQUIRE(r.rc == 0);
+  const auto want = read_log(src);
+  REQUIRE(wait_until([&] { return read_log(out).size() >= want.size(); }, 10000ms, 20ms));
+  rec.signal(SIGINT);
+  REQUIRE(rec.wait(10000ms) == 0);
+  const auto got = read_log(out);
+  REQUIRE(got.size() == want.size());
+  double worst_ms = 0;
+  for (std::size_t i = 0; i < want.size(); ++i) {
+    INFO("event " << i);
+    CHECK(got[i].channel == want[i].channel);
+    CHECK(got[i].data == want[i].data);
+    CHECK(got[i].number == static_cast<std::int64_t>(i));
+    const double dt = static_cast<double>((got[i].timestamp_us - got[0].timestamp_us) -
+                                          (want[i].timestamp_us - want[0].timestamp_us)) / 1000.0;
+    worst_ms = std::max(worst_ms, std::abs(dt));
+  }
+  INFO("worst timestamp difference " << worst_ms << " ms");
+  CHECK(worst_ms <= 1.0);
+}
+
+TEST_CASE("truncated, corrupt and garbage logs: log info finds the damage, play stops or resumes and says where",
+          "[integration][log]") {
+  Session s(84, 60000ms);
+  TmpDir d;
+  const std::string ch = unique_channel("DMG", 84);
+  const std::string good = d.file("good.lcmlog");
+  {
+    auto w = el::Writer::open(good, el::OpenMode::create);
+    for (int i = 0; i < 20; ++i) w.write(1'700'000'000'000'000 + i * 1000, ch, bench_bytes(i, 500, "D"));
+    w.close();
+  }
+  const auto events = read_log(good);
+  REQUIRE(events.size() == 20);
+  std::ifstream in(good, std::ios::binary);
+  const std::vector<char> bytes{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  auto spit = [&](const std::string& name, const std::vector<char>& b) {
+    std::ofstream f(d.file(name), std::ios::binary);
+    f.write(b.data(), static_cast<std::streamsize>(b.size()));
+    return d.file(name);
+  };
+
+  SECTION("truncated inside event 15") {
+    const auto off = events[15].offset;
+    const auto log = spit("cut.lcmlog", {bytes.begin(), bytes.begin() + static_cast<long>(off + 100)});
+    const auto info = s.run({LCMX_TOOL, "log", "info", log, "--json"});
+    INFO(info.out);
+    CHECK(info.rc == 0);
+    CHECK(json_num(info.out, "events") == 15);
+    CHECK(info.out.find("\"kind\":\"truncated\",\"offset\":" + std::to_string(off) + ",\"length\":100") !=
+          std::string::npos);
+    const auto text = s.run({LCMX_TOOL, "log", "info", log});
+    CHECK(text.out.find("truncated at offset " + std::to_string(off)) != std::string::npos);
+    const auto play = s.run({LCMX_TOOL, "play", log, "--fast", "--delay", "0", "--json"});
+    INFO(play.out);
+    CHECK(play.rc == 0);
+    CHECK(json_num(json_line(play.out), "published") == 15);
+    CHECK(play.out.find("stopped: the log ends with truncated bytes at offset " + std::to_string(off)) !=
+          std::string::npos);
+  }
+  SECTION("event 5's length field corrupted: skipped, reported, the rest plays") {
+    auto b = bytes;
+    b[events[5].offset + 25] = '\x55';
+    const auto log = spit("corrupt.lcmlog", b);
+    const auto play = s.run({LCMX_TOOL, "play", log, "--fast", "--delay", "0", "--json"});
+    INFO(play.out);
+    CHECK(play.rc == 0);
+    CHECK(json_num(json_line(play.out), "published") == 19);
+    CHECK(play.out.find("damaged log: " + std::to_string(events[6].offset - events[5].offset) +
+                        " bytes skipped at offset " + std::to_string(events[5].offset)) != std::string::npos);
+    const auto stop = s.run({LCMX_TOOL, "play", log, "--fast", "--delay", "0", "--stop-on-damage", "--json"});
+    CHECK(json_num(json_line(stop.out), "published") == 5);
+  }
+  SECTION("garbage only") {
+    std::vector<char> junk(50'000);
+    for (std::size_t i = 0; i < junk.size(); ++i) junk[i] = static_cast<char>((i * 2654435761u) >> 13);
+    const auto log = spit("junk.lcmlog", junk);
+    const auto play = s.run({LCMX_TOOL, "play", log});
+    CHECK(play.rc == 1);
+    CHECK(play.out.find("holds no readable event") != std::string::npos);
+    const auto info = s.run({LCMX_TOOL, "log", "info", log, "--json"});
+    CHECK(info.rc == 0);
+    CHECK(json_num(info.out, "events") == 0);
+    CHECK(json_num(info.out, "damaged_bytes") == 50'000);
+  }
+  SECTION("not a log file at all") {
+    const auto play = s.run({LCMX_TOOL, "play", d.file("missing.lcmlog")});
+    CHECK(play.rc == 1);
+    CHECK(play.out.find("cannot open") != std::string::npos);
+  }
+}
+
+TEST_CASE("SIGKILL of the recorder mid-write leaves a log readable up to its last complete event",
+          "[integration][log]") {
+  Session s(85, 60000ms);
+  TmpDir d;
+  const std::string log = d.file("killed.lcmlog");
+  const std::string ch = unique_channel("KILL", 85);
+  auto& rec = s.spawn({LCMX_TOOL, "record", log, "-c", ch, "--flush-interval", "5"}, {}, true);
+  REQUIRE(rec.expect("lcmx record: recording to"));
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "bench", "--size", "300000", "--count", "0", "--rate", "200",
+                      "--subscribers", "1", "--id", "K"});
+  REQUIRE(pub.expect("MATCHED", 20000ms));
+  REQUIRE(wait_until([&] { return file_size(log) > 8'000'000; }, 20000ms, 5ms));
+  rec.kill9();
+  pub.send("quit");
+  el::Reader r = el::Reader::open(log);
+  const auto got = read_log(log, &r);
+  INFO("events " << got.size() << ", damage " << r.damage_count());
+  REQUIRE(got.size() > 20);
+  CHECK(r.damage_count() <= 1);
+  if (r.damage_count() == 1) {
+    CHECK(r.damage()[0].kind == el::Damage::Kind::truncated);
+    CHECK(r.damage()[0].offset + r.damage()[0].length == file_size(log));
+  }
+  for (std::size_t i = 0; i < got.size(); ++i) {
+    CHECK(got[i].number == static_cast<std::int64_t>(i));
+    lcmx_examples::bench_t m;
+    REQUIRE(m.decode(got[i].data.data(), 0, static_cast<int>(got[i].data.size())) > 0);
+  }
+  // liblcm's reader (lcm-logplayer's) reads the same events.
+  lcm_eventlog_t* l = lcm_eventlog_create(log.c_str(), "r");
+  REQUIRE(l != nullptr);
+  std::size_t n = 0;
+  while (lcm_eventlog_event_t* e = lcm_eventlog_read_next_event(l)) {
+    ++n;
+    lcm_eventlog_free_event(e);
+  }
+  lcm_eventlog_destroy(l);
+  CHECK(n == got.size());
+}
+
+TEST_CASE("lcmx record hears stock LCM programs on the host-local group; lcmx play --udp reaches them",
+          "[integration][log][interop]") {
+  Session s(86, 60000ms);
+  Netns ns;
+  REQUIRE_NETNS_OR_SKIP(ns);
+  TmpDir d;
+  const std::string log = d.file("stock.lcmlog");
+  const std::string ch = unique_channel("STOCK", 86);
+  const int n = 100;
+  // Both on LCM's defaults (no LCM_DEFAULT_URL, no LCMX_DISCOVERY_URL).
+  auto& rec = s.spawn({LCMX_IP, "netns", "exec", ns.name(), LCMX_TOOL, "record", log, "-c", ch + ".*", "--json"},
+                      {"LCMX_DISCOVERY_URL"}, true);
+  REQUIRE(rec.expect("lcmx record: recording to"));
+  auto& pub = s.spawn({LCMX_IP, "netns", "exec", ns.name(), LCMX_LCM_PEER, "pub", kLcmDefaultUrl, ch,
+                       std::to_string(n), "200", "100", "ST"});
+  REQUIRE(pub.expect("done", 20000ms));
+  REQUIRE(wait_until([&] { return count_channel(log, ch) == static_cast<std::size_t>(n); }, 10000ms, 20ms));
+  rec.signal(SIGINT);
+  REQUIRE(rec.wait(10000ms) == 0);
+  CHECK(json_num(json_line(rec.text()), "lost") == 0);
+  const auto got = read_log(log);
+  REQUIRE(got.size() == static_cast<std::size_t>(n));
+  for (std::size_t i = 0; i < got.size(); ++i) {
+    lcmx_examples::bench_t m;
+    REQUIRE(m.decode(got[i].data.data(), 0, static_cast<int>(got[i].data.size())) > 0);
+    CHECK(m.seq == static_cast<std::int64_t>(i));
+    CHECK(m.size == 100);
+  }
+
+  auto& sub = s.spawn({LCMX_IP, "netns", "exec", ns.name(), LCMX_LCM_PEER, "sub", kLcmDefaultUrl, ch + "_OUT",
+                       std::to_string(n), "30000"});
+  REQUIRE(sub.expect("ready"));
+  const auto r = s.run({LCMX_IP, "netns", "exec", ns.name(), LCMX_TOOL, "play", log, "--udp", "--remap",
+                        ch + "=" + ch + "_OUT", "--speed", "4", "--delay", "0.1"},
+                       {"LCMX_DISCOVERY_URL"}, 30000ms);
+  INFO(r.out);
+  CHECK(r.rc == 0);
+  const auto sum = sub.read_summaries(20000ms);
+  REQUIRE(sum.size() == 1);
+  CHECK(sum[0].num("received") == n);
+  CHECK(sum[0].num("bad_content") == 0);
+  CHECK(sum[0].num("out_of_order") == 0);
+}
+
+TEST_CASE("record/play/log: --help for each verb, clear errors for bad options", "[integration][log][cli]") {
+  Session s(87, 30000ms);
+  for (const auto& verb : std::vector<std::vector<std::string>>{{"record"}, {"play"}, {"log", "info"}}) {
+    auto argv = std::vector<std::string>{LCMX_TOOL};
+    argv.insert(argv.end(), verb.begin(), verb.end());
+    argv.push_back("--help");
+    const auto r = s.run(argv);
+    INFO(r.out);
+    CHECK(r.rc == 0);
+    CHECK(r.out.find(verb.back() + " [OPTIONS]") != std::string::npos);
+    CHECK(r.out.find("--json") != std::string::npos);
+  }
+  const auto bad = s.run({LCMX_TOOL, "record", "-c", "(unclosed", "/tmp/never.lcmlog"});
+  CHECK(bad.rc == 2);
+  CHECK(bad.out.find("bad channel expression") != std::string::npos);
+  TmpDir d;
+  { std::ofstream(d.file("exists.lcmlog")) << "x"; }
+  const auto exists = s.run({LCMX_TOOL, "record", d.file("exists.lcmlog")});
+  CHECK(exists.rc == 1);
+  CHECK(exists.out.find("exists: give --force") != std::string::npos);
+  const auto remap = s.run({LCMX_TOOL, "play", d.file("exists.lcmlog"), "--remap", "NOEQUALS"});
+  CHECK(remap.rc == 2);
+  CHECK(remap.out.find("expected FROM=TO") != std::string::npos);
+}
