@@ -313,6 +313,9 @@ int run_play() {
       if (!by_out.count(out)) {
         PublisherOptions po;
         po.max_message_size = std::max<std::size_t>(po.max_message_size, ci.max_size);
+        // Slots sized for the channel's largest message now: growing the segment mid-play
+        // (a new generation, page faults) would delay the messages after it by milliseconds.
+        po.shm_initial_slot_size = std::max<std::size_t>(po.shm_initial_slot_size, ci.max_size);
         const std::int64_t fp = ci.mixed ? 0 : ci.fingerprint;
         by_out.emplace(out, fp == 0 ? node->advertise_raw(out, po)
                                     : node->advertise_raw(out, "lcm-log:" + hex64(fp), fp, po));
