@@ -19,8 +19,12 @@
 #include <poll.h>
 #include <unistd.h>
 
+#include <pthread.h>
+#include <sched.h>
+
 #include <algorithm>
 #include <atomic>
+#include <cstring>
 #include <cmath>
 #include <iostream>
 #include <map>
@@ -51,7 +55,8 @@ struct PlayOptions {
   bool udp = false;
   int wait_subscribers = 0;
   double wait_timeout_s = 10;
-  int spin_us = 200;
+  int spin_us = 50;
+  int rt_priority = 0;
   bool stop_on_damage = false;
   bool quiet = false;
   bool json = false;
@@ -212,6 +217,10 @@ CLI::App* add_play(CLI::App& app, Globals g) {
                 "spin (instead of sleeping) this many microseconds before each message is due")
       ->check(CLI::Range(0, 100000))
       ->capture_default_str();
+  c->add_option("--rt-priority", g_play.rt_priority,
+                "play from a SCHED_FIFO thread of this priority (1-99; needs CAP_SYS_NICE): due "
+                "times are kept on a busy machine too")
+      ->check(CLI::Range(0, 99));
   c->add_flag("--stop-on-damage", g_play.stop_on_damage, "stop at the first damaged part of the log");
   c->add_flag("-q,--quiet", g_play.quiet, "no progress bar and no summary (errors only)");
   c->add_flag("--json", g_play.json, "print the summary as JSON on stdout");
@@ -360,6 +369,18 @@ int run_play() {
               << " s, " << pubs.size() << " channels)" << (o.paused ? " paused" : "") << std::endl;
   }
 
+  int rc = 0;
+  if (o.rt_priority > 0) {
+    // Only this (the playing) thread: the runtime's and the input threads exist already
+    // and keep the default policy (threads inherit it from their creator).
+    sched_param sp{};
+    sp.sched_priority = o.rt_priority;
+    if (const int e = ::pthread_setschedparam(::pthread_self(), SCHED_FIFO, &sp); e != 0) {
+      std::cerr << "lcmx play: --rt-priority " << o.rt_priority << ": " << std::strerror(e) << "\n";
+      g_quit.store(true);
+      rc = 1;
+    }
+  }
   // Pass 2: play.
   std::map<std::string, std::uint64_t> sent;
   std::vector<std::int64_t> late_ns;
@@ -368,7 +389,6 @@ int run_play() {
   std::string stopped_at;
   std::size_t damage_reported = 0;
   const std::int64_t spin_ns = std::int64_t{o.spin_us} * 1000;
-  int rc = 0;
   try {
     auto r = eventlog::Reader::open(o.file);
     eventlog::Event e;
