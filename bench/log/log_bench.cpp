@@ -10,8 +10,8 @@
 //     "sent N small M images B bytes".
 //   observe URL LOG SECONDS
 //     liblcm subscriber of every channel for SECONDS. LOG is the log being replayed: each
-//     message is found in it by (channel, seq) and its due time is the first received
-//     message's arrival + (its log timestamp - the first one's). Prints
+//     message is found in it by (channel, seq); its due time is start + (its log timestamp -
+//     the first one's), start chosen as the median over all messages. Prints
 //     "timing received=N matched=M p50_us=.. p99_us=.. max_us=.." (|actual - due|).
 // One pacing thread (absolute deadlines, sleep_until), no busy waiting.
 #include <lcm/lcm.h>
@@ -158,8 +158,9 @@ void on_msg(const lcm_recv_buf_t* rbuf, const char* channel, void* user) {
     o->first_recv_ns = now;
     o->first_ts = s->second;
   }
-  const std::int64_t due = o->first_recv_ns + (s->second - o->first_ts) * 1000;
-  o->dev_ns.push_back(std::llabs(now - due));
+  // Arrival relative to the schedule anchored at the first message; the constant part (the
+  // anchor's own delay) is removed afterwards (median).
+  o->dev_ns.push_back(now - (o->first_recv_ns + (s->second - o->first_ts) * 1000));
 }
 
 int observe(const char* url, const char* log, double seconds) {
@@ -190,6 +191,15 @@ int observe(const char* url, const char* log, double seconds) {
   const auto end = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
   while (Clock::now() < end) lcm_handle_timeout(lcm, 100);
   lcm_destroy(lcm);
+  // |actual - due| with the schedule's start taken as the median offset: a player that keeps
+  // the log's spacing scores 0 whatever its start-up delay; lateness that varies (jitter,
+  // drift, falling behind) counts.
+  if (!o.dev_ns.empty()) {
+    auto sorted = o.dev_ns;
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<long>(sorted.size() / 2), sorted.end());
+    const std::int64_t median = sorted[sorted.size() / 2];
+    for (auto& d : o.dev_ns) d = std::llabs(d - median);
+  }
   std::sort(o.dev_ns.begin(), o.dev_ns.end());
   auto pct = [&](double p) {
     if (o.dev_ns.empty()) return 0.0;

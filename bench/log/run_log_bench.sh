@@ -108,19 +108,19 @@ echo
 "$LCMX" play --help >/dev/null
 LOG="$WORK/lcm-logger.lcmlog"
 run_player() {
-  local out="$WORK/observe-$1.txt"
+  local out="$WORK/observe-$1.txt" name=$1
   # The observer runs SCHED_FIFO so that its own wake-ups add as little as possible (the same
   # for every player).
   chrt -f 20 ip netns exec "$NS" "$GEN" observe "$URL" "$LOG" "$((PLAY_S + 4))" > "$out" & local OBS=$!; PIDS+=($OBS)
   for _ in $(seq 1 100); do grep -q ready "$out" 2>/dev/null && break; sleep 0.05; done
   shift
-  inns timeout "$((PLAY_S + 3))" "$@" >/dev/null 2>&1 || true
+  inns timeout "$((PLAY_S + 3))" "$@" > "$WORK/player-$name.txt" 2>&1 || true
   wait $OBS || true
   sed -n 's/^timing //p' "$out"
 }
 T1=$(run_player logplayer lcm-logplayer -s 1 "$LOG")
-T2=$(run_player lcmx env -u LCMX_DISCOVERY_URL "$LCMX" play --udp --delay 0.5 -q --end "$PLAY_S" "$LOG")
-T3=$(run_player lcmx-rt env -u LCMX_DISCOVERY_URL "$LCMX" play --udp --delay 0.5 -q --end "$PLAY_S" --rt-priority 10 "$LOG")
+T2=$(run_player lcmx env -u LCMX_DISCOVERY_URL "$LCMX" play --udp --delay 0.5 --json --end "$PLAY_S" "$LOG")
+T3=$(run_player lcmx-rt env -u LCMX_DISCOVERY_URL "$LCMX" play --udp --delay 0.5 --json --end "$PLAY_S" --rt-priority 10 "$LOG")
 field() { echo "$1" | sed -n "s/.*$2=\([0-9.]*\).*/\1/p"; }
 echo "## 3. Player timing: replaying the lcm-logger log of 1 (first ${PLAY_S} s, 10 000 msg/s) at speed 1, stock observer"
 echo
@@ -130,5 +130,6 @@ echo "| lcm-logplayer | $(field "$T1" matched) | $(field "$T1" p50_us) | $(field
 echo "| lcmx play --udp | $(field "$T2" matched) | $(field "$T2" p50_us) | $(field "$T2" p99_us) | $(field "$T2" max_us) |"
 echo "| lcmx play --udp --rt-priority 10 | $(field "$T3" matched) | $(field "$T3" p50_us) | $(field "$T3" p99_us) | $(field "$T3" max_us) |"
 echo
-echo "|actual - due| at a stock observer (SCHED_FIFO): due = the first received message's arrival + (log timestamp - first log timestamp)."
+echo "|actual - due| at a stock observer (SCHED_FIFO): due = start + (log timestamp - first log timestamp), start = the median over all messages (a constant delay is not an error)."
+for n in lcmx lcmx-rt; do echo "lcmx play ($n) own measure of publish time - due: $(sed -n 's/.*"late_us":\({[^}]*}\).*/\1/p' "$WORK/player-$n.txt")"; done
 echo "lcm-logplayer has no --end: it is stopped by timeout after ${PLAY_S} s + 3 s; the observer counts what arrives in ${PLAY_S} s + 4 s."
