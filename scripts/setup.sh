@@ -12,6 +12,7 @@ packages=(
   catch2 clang libclang-rt-14-dev  # tests (Catch2 v2; clang + libFuzzer runtime for test/fuzz)
   libcli11-dev libspdlog-dev libtomlplusplus-dev libncurses-dev
   iproute2 procps                  # network namespaces for multi-host tests, ps/pgrep
+  tmux                             # tests of lcmx record/play on a terminal (status line, space bar)
   iperf3                           # bench/bridge: TCP reference on the emulated link
 )
 
