@@ -394,7 +394,23 @@ int run_play() {
     eventlog::Event e;
     bool have_base = false;
     std::int64_t base_ns = 0, base_ts = 0;
-    auto last_progress = Clock::now();
+    auto last_progress = Clock::now() - std::chrono::seconds(1);
+    // The progress bar (terminal only): position / duration, messages, speed, pause state.
+    auto progress = [&](std::int64_t ts, bool force) {
+      if (!tty_out || (!force && Clock::now() - last_progress < std::chrono::milliseconds(200))) return;
+      last_progress = Clock::now();
+      const double pos = static_cast<double>(ts - first_ts) / 1e6;
+      std::cerr << "\r\x1b[K" << bar(duration_s > 0 ? pos / duration_s : 1.0, 30) << " " << fmt("%.1f", pos)
+                << " / " << fmt("%.1f", duration_s) << " s  " << published << " msgs"
+                << (o.fast ? "" : "  x" + fmt("%g", o.speed)) << (loops ? "  loop " + std::to_string(loops + 1) : "")
+                << (g_paused.load() ? "  PAUSED (space)" : "") << std::flush;
+    };
+    auto wait_paused = [&](std::int64_t ts) {
+      while (g_paused.load() && !g_quit.load()) {
+        progress(ts, false);
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      }
+    };
     for (;;) {
       if (g_quit.load()) break;
       if (!r.next(e)) {
@@ -446,25 +462,18 @@ int run_play() {
           if (g_quit.load()) break;
           // Paused: wait, then continue from this event as if it were the first.
           const std::int64_t paused_at = mono_ns();
-          while (g_paused.load() && !g_quit.load()) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+          wait_paused(e.timestamp_us);
           base_ns += mono_ns() - paused_at;
         }
         if (g_quit.load()) break;
       } else {
-        while (g_paused.load() && !g_quit.load()) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+        wait_paused(e.timestamp_us);
         if (g_quit.load()) break;
       }
       pit->second.publish(e.data);
       ++published;
       ++sent[e.channel];
-      if (tty_out && Clock::now() - last_progress >= std::chrono::milliseconds(200)) {
-        last_progress = Clock::now();
-        const double pos = static_cast<double>(e.timestamp_us - first_ts) / 1e6;
-        std::cerr << "\r\x1b[K" << bar(duration_s > 0 ? pos / duration_s : 1.0, 30) << " "
-                  << fmt("%.1f", pos) << " / " << fmt("%.1f", duration_s) << " s  " << published << " msgs"
-                  << (o.fast ? "" : "  x" + fmt("%g", o.speed)) << (loops ? "  loop " + std::to_string(loops + 1) : "")
-                  << (g_paused.load() ? "  PAUSED (space)" : "") << std::flush;
-      }
+      progress(e.timestamp_us, false);
     }
   } catch (const std::exception& ex) {
     std::cerr << "\nlcmx play: " << ex.what() << "\n";

@@ -222,7 +222,7 @@ TEST_CASE("Writer: append continues the numbering and cuts a torn last event") {
   CHECK_THROWS_AS(el::Writer::open(d.file("a.log"), el::OpenMode::create), el::Error);
 }
 
-TEST_CASE("Reader: data_prefix reads headers and a prefix only; errors are typed") {
+TEST_CASE("Reader: data_prefix reads headers and a prefix only, errors are typed") {
   TmpDir d;
   const auto evs = sample_events();
   write_lcmx(d.file("a.log"), evs);

@@ -51,7 +51,7 @@ std::vector<std::int64_t> iota(std::int64_t n) {
 
 }  // namespace
 
-TEST_CASE("ordinary computer: lcmx record gets stock liblcm and lcmx shm traffic exactly once; "
+TEST_CASE("ordinary computer: lcmx record gets stock liblcm and lcmx shm traffic exactly once, "
           "lcm-logplayer and lcmx play --udp replay it to lcmx and stock subscribers",
           "[multihost][local][log]") {
   LCMX_REQUIRE_NETNS();
@@ -67,7 +67,7 @@ TEST_CASE("ordinary computer: lcmx record gets stock liblcm and lcmx shm traffic
                          "--size", "200", "--subscribers", "1", "--id", "SH"});
   REQUIRE(lcm.expect("done", 15000ms) == "done " + std::to_string(n));
   REQUIRE(pub.expect("PUBLISHED", 15000ms));
-  REQUIRE(it::wait_until(
+  REQUIRE(lcmx::it::wait_until(
       [&] {
         const auto l = read_log(log);
         return seqs_of(l, stock).size() >= static_cast<std::size_t>(n) && seqs_of(l, shm).size() >= static_cast<std::size_t>(n);
