@@ -8,12 +8,15 @@
 // to the file at least every --flush-interval, splits and rotates; the main thread handles
 // signals (flags set by handlers), the status line and the summary.
 #include <fcntl.h>
+#include <pthread.h>
+#include <sched.h>
 #include <signal.h>
 #include <spdlog/spdlog.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstring>
 #include <atomic>
 #include <condition_variable>
 #include <deque>
@@ -48,6 +51,7 @@ struct RecordOptions {
   int flush_ms = 100;
   double max_unwritten_mb = 256;
   std::size_t queue_depth = 1024;
+  int rt_priority = 0;
   bool quiet = false;
   bool json = false;
   Globals g;
@@ -342,6 +346,10 @@ CLI::App* add_record(CLI::App& app, Globals g) {
                 "per channel queue for UDP / in-process messages before the oldest is dropped")
       ->check(CLI::Range(1, 1 << 20))
       ->capture_default_str();
+  c->add_option("--rt-priority", g_rec.rt_priority,
+                "receive on SCHED_FIFO threads of this priority (1-99; needs CAP_SYS_NICE), so a "
+                "busy machine does not delay reading shared memory (the writer thread stays normal)")
+      ->check(CLI::Range(0, 99));
   c->add_flag("-q,--quiet", g_rec.quiet, "no status line and no summary (errors only)");
   c->add_flag("--json", g_rec.json, "print the summary as JSON on stdout");
   c->footer(
@@ -390,6 +398,20 @@ int run_record() {
   std::optional<Runtime> rt;
   std::optional<Node> node;
   ChannelSubscription sub;
+  // --rt-priority: the runtime's and the node's threads inherit SCHED_FIFO from this thread
+  // while they are created; this thread (status, signals) and the writer go back to normal.
+  sched_param normal{};
+  int normal_policy = SCHED_OTHER;
+  ::pthread_getschedparam(::pthread_self(), &normal_policy, &normal);
+  if (o.rt_priority > 0) {
+    sched_param sp{};
+    sp.sched_priority = o.rt_priority;
+    if (const int e = ::pthread_setschedparam(::pthread_self(), SCHED_FIFO, &sp); e != 0) {
+      std::cerr << "lcmx record: --rt-priority " << o.rt_priority << ": " << std::strerror(e) << "\n";
+      rec.stop_writer();
+      return 1;
+    }
+  }
   try {
     auto ro = RuntimeOptions::from_env();
     ro.discovery_url = *o.g.url;
@@ -407,6 +429,7 @@ int run_record() {
     rec.stop_writer();
     return 1;
   }
+  if (o.rt_priority > 0) ::pthread_setschedparam(::pthread_self(), normal_policy, &normal);
   if (!o.quiet) std::cerr << "lcmx record: recording to " << rec.files().front() << std::endl;
 
   using Clock = std::chrono::steady_clock;

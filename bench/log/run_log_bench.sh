@@ -5,7 +5,8 @@
 # 1. recorder vs lcm-logger: both record the same stock traffic (100 channels x 100 Hz x 1 KB on
 #    LCM's host-local group, in a namespace whose multicast is routed to lo): lost, CPU seconds.
 # 2. lcmx record on lcmx traffic: 6.2 MB images at 30 Hz over shm + 100 channels x 100 Hz small,
-#    to tmpfs (/dev/shm, --rotate 2 --split-mb 1000 to bound memory): lost, CPU per MB.
+#    to tmpfs (/dev/shm, --rotate 2 --split-mb 1000 to bound memory): lost, CPU per MB; default
+#    and --rt-priority 10.
 # 3. player timing: lcm-logplayer and lcmx play --udp replay scenario 1's lcm-logger log (its
 #    first --play-seconds) at speed 1 to a stock observer: |actual - due| p50/p99.
 # Prints Markdown tables; raw outputs stay in $WORK (removed at the end unless KEEP=1).
@@ -83,25 +84,31 @@ echo "| lcm-logger | $SENT | $A | $((SENT - A)) | $C1 | 1.00 |"
 echo "| lcmx record | $SENT | $B | $((SENT - B)) | $C2 | $(awk -v a="$C2" -v b="$C1" 'BEGIN { printf "%.2f", a / b }') |"
 echo
 
-# ---- 2. lcmx record on lcmx traffic, to tmpfs
-ip netns exec "$NS" env -u LCMX_DISCOVERY_URL "$LCMX" record -q --rotate 2 --split-mb 1000 "$TMPFS/lcmx.lcmlog" --json > "$WORK/record2.json" & PIDS+=($!); REC=$!
-# The generator waits until the recorder subscribed to each of its channels.
-C0=$(cpu_s $REC)
-GENOUT=$(inns env -u LCMX_DISCOVERY_URL "$GEN" gen-lcmx 100 100 100 6220800 30 "$LCMX_S")
-SENT=$(echo "$GENOUT" | sed -n 's/^sent \([0-9]*\) .*/\1/p')
-for _ in $(seq 1 50); do sleep 0.1; done   # drain: the recorder writes its queue (bounded wait)
-CR=$(awk -v a="$(cpu_s $REC)" -v b="$C0" 'BEGIN { printf "%.2f", a - b }')
-kill -INT $REC; wait $REC || true
-J=$(cat "$WORK/record2.json")
-MSGS=$(echo "$J" | sed -n 's/.*"seconds":[0-9.]*,"messages":\([0-9]*\).*/\1/p')
-BYTES=$(echo "$J" | sed -n 's/.*,"bytes":\([0-9]*\),"lost".*/\1/p')
-LOST=$(echo "$J" | sed -n 's/.*,"lost":\([0-9]*\),"channels".*/\1/p')
+# ---- 2. lcmx record on lcmx traffic, to tmpfs (default, then --rt-priority 10)
 echo "## 2. lcmx record on lcmx traffic: 6.2 MB images at 30 Hz (shm) + 100 channels x 100 Hz x 100 B, ${LCMX_S} s, to tmpfs"
 echo
-echo "| sent | recorded | lost (recorder's count) | sent - recorded | MB recorded | CPU s | CPU ms per MB |"
-echo "|---:|---:|---:|---:|---:|---:|---:|"
-echo "| $SENT | $MSGS | $LOST | $((SENT - MSGS)) | $(awk -v b="$BYTES" 'BEGIN { printf "%.0f", b / 1e6 }') | $CR | $(awk -v c="$CR" -v b="$BYTES" 'BEGIN { printf "%.3f", c * 1000 / (b / 1e6) }') |"
-echo "($GENOUT)"
+echo "| recorder | sent | recorded | lost (recorder's count) | sent - recorded | MB recorded | CPU s | CPU ms per MB |"
+echo "|---|---:|---:|---:|---:|---:|---:|---:|"
+run_rec2() {
+  local label=$1; shift
+  rm -f "$TMPFS"/lcmx.lcmlog.*
+  ip netns exec "$NS" env -u LCMX_DISCOVERY_URL "$LCMX" record -q --rotate 2 --split-mb 1000 "$@" "$TMPFS/lcmx.lcmlog" --json > "$WORK/record2-$label.json" & PIDS+=($!); local REC=$!
+  # The generator waits until the recorder subscribed to each of its channels.
+  local C0; C0=$(cpu_s $REC)
+  local GENOUT; GENOUT=$(inns env -u LCMX_DISCOVERY_URL "$GEN" gen-lcmx 100 100 100 6220800 30 "$LCMX_S" 2>/dev/null)
+  local SENT; SENT=$(echo "$GENOUT" | sed -n 's/^sent \([0-9]*\) .*/\1/p')
+  for _ in $(seq 1 50); do sleep 0.1; done   # drain: the recorder writes its queue (bounded wait)
+  local CR; CR=$(awk -v a="$(cpu_s $REC)" -v b="$C0" 'BEGIN { printf "%.2f", a - b }')
+  kill -INT $REC; wait $REC || true
+  local J; J=$(cat "$WORK/record2-$label.json")
+  local MSGS BYTES LOST
+  MSGS=$(echo "$J" | sed -n 's/.*"seconds":[0-9.]*,"messages":\([0-9]*\).*/\1/p')
+  BYTES=$(echo "$J" | sed -n 's/.*,"bytes":\([0-9]*\),"lost".*/\1/p')
+  LOST=$(echo "$J" | sed -n 's/.*,"lost":\([0-9]*\),"channels".*/\1/p')
+  echo "| $label | $SENT | $MSGS | $LOST | $((SENT - MSGS)) | $(awk -v b="$BYTES" 'BEGIN { printf "%.0f", b / 1e6 }') | $CR | $(awk -v c="$CR" -v b="$BYTES" 'BEGIN { printf "%.3f", c * 1000 / (b / 1e6) }') |"
+}
+run_rec2 "lcmx record"
+run_rec2 "lcmx record --rt-priority 10" --rt-priority 10
 echo
 
 # ---- 3. player timing on scenario 1's lcm-logger log
