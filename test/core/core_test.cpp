@@ -418,7 +418,7 @@ TEST_CASE("mirror_channels: only the matching channels are mirrored on the host-
   CHECK(got.count("POSE_X") == 0);
 }
 
-TEST_CASE("LCMX_MIRROR: 0, 1 or channel patterns; a bad one names the variable", "[core][mirror][errors]") {
+TEST_CASE("LCMX_MIRROR: 0 or 1 or channel patterns - a bad one names the variable", "[core][mirror][errors]") {
   struct Restore {
     ~Restore() { ::unsetenv("LCMX_MIRROR"); }
   } restore;

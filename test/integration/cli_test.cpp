@@ -105,7 +105,7 @@ TEST_CASE("lcmx --help and lcmx topics --help exit 0 - a bad flag exits non-zero
 
 // Issue 9 item 5: an unknown verb is named, whatever follows it (--help too: it used to print
 // the top-level help and exit 0), and `lcmx <verb> --help` is that verb's help.
-TEST_CASE("lcmx: an unknown command is named and fails, also before --help; each verb has its own --help",
+TEST_CASE("lcmx: an unknown command is named and fails (also before --help) - each verb has its own --help",
           "[integration][cli]") {
   Session s(48);
   for (const std::vector<std::string>& argv :
