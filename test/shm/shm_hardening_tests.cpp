@@ -9,6 +9,7 @@
 
 #include "lcmx/shm/detail/layout.hpp"
 #include "lcmx/shm/futex.hpp"
+#include "lcmx/shm/liveness.hpp"
 #include "lcmx/shm/segment.hpp"
 #include "test_util.hpp"
 
@@ -543,4 +544,121 @@ TEST_CASE("Readers opening concurrently while dead entries exist never share an 
     // Clean the table for the next round.
     CHECK(w.live_readers() == 0);
   }
+}
+
+// ---- exported for core: owner_alive, OwnerWatch, process_tag; ReadSample::intact ----
+
+namespace {
+
+// Kills the Writer child and returns how long OwnerWatch took to report it (or -1 ms).
+std::chrono::milliseconds watch_death(Child& c, const std::string& segment) {
+  OwnerWatch watch;
+  const auto key = watch.watch(segment);
+  CHECK(watch.take_dead().empty());
+  CHECK(owner_alive(segment));
+  const auto t0 = Clock::now();
+  c.kill9();
+  pollfd p{watch.fd(), POLLIN, 0};
+  while (Clock::now() - t0 < 5s) {
+    if (::poll(&p, 1, 1000) < 0 && errno != EINTR) break;
+    auto dead = watch.take_dead();
+    if (!dead.empty()) {
+      CHECK(dead == std::vector<std::uint64_t>{key});
+      CHECK_FALSE(owner_alive(segment));
+      return std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - t0);
+    }
+  }
+  return std::chrono::milliseconds(-1);
+}
+
+}  // namespace
+
+TEST_CASE("OwnerWatch reports a Writer killed -9 (same and other pid namespace)",
+          "[shm][watch]") {
+  Watchdog wd(30s);
+  for (int flags : {0, kContainerFlags}) {
+    const auto base = unique_base("watch");
+    ShmGuard g(base);
+    Pipe up, down;
+    Child c(
+        [&] {
+          auto w = Writer::create(base, opts(4));
+          up.send('R');
+          park(down);
+          return 0;
+        },
+        flags);
+    if (!c.started()) {
+      WARN("cannot create a pid namespace: skipped");
+      continue;
+    }
+    wd.watch_child(c.pid());
+    REQUIRE(up.recv(10s) == 'R');
+    const auto ms = watch_death(c, base + "_g0");
+    INFO("flags " << flags << ": death noticed after " << ms.count() << " ms");
+    CHECK(ms.count() >= 0);
+    WARN("OwnerWatch (" << (flags == 0 ? "same pid namespace, pidfd" : "other pid namespace, inotify")
+                        << "): Writer death noticed " << ms.count() << " ms after SIGKILL");
+    c.wait(10s);
+  }
+}
+
+TEST_CASE("process_tag differs across pid namespaces even for equal pids", "[shm][pidns]") {
+  Watchdog wd(20s);
+  Pipe up;
+  auto run = [&] {
+    return std::make_unique<Child>(
+        [&] {
+          const std::string t = process_tag();
+          if (::write(up.fd[1], t.data(), t.size()) != static_cast<ssize_t>(t.size())) return 1;
+          up.send('\n');
+          return 0;
+        },
+        kContainerFlags);
+  };
+  auto read_line = [&] {
+    std::string s;
+    for (char c; (c = up.recv(10s)) != 0 && c != '\n';) s += c;
+    return s;
+  };
+  auto a = run();
+  if (!a->started()) {
+    WARN("cannot create a pid namespace: skipped");
+    return;
+  }
+  const std::string ta = read_line();
+  auto b = run();
+  const std::string tb = read_line();
+  CHECK(ta.rfind("1n", 0) == 0);  // both are pid 1 of their namespace
+  CHECK(tb.rfind("1n", 0) == 0);
+  CHECK(ta != tb);
+  CHECK(ta != process_tag());
+  CHECK(exited_ok(a->wait(10s)));
+  CHECK(exited_ok(b->wait(10s)));
+}
+
+TEST_CASE("ReadSample::intact is false once the slot was rewritten or the entry taken",
+          "[shm][aba]") {
+  Watchdog wd(10s);
+  const auto base = unique_base("intact");
+  ShmGuard g(base);
+  auto w = Writer::create(base, opts(4));
+  auto r = Reader::open(w.segment_name());
+  write_msg(w, 0, 64);
+  write_msg(w, 1, 64);
+  Mapped m(w.segment_name());
+  REQUIRE(m.ok());
+  auto a = r.take();
+  auto b = r.take();
+  REQUIRE(a);
+  REQUIRE(b);
+  CHECK(a->intact());
+  CHECK(b->intact());
+  // A writer that (wrongly) reused a's slot while it was read:
+  m.slot(d::desc_slot(m.desc(0).load())).seq.store(d::kSlotWriting);
+  CHECK_FALSE(a->intact());
+  // Our entry freed and re-claimed behind our back (what the ABA did): epoch changed.
+  std::uint32_t st = m.sub(0).state.load();
+  m.sub(0).state.store(d::sub_word(d::sub_epoch(st) + 2, d::kSubActive));
+  CHECK_FALSE(b->intact());
 }
