@@ -42,6 +42,8 @@ GuardSlot g_slots[kSlots];
 std::mutex g_mu;  // registration only (never taken in the handler)
 struct sigaction g_previous {};
 bool g_installed = false;
+std::uintptr_t g_page = 4096;  // set before the handler is installed (sysconf is not
+                               // async-signal-safe)
 
 void on_sigbus(int sig, siginfo_t* info, void* ctx) {
   const auto addr = reinterpret_cast<std::uintptr_t>(info->si_addr);
@@ -49,8 +51,7 @@ void on_sigbus(int sig, siginfo_t* info, void* ctx) {
     const std::uintptr_t base = s.base.load(std::memory_order_acquire);
     const std::size_t len = s.len.load(std::memory_order_acquire);
     if (base == 0 || addr < base || addr >= base + len) continue;
-    const std::uintptr_t page = static_cast<std::uintptr_t>(::sysconf(_SC_PAGESIZE));
-    const std::uintptr_t from = addr & ~(page - 1);
+    const std::uintptr_t from = addr & ~(g_page - 1);
     void* r = ::mmap(reinterpret_cast<void*>(from), base + len - from, PROT_READ | PROT_WRITE,
                      MAP_FIXED | MAP_PRIVATE | MAP_ANONYMOUS, -1, 0);
     if (r == MAP_FAILED) break;  // cannot repair: fall through to the previous action
@@ -79,6 +80,7 @@ void on_sigbus(int sig, siginfo_t* info, void* ctx) {
 int guard_register(void* base, std::size_t len) noexcept {
   std::lock_guard lock(g_mu);
   if (!g_installed) {
+    if (const long p = ::sysconf(_SC_PAGESIZE); p > 0) g_page = static_cast<std::uintptr_t>(p);
     struct sigaction sa {};
     sa.sa_sigaction = on_sigbus;
     sa.sa_flags = SA_SIGINFO | SA_NODEFER | SA_ONSTACK;

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <random>
 
 #include <cerrno>
@@ -95,9 +96,15 @@ namespace lcmx::shm {
 std::string process_tag() {
   char buf[64];
   std::uint64_t ns = detail::self_pidns();
-  if (ns == 0) {  // no /proc: a random component instead
-    std::random_device rd;
-    ns = (std::uint64_t{rd()} << 32) | rd();
+  if (ns == 0) {  // no /proc: a random component instead, stable per process
+    static std::atomic<std::uint64_t> random_tag{0};
+    static std::atomic<pid_t> random_pid{0};
+    if (random_pid.load() != ::getpid()) {
+      std::random_device rd;
+      random_tag.store((std::uint64_t{rd()} << 32) | rd());
+      random_pid.store(::getpid());
+    }
+    ns = random_tag.load();
   }
   std::snprintf(buf, sizeof buf, "%dn%llx", static_cast<int>(::getpid()),
                 static_cast<unsigned long long>(ns));

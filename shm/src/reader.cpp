@@ -26,7 +26,6 @@
 //      was read (our entry taken from us, or the file truncated under us) is not intact.
 //   All offsets come from the geometry validated at open; slot indices and sizes read from
 //   shared memory are range-checked before use.
-#include <sched.h>
 #include <unistd.h>
 
 #include <limits>
@@ -314,9 +313,11 @@ std::optional<ReadSample> Reader::take() {
       sq = sh.seq.load(std::memory_order_seq_cst);
     }
     if (sq == kSlotWriting && locked_by_other(s.lock.get(), kWriterLockByte)) {
-      // Case d, Writer alive: preempted inside a probe, or overwriting. Not a drop yet.
+      // Case d, Writer alive: preempted (or stopped) inside a probe, or overwriting. Not a
+      // drop yet. has_data() says false for 1 ms so an executor sleeps instead of spinning
+      // on a stopped Writer; the Writer's next commit wakes it.
       pin_word.store(kPinFree, std::memory_order_release);
-      ::sched_yield();
+      r.retry_at = std::chrono::steady_clock::now() + std::chrono::milliseconds(1);
       break;
     }
     // size is read only once sq == next: the seq load read-from the Writer's release and
