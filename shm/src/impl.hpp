@@ -136,8 +136,9 @@ std::optional<HeaderInfo> peek_segment(const std::string& name, std::string* why
 bool writer_lock_held(const std::string& name) noexcept;
 
 // Unlinks the generations of `base` that no live Reader can still need, for a base whose
-// Writer is gone (closed or dead): generation k is needed while a live Reader is registered
-// in a generation < k (it follows by name). A Reader calling it passes its own generation as
+// Writer is gone (closed or dead): generation k is kept while a live Reader is registered
+// in k or a lower generation (it follows by name; keeping its own generation's name shows
+// later callers that it is there). A Reader calling it passes its own generation as
 // `needed_above`: the generations above are needed by itself (names of generations already
 // unlinked, like its own, do not show who is registered there). Returns how many it removed.
 std::size_t release_unneeded_generations(

@@ -423,7 +423,7 @@ std::size_t release_unneeded_generations(const std::string& base,
       auto sg = split_generation(n);
       if (sg && sg->first == base) gens.emplace(sg->second, n);
     }
-    bool needed = false;  // a live Reader is registered in a generation below this one
+    bool needed = false;  // a live Reader is registered in this generation or a lower one
     for (const auto& [gen, name] : gens) {
       if (gen > needed_above) break;  // the caller still needs these
       std::unique_ptr<Segment> seg;
@@ -436,10 +436,15 @@ std::size_t release_unneeded_generations(const std::string& base,
         return removed;  // a live Writer owns this base again: not ours to clean
       }
       if (!seg) continue;  // foreign, corrupt or untrusted: left alone (reclaim warns)
-      if (!needed && unlink_segment(name)) ++removed;
       const std::uint32_t hw = std::min(seg->hdr->sub_high_water.load(std::memory_order_seq_cst),
                                         seg->geo.max_subscribers);
-      for (std::uint32_t i = 0; i < hw && !needed; ++i) needed = subscriber_alive(*seg, i);
+      // Only a cleanly closed Writer leaves generations for lagging Readers; a crashed one's
+      // files all go (Readers that mapped them keep their mapping).
+      const bool closed = seg->hdr->writer_closed.load(std::memory_order_acquire) != 0;
+      for (std::uint32_t i = 0; closed && i < hw && !needed; ++i) {
+        needed = subscriber_alive(*seg, i);
+      }
+      if (!needed && unlink_segment(name)) ++removed;
     }
   } catch (...) {  // allocation: leave the rest to a later pass
   }

@@ -52,9 +52,10 @@ constexpr std::uint32_t kScratchSlot = ~std::uint32_t{0};
 }  // namespace
 
 // Clean exit: every generation gets final_seq, then writer_closed (release), and its
-// sleepers are woken. Generation k is unlinked unless a live Reader is registered in an
-// older generation (it still needs k's name to follow; Readers that mapped k keep reading it
-// after the unlink). What is left is unlinked by the last Reader to need it
+// sleepers are woken. Generation k is unlinked unless a live Reader is registered in k or an
+// older generation (it still needs k's name to follow, and a name kept for a registered
+// Reader shows others - reclaim_orphans - that it is still needed; Readers that mapped k
+// keep reading it after the unlink). What is left is unlinked by the last Reader to need it
 // (release_unneeded_generations), or by reclaim_orphans once no live Reader needs it.
 WriterImpl::~WriterImpl() {
   if (!seg || ::getpid() != pid) return;  // a fork()ed child's copy must not tear down ours
@@ -69,16 +70,18 @@ WriterImpl::~WriterImpl() {
     bump_and_wake(*g);
   }
   for (Segment* g : all) {
-    if (!needed) unlink_segment(g->name);
     const std::uint32_t hw =
         std::min(g->hdr->sub_high_water.load(std::memory_order_seq_cst), g->geo.max_subscribers);
     for (std::uint32_t i = 0; i < hw && !needed; ++i) needed = subscriber_alive(*g, i);
+    if (!needed) unlink_segment(g->name);
   }
 }
 
 // Dead Readers of the current generation: their pins and waiter counts (a Reader killed
-// armed costs a wake syscall per commit) are reclaimed every 256 commits or 1 s.
+// armed costs a wake syscall per commit) are reclaimed every 256 commits, or at the first
+// 16th commit after 1 s.
 void WriterImpl::maybe_reclaim() noexcept {
+  if ((commits & 15) != 0) return;  // the clock is read every 16th commit only
   const auto now = std::chrono::steady_clock::now();
   if ((commits & 255) != 0 && now < next_reclaim) return;
   next_reclaim = now + std::chrono::seconds(1);
