@@ -83,7 +83,8 @@ ReaderImpl::~ReaderImpl() {
   // The Writer exited and may have left later generations for Readers like us: the last
   // Reader that needs them removes them.
   const bool closed = cur && cur->seg->hdr->writer_closed.load(std::memory_order_acquire) != 0;
-  cur.reset();
+  armed.reset();
+  cur.reset();  // deregisters (no view of ours is left)
   if (closed && ::getpid() == pid) release_unneeded_generations(base);
 }
 
