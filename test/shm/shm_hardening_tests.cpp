@@ -670,3 +670,44 @@ TEST_CASE("ReadSample::intact is false once the slot was rewritten or the entry 
   m.sub(0).state.store(d::sub_word(d::sub_epoch(st) + 2, d::kSubActive));
   CHECK_FALSE(b->intact());
 }
+
+TEST_CASE("shm_domain_id tells a private /dev/shm from the shared one", "[shm][domain]") {
+  Watchdog wd(20s);
+  const std::uint64_t here = shm_domain_id();
+  CHECK(here != 0);
+  Pipe up;
+  auto report = [&] {
+    const std::uint64_t id = shm_domain_id();
+    if (::write(up.fd[1], &id, sizeof id) != sizeof id) return 1;
+    return 0;
+  };
+  auto read_id = [&] {
+    std::uint64_t id = 0;
+    pollfd p{up.fd[0], POLLIN, 0};
+    if (::poll(&p, 1, 10000) == 1 && ::read(up.fd[0], &id, sizeof id) != sizeof id) id = 0;
+    return id;
+  };
+  {  // a container sharing /dev/shm (own pid and mount namespaces): same domain
+    Child c(report, kContainerFlags);
+    if (!c.started()) {
+      WARN("cannot create namespaces: skipped");
+      return;
+    }
+    CHECK(read_id() == here);
+    CHECK(exited_ok(c.wait(10s)));
+  }
+  {  // a container with its own /dev/shm: another domain
+    Child c(report, CLONE_NEWNS, [] {
+      return ::mount("tmpfs", "/dev/shm", "tmpfs", MS_NOSUID | MS_NODEV, "size=1m") == 0 ? 0 : 96;
+    });
+    const std::uint64_t there = read_id();
+    const int st = c.wait(10s);
+    if (WIFEXITED(st) && WEXITSTATUS(st) == 96) {
+      WARN("cannot mount a private tmpfs: skipped");
+      return;
+    }
+    CHECK(exited_ok(st));
+    CHECK(there != 0);
+    CHECK(there != here);
+  }
+}
