@@ -357,6 +357,11 @@ bool Reader::has_data() const noexcept {
   return !r.dead_end && h.next_generation.load(std::memory_order_acquire) != 0;
 }
 
+std::chrono::steady_clock::time_point Reader::retry_at() const noexcept {
+  const auto t = impl_->retry_at;
+  return t > std::chrono::steady_clock::now() ? t : std::chrono::steady_clock::time_point{};
+}
+
 std::uint32_t Reader::armed_readers() const noexcept {
   const auto& r = *impl_;
   if (!r.armed) return 0;

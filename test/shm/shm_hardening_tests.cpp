@@ -413,6 +413,7 @@ TEST_CASE("a failing generation follow backs off instead of failing on every cal
   }
   CHECK(errors == 1);          // reported once, then retried later
   CHECK_FALSE(a.has_data());   // no busy loop while backing off
+  CHECK(a.retry_at() > Clock::now());  // ... and the executor knows when to look again
   b.reset();
   std::vector<std::uint64_t> got;
   CHECK(eventually(

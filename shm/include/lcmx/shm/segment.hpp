@@ -208,6 +208,11 @@ class Reader {
   std::optional<ReadSample> take();
 
   bool has_data() const noexcept;             // take() would return a message now (hint)
+  // While has_data() is false only because the Reader is backing off (a failed generation
+  // follow, a truncated file, a Writer seen inside a slot probe): when to poll again. No
+  // commit may wake a futex wait for it, so bound the wait by this. Epoch (time_point{})
+  // when not backing off.
+  std::chrono::steady_clock::time_point retry_at() const noexcept;
   // While armed: how many Readers (this one included) are armed on this segment, i.e. were
   // woken together by the last commit (hint, for fan-out scheduling). 0 when not armed.
   std::uint32_t armed_readers() const noexcept;
