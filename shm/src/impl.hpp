@@ -136,13 +136,15 @@ std::optional<HeaderInfo> peek_segment(const std::string& name, std::string* why
 bool writer_lock_held(const std::string& name) noexcept;
 
 // Unlinks the generations of `base` that no live Reader can still need, for a base whose
-// Writer is gone (closed or dead): generation k is kept while a live Reader is registered
-// in k or a lower generation (it follows by name; keeping its own generation's name shows
-// later callers that it is there). A Reader calling it passes its own generation as
-// `needed_above`: the generations above are needed by itself (names of generations already
-// unlinked, like its own, do not show who is registered there). Returns how many it removed.
+// Writer is gone (closed or dead). With `oldest` the oldest generation a live Reader is
+// registered in (only for a cleanly closed Writer; `caller_gen` is the caller's own,
+// counted even if its name is already gone): generations below `oldest` go; from `oldest`
+// on they stay while there is a newer one to follow to (keeping the oldest Reader's own name
+// shows later callers, e.g. reclaim_orphans, that it is there); else all go.
+// Returns how many it removed.
 std::size_t release_unneeded_generations(
-    const std::string& base, std::uint64_t needed_above = ~std::uint64_t{0}) noexcept;
+    const std::string& base, std::uint64_t caller_gen = ~std::uint64_t{0}) noexcept;
+bool has_live_subscriber(const Segment& seg) noexcept;
 
 bool unlink_segment(const std::string& name) noexcept;
 

@@ -414,37 +414,50 @@ void deregister_subscriber(const Segment& seg, std::uint32_t entry, int lock) no
 
 // ---- a departed Writer's generations ----
 
+bool has_live_subscriber(const Segment& seg) noexcept {
+  const std::uint32_t hw =
+      std::min(seg.hdr->sub_high_water.load(std::memory_order_seq_cst), seg.geo.max_subscribers);
+  for (std::uint32_t i = 0; i < hw; ++i) {
+    if (subscriber_alive(seg, i)) return true;
+  }
+  return false;
+}
+
 std::size_t release_unneeded_generations(const std::string& base,
-                                         std::uint64_t needed_above) noexcept {
+                                         std::uint64_t caller_gen) noexcept {
   std::size_t removed = 0;
   try {
-    std::map<std::uint64_t, std::string> gens;
+    std::map<std::uint64_t, std::string> names;
     for (const auto& n : list_shm(base + "_g")) {
       auto sg = split_generation(n);
-      if (sg && sg->first == base) gens.emplace(sg->second, n);
+      if (sg && sg->first == base) names.emplace(sg->second, n);
     }
-    bool needed = false;  // a live Reader is registered in this generation or a lower one
-    for (const auto& [gen, name] : gens) {
-      if (gen > needed_above) break;  // the caller still needs these
+    // The oldest generation a live Reader is registered in (the caller's own counts even if
+    // its name is gone). Only a cleanly closed Writer leaves generations for lagging
+    // Readers; a crashed one's files all go (Readers that mapped them keep their mapping).
+    std::uint64_t oldest = caller_gen;
+    std::vector<std::pair<std::uint64_t, std::string>> ours;
+    for (const auto& [gen, name] : names) {
       std::unique_ptr<Segment> seg;
       try {
         seg = open_segment(name);
       } catch (const Error&) {
-        seg.reset();
+        continue;  // foreign, corrupt or untrusted: left alone (reclaim warns)
       }
-      if (seg && seg->generation == gen && locked_by_other(seg->lock.get(), kWriterLockByte)) {
-        return removed;  // a live Writer owns this base again: not ours to clean
+      if (seg->generation != gen) continue;
+      if (locked_by_other(seg->lock.get(), kWriterLockByte)) {
+        return removed;  // a live Writer owns this base (again): not ours to clean
       }
-      if (!seg) continue;  // foreign, corrupt or untrusted: left alone (reclaim warns)
-      const std::uint32_t hw = std::min(seg->hdr->sub_high_water.load(std::memory_order_seq_cst),
-                                        seg->geo.max_subscribers);
-      // Only a cleanly closed Writer leaves generations for lagging Readers; a crashed one's
-      // files all go (Readers that mapped them keep their mapping).
       const bool closed = seg->hdr->writer_closed.load(std::memory_order_acquire) != 0;
-      for (std::uint32_t i = 0; closed && i < hw && !needed; ++i) {
-        needed = subscriber_alive(*seg, i);
-      }
-      if (!needed && unlink_segment(name)) ++removed;
+      if (closed && gen < oldest && has_live_subscriber(*seg)) oldest = gen;
+      ours.emplace_back(gen, name);
+    }
+    // Generations below the oldest Reader are needed by nobody; from it on they are needed
+    // to follow, as long as there is something newer than it to follow to.
+    const bool keep_tail = !ours.empty() && ours.back().first > oldest;
+    for (const auto& [gen, name] : ours) {
+      if (gen >= oldest && keep_tail) break;
+      if (unlink_segment(name)) ++removed;
     }
   } catch (...) {  // allocation: leave the rest to a later pass
   }

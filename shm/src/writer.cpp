@@ -52,10 +52,11 @@ constexpr std::uint32_t kScratchSlot = ~std::uint32_t{0};
 }  // namespace
 
 // Clean exit: every generation gets final_seq, then writer_closed (release), and its
-// sleepers are woken. Generation k is unlinked unless a live Reader is registered in k or an
-// older generation (it still needs k's name to follow, and a name kept for a registered
-// Reader shows others - reclaim_orphans - that it is still needed; Readers that mapped k
-// keep reading it after the unlink). What is left is unlinked by the last Reader to need it
+// sleepers are woken. Generations older than the oldest one with a live Reader are
+// unlinked; from that one on they stay if it is older than the current one (its Readers
+// need the later names to follow, and the kept name of their own generation shows others -
+// reclaim_orphans - that they are there). Readers that mapped a generation keep reading it
+// after the unlink. What is left is unlinked by the last Reader to need it
 // (release_unneeded_generations), or by reclaim_orphans once no live Reader needs it.
 WriterImpl::~WriterImpl() {
   if (!seg || ::getpid() != pid) return;  // a fork()ed child's copy must not tear down ours
@@ -63,18 +64,21 @@ WriterImpl::~WriterImpl() {
   std::vector<Segment*> all;
   for (const auto& g : old_gens) all.push_back(g.get());
   all.push_back(seg.get());
-  bool needed = false;
   for (Segment* g : all) {
     g->hdr->final_seq.store(total, std::memory_order_relaxed);
     g->hdr->writer_closed.store(1, std::memory_order_release);
     bump_and_wake(*g);
   }
-  for (Segment* g : all) {
-    const std::uint32_t hw =
-        std::min(g->hdr->sub_high_water.load(std::memory_order_seq_cst), g->geo.max_subscribers);
-    for (std::uint32_t i = 0; i < hw && !needed; ++i) needed = subscriber_alive(*g, i);
-    if (!needed) unlink_segment(g->name);
+  // Same rule as release_unneeded_generations: keep [oldest generation with a live Reader,
+  // current] if that is more than the current one, else unlink everything.
+  std::size_t first_kept = all.size();
+  for (std::size_t k = 0; k + 1 < all.size(); ++k) {
+    if (has_live_subscriber(*all[k])) {
+      first_kept = k;
+      break;
+    }
   }
+  for (std::size_t k = 0; k < first_kept; ++k) unlink_segment(all[k]->name);
 }
 
 // Dead Readers of the current generation: their pins and waiter counts (a Reader killed

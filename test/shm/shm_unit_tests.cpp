@@ -67,7 +67,7 @@ TEST_CASE("write then read in order", "[shm]") {
   CHECK(r.writer_alive());
 }
 
-TEST_CASE("a Reader starts at the next commit; open by base name works", "[shm]") {
+TEST_CASE("a Reader starts at the next commit, and open by base name works", "[shm]") {
   Watchdog wd(10s);
   const auto base = unique_base("late");
   ShmGuard g(base);
@@ -364,7 +364,7 @@ TEST_CASE("reclaim leaves a live Writer's segment alone", "[shm]") {
   CHECK(shm_exists(w.segment_name()));
 }
 
-TEST_CASE("Writer destruction unlinks; Readers keep their mapping", "[shm]") {
+TEST_CASE("Writer destruction unlinks, Readers keep their mapping", "[shm]") {
   const auto base = unique_base("close");
   ShmGuard g(base);
   std::optional<Writer> w = Writer::create(base, small_opts());
