@@ -230,8 +230,8 @@ std::unique_ptr<Segment> open_segment(const std::string& name) {
   if (mfd.fd < 0) {
     const int e = errno;
     if (e == ENOENT) throw Error(Errc::not_found, "open segment " + name + ": no such segment");
-    if (e == EACCES || e == ELOOP) {
-      throw Error(Errc::untrusted, "open segment " + name + ": " + errno_text(e));
+    if (e == ELOOP) {  // O_NOFOLLOW: a symbolic link planted under the name
+      throw Error(Errc::untrusted, "open segment " + name + ": is a symbolic link");
     }
     throw Error(Errc::system, "open segment " + name + ": " + errno_text(e));
   }
