@@ -127,13 +127,15 @@ int run_info() {
 
 }  // namespace
 
-CLI::App* add_log(CLI::App& app) {
+int run_log();
+
+Verb add_log(CLI::App& app, const Globals&) {
   auto* c = app.add_subcommand("log", "inspect LCM log files (lcm-logger's or lcmx record's)");
   c->require_subcommand(1);
   g_info = c->add_subcommand("info", "duration, start/end, per channel count, sizes and rate; damage");
   g_info->add_option("file", g_log.file, "LCM log file")->required();
   g_info->add_flag("--json", g_log.json, "print as JSON");
-  return c;
+  return {c, [] { return run_log(); }};
 }
 
 int run_log() {

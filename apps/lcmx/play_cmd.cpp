@@ -60,7 +60,7 @@ struct PlayOptions {
   bool stop_on_damage = false;
   bool quiet = false;
   bool json = false;
-  Globals g;
+  const Globals* g = nullptr;  // read when the verb runs (filled by the parse)
 };
 PlayOptions g_play;
 
@@ -177,8 +177,10 @@ std::string bar(double frac, int width) {
 
 }  // namespace
 
-CLI::App* add_play(CLI::App& app, Globals g) {
-  g_play.g = g;
+int run_play();
+
+Verb add_play(CLI::App& app, const Globals& g) {
+  g_play.g = &g;
   auto* c = app.add_subcommand(
       "play",
       "replay an LCM log file through lcmx (typed subscribers on every path receive it; --udp "
@@ -226,7 +228,7 @@ CLI::App* add_play(CLI::App& app, Globals g) {
   c->add_flag("--json", g_play.json, "print the summary as JSON on stdout");
   c->footer("On a terminal: space pauses and resumes, q quits. Otherwise stdin lines pause, "
             "resume, toggle, quit do the same.");
-  return c;
+  return {c, [] { return run_play(); }};
 }
 
 int run_play() {
@@ -302,8 +304,8 @@ int run_play() {
   std::map<std::string, std::int64_t> announced;  // by published channel
   try {
     auto ro = RuntimeOptions::from_env();
-    ro.discovery_url = *o.g.url;
-    if (!o.g.vehicle_url->empty()) ro.vehicle_url = *o.g.vehicle_url;
+    ro.discovery_url = o.g->url;
+    if (!o.g->vehicle_url.empty()) ro.vehicle_url = o.g->vehicle_url;
     if (o.udp) {
       ro.mirror = true;
       ro.vehicle_publish = VehiclePublish::always;

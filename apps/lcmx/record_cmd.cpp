@@ -54,7 +54,7 @@ struct RecordOptions {
   int rt_priority = 0;
   bool quiet = false;
   bool json = false;
-  Globals g;
+  const Globals* g = nullptr;  // read when the verb runs (filled by the parse)
 };
 RecordOptions g_rec;
 
@@ -306,8 +306,10 @@ std::string human_mb(std::uint64_t b) { return fmt("%.1f", static_cast<double>(b
 
 }  // namespace
 
-CLI::App* add_record(CLI::App& app, Globals g) {
-  g_rec.g = g;
+int run_record();
+
+Verb add_record(CLI::App& app, const Globals& g) {
+  g_rec.g = &g;
   auto* c = app.add_subcommand(
       "record",
       "record every channel (shm, bridges, UDP from other hosts, stock LCM programs) into an LCM "
@@ -356,7 +358,7 @@ CLI::App* add_record(CLI::App& app, Globals g) {
       "Signals: SIGINT/SIGTERM close the file cleanly; SIGHUP starts the next file (as "
       "lcm-logger: FILE.NN+1 with --increment, else FILE is reopened for appending, e.g. after "
       "logrotate moved it). A SIGKILL leaves a file readable up to its last complete event.");
-  return c;
+  return {c, [] { return run_record(); }};
 }
 
 int run_record() {
@@ -414,8 +416,8 @@ int run_record() {
   }
   try {
     auto ro = RuntimeOptions::from_env();
-    ro.discovery_url = *o.g.url;
-    if (!o.g.vehicle_url->empty()) ro.vehicle_url = *o.g.vehicle_url;
+    ro.discovery_url = o.g->url;
+    if (!o.g->vehicle_url.empty()) ro.vehicle_url = o.g->vehicle_url;
     rt.emplace(Runtime::create(ro));
     node.emplace(rt->create_node("lcmx_record"));
     SubscriberOptions so;
