@@ -229,13 +229,23 @@ struct Bridge::Impl {
   std::map<std::string, std::shared_ptr<Republisher>> repubs;
 
   Impl(Config c, RuntimeOptions o)
-      : cfg(std::move(c)), rt_options(std::move(o)), ctx(static_cast<int>(cfg.channels.size()) + 1) {
+      : cfg(check_limits(std::move(c))), rt_options(std::move(o)), ctx(static_cast<int>(cfg.channels.size()) + 1) {
     std::random_device rd;
     instance = (std::uint64_t{rd()} << 32) ^ rd() ^ static_cast<std::uint64_t>(now_ns());
     if (instance == 0) instance = 1;
   }
 
   // ---- setup -------------------------------------------------------------------------------
+
+  // A Config built in code (not by load_config) gets the same limits.
+  static Config check_limits(Config c) {
+    if (c.channels.empty() || c.channels.size() > kMaxChannels)
+      throw BridgeError("bridge: 1 to " + std::to_string(kMaxChannels) + " channels required (got " +
+                        std::to_string(c.channels.size()) + ")");
+    if (c.peers.size() > kMaxPeers)
+      throw BridgeError("bridge: at most " + std::to_string(kMaxPeers) + " peers (got " + std::to_string(c.peers.size()) + ")");
+    return c;
+  }
 
   // ZMTP heartbeats only clean up connections nobody talks on any more (e.g. a peer's, after
   // it failed over): link liveness comes from our own pings, and unacknowledged data on a dead
@@ -541,7 +551,7 @@ struct Bridge::Impl {
       spdlog::info("bridge {}: topic {} is large ({} bytes > udp_limit {}): bridged from now on", cfg.name, s.topic,
                    m.data.size(), rt_options.udp_limit);
     }
-    std::size_t targets[64];
+    std::size_t targets[kMaxPeers];  // load_config() allows at most kMaxPeers peers
     std::size_t n = 0;
     {
       std::lock_guard lock(s.mu);
