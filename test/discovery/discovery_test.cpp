@@ -7,6 +7,10 @@
 #include <climits>
 #include <catch2/catch.hpp>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <span>
 #include <mutex>
 #include <random>
 #include <thread>
@@ -261,4 +265,19 @@ TEST_CASE("a flood of fake participants is bounded, counted, and does not displa
   huge.process_name = std::string(2u << 20, 'x');
   deliver(huge);
   CHECK(d.counters().refused == 94);
+}
+
+TEST_CASE("committed beacon seeds still decode (refresh test/fuzz/corpus/beacon when beacon.lcm changes)",
+          "[discovery][codec]") {
+  std::size_t n = 0;
+  for (const auto& f : std::filesystem::directory_iterator(LCMX_BEACON_SEEDS)) {
+    std::ifstream in(f.path(), std::ios::binary);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::string why;
+    INFO(f.path().string());
+    CHECK(lcmx::discovery::decode_beacon(std::as_bytes(std::span(text.data(), text.size())), &why));
+    INFO(why);
+    ++n;
+  }
+  CHECK(n >= 3);
 }
