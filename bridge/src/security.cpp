@@ -62,6 +62,7 @@ void Bridge::Impl::zap_loop() {
     const auto answer = security::zap_decide(
         mechanism, std::span<const std::byte>(static_cast<const std::byte*>(req[6].data()), req[6].size()), cfg.peers);
     const std::string &status = answer.status, &text = answer.text, &user = answer.user;
+    if (refused_log.size() > 1024) refused_log.clear();  // one limiter per address: bounded
     if (status != "200" && refused_log[address].allow()) {
       if (mechanism == "CURVE")
         spdlog::warn("bridge {}: refused a CURVE connection from {}: public key {} is not a configured peer's",
