@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Builds lcmx with a sanitizer into its own build directory and runs the unit and integration
 # tests there (CTest labels `unit` and `integration`; multihost, stress and fuzz tests are not
-# run: the fuzz targets are sanitized already, see test/fuzz/README.md).
+# run: the fuzz targets are sanitized already, see test/fuzz/README.md; nor the consumer test,
+# which builds an unsanitized project against the installed libraries).
 #   scripts/sanitizers.sh address   ASan + UBSan (gcc -fsanitize=address,undefined
 #                                   -fno-sanitize-recover=undefined) in build-asan/; run by
 #                                   scripts/test.sh after the plain suite
@@ -29,4 +30,4 @@ cmake --build "$dir" -j"$(nproc)"
 export ASAN_OPTIONS=${ASAN_OPTIONS:-detect_leaks=1:abort_on_error=0:strict_string_checks=1:detect_stack_use_after_return=0}
 export UBSAN_OPTIONS=${UBSAN_OPTIONS:-print_stacktrace=1:halt_on_error=1}
 export TSAN_OPTIONS=${TSAN_OPTIONS:-halt_on_error=1:second_deadlock_stack=1}
-ctest --test-dir "$dir" --output-on-failure -j2 --timeout 300 -L 'unit|integration' "$@"
+ctest --test-dir "$dir" --output-on-failure -j2 --timeout 300 -L 'unit|integration' -E '^consumer/' "$@"
