@@ -42,7 +42,7 @@ struct Options {
   // their place until their goodbye or lease. The lease a beacon announces is cut to max_lease.
   std::size_t max_participants = 1024;
   std::size_t max_table_bytes = std::size_t{64} << 20;  // sum of their encoded beacons
-  std::chrono::milliseconds max_lease{60000};
+  std::chrono::milliseconds max_lease{600000};  // the largest lease LCMX_LEASE_MS allows
 };
 
 // What is known about another participant: its latest beacon and when it arrived.
