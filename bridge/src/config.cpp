@@ -152,6 +152,48 @@ bool glob_match(const std::vector<std::string>& globs, std::string_view topic) {
   return false;
 }
 
+// toml++ 3.3.0 (Debian 12) reaches __builtin_unreachable() (undefined behaviour) when it meets a
+// non-ASCII character where it expects whitespace or a key, e.g. `name = "a"é` (its
+// is_non_ascii_horizontal_whitespace has no case for most code points; found by
+// fuzz_bridge_config). No valid lcmx config has one there, so such text is refused before
+// toml++ sees it. Returns the 1-based line of the first non-ASCII byte outside strings and
+// comments, or 0.
+std::size_t non_ascii_outside_strings(std::string_view t) {
+  std::size_t line = 1;
+  for (std::size_t i = 0; i < t.size();) {
+    const char c = t[i];
+    if (c == '\n') {
+      ++line, ++i;
+    } else if (c == '#') {  // comment: to the end of the line
+      while (i < t.size() && t[i] != '\n') ++i;
+    } else if (c == '"' || c == '\'') {
+      const bool multi = t.compare(i, 3, std::string(3, c)) == 0;
+      i += multi ? 3 : 1;
+      while (i < t.size()) {
+        if (t[i] == '\n') {
+          if (!multi) break;  // unterminated: toml++ reports it
+          ++line;
+        }
+        if (c == '"' && t[i] == '\\') {
+          if (i + 1 < t.size() && t[i + 1] == '\n') ++line;
+          i += 2;
+          continue;
+        }
+        if (t[i] == c && (!multi || t.compare(i, 3, std::string(3, c)) == 0)) {
+          i += multi ? 3 : 1;
+          break;
+        }
+        ++i;
+      }
+    } else if (static_cast<unsigned char>(c) >= 0x80) {
+      return line;
+    } else {
+      ++i;
+    }
+  }
+  return 0;
+}
+
 }  // namespace
 
 std::optional<std::size_t> Config::channel_of(std::string_view topic) const {
@@ -164,6 +206,9 @@ bool Config::carried(std::string_view topic) const { return glob_match(carry, to
 
 Config parse_config(std::string_view text, const std::filesystem::path& file) {
   Checker c(file);
+  if (const auto line = non_ascii_outside_strings(text))
+    throw ConfigError(file.string() + ": line " + std::to_string(line) +
+                      ": a non-ASCII character outside a string or comment");
   toml::table root;
   try {
     root = toml::parse(text, file.string());
@@ -230,6 +275,9 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
       if (ch.topics[k].empty()) c.fail(p + "topics[" + std::to_string(k) + "]", "empty pattern", t.get("topics"));
     cfg.channels.push_back(std::move(ch));
   }
+  if (chans.size() > kMaxChannels)
+    c.fail("channel", "at most " + std::to_string(kMaxChannels) + " channels (got " + std::to_string(chans.size()) + ")",
+           root.get("channel"));
   if (cfg.channels.empty()) {
     if (cfg.control_port == 65535) c.fail("control_port", "no room for the default channel on control_port+1");
     ChannelConfig ch;
@@ -259,6 +307,9 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
   }
 
   const auto peers = c.tables(root, "", "peer");
+  if (peers.size() > kMaxPeers)
+    c.fail("peer", "at most " + std::to_string(kMaxPeers) + " peers (got " + std::to_string(peers.size()) + ")",
+           root.get("peer"));
   std::set<std::string> peer_names;
   for (std::size_t i = 0; i < peers.size(); ++i) {
     const auto& t = *peers[i];
@@ -271,6 +322,9 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
     if (!peer_names.insert(peer.name).second) c.fail(p + "name", "duplicate peer \"" + peer.name + "\"", t.get("name"));
     const auto eps = c.tables(t, p, "endpoints");
     if (eps.empty()) c.fail(p + "endpoints", "must list at least one { link = ..., address = ... }", t.get("endpoints"));
+    if (eps.size() > kMaxEndpoints)
+      c.fail(p + "endpoints", "at most " + std::to_string(kMaxEndpoints) + " endpoints (got " + std::to_string(eps.size()) + ")",
+             t.get("endpoints"));
     std::set<std::string> links;
     for (std::size_t k = 0; k < eps.size(); ++k) {
       const std::string q = p + "endpoints[" + std::to_string(k) + "].";
@@ -328,8 +382,33 @@ void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bo
 }
 
 std::string read_key_file(const std::filesystem::path& file) {
-  std::ifstream in(file);
-  if (!in) throw ConfigError(file.string() + ": cannot read: " + std::strerror(errno));
+  // Not an ifstream: a device or FIFO (/dev/zero, /dev/stdin) would be read without end.
+  const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
+  if (fd < 0) throw ConfigError(file.string() + ": cannot read: " + std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_size > static_cast<off_t>(kMaxKeyFileBytes)) {
+    ::close(fd);
+    throw ConfigError(file.string() + ": not a key file (expected a regular file of at most " +
+                      std::to_string(kMaxKeyFileBytes) + " bytes, as `lcmx bridge keygen` writes)");
+  }
+  std::string text(kMaxKeyFileBytes + 1, '\0');
+  std::size_t got = 0;
+  while (got < text.size()) {
+    const ssize_t n = ::read(fd, text.data() + got, text.size() - got);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      const int e = errno;
+      ::close(fd);
+      throw ConfigError(file.string() + ": cannot read: " + std::strerror(e));
+    }
+    if (n == 0) break;
+    got += static_cast<std::size_t>(n);
+  }
+  ::close(fd);
+  if (got > kMaxKeyFileBytes) throw ConfigError(file.string() + ": not a key file (larger than " +
+                                                std::to_string(kMaxKeyFileBytes) + " bytes)");
+  text.resize(got);
+  std::istringstream in(text);
   std::string line;
   while (std::getline(in, line)) {
     while (!line.empty() && (line.back() == '\r' || line.back() == ' ' || line.back() == '\t')) line.pop_back();

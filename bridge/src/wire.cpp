@@ -49,6 +49,7 @@ std::optional<Control> decode(std::string_view f) {
   Control c;
   std::size_t pos = 0, lines = 0;
   bool first = true, have_from = false, have_instance = false, have_link = false, have_t = false;
+  bool have_control = false;
   while (pos < f.size()) {
     if (++lines > kMaxLines) return std::nullopt;
     const auto nl = f.find('\n', pos);
@@ -80,6 +81,7 @@ std::optional<Control> decode(std::string_view f) {
       return std::nullopt;
     } else if (key == "control") {
       if (!parse_num(val, c.control_port) || c.control_port < 1 || c.control_port > 65535) return std::nullopt;
+      have_control = true;
     } else if (key == "channel") {
       const auto sp2 = val.find(' ');
       if (sp2 == std::string_view::npos) return std::nullopt;
@@ -100,6 +102,11 @@ std::optional<Control> decode(std::string_view f) {
     }
   }
   if (first || !have_from || !have_instance || !have_link || !have_t) return std::nullopt;
+  // The demand state is whole or absent: "control" (and "channel") belong to it. A "demand"
+  // without "control" would read as control port 0 (a false hello mismatch), and either without
+  // "demand" would be ignored; no encoder writes them.
+  if (c.has_demand != have_control) return std::nullopt;
+  if (!c.has_demand && !c.channels.empty()) return std::nullopt;
   return c;
 }
 

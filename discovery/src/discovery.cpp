@@ -4,7 +4,9 @@
 #include <sys/eventfd.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cstdint>
 #include <map>
 #include <mutex>
 #include <thread>
@@ -32,10 +34,13 @@ struct Discovery::Impl {
   std::int64_t sequence = 0;
   std::atomic<std::uint64_t> self_id{0};  // our participant id, to ignore our own echo
 
-  mutable std::mutex mutex;  // guards peers and counters
+  mutable std::mutex mutex;  // guards peers, peer_bytes, table_bytes and counters
   std::map<std::int64_t, Participant> peers;
+  std::map<std::int64_t, std::size_t> peer_bytes;  // encoded size of each peer's beacon
+  std::size_t table_bytes = 0;                      // their sum (Options::max_table_bytes)
   Counters counters;
   Clock::time_point last_malformed_log{};
+  Clock::time_point last_refused_log{};
   Clock::time_point last_send_error_log{};  // discovery thread only
 
   Impl(Options o, LocalFn l, ChangeFn c)
@@ -48,6 +53,14 @@ struct Discovery::Impl {
   }
   ~Impl() {
     if (wake_fd >= 0) ::close(wake_fd);
+  }
+
+  // Under mutex: a participant leaves the table.
+  void forget_bytes(std::int64_t id) {
+    const auto it = peer_bytes.find(id);
+    if (it == peer_bytes.end()) return;
+    table_bytes -= it->second;
+    peer_bytes.erase(it);
   }
 
   void wake() {
@@ -114,8 +127,9 @@ struct Discovery::Impl {
     }
     if (b->flags & lcmx_msgs::beacon_t::FLAG_OBSERVER) return;
 
-    Change change;
+    Change change = Change::updated;
     Participant copy;
+    std::string refused;  // why, when refused and to be logged
     {
       std::lock_guard lock(mutex);
       ++counters.beacons_received;
@@ -124,23 +138,46 @@ struct Discovery::Impl {
         if (it == peers.end()) return;
         ++counters.goodbyes;
         copy = std::move(it->second);
+        forget_bytes(it->first);
         peers.erase(it);
         change = Change::left;
       } else {
-        if (it == peers.end()) {
-          change = Change::joined;
-          it = peers.emplace(b->participant_id, Participant{}).first;
+        if (it != peers.end() && b->sequence <= it->second.beacon.sequence && b->pid == it->second.beacon.pid)
+          return;  // out-of-order or duplicated beacons from one sender: keep the newest
+        const std::size_t bytes = m.data.size();
+        const std::size_t old_bytes = it == peers.end() ? 0 : peer_bytes[it->first];
+        if (it == peers.end() && peers.size() >= options.max_participants)
+          refused = "the table holds max_participants (" + std::to_string(options.max_participants) + ")";
+        else if (table_bytes - old_bytes + bytes > options.max_table_bytes)
+          refused = "the table would exceed max_table_bytes (" + std::to_string(options.max_table_bytes) + ")";
+        if (!refused.empty()) {
+          ++counters.refused;
+          const auto now = Clock::now();
+          if (now - last_refused_log < std::chrono::seconds(5)) return;
+          last_refused_log = now;
+          refused = "refused a beacon of participant " + std::to_string(b->participant_id) + " (" +
+                    b->process_name.substr(0, 64) + " pid " + std::to_string(b->pid) + "): " + refused + "; " +
+                    std::to_string(counters.refused) + " refused so far";
         } else {
-          // Out-of-order or duplicated beacons from one sender: keep the newest.
-          if (b->sequence <= it->second.beacon.sequence &&
-              b->pid == it->second.beacon.pid)
-            return;
-          change = Change::updated;
+          if (it == peers.end()) {
+            change = Change::joined;
+            it = peers.emplace(b->participant_id, Participant{}).first;
+          } else {
+            change = Change::updated;
+          }
+          table_bytes += bytes - old_bytes;
+          peer_bytes[it->first] = bytes;
+          const auto max_lease = static_cast<std::int32_t>(std::min<std::int64_t>(options.max_lease.count(), INT32_MAX));
+          if (b->lease_ms > max_lease) b->lease_ms = max_lease;
+          it->second.beacon = std::move(*b);
+          it->second.last_seen = Clock::now();
+          copy = it->second;
         }
-        it->second.beacon = std::move(*b);
-        it->second.last_seen = Clock::now();
-        copy = it->second;
       }
+    }
+    if (!refused.empty()) {
+      spdlog::warn("lcmx discovery: {}", refused);
+      return;
     }
     if (on_change) on_change(change, copy);
   }
@@ -153,6 +190,7 @@ struct Discovery::Impl {
       for (auto it = peers.begin(); it != peers.end();) {
         const auto lease = std::chrono::milliseconds(std::max(it->second.beacon.lease_ms, 1));
         if (now - it->second.last_seen > lease) {
+          forget_bytes(it->first);
           gone.push_back(std::move(it->second));
           it = peers.erase(it);
           ++counters.leases_expired;

@@ -312,3 +312,84 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   CHECK(back.instance == 0xfedcba9876543210ull);
   CHECK(back.seq == 77u);
 }
+
+TEST_CASE("config values at their limits: clear errors, never a hang or undefined behaviour", "[bridge][config]") {
+  const std::string b = kBase;
+  auto message = [](const std::string& text) -> std::string {
+    try {
+      (void)parse_config(text, "limits.toml");
+    } catch (const ConfigError& e) {
+      return e.what();
+    }
+    return "(accepted)";
+  };
+  // Channels beyond kMaxChannels (each needs its own I/O thread bit in a 64-bit affinity mask).
+  std::string chans = b;
+  for (std::size_t i = 0; i <= kMaxChannels; ++i)
+    chans += "[[channel]]\nname = \"c" + std::to_string(i) + "\"\nport = " + std::to_string(8000 + i) + "\n";
+  CHECK(message(chans).find("limits.toml: channel: at most 32 channels (got 33)") != std::string::npos);
+  // Peers beyond kMaxPeers (one message is queued for at most kMaxPeers peers).
+  std::string peers = b;
+  for (std::size_t i = 0; i <= kMaxPeers; ++i)
+    peers += "[[peer]]\nname = \"p" + std::to_string(i) + "\"\nendpoints = [ { link = \"eth\", address = \"10.0.0." +
+             std::to_string(i % 250 + 2) + "\" } ]\n";
+  CHECK(message(peers).find("limits.toml: peer: at most 64 peers (got 65)") != std::string::npos);
+  std::string eps = b + "[[peer]]\nname = \"p\"\nendpoints = [";
+  for (std::size_t i = 0; i <= kMaxEndpoints; ++i)
+    eps += (i ? ", " : "") + std::string("{ link = \"l") + std::to_string(i) + "\", address = \"10.0.0.2\" }";
+  eps += "]\n";
+  CHECK(message(eps).find("peer[0].endpoints: at most 8 endpoints (got 9)") != std::string::npos);
+  // Exactly at the limits: accepted.
+  std::string ok = b;
+  for (std::size_t i = 0; i < kMaxChannels; ++i)
+    ok += "[[channel]]\nname = \"c" + std::to_string(i) + "\"\nport = " + std::to_string(8000 + i) + "\n";
+  CHECK(parse_config(ok, "limits.toml").channels.size() == kMaxChannels);
+  // Ports and timeouts at the edges.
+  CHECK(message("name = \"a\"\nlisten = [\"10.0.0.1\"]\ncontrol_port = 65536\n").find("control_port: must be an integer from 1 to 65535") != std::string::npos);
+  CHECK(message("name = \"a\"\nlisten = [\"10.0.0.1\"]\ncontrol_port = 65535\n").find("no room for the default channel") != std::string::npos);
+  CHECK(message(b + "heartbeat_ms = 9223372036854775807\n").find("heartbeat_ms: must be an integer from 10 to 60000") != std::string::npos);
+  CHECK(message(b + "link_timeout_ms = 600001\n").find("link_timeout_ms: must be an integer") != std::string::npos);
+  // toml++ 3.3.0 (Debian 12) asserts on these table headers in debug builds (found by
+  // fuzz_bridge_config; marzer/tomlplusplus#301): lcmx's builds give a parse error.
+  for (const char* text : {"[[[1]]]", "[[[a]]]", "[[[]]", "[[=", "[\r\n"})
+    CHECK(message(text).rfind("limits.toml: line ", 0) == 0);
+  // toml++ 3.3.0 reaches __builtin_unreachable() on a non-ASCII character where it expects
+  // whitespace or a key (found by fuzz_bridge_config): refused before toml++ sees it...
+  CHECK(message(b + "carry = [\"A\"]\xc3\xa9\n") == "limits.toml: line 5: a non-ASCII character outside a string or comment");
+  CHECK(message(b + "\xc2\xa0heartbeat_ms = 100\n").find("line 5: a non-ASCII") != std::string::npos);
+  CHECK(message(b + "x = \"\"\"\n\n\"\"\"\nl\xef\xbb\xb7n = 1\n").find("line 8: a non-ASCII") != std::string::npos);
+  // ...while strings and comments may hold any UTF-8.
+  const auto utf8 = parse_config(b + "# caf\xc3\xa9 \xe2\x89\xa5 2\ncarry = [\"CAF\xc3\x89_*\", 'm\xc3\xa9t\xc3\xa9o']\n", "limits.toml");
+  CHECK(utf8.carry == std::vector<std::string>{"CAF\xc3\x89_*", "m\xc3\xa9t\xc3\xa9o"});
+}
+
+TEST_CASE("a key file that is a device or too large is refused at once", "[bridge][config][curve]") {
+  // /dev/zero was read line by line without end (the bridge hung at start-up, growing).
+  const auto zero = [] {
+    try {
+      (void)read_key_file("/dev/zero");
+    } catch (const ConfigError& e) {
+      return std::string(e.what());
+    }
+    return std::string("(accepted)");
+  }();
+  CHECK(zero.find("/dev/zero: not a key file") != std::string::npos);
+  TempDir dir;
+  const auto big = dir.path / "big.pub";
+  std::ofstream(big) << "# " << std::string(kMaxKeyFileBytes, 'x') << "\n";
+  CHECK_THROWS_WITH(read_key_file(big), Catch::Contains("not a key file"));
+  CHECK_THROWS_WITH(read_key_file(dir.path), Catch::Contains("not a key file"));
+}
+
+TEST_CASE("control wire format: the demand state is whole or absent", "[bridge][wire]") {
+  const std::string head = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nactive\n";
+  // Found by fuzz_bridge_frame: "demand" without "control" decoded as control port 0 (a false
+  // hello mismatch at the peer) and did not survive encode + decode.
+  CHECK_FALSE(wire::decode(head + "demand\nwant X\n"));
+  CHECK_FALSE(wire::decode(head + "control 7700\n"));                 // control without demand
+  CHECK_FALSE(wire::decode(head + "channel c 7701\n"));               // channel without demand
+  const auto ok = wire::decode(head + "control 7700\nchannel c 7701\ndemand\nwant X\n");
+  REQUIRE(ok);
+  CHECK(ok->control_port == 7700);
+  CHECK(wire::decode(wire::encode(*ok)));
+}

@@ -2,9 +2,15 @@
 // (join, update, goodbye, lease expiry, observer query).
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <climits>
 #include <catch2/catch.hpp>
 #include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <span>
 #include <mutex>
 #include <random>
 #include <thread>
@@ -203,4 +209,76 @@ TEST_CASE("malformed datagrams on the beacon channel are counted, not fatal", "[
   g.publish(lcmx::discovery::kBeaconChannel, bad);
   REQUIRE(eventually([&] { return a.counters().malformed >= 2; }));
   CHECK(a.participants().empty());
+}
+
+TEST_CASE("a flood of fake participants is bounded, counted, and does not displace known ones",
+          "[discovery][hostile]") {
+  // Anyone on the host can send beacons with fresh participant ids (and any lease they like):
+  // the table of participants grew without bound, each entry staying for the lease it announced
+  // (up to 24 days).
+  lcmx::discovery::Options o;
+  o.group = test_group(3);
+  o.observer = true;  // only what deliver() hands it
+  o.max_participants = 8;
+  o.max_table_bytes = 1u << 20;
+  o.max_lease = 5000ms;
+  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(o.group));
+  lcmx::discovery::Discovery d(o, nullptr, nullptr);
+  auto deliver = [&](const beacon_t& b) {
+    const auto bytes = lcmx::discovery::encode_beacon(b);
+    d.deliver(lcmx::udpm::Message{lcmx::discovery::kBeaconChannel, bytes, {}, 0});
+  };
+  auto known = sample_beacon(1);
+  known.sequence = 1;
+  known.lease_ms = 3000;
+  deliver(known);
+  for (std::int64_t id = 1000; id < 1100; ++id) {
+    auto fake = sample_beacon(id);
+    fake.sequence = 1;
+    fake.lease_ms = INT32_MAX;  // "keep me for 24 days"
+    deliver(fake);
+  }
+  auto ps = d.participants();
+  CHECK(ps.size() == 8);
+  CHECK(d.counters().refused == 93);
+  for (const auto& p : ps) CHECK(p.beacon.lease_ms <= 5000);  // announced leases are cut
+  // The participant that was there first still updates.
+  known.sequence = 2;
+  known.revision = 5;
+  deliver(known);
+  ps = d.participants();
+  const auto it = std::find_if(ps.begin(), ps.end(), [](const auto& p) { return p.beacon.participant_id == 1; });
+  REQUIRE(it != ps.end());
+  CHECK(it->beacon.revision == 5);
+  // A goodbye frees a place for a new participant.
+  auto bye = sample_beacon(1000);
+  bye.sequence = 2;
+  bye.flags = beacon_t::FLAG_GOODBYE;
+  deliver(bye);
+  auto newcomer = sample_beacon(2000);
+  newcomer.sequence = 1;
+  deliver(newcomer);
+  CHECK(d.participants().size() == 8);
+  CHECK(d.counters().refused == 93);
+
+  // The byte bound: a beacon that would take the table over max_table_bytes is refused.
+  auto huge = sample_beacon(3000);
+  huge.process_name = std::string(2u << 20, 'x');
+  deliver(huge);
+  CHECK(d.counters().refused == 94);
+}
+
+TEST_CASE("committed beacon seeds still decode (refresh test/fuzz/corpus/beacon when beacon.lcm changes)",
+          "[discovery][codec]") {
+  std::size_t n = 0;
+  for (const auto& f : std::filesystem::directory_iterator(LCMX_BEACON_SEEDS)) {
+    std::ifstream in(f.path(), std::ios::binary);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::string why;
+    INFO(f.path().string());
+    CHECK(lcmx::discovery::decode_beacon(std::as_bytes(std::span(text.data(), text.size())), &why));
+    INFO(why);
+    ++n;
+  }
+  CHECK(n >= 3);
 }

@@ -1,19 +1,32 @@
 # CTest driver of one libFuzzer target (cmake -P). Never writes into the source tree.
 #   -DFUZZER=<binary> -DWORK=<scratch dir, wiped> -DSEEDS=<dir> -DREGRESSIONS=<dir>
-#   [-DGENERATED_REGRESSIONS=<dir>] -DMAX_TIME=<s> -DMAX_LEN=<bytes>
-# Missing SEEDS/REGRESSIONS directories are fine (no inputs).
+#   [-DCORPUS=<committed seeds>] [-DGENERATED_REGRESSIONS=<dir>] -DMAX_TIME=<s> -DMAX_LEN=<bytes>
+# Missing CORPUS/SEEDS/REGRESSIONS directories are fine (no inputs).
+# The environment variable LCMX_FUZZ_SECONDS, when set, replaces MAX_TIME (capped at 540 s, below
+# the test's timeout).
 # Copies the seeds and the kept reproducers into WORK/corpus (libFuzzer adds to its first corpus
-# directory), runs every one of them first, then fuzzes for MAX_TIME seconds. Fails when the
-# fuzzer reports a crash, a leak, a timeout or out-of-memory; the input is left in WORK.
+# directory), runs every one of them first, then fuzzes until MAX_TIME seconds have passed in all.
+# Fails when the fuzzer reports a crash, a leak, a timeout or out-of-memory; the input is left in
+# WORK.
 foreach(var FUZZER WORK SEEDS REGRESSIONS MAX_TIME MAX_LEN)
   if(NOT DEFINED ${var})
     message(FATAL_ERROR "run_fuzzer.cmake: -D${var}=... is required")
   endif()
 endforeach()
 
+if(DEFINED ENV{LCMX_FUZZ_SECONDS})
+  set(MAX_TIME "$ENV{LCMX_FUZZ_SECONDS}")
+endif()
+if(NOT MAX_TIME MATCHES "^[0-9]+$" OR MAX_TIME LESS 1)
+  message(FATAL_ERROR "run_fuzzer.cmake: LCMX_FUZZ_SECONDS / MAX_TIME must be a whole number of seconds >= 1, got '${MAX_TIME}'")
+endif()
+if(MAX_TIME GREATER 540)
+  set(MAX_TIME 540)
+endif()
+
 file(REMOVE_RECURSE "${WORK}")
 file(MAKE_DIRECTORY "${WORK}/corpus" "${WORK}/artifacts")
-foreach(dir IN ITEMS "${SEEDS}" "${REGRESSIONS}" "${GENERATED_REGRESSIONS}")
+foreach(dir IN ITEMS "${CORPUS}" "${SEEDS}" "${REGRESSIONS}" "${GENERATED_REGRESSIONS}")
   if(IS_DIRECTORY "${dir}")
     file(GLOB inputs LIST_DIRECTORIES false "${dir}/*")
     list(FILTER inputs EXCLUDE REGEX "/README[^/]*$")

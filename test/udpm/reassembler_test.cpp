@@ -64,7 +64,7 @@ TEST_CASE("Reassembler keeps (source, sequence) apart, bounds memory and expires
     Reassembler r({250000, 16, std::chrono::seconds(1)});
     CHECK_FALSE(r.add(parsed(lc03_message(1, "X", data)[0]), kA, t0));
     CHECK_FALSE(r.add(parsed(lc03_message(2, "X", data)[0]), kA, t0 + std::chrono::milliseconds(1)));
-    CHECK(r.reserved_bytes() == 200000);
+    CHECK(r.reserved_bytes() == 2 * Reassembler::charge(100000, 2));
     CHECK_FALSE(r.add(parsed(lc03_message(3, "X", data)[0]), kA, t0 + std::chrono::milliseconds(2)));
     CHECK(r.stats().incomplete_dropped == 1);  // sequence 1 went
     CHECK(r.partial_count() == 2);
@@ -90,4 +90,47 @@ TEST_CASE("Reassembler keeps (source, sequence) apart, bounds memory and expires
     CHECK(r.stats().malformed_dropped == 2);
     CHECK(r.partial_count() == 0);
   }
+}
+
+TEST_CASE("Reassembler: a source flooding partial messages evicts its own, not others' in flight",
+          "[unit][reassembly]") {
+  // kB sends first fragments of messages it never completes (a hostile or broken sender on the
+  // group); kA's message, in flight meanwhile, still completes.
+  const auto data = make_payload(1, 100000);
+  const auto a = lc03_message(1, "CAM", data);
+  const auto t0 = Reassembler::Clock::now();
+  for (const std::size_t limit_bytes : {std::size_t{1} << 28, std::size_t{450000}}) {
+    INFO("max_bytes " << limit_bytes);
+    Reassembler r({limit_bytes, 4, std::chrono::seconds(1)});
+    CHECK_FALSE(r.add(parsed(a[0]), kA, t0));
+    for (std::uint32_t s = 0; s < 100; ++s)
+      CHECK_FALSE(r.add(parsed(lc03_message(1000 + s, "X", data)[0]), kB, t0 + std::chrono::milliseconds(1 + s)));
+    CHECK(r.partial_count() <= 4);
+    CHECK(r.reserved_bytes() <= limit_bytes);
+    CHECK(r.stats().incomplete_dropped >= 96);
+    auto c = r.add(parsed(a[1]), kA, t0 + std::chrono::milliseconds(200));
+    REQUIRE(c);
+    CHECK(c->size == data.size());
+  }
+}
+
+TEST_CASE("Reassembler: bookkeeping of fragment sets is bounded, not only their bytes", "[unit][reassembly]") {
+  // A first fragment may announce 65535 fragments of a 1-byte message: the seen flags and
+  // extents of such partial messages (~590 KB each) were not counted against max_bytes, so 256
+  // of them held ~150 MB under a 1 MiB limit.
+  const auto data = make_payload(2, 16);
+  const auto t0 = Reassembler::Clock::now();
+  const std::size_t limit = 1u << 20;
+  Reassembler r({limit, 256, std::chrono::seconds(1)});
+  for (std::uint32_t s = 0; s < 100; ++s)
+    CHECK_FALSE(r.add(parsed(lc03(s, 1, 0, 0, 65535, "X", std::span(data).first(1))), kB,
+                      t0 + std::chrono::milliseconds(s)));
+  CHECK(r.partial_count() == 1);
+  CHECK(r.reserved_bytes() == Reassembler::charge(1, 65535));
+  CHECK(r.reserved_bytes() <= limit);
+  // A set whose bookkeeping alone exceeds the limit is oversize.
+  Reassembler small({100000, 16, std::chrono::seconds(1)});
+  CHECK_FALSE(small.add(parsed(lc03(1, 1, 0, 0, 65535, "X", std::span(data).first(1))), kB, t0));
+  CHECK(small.stats().oversize_dropped == 1);
+  CHECK(small.partial_count() == 0);
 }

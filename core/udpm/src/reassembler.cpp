@@ -2,19 +2,34 @@
 
 #include <algorithm>
 #include <cstring>
+#include <iterator>
 
 namespace lcmx::udpm::detail {
 
 void Reassembler::erase(std::unordered_map<Key, Partial, KeyHash>::iterator it) {
-  reserved_ -= it->second.total_size;
+  reserved_ -= it->second.charged;
+  const auto s = sources_.find(source_key(it->first));
+  if (s != sources_.end()) {
+    s->second.bytes -= it->second.charged;
+    if (--s->second.partials == 0) sources_.erase(s);
+  }
   partials_.erase(it);
 }
 
-bool Reassembler::evict_oldest() {
+bool Reassembler::evict_one() {
   if (partials_.empty()) return false;
-  auto oldest = partials_.begin();
+  // The source holding the most partial messages (then the most bytes)...
+  auto victim = sources_.begin();
+  for (auto it = sources_.begin(); it != sources_.end(); ++it)
+    if (it->second.partials > victim->second.partials ||
+        (it->second.partials == victim->second.partials && it->second.bytes > victim->second.bytes))
+      victim = it;
+  // ...gives up its oldest.
+  auto oldest = partials_.end();
   for (auto it = partials_.begin(); it != partials_.end(); ++it)
-    if (it->second.last < oldest->second.last) oldest = it;
+    if (source_key(it->first) == victim->first && (oldest == partials_.end() || it->second.last < oldest->second.last))
+      oldest = it;
+  if (oldest == partials_.end()) oldest = partials_.begin();  // unreachable: sources_ mirrors partials_
   erase(oldest);
   ++stats_.incomplete_dropped;
   return true;
@@ -25,23 +40,29 @@ std::optional<Reassembler::Complete> Reassembler::add(const ParsedDatagram& d, S
   const Key key{source.address_be, source.port_be, d.sequence};
   auto it = partials_.find(key);
   if (it == partials_.end()) {
-    if (d.total_size > limits_.max_bytes) {
+    const std::size_t cost = charge(d.total_size, d.fragment_count);
+    if (cost > limits_.max_bytes) {
       ++stats_.oversize_dropped;  // counted once per fragment: the message can never complete
       return std::nullopt;
     }
     // Make room: bounded by the number of partials.
     while (!partials_.empty() && (partials_.size() >= limits_.max_partials ||
-                                  reserved_ + d.total_size > limits_.max_bytes))
-      evict_oldest();
+                                  reserved_ + cost > limits_.max_bytes))
+      evict_one();
     if (limits_.max_partials == 0) return std::nullopt;
     Partial p;
     // Uninitialised: pages of a large buffer are only touched as fragments fill them.
     p.data = std::make_unique_for_overwrite<std::byte[]>(d.total_size);
     p.seen.assign(d.fragment_count, false);
+    p.extents.reserve(d.fragment_count);  // charged up front: never grows past it
     p.total_size = d.total_size;
     p.fragment_count = d.fragment_count;
+    p.charged = cost;
     it = partials_.emplace(key, std::move(p)).first;
-    reserved_ += d.total_size;
+    reserved_ += cost;
+    auto& use = sources_[source_key(key)];
+    ++use.partials;
+    use.bytes += cost;
   }
 
   Partial& p = it->second;
@@ -90,8 +111,9 @@ std::optional<Reassembler::Complete> Reassembler::add(const ParsedDatagram& d, S
 void Reassembler::expire(Clock::time_point now) {
   for (auto it = partials_.begin(); it != partials_.end();) {
     if (now - it->second.last > limits_.timeout) {
-      reserved_ -= it->second.total_size;
-      it = partials_.erase(it);
+      const auto next = std::next(it);
+      erase(it);
+      it = next;
       ++stats_.incomplete_dropped;
     } else {
       ++it;

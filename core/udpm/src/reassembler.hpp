@@ -1,5 +1,13 @@
 #pragma once
 // Private: LC03 fragment reassembly with bounded memory. Single-threaded.
+//
+// Memory: every partial message is charged its declared size plus its bookkeeping (per
+// fragment: a seen flag and an extent), reserved when its first fragment arrives; the sum stays
+// within Limits::max_bytes and the count within Limits::max_partials.
+// Eviction, when a new partial message needs room: the source (address, port) holding the most
+// partial messages gives up its oldest (ties: the one holding the most bytes). A sender flooding
+// fragments of messages it never completes thus evicts its own, not other senders' messages in
+// flight. Evictions are counted in Stats::incomplete_dropped.
 
 #include <chrono>
 #include <cstddef>
@@ -51,7 +59,12 @@ class Reassembler {
 
   const Stats& stats() const noexcept { return stats_; }
   std::size_t partial_count() const noexcept { return partials_.size(); }
+  // Declared sizes plus bookkeeping of the partial messages (what max_bytes bounds).
   std::size_t reserved_bytes() const noexcept { return reserved_; }
+  // What a partial message of `total_size` bytes in `fragment_count` fragments is charged.
+  static std::size_t charge(std::uint32_t total_size, std::uint16_t fragment_count) noexcept {
+    return std::size_t{total_size} + std::size_t{fragment_count} * kPerFragment;
+  }
 
  private:
   struct Key {
@@ -77,15 +90,28 @@ class Reassembler {
     std::uint16_t fragment_count = 0;
     std::uint16_t received = 0;
     std::uint64_t bytes = 0;
+    std::size_t charged = 0;  // what reserved_ holds for it
     Clock::time_point last{};
   };
 
+  // A seen flag (vector<bool>: rounded up to a byte) and an (offset, length) extent.
+  static constexpr std::size_t kPerFragment = 1 + sizeof(std::pair<std::uint32_t, std::uint32_t>);
+
+  struct SourceUse {
+    std::size_t partials = 0;
+    std::size_t bytes = 0;
+  };
+  static std::uint64_t source_key(const Key& k) noexcept {
+    return (std::uint64_t{k.address_be} << 16) | k.port_be;
+  }
+
   void erase(std::unordered_map<Key, Partial, KeyHash>::iterator it);
-  bool evict_oldest();
+  bool evict_one();
 
   Limits limits_;
   Stats stats_;
   std::unordered_map<Key, Partial, KeyHash> partials_;
+  std::unordered_map<std::uint64_t, SourceUse> sources_;  // per source with partial messages
   std::size_t reserved_ = 0;
 };
 

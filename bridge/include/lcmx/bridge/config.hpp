@@ -18,6 +18,14 @@
 
 namespace lcmx::bridge {
 
+// Limits load_config() enforces (docs/bridge.md "Configuration"). Channels: each has its own
+// thread and ZeroMQ I/O thread, picked by a 64-bit affinity mask (the control sockets use bit
+// `channels`). Peers: a message is queued for every wanting peer in one pass.
+inline constexpr std::size_t kMaxChannels = 32;
+inline constexpr std::size_t kMaxPeers = 64;
+inline constexpr std::size_t kMaxEndpoints = 8;       // links per peer
+inline constexpr std::size_t kMaxKeyFileBytes = 4096;  // a key file is one 40-character line
+
 class ConfigError : public std::runtime_error {
  public:
   using std::runtime_error::runtime_error;
@@ -91,7 +99,8 @@ KeyPair generate_key_pair();
 // unless `overwrite`. Throws ConfigError naming the file.
 void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bool overwrite = false);
 // Reads a key file: the first line that is neither empty nor a '#' comment, which must be a
-// 40-character Z85 key. Throws ConfigError naming the file.
+// 40-character Z85 key. The file must be a regular file of at most kMaxKeyFileBytes. Throws
+// ConfigError naming the file.
 std::string read_key_file(const std::filesystem::path& file);
 // Whether this libzmq supports CURVE.
 bool curve_available();

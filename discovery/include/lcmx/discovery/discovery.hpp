@@ -36,6 +36,13 @@ struct Options {
   std::chrono::milliseconds period{1000};           // periodic beacon
   std::chrono::milliseconds lease{3500};            // announced; others drop us after this
   bool observer = false;                            // query only, never announce
+  // Bounds of the table of other participants (anyone on the group can send beacons). A new
+  // participant, or a participant's new beacon, that would exceed them is refused and counted
+  // (Counters::refused, a warning at most every 5 s); participants already in the table keep
+  // their place until their goodbye or lease. The lease a beacon announces is cut to max_lease.
+  std::size_t max_participants = 1024;
+  std::size_t max_table_bytes = std::size_t{64} << 20;  // sum of their encoded beacons
+  std::chrono::milliseconds max_lease{600000};  // the largest lease LCMX_LEASE_MS allows
 };
 
 // What is known about another participant: its latest beacon and when it arrived.
@@ -52,6 +59,7 @@ struct Counters {
   std::uint64_t malformed = 0;
   std::uint64_t leases_expired = 0;
   std::uint64_t goodbyes = 0;
+  std::uint64_t refused = 0;  // beacons refused by max_participants / max_table_bytes
 };
 
 class Discovery {

@@ -1,0 +1,264 @@
+// Data channels: the shm subscription callback that queues a message for every wanting peer
+// (one copy out of the slot, drop policy), and the channel threads that send the queues to the
+// peers' active links and receive peers' data into this host's shared memory (sequence check,
+// republishers). The queue and sequence rules: channels.hpp.
+#include "engine.hpp"
+
+#include <sched.h>
+
+#include <algorithm>
+#include <span>
+
+#include <spdlog/spdlog.h>
+
+namespace lcmx::bridge {
+
+using namespace std::chrono_literals;
+
+std::unique_ptr<zmq::socket_t> Bridge::Impl::make_data_dealer(const Peer& p, const Channel& ch, const Link& l) {
+  auto s = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::dealer);
+  client_options(*s, p);
+  s->set(zmq::sockopt::routing_id, cfg.name);
+  s->set(zmq::sockopt::sndhwm, 2);  // our own queue holds the rest (drop policy)
+  s->set(zmq::sockopt::affinity, std::uint64_t{1} << ch.index);
+  s->set(zmq::sockopt::tos, ch.cfg.priority << 5);
+  s->connect("tcp://" + l.cfg.address + ":" + std::to_string(ch.cfg.port));
+  return s;
+}
+
+void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
+  thread_local int niced = -1;
+  const int want_nice = channels[s.channel]->nice;
+  if (niced != want_nice) {
+    set_thread_nice(want_nice);
+    niced = want_nice;
+  }
+  if (!s.large.load(std::memory_order_relaxed)) {
+    if (m.data.size() <= rt_options.udp_limit) return;  // small: UDP carries it
+    s.large = true;
+    {
+      std::lock_guard lock(view_mu);
+      sticky_large.insert(s.topic);
+    }
+    spdlog::info("bridge {}: topic {} is large ({} bytes > udp_limit {}): bridged from now on", cfg.name, s.topic,
+                 m.data.size(), rt_options.udp_limit);
+  }
+  std::size_t targets[kMaxPeers];  // load_config() allows at most kMaxPeers peers
+  std::size_t n = 0;
+  {
+    std::lock_guard lock(s.mu);
+    for (auto p : s.peers)
+      if (n < std::size(targets)) targets[n++] = p;
+  }
+  if (n == 0) return;
+  zmq::message_t payload(m.data.data(), m.data.size());  // the one copy out of the slot
+  Channel& ch = *channels[s.channel];
+  for (std::size_t i = 0; i < n; ++i) {
+    PeerChannel& pc = *peers[targets[i]]->chans[s.channel];
+    Outgoing out{s.topic_ptr, zmq::message_t()};
+    out.payload.copy(payload);  // zmq_msg_copy: shares the buffer (refcount), no byte copy
+    std::lock_guard lock(pc.mu);
+    if (datapath::push_bounded(pc.queue, std::move(out), ch.cfg.hwm, ch.cfg.drop))
+      pc.drops.fetch_add(1, std::memory_order_relaxed);
+    pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
+  }
+  ch.wake->ring();
+}
+
+void Bridge::Impl::channel_loop(Channel& ch) {
+  set_thread_nice(ch.nice);
+  std::vector<zmq::pollitem_t> items;
+  std::vector<PeerChannel*> polled;
+  while (!stopping.load()) {
+    // Follow the active links.
+    for (auto& p : peers) {
+      PeerChannel& pc = *p->chans[ch.index];
+      const int want = p->active.load();
+      if (want >= 0 && want != pc.connected_link) {
+        try {
+          pc.dealer = make_data_dealer(*p, ch, *p->links[static_cast<std::size_t>(want)]);
+          pc.connected_link = want;
+        } catch (const zmq::error_t& e) {
+          spdlog::error("bridge {}: channel {}: cannot connect to {}: {}", cfg.name, ch.cfg.name, p->cfg.name, e.what());
+        }
+      }
+    }
+    items.clear();
+    polled.clear();
+    items.push_back({ch.router->handle(), 0, ZMQ_POLLIN, 0});
+    items.push_back({nullptr, ch.wake->fd(), ZMQ_POLLIN, 0});
+    for (auto& p : peers) {
+      PeerChannel& pc = *p->chans[ch.index];
+      if (pc.dealer && pc.queued.load(std::memory_order_relaxed) > 0) {
+        items.push_back({pc.dealer->handle(), 0, ZMQ_POLLOUT, 0});
+        polled.push_back(&pc);
+      }
+    }
+    try {
+      zmq::poll(items.data(), items.size(), std::chrono::milliseconds(100));
+    } catch (const zmq::error_t& e) {
+      if (e.num() == ETERM) break;
+      continue;
+    }
+    if (items[1].revents & ZMQ_POLLIN) ch.wake->drain();
+    if (items[0].revents & ZMQ_POLLIN) receive_data(ch);
+    for (auto& p : peers) flush(ch, *p);
+  }
+}
+
+void Bridge::Impl::flush(Channel& ch, Peer& p) {
+  PeerChannel& pc = *p.chans[ch.index];
+  if (!pc.dealer) return;
+  const int link = pc.connected_link;
+  for (;;) {
+    Outgoing out;
+    {
+      std::lock_guard lock(pc.mu);
+      if (pc.queue.empty()) break;
+      out = std::move(pc.queue.front());
+      pc.queue.pop_front();
+      pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
+    }
+    unsigned char hdr[wire::kDataHeader];
+    wire::encode_header({instance, pc.seq + 1}, hdr);
+    const std::size_t bytes = out.topic->size() + out.payload.size();
+    bool sent = false;
+    try {
+      // All parts of a message are queued together once the first is accepted.
+      if (pc.dealer->send(zmq::buffer(*out.topic), zmq::send_flags::sndmore | zmq::send_flags::dontwait)) {
+        pc.dealer->send(zmq::buffer(hdr, sizeof hdr), zmq::send_flags::sndmore);
+        pc.dealer->send(out.payload, zmq::send_flags::none);
+        sent = true;
+      }
+    } catch (const zmq::error_t& e) {
+      spdlog::warn("bridge {}: channel {}: send to {} failed: {}", cfg.name, ch.cfg.name, p.cfg.name, e.what());
+    }
+    if (!sent) {  // would block: put it back at the front, try again when writable
+      std::lock_guard lock(pc.mu);
+      pc.queue.push_front(std::move(out));
+      pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
+      break;
+    }
+    ++pc.seq;
+    pc.sent_msgs.fetch_add(1, std::memory_order_relaxed);
+    pc.sent_bytes.fetch_add(bytes, std::memory_order_relaxed);
+    if (link >= 0) p.links[static_cast<std::size_t>(link)]->bytes_sent.fetch_add(bytes, std::memory_order_relaxed);
+  }
+  const auto d = pc.drops.load(std::memory_order_relaxed);
+  if (d != pc.drops_logged && pc.drop_log.allow()) {
+    spdlog::warn("bridge {}: {} message(s) to {} dropped on channel {} (queue full: hwm {}, drop {}); {} in total",
+                 cfg.name, d - pc.drops_logged, p.cfg.name, ch.cfg.name, ch.cfg.hwm,
+                 ch.cfg.drop == DropPolicy::oldest ? "oldest" : "newest", d);
+    pc.drops_logged = d;
+  }
+}
+
+void Bridge::Impl::receive_data(Channel& ch) {
+  for (std::size_t n = 0; n < kRecvBatch; ++n) {
+    zmq::message_t parts[4];
+    std::size_t count = 0;
+    bool got = false, extra = false;
+    for (;;) {
+      zmq::message_t m;
+      std::optional<std::size_t> r;
+      try {
+        r = ch.router->recv(m, count == 0 ? zmq::recv_flags::dontwait : zmq::recv_flags::none);
+      } catch (const zmq::error_t&) {
+        return;
+      }
+      if (!r) break;
+      got = true;
+      const bool more = m.more();
+      if (count < 4) parts[count] = std::move(m);
+      else extra = true;
+      ++count;
+      if (!more) break;
+    }
+    if (!got) return;
+    if (count != 4 || extra) {
+      count_bad("channel " + ch.cfg.name + ": " + std::to_string(count) + " frames (expected 4)");
+      continue;
+    }
+    const std::string id = parts[0].to_string();
+    auto it = peer_by_name.find(id);
+    if (it == peer_by_name.end()) {
+      count_bad("channel " + ch.cfg.name + ": data from unknown bridge '" + id.substr(0, 40) + "'");
+      continue;
+    }
+    if (!authentic(parts[3], id)) {
+      count_bad("channel " + ch.cfg.name + ": data claiming to be from " + id + " with another peer's key");
+      continue;
+    }
+    Peer& p = *peers[it->second];
+    const std::string topic = parts[1].to_string();
+    if (!wire::valid_topic(topic) || parts[2].size() != wire::kDataHeader) {
+      count_bad("channel " + ch.cfg.name + ": bad topic or header from " + id);
+      continue;
+    }
+    const auto h = wire::decode_header(static_cast<const unsigned char*>(parts[2].data()));
+    PeerChannel& pc = *p.chans[ch.index];
+    const auto lost = pc.rx.accept(h);
+    if (!lost) {
+      count_bad("channel " + ch.cfg.name + ": stale sequence number from " + id);
+      continue;  // never deliver twice or out of order (e.g. late data of an old link)
+    }
+    if (*lost > 0) pc.lost.fetch_add(*lost, std::memory_order_relaxed);
+    const std::size_t bytes = topic.size() + parts[3].size();
+    pc.recv_msgs.fetch_add(1, std::memory_order_relaxed);
+    pc.recv_bytes.fetch_add(bytes, std::memory_order_relaxed);
+    if (int l = link_of(p, peer_address(parts[3])); l >= 0)
+      p.links[static_cast<std::size_t>(l)]->bytes_received.fetch_add(bytes, std::memory_order_relaxed);
+    republish(topic, parts[3]);
+  }
+}
+
+// Channel threads: into this host's shared memory.
+void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& payload) {
+  std::shared_ptr<Republisher> r;
+  {
+    std::lock_guard lock(repub_mu);
+    auto it = repubs.find(topic);
+    if (it != repubs.end()) r = it->second;
+  }
+  if (!r) {
+    {
+      std::lock_guard lock(view_mu);
+      if (!demand.count(topic)) return;  // nobody here wants it (any more)
+    }
+    r = ensure_republisher(topic);
+    if (!r) return;
+  }
+  r->last_message = Clock::now();
+  try {
+    r->pub.publish(std::span<const std::byte>(static_cast<const std::byte*>(payload.data()), payload.size()));
+  } catch (const std::exception& e) {
+    spdlog::warn("bridge {}: republishing {} failed: {}", cfg.name, topic, e.what());
+    return;
+  }
+  // The commit woke every subscriber of this host at once. Subscribers woken onto this
+  // thread's CPU should all run their callbacks before this thread carries on (its next
+  // receive, flush, poll): without this, the scheduler (EEVDF) often picks this thread again
+  // between the first and the second subscriber, adding its remaining work (~15 µs) to
+  // their callback-time difference. With nothing else runnable here it returns at once.
+  ::sched_yield();
+}
+
+std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(const std::string& topic) {
+  std::lock_guard lock(repub_mu);
+  auto& slot = repubs[topic];
+  if (!slot) {
+    try {
+      auto r = std::make_shared<Republisher>();
+      r->pub = repub_node->advertise_raw(topic);
+      r->last_message = Clock::now();
+      slot = std::move(r);
+    } catch (const std::exception& e) {
+      spdlog::warn("bridge {}: cannot republish {}: {}", cfg.name, topic, e.what());
+      repubs.erase(topic);
+      return nullptr;
+    }
+  }
+  return slot;
+}
+
+}  // namespace lcmx::bridge

@@ -1,0 +1,130 @@
+// Peers and demand: the local view (which topics this host's non-bridge participants publish
+// and subscribe to, from discovery), what each peer is served (one shm subscription per topic a
+// peer wants and this host publishes) and the republishers' lifetime.
+#include "engine.hpp"
+
+#include <spdlog/spdlog.h>
+
+namespace lcmx::bridge {
+
+using namespace std::chrono_literals;
+
+void Bridge::Impl::refresh_view() {
+  std::set<std::string> d;
+  std::map<std::string, bool> pubs;
+  for (const auto& part : observer->participants()) {
+    const auto& b = part.beacon;
+    if (b.scope != lcmx_msgs::beacon_t::SCOPE_HOST) continue;
+    if (b.flags & (lcmx_msgs::beacon_t::FLAG_BRIDGE | lcmx_msgs::beacon_t::FLAG_OBSERVER)) continue;
+    for (const auto& e : b.endpoints) {
+      if (!wire::valid_topic(e.topic)) continue;
+      if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER) d.insert(e.topic);
+      else if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) pubs[e.topic] = pubs[e.topic] || e.large != 0;
+    }
+  }
+  std::lock_guard lock(view_mu);
+  demand = std::move(d);
+  published = std::move(pubs);
+}
+
+bool Bridge::Impl::is_large_locked(const std::string& topic) const {
+  auto it = published.find(topic);
+  return (it != published.end() && it->second) || sticky_large.count(topic) || cfg.carried(topic);
+}
+
+// Subscriptions (what peers want and this host publishes) and republishers.
+void Bridge::Impl::reconcile(Clock::time_point now) {
+  const auto demand_ttl = 2 * cfg.link_timeout + cfg.heartbeat;
+  std::map<std::string, std::vector<std::size_t>> want;  // topic -> peers
+  std::map<std::string, bool> large;
+  std::set<std::string> offered, local_demand;
+  {
+    std::lock_guard lock(view_mu);
+    for (std::size_t i = 0; i < peers.size(); ++i) {
+      Peer& p = *peers[i];
+      if (p.demand_at != Clock::time_point{} && now - p.demand_at > demand_ttl) {
+        p.wants.clear();
+        p.offers.clear();
+        p.demand_at = {};
+      }
+      p.served.clear();
+      for (const auto& t : p.wants)
+        if (published.count(t)) {
+          want[t].push_back(i);
+          p.served.insert(t);
+        }
+      if (p.active.load() >= 0) offered.insert(p.offers.begin(), p.offers.end());
+    }
+    for (const auto& [t, v] : want) large[t] = is_large_locked(t);
+    local_demand = demand;
+  }
+  // Subscribe / update / unsubscribe.
+  for (auto it = served.begin(); it != served.end();) {
+    if (!want.count(it->first)) {
+      it->second->sub.reset();  // waits for a running callback; we hold no lock
+      spdlog::debug("bridge {}: no longer serving {}", cfg.name, it->first);
+      it = served.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  for (auto& [t, ps] : want) {
+    auto it = served.find(t);
+    if (it == served.end()) {
+      const auto ch = cfg.channel_of(t);
+      if (!ch) {
+        if (no_channel_logged.insert(t).second)
+          spdlog::warn("bridge {}: topic {} matches no channel's topics: not bridged", cfg.name, t);
+        continue;
+      }
+      auto s = std::make_unique<Served>();
+      s->topic = t;
+      s->topic_ptr = std::make_shared<const std::string>(t);
+      s->channel = *ch;
+      s->large = large[t];
+      s->peers = ps;
+      Served* raw = s.get();
+      SubscriberOptions so;
+      so.from_bridges = false;
+      try {
+        s->sub = channels[*ch]->node->subscribe_raw(t, [this, raw](const RawMessage& m) { on_local_message(*raw, m); }, so);
+      } catch (const std::exception& e) {
+        spdlog::warn("bridge {}: cannot subscribe to {}: {}", cfg.name, t, e.what());
+        continue;
+      }
+      spdlog::debug("bridge {}: serving {} on channel {}", cfg.name, t, channels[*ch]->cfg.name);
+      served.emplace(t, std::move(s));
+    } else {
+      if (large[t]) it->second->large = true;
+      std::lock_guard lock(it->second->mu);
+      it->second->peers = ps;
+    }
+  }
+  // Republishers: for what an up peer offers and this host wants; gone when unwanted, or
+  // neither offered nor used for a while.
+  for (const auto& t : offered)
+    if (local_demand.count(t)) {
+      bool have;
+      {
+        std::lock_guard lock(repub_mu);
+        have = repubs.count(t) > 0;
+      }
+      if (!have) ensure_republisher(t);
+    }
+  std::vector<std::shared_ptr<Republisher>> dead;  // destroyed outside the lock
+  {
+    std::lock_guard lock(repub_mu);
+    for (auto it = repubs.begin(); it != repubs.end();) {
+      const bool keep = local_demand.count(it->first) &&
+                        (offered.count(it->first) || now - it->second->last_message < 3 * cfg.link_timeout + 1s);
+      if (keep) {
+        ++it;
+      } else {
+        dead.push_back(std::move(it->second));
+        it = repubs.erase(it);
+      }
+    }
+  }
+}
+
+}  // namespace lcmx::bridge

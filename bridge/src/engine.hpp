@@ -1,0 +1,289 @@
+// Private: the Message Bridge daemon's engine, Bridge::Impl, and what its parts share.
+// The engine's member functions live in files named by responsibility:
+//   bridge.cpp    Bridge (public API), start/stop, sockets and their options
+//   control.cpp   the control thread: its loop, pings (heartbeat + demand) to every link of
+//                 every peer, pings from peers (their demand) and our pongs, the hello check
+//   failover.cpp  links and failover: pongs, link up/down, the active link per peer
+//                 (the decisions themselves: failover.hpp)
+//   demand.cpp    peers and demand: the local view (discovery), what each peer is served
+//                 (shm subscriptions) and the republishers' lifetime
+//   channels.cpp  data channels: the shm callback queueing to peers, the channel threads
+//                 (send, receive, republish into shm) (queue and sequence rules: channels.hpp)
+//   security.cpp  CURVE: the ZAP thread and the User-Id check (the decision: security.hpp)
+//   status.cpp    the status snapshot (lcmx_msgs::bridge_status_t)
+//
+// Threads (docs/bridge.md has the why):
+//   control thread  : control ROUTER (pings from peers -> pongs, their demand/offers/hello),
+//                     one control DEALER per (peer, link) (our pings, their pongs), link states
+//                     and the active link per peer, local discovery view, shm subscriptions of
+//                     what peers want (Served), republishers, status.
+//   channel threads : one per channel: the channel's ROUTER (data from peers -> republish into
+//                     shm) and one DEALER per peer connected to the peer's active link (data to
+//                     peers, from the bounded per-peer queues).
+//   node executors  : one Node per channel runs that channel's shm subscriptions: the callback
+//                     copies the slot once into a zmq::message_t and queues a refcounted copy
+//                     per wanting peer (drop policy, counted), then wakes the channel thread.
+//
+// Lock order: Served::mu and PeerChannel::mu are leaves; Impl::view_mu -> repub_mu.
+// A Served's callback takes only Served::mu, PeerChannel::mu and nothing else, so the
+// control thread may destroy a subscription (which waits for its running callback) while
+// holding no lock.
+#pragma once
+
+#include <sys/eventfd.h>
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+#include <chrono>
+#include <condition_variable>
+#include <cstdio>
+#include <cstring>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+#include <zmq.hpp>
+
+#include "channels.hpp"
+#include "lcmx/bridge/bridge.hpp"
+#include "lcmx/bridge/detail/wire.hpp"
+#include "lcmx/core.hpp"
+#include "lcmx/discovery/discovery.hpp"
+#include "lcmx_msgs/beacon_t.hpp"
+
+namespace lcmx::bridge {
+
+using Clock = std::chrono::steady_clock;
+
+inline constexpr auto kDemandRefresh = std::chrono::seconds(1);  // full ping at least this often
+inline constexpr std::int64_t kMaxDataMessage = (64ll << 20) + 4096;  // = PublisherOptions default + slack
+inline constexpr std::size_t kRecvBatch = 64;
+
+inline std::int64_t now_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
+}
+
+inline std::string hex64(std::uint64_t v) {
+  char b[20];
+  std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
+  return b;
+}
+
+// Lowers the calling thread's scheduling priority by `nice` (Linux: per-thread niceness).
+// Raising it would need CAP_SYS_NICE; lowering never fails for lack of rights.
+inline void set_thread_nice(int nice) {
+  if (nice <= 0) return;
+  const auto tid = static_cast<id_t>(::syscall(SYS_gettid));
+  ::setpriority(PRIO_PROCESS, tid, nice);
+}
+
+// Wakes a thread blocked in zmq::poll (the eventfd is one of its poll items).
+class Wake {
+ public:
+  Wake() : fd_(::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC)) {
+    if (fd_ < 0) throw BridgeError(std::string("eventfd: ") + std::strerror(errno));
+  }
+  ~Wake() { ::close(fd_); }
+  Wake(const Wake&) = delete;
+  Wake& operator=(const Wake&) = delete;
+  void ring() {
+    const std::uint64_t one = 1;
+    [[maybe_unused]] auto n = ::write(fd_, &one, sizeof one);
+  }
+  void drain() {
+    std::uint64_t v;
+    [[maybe_unused]] auto n = ::read(fd_, &v, sizeof v);
+  }
+  int fd() const { return fd_; }
+
+ private:
+  int fd_;
+};
+
+// Rate-limited logging: at most one line per `period` per limiter.
+struct RateLimit {
+  Clock::time_point last{};
+  bool allow(Clock::duration period = std::chrono::seconds(5)) {
+    const auto now = Clock::now();
+    if (last != Clock::time_point{} && now - last < period) return false;
+    last = now;
+    return true;
+  }
+};
+
+struct Outgoing {
+  std::shared_ptr<const std::string> topic;
+  zmq::message_t payload;  // a refcounted copy (zmq_msg_copy) of the one copy of the slot
+};
+
+// ---------------------------------------------------------------------------------------------
+struct Bridge::Impl {
+  struct Link {
+    EndpointConfig cfg;
+    std::unique_ptr<zmq::socket_t> ctl;  // control DEALER (control thread)
+    // control thread:
+    bool up = false;
+    Clock::time_point last_pong{}, up_since{};
+    bool answered = false;
+    // read by status():
+    std::atomic<std::int64_t> last_pong_ns{-1};
+    std::atomic<std::int32_t> rtt_us{-1};
+    std::atomic<bool> up_flag{false};
+    std::atomic<std::uint64_t> bytes_sent{0}, bytes_received{0};
+  };
+
+  struct PeerChannel {
+    std::mutex mu;  // guards queue
+    std::deque<Outgoing> queue;
+    std::atomic<std::uint64_t> sent_msgs{0}, sent_bytes{0}, drops{0}, recv_msgs{0}, recv_bytes{0}, lost{0};
+    std::atomic<std::int32_t> queued{0};
+    // channel thread:
+    std::unique_ptr<zmq::socket_t> dealer;
+    int connected_link = -1;
+    std::uint64_t seq = 0;
+    datapath::RxSequence rx;
+    std::uint64_t drops_logged = 0;
+    RateLimit drop_log;
+  };
+
+  struct Peer {
+    PeerConfig cfg;
+    std::vector<std::unique_ptr<Link>> links;
+    std::vector<std::unique_ptr<PeerChannel>> chans;
+    std::atomic<int> active{-1};  // index into links, -1: none up
+    std::atomic<std::uint64_t> failovers{0};
+    // control thread:
+    std::uint64_t instance = 0;
+    std::uint64_t hello_checked_instance = 0;
+    bool was_up = false;
+    // What our last full ping (demand) to it said, and when/where/to which instance of it.
+    std::set<std::string> sent_want, sent_offer;
+    Clock::time_point full_sent_at{};
+    int full_sent_link = -1;
+    std::uint64_t full_sent_instance = 0;
+    // guarded by view_mu:
+    std::set<std::string> wants, offers;
+    Clock::time_point demand_at{};
+    std::set<std::string> served;  // what we forward to it now
+  };
+
+  // One shm subscription: a topic some peer wants and a local non-bridge participant publishes.
+  struct Served {
+    std::string topic;
+    std::shared_ptr<const std::string> topic_ptr;
+    std::size_t channel = 0;
+    std::atomic<bool> large{false};
+    std::mutex mu;              // guards peers
+    std::vector<std::size_t> peers;
+    RawSubscriber sub;
+  };
+
+  struct Republisher {
+    RawPublisher pub;
+    Clock::time_point last_message{};
+  };
+
+  struct Channel {
+    ChannelConfig cfg;
+    std::size_t index = 0;
+    int nice = 0;
+    std::unique_ptr<Wake> wake;
+    std::unique_ptr<zmq::socket_t> router;
+    std::thread thread;
+    std::optional<Node> node;  // executor for this channel's subscriptions
+  };
+
+  Config cfg;
+  RuntimeOptions rt_options;
+  std::uint64_t instance = 0;
+  std::atomic<bool> stopping{false};
+  std::atomic<std::uint64_t> bad_frames{0};
+  RateLimit bad_log;
+
+  zmq::context_t ctx;
+  std::optional<Runtime> runtime;
+  std::optional<Node> status_node, repub_node;
+  std::optional<Publisher<lcmx_msgs::bridge_status_t>> status_pub;
+  std::unique_ptr<discovery::Discovery> observer;
+  std::atomic<bool> view_dirty{true};
+
+  std::vector<std::unique_ptr<Peer>> peers;
+  std::map<std::string, std::size_t> peer_by_name;
+  std::vector<std::unique_ptr<Channel>> channels;
+
+  std::unique_ptr<zmq::socket_t> ctl_router;
+  std::unique_ptr<Wake> ctl_wake;
+  std::thread ctl_thread;
+
+  std::unique_ptr<zmq::socket_t> zap;
+  std::thread zap_thread;
+
+  // Local view (guarded by view_mu).
+  mutable std::mutex view_mu;
+  std::set<std::string> demand;                 // topics local non-bridge participants subscribe to
+  std::map<std::string, bool> published;        // topic -> some local non-bridge publisher is large
+  std::set<std::string> sticky_large;           // topics once seen large (never go back)
+
+  // Control thread only.
+  std::map<std::string, std::unique_ptr<Served>> served;
+  std::set<std::string> no_channel_logged;
+
+  std::mutex repub_mu;
+  std::map<std::string, std::shared_ptr<Republisher>> repubs;
+
+  Impl(Config c, RuntimeOptions o);
+
+  // A Config built in code (not by load_config) gets the same limits.
+  static Config check_limits(Config c);
+  // ZMTP heartbeats only clean up connections nobody talks on any more (e.g. a peer's, after
+  // it failed over): link liveness comes from our own pings, and unacknowledged data on a dead
+  // link is cut by TCP_MAXRT. So they are slow, and cost the link almost nothing.
+  void common_options(zmq::socket_t& s);
+  void client_options(zmq::socket_t& s, const Peer& p);
+  void server_options(zmq::socket_t& s);
+  void bind_all(zmq::socket_t& s, int port);
+  std::unique_ptr<zmq::socket_t> make_data_dealer(const Peer& p, const Channel& ch, const Link& l);
+  void start();
+  static std::string fmt_list(const std::vector<std::string>& v);
+  void stop();
+  void count_bad(const std::string& why);
+  // Which link of `p` the address belongs to (-1 if none).
+  static int link_of(const Peer& p, const char* address);
+  static const char* peer_address(zmq::message_t& m);
+  // With CURVE, the authenticated user id (the peer name the ZAP handler assigned) must match.
+  bool authentic(zmq::message_t& m, const std::string& claimed);
+  void zap_loop();
+  void on_local_message(Served& s, const RawMessage& m);
+  void channel_loop(Channel& ch);
+  void flush(Channel& ch, Peer& p);
+  void receive_data(Channel& ch);
+  // Channel threads: into this host's shared memory.
+  void republish(const std::string& topic, const zmq::message_t& payload);
+  std::shared_ptr<Republisher> ensure_republisher(const std::string& topic);
+  void control_loop();
+  void refresh_view();
+  bool is_large_locked(const std::string& topic) const;
+  // Every heartbeat, on every link of every peer: a ping. On the active link it is marked
+  // active (the peer keeps our demand alive) and carries the full state — channels, what this
+  // host wants, what we will send it — only when that changed, the link or the peer's
+  // instance changed, or a second passed: the idle link carries a few dozen bytes per ping.
+  void send_pings();
+  // Pings from peers (on our control ROUTER): remember their demand/offers, answer.
+  void receive_control();
+  void check_hello(const Peer& p, const wire::Control& c);
+  void receive_pongs(Peer& p, Link& l);
+  void update_links(Clock::time_point now);
+  // Subscriptions (what peers want and this host publishes) and republishers.
+  void reconcile(Clock::time_point now);
+  lcmx_msgs::bridge_status_t status() const;
+};
+
+}  // namespace lcmx::bridge
