@@ -32,13 +32,19 @@ bool compatible(std::int64_t a, std::int64_t b) { return a == 0 || b == 0 || a =
 RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     : options(std::move(o)), participant_id(discovery::random_participant_id()),
       host(discovery::host_id()) {
-  shm_base_prefix = std::string(shm::kPrefix) + hex(host) + "_" + std::to_string(::getpid()) + "_";
+  // The name tag mixes the pid namespace into the host id: processes of several pid
+  // namespaces sharing /dev/shm may have the same pid, never the same names.
+  const std::uint64_t pidns = discovery::pid_namespace();
+  const std::uint64_t tag = (host ^ (pidns * 0x9e3779b97f4a7c15ull)) | 1;
+  own_shm_prefix = std::string(shm::kPrefix) + hex(tag) + "_";
+  shm_base_prefix = own_shm_prefix + std::to_string(::getpid()) + "_";
   for (const auto& glob : options.bridge_carry)
     if (glob.empty() || glob.size() > 255)
       throw Error(Errc::invalid_argument, "bridge_carry: a topic pattern must have 1..255 characters");
   carried = options.bridge_carry;
   if (options.reclaim_orphans) {
-    const auto r = shm::reclaim_orphans();
+    // Only segments of this pid namespace (name tag): their owners' pids mean something here.
+    const auto r = shm::reclaim_orphans(own_shm_prefix);
     if (r.removed > 0) spdlog::info("lcmx: removed {} shared-memory segments of dead processes", r.removed);
   }
 }
@@ -316,11 +322,18 @@ void RuntimeImpl::emit(std::vector<Event> events) {
     cb = on_event;
   }
   for (const auto& e : events) {
-    if (e.kind == Event::Kind::type_mismatch)
+    if (e.kind == Event::Kind::type_mismatch || e.kind == Event::Kind::error)
       spdlog::error("lcmx: {}", e.message);
     else
       spdlog::debug("lcmx: {}", e.message);
-    if (cb) cb(e);
+    // The user's callback runs on lcmx's threads: what it throws must not end them.
+    try {
+      if (cb) cb(e);
+    } catch (const std::exception& x) {
+      spdlog::error("lcmx: the on_event callback threw: {}", x.what());
+    } catch (...) {
+      spdlog::error("lcmx: the on_event callback threw");
+    }
   }
 }
 
@@ -417,6 +430,7 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
   }
   std::lock_guard lock(st.mu);
   const auto before = st.matches.size();
+  std::size_t revived = 0;
   std::vector<std::shared_ptr<Match>> removed;
   std::erase_if(st.matches, [&](const std::shared_ptr<Match>& m) {
     if (m->path == Path::intra || m->foreign || m->retiring) return false;
@@ -431,22 +445,51 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
   for (const auto& [b, e, path] : candidates) {
     const auto key = std::make_pair(static_cast<std::uint64_t>(b->participant_id),
                                     static_cast<std::uint64_t>(e->id));
-    const bool have = std::any_of(st.matches.begin(), st.matches.end(), [&](const auto& m) {
-      return !m->retiring && m->publisher_participant == key.first &&
-             m->publisher_endpoint == key.second;
-    });
-    if (have) continue;
+    const auto same = [&](const std::shared_ptr<Match>& m) {
+      return m->publisher_participant == key.first && m->publisher_endpoint == key.second;
+    };
+    if (std::any_of(st.matches.begin(), st.matches.end(),
+                    [&](const auto& m) { return !m->retiring && same(m); }))
+      continue;
+    // The publisher is back (e.g. it was stopped past its lease): its retiring match is still
+    // registered in its segment and has every message since, so it carries on. A second
+    // Reader would deliver what the first still holds twice, and lose what was committed
+    // between the two.
+    if (auto it = std::find_if(st.matches.begin(), st.matches.end(),
+                               [&](const auto& m) { return m->retiring && same(m); });
+        it != st.matches.end()) {
+      (*it)->retiring = false;
+      std::erase_if(removed, [&](const auto& m) { return m == *it; });
+      ++revived;
+      events.push_back({Event::Kind::publisher_matched, sub.channel(),
+                        "channel '" + sub.channel() + "': node '" + st.node_name +
+                            "' receives again from process " + b->process_name + " pid " +
+                            std::to_string(b->pid) + " node '" + e->node + "' (" +
+                            to_string((*it)->path) + ")"});
+      continue;
+    }
     auto m = std::make_shared<Match>();
     m->publisher_participant = key.first;
     m->publisher_endpoint = key.second;
     m->path = path;
     if (path == Path::shm || path == Path::bridge) {
+      const auto fkey = std::make_tuple(sub.id, key.first, key.second);
       try {
         m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment));
+        open_failures.erase(fkey);
       } catch (const shm::Error& err) {
-        // The publisher may be gone or be creating a new generation: retried on its next beacon.
+        // The publisher may be gone or be creating a new generation: retried on its next
+        // beacon. Failing on several beacons in a row is no transient: an error Event, once.
         spdlog::debug("lcmx: channel '{}': cannot open {} yet: {}", sub.channel(), e->shm_segment,
                       err.what());
+        if (open_failures.size() >= 4096) open_failures.clear();  // bounded
+        if (++open_failures[fkey] == kOpenFailuresReported)
+          events.push_back({Event::Kind::error, sub.channel(),
+                            "channel '" + sub.channel() + "': node '" + st.node_name +
+                                "' cannot open the shared memory '" + e->shm_segment +
+                                "' of process " + b->process_name + " pid " +
+                                std::to_string(b->pid) + ": " + err.what() +
+                                "; not matched (retried on its next beacons)"});
         continue;
       }
     }
@@ -462,7 +505,7 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
                       "channel '" + sub.channel() + "': node '" + st.node_name +
                           "' lost a shm publisher (participant " +
                           std::to_string(m->publisher_participant) + ")"});
-  if (st.matches.size() != before || !removed.empty()) {
+  if (st.matches.size() != before || !removed.empty() || revived > 0) {
     ++st.version;
     st.matched_cv.notify_all();
   }
@@ -562,6 +605,7 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
   const auto& b = p.beacon;
   const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
   const bool same_host = static_cast<std::uint64_t>(b.host_id) == host;
+  if (!vehicle && !same_host && change == discovery::Change::joined) report_neighbour(b);
   if (vehicle == same_host) return;
   auto& scope_map = vehicle ? vehicle_remotes : remotes;
   std::vector<Event> events;
@@ -630,12 +674,34 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
   }
   // A participant of this host that vanished without a goodbye may have left shared memory.
   if (!vehicle && change == discovery::Change::left && options.reclaim_orphans) {
-    const auto r = shm::reclaim_orphans();
+    const auto r = shm::reclaim_orphans(own_shm_prefix);
     if (r.removed > 0)
       spdlog::info("lcmx: removed {} shared-memory segments of {} pid {}", r.removed,
                    b.process_name, b.pid);
   }
   emit(std::move(events));
+}
+
+// A host-scope beacon (this network namespace) from a participant with another host id: it
+// sees another /dev/shm (another container) or has LCMX_HOST_ID set. No shared memory with
+// it: it is another host, reached over the vehicle group if there is one. Said once per
+// participant: an error Event when there is no vehicle group (nothing can reach it), a log
+// line otherwise.
+void RuntimeImpl::report_neighbour(const lcmx_msgs::beacon_t& b) {
+  {
+    std::lock_guard lock(mu);
+    if (neighbours_reported.size() >= 1024) neighbours_reported.clear();  // bounded
+    if (!neighbours_reported.insert(b.participant_id).second) return;
+  }
+  const std::string text = "participant " + b.process_name + " pid " + std::to_string(b.pid) +
+                           " shares this network namespace but not this host's identity "
+                           "(another /dev/shm, e.g. another container, or LCMX_HOST_ID): no "
+                           "shared memory with it; " +
+                           (vehicle_group ? std::string("it is reached over the vehicle group")
+                                          : std::string("no vehicle group is configured "
+                                                        "(vehicle_url), so nothing reaches it"));
+  if (vehicle_group) spdlog::info("lcmx: {}", text);
+  else emit({Event{Event::Kind::error, "", text}});
 }
 
 // The bridges of this host (DESIGN.md "Message Bridge"): while one runs, large topics reach
