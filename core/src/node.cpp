@@ -63,10 +63,13 @@ void NodeImpl::start() {
         try {
           self->run_once(std::chrono::seconds(1));
         } catch (const std::exception& e) {
-          // Nothing may end an executor thread but stop(): report and carry on.
+          // Nothing may end an executor thread but stop(): report and carry on (after a
+          // pause, so that a lasting fault does not spin a CPU).
           self->report_fault(std::string("executor: ") + e.what());
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
         } catch (...) {
           self->report_fault("executor: unknown exception");
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
         }
       }
     });
@@ -382,8 +385,10 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
       try {
         shm::wait_any(tokens, left);
       } catch (const std::exception& e) {
-        // Still disarm below; the caller polls again (bounded by its deadline).
+        // Still disarm below; the caller polls again (bounded by its deadline), after a
+        // pause so that a lasting fault does not spin a CPU.
         report_fault(std::string("waiting for messages failed: ") + e.what());
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
       }
     }
     sleepers.fetch_sub(1, std::memory_order_seq_cst);

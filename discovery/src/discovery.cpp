@@ -57,6 +57,8 @@ struct Discovery::Impl {
     std::int64_t start_time = 0;
   };
   std::map<std::int64_t, Watch> watches;
+  static constexpr std::size_t kMaxWatches = 1024;  // pidfds open at most
+  std::size_t open_watches = 0;
   const std::uint64_t own_pid_namespace = pid_namespace();
   const std::uint64_t own_start_time = process_start_time(static_cast<int>(::getpid()));
   std::atomic<bool> want_watch_sync{false};
@@ -205,7 +207,9 @@ struct Discovery::Impl {
       Watch w;
       w.pid = pid;
       w.start_time = start;
-      if (pid > 0 && start > 0 && pidns != 0 && static_cast<std::uint64_t>(pidns) == own_pid_namespace) {
+      // Bounded: past kMaxWatches peers (a flood of spoofed beacons), the lease alone.
+      if (open_watches < kMaxWatches && pid > 0 && start > 0 && pidns != 0 &&
+          static_cast<std::uint64_t>(pidns) == own_pid_namespace) {
         const int fd = static_cast<int>(::syscall(SYS_pidfd_open, pid, 0));
         if (fd < 0 && errno == ESRCH) {
           gone.push_back(id);
@@ -213,6 +217,7 @@ struct Discovery::Impl {
           // After the open: a matching start time means the pidfd names that very process.
           if (process_start_time(pid) == static_cast<std::uint64_t>(start)) {
             w.fd = fd;
+            ++open_watches;
           } else {
             ::close(fd);
             gone.push_back(id);
@@ -226,7 +231,7 @@ struct Discovery::Impl {
         ++it;
         continue;
       }
-      if (it->second.fd >= 0) ::close(it->second.fd);
+      if (it->second.fd >= 0) ::close(it->second.fd), --open_watches;
       it = watches.erase(it);
     }
     for (auto id : gone) process_exited(id);
@@ -235,7 +240,7 @@ struct Discovery::Impl {
   // Discovery thread: the peer's process exited. Declares it gone at once.
   void process_exited(std::int64_t id) {
     if (auto it = watches.find(id); it != watches.end()) {
-      if (it->second.fd >= 0) ::close(it->second.fd);
+      if (it->second.fd >= 0) ::close(it->second.fd), --open_watches;
       watches.erase(it);
     }
     Participant p;
