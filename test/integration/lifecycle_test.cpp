@@ -198,6 +198,19 @@ TEST_CASE("containers sharing the network namespace but not /dev/shm: no shm pat
     INFO(sub.output());
     CHECK_FALSE(sub.seen("EVENT publisher_matched"));
   }
+  SECTION("told they are one host (same LCMX_HOST_ID): the segment cannot be opened - an error Event, not a debug line") {
+    const auto ch = unique_channel("PRIVSHM_SAMEID", 43);
+    const std::string same_id = "LCMX_HOST_ID=0x5eed" + std::to_string(::getpid() % 10000);
+    auto& sub = s.peer({"sub", "--channel", ch, "--type", "pose"}, {same_id});
+    REQUIRE(sub.expect("READY"));
+    auto& pub = s.spawn(in_container({"--mount", "--propagation", "private"}, true,
+                                     {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "100"}),
+                        {same_id});
+    REQUIRE(pub.expect("READY"));
+    CHECK(sub.wait_seen("EVENT error " + ch, 5000ms));
+    INFO(sub.output());
+    CHECK(sub.text().find("cannot open the shared memory") != std::string::npos);
+  }
   SECTION("with a vehicle group: matched over UDP, every message delivered") {
     const auto ch = unique_channel("PRIVSHM_UDP", 43);
     const std::string vehicle = "LCMX_VEHICLE_URL=" + vehicle_url(43);
