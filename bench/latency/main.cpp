@@ -266,7 +266,7 @@ struct Options {
   std::string wait = "block";
   int timeout_ms = 200;
   std::string lcm_url = "udpm://239.255.77.201:17701?ttl=0";
-  std::string discovery_url = "udpm://239.255.77.202:17702?ttl=0";
+  std::string discovery_url = "udpm://239.255.77.202:17702?ttl=0&iface=lo";  // root namespace: lo only
   std::string csv, markdown;
 };
 

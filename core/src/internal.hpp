@@ -152,6 +152,8 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   // A Message Bridge runs on this host (or this participant is one): large topics go to
   // other hosts through it, never as UDP fragments.
   bool bridge_on_host() const { return options.bridge || bridge_seen.load(); }
+  // RuntimeOptions::mirror, or a mirror_channels glob matches.
+  bool mirrored(const std::string& channel) const;
 
   std::mutex event_mu;
   std::function<void(const Event&)> on_event;
@@ -196,6 +198,13 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::map<std::int64_t, lcmx_msgs::beacon_t> vehicle_remotes;  // participants of other hosts
   std::map<std::string, std::int64_t> host_sources;     // "ip:port" of same-host participants
   std::map<std::string, std::int64_t> vehicle_sources;  // "ip:port" -> participant, other hosts
+  // Same-host participants' host-local ports: their mirror comes from that port and the address
+  // of the interface the group routes to (an address of this host), not from local_source.
+  std::map<std::uint16_t, std::int64_t> host_ports;  // network order -> participant
+  std::set<std::uint32_t> host_addresses;            // this host's IPv4 addresses (network order)
+  // Receive thread (recv_mu held): follows the host-local group's route, re-reads host_addresses.
+  void refresh_routes();
+  std::chrono::steady_clock::time_point routes_checked{};
   std::set<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>> mismatches_reported;
   struct RateState { std::uint64_t count = 0; std::chrono::steady_clock::time_point when{}; };
   std::map<std::uint64_t, RateState> rates;
@@ -285,6 +294,7 @@ class PublisherImpl final : public PublisherCore {
   std::size_t remote_subscribers_ = 0;  // same host (shm) + other hosts (udp)
   std::atomic<std::size_t> udp_subscribers_{0};
   std::atomic<bool> large_{false};
+  const bool mirrored_;  // RuntimeOptions::mirror / mirror_channels select this channel
   bool warned_large_udp_ = false;        // guarded by publish_mu
   std::uint64_t udp_send_failures_ = 0;  // guarded by publish_mu
   std::chrono::steady_clock::time_point last_udp_failure_log_{};  // guarded by publish_mu

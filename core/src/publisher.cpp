@@ -9,7 +9,7 @@ namespace lcmx::detail {
 PublisherImpl::PublisherImpl(std::shared_ptr<NodeImpl> n, std::string channel,
                              const TypeInfo& t, PublisherOptions o)
     : node(std::move(n)), id(node->runtime->new_endpoint_id()), type(t), options(o),
-      channel_(std::move(channel)) {
+      channel_(std::move(channel)), mirrored_(node->runtime->mirrored(channel_)) {
   if (options.max_message_size == 0)
     throw Error(Errc::invalid_argument, "publisher '" + channel_ + "': max_message_size is 0");
   shm::WriterOptions w;
@@ -57,7 +57,7 @@ bool PublisherImpl::wants_vehicle() const {
 }
 
 bool PublisherImpl::wants_udp() const {
-  return wants_vehicle() || (node->runtime->options.mirror && !large_.load());
+  return wants_vehicle() || (mirrored_ && !large_.load());
 }
 
 void PublisherImpl::mark_large() {
@@ -79,7 +79,8 @@ void PublisherImpl::note_size(std::size_t size) {
 
 // Sends an encoding over LCM UDP: on the vehicle group when a subscriber on another host
 // wants it (or vehicle_publish = always), and on the host-local group for the mirror (small
-// topics only). A network fault (link or interface down) does not fail the publish: the
+// topics only; where the kernel routes the group, as stock LCM sends, so every stock
+// receiver on this host hears it). A network fault (link or interface down) does not fail the publish: the
 // local paths already delivered; the message is counted lost on UDP and logged (at most
 // once per 5 s per publisher), and sending resumes when the network is back.
 // publish_mu held.
@@ -87,7 +88,10 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
   auto& rt = *node->runtime;
   auto send = [&](udpm::Group& group, const char* which) {
     try {
-      group.publish(channel_, encoded);
+      if (&group == rt.local_group.get())
+        group.publish_routed(channel_, encoded);
+      else
+        group.publish(channel_, encoded);
     } catch (const udpm::Error& e) {
       if (e.code() != udpm::Error::Code::system) throw Error(Errc::transport, e.what());
       ++udp_send_failures_;
@@ -108,7 +112,7 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
     }
     send(*rt.vehicle_group, "vehicle");
   }
-  if (rt.options.mirror && !large_.load()) send(*rt.local_group, "host-local");
+  if (mirrored_ && !large_.load()) send(*rt.local_group, "host-local");
 }
 
 // Encodes once: straight into a shm slot when shm readers exist (UDP is sent from the same

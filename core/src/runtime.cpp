@@ -1,4 +1,7 @@
+#include <arpa/inet.h>
 #include <fnmatch.h>
+#include <ifaddrs.h>
+#include <netinet/in.h>
 #include <poll.h>
 #include <spdlog/cfg/env.h>
 #include <sys/epoll.h>
@@ -7,6 +10,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <set>
+#include <utility>
 #include <cstdlib>
 #include <cstring>
 #include <sstream>
@@ -27,6 +32,26 @@ std::string hex(std::uint64_t v) {
 }
 
 bool compatible(std::int64_t a, std::int64_t b) { return a == 0 || b == 0 || a == b; }
+
+// This host's IPv4 addresses, network order (empty if getifaddrs fails).
+std::set<std::uint32_t> local_addresses() {
+  std::set<std::uint32_t> out;
+  ifaddrs* list = nullptr;
+  if (::getifaddrs(&list) != 0) return out;
+  for (ifaddrs* i = list; i != nullptr; i = i->ifa_next)
+    if (i->ifa_addr != nullptr && i->ifa_addr->sa_family == AF_INET)
+      out.insert(reinterpret_cast<const sockaddr_in*>(i->ifa_addr)->sin_addr.s_addr);
+  ::freeifaddrs(list);
+  return out;
+}
+
+// The port of "a.b.c.d:port", network order; 0 if there is none.
+std::uint16_t port_of(const std::string& source) {
+  const auto colon = source.rfind(':');
+  if (colon == std::string::npos) return 0;
+  const long port = std::strtol(source.c_str() + colon + 1, nullptr, 10);
+  return port > 0 && port < 65536 ? htons(static_cast<std::uint16_t>(port)) : 0;
+}
 }  // namespace
 
 RuntimeImpl::RuntimeImpl(RuntimeOptions o)
@@ -42,6 +67,9 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     if (glob.empty() || glob.size() > 255)
       throw Error(Errc::invalid_argument, "bridge_carry: a topic pattern must have 1..255 characters");
   carried = options.bridge_carry;
+  for (const auto& glob : options.mirror_channels)
+    if (glob.empty() || glob.size() > 255)
+      throw Error(Errc::invalid_argument, "mirror_channels: a channel pattern must have 1..255 characters");
   if (options.reclaim_orphans) {
     // Only segments of this pid namespace (name tag): their owners' pids mean something here.
     const auto r = shm::reclaim_orphans(own_shm_prefix);
@@ -74,6 +102,8 @@ void RuntimeImpl::start_transports() {
     }
   };
   local_group = open_group("discovery_url", options.discovery_url);
+  host_addresses = local_addresses();
+  routes_checked = std::chrono::steady_clock::now();
   if (!options.vehicle_url.empty()) {
     if (options.vehicle_url.find("iface=") == std::string::npos)
       throw Error(Errc::invalid_argument, "vehicle_url '" + options.vehicle_url +
@@ -121,6 +151,10 @@ void RuntimeImpl::receive_loop() {
   while (!stopped.load()) {
     epoll_event evs[4];
     const int n = ::epoll_wait(rx_epoll, evs, 4, 1000);
+    if (std::chrono::steady_clock::now() - routes_checked >= std::chrono::seconds(1)) {
+      std::lock_guard lock(recv_mu);
+      refresh_routes();
+    }
     if (n <= 0) continue;
     for (int i = 0; i < n; ++i)
       if (evs[i].data.fd == rx_wake_fd) {
@@ -181,6 +215,16 @@ void RuntimeImpl::drain_locked(bool rx_thread) {
   if (vehicle_group) one(*vehicle_group, lcmx_msgs::beacon_t::SCOPE_VEHICLE);
 }
 
+// Routes change (a laptop joins a network, a robot's DHCP comes late): stock programs started
+// since then join and send where the group routes now. recv_mu held.
+void RuntimeImpl::refresh_routes() {
+  routes_checked = std::chrono::steady_clock::now();
+  local_group->refresh();
+  auto addresses = local_addresses();
+  std::lock_guard lock(mu);
+  if (!addresses.empty()) host_addresses = std::move(addresses);
+}
+
 // EPOLLEXCLUSIVE entries are woken in the order they were added to a socket's wait queue,
 // skipping epoll sets nobody waits on; re-adding the receive thread's entries puts them last.
 void RuntimeImpl::add_udp_waiter(int epfd) {
@@ -211,7 +255,7 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     return;
   }
   const auto& group = vehicle ? vehicle_group : local_group;
-  if (m.source == group->local_source()) return;  // our own, looped back
+  if (group->is_own(m.source)) return;  // our own, looped back
   const std::string source = udpm::to_string(m.source);
   std::shared_ptr<const Bytes> bytes;
   std::vector<std::pair<std::shared_ptr<SubscriberCore>, std::shared_ptr<PairCounters>>> targets;
@@ -219,6 +263,8 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   {
     std::lock_guard lock(mu);
     if (host_sources.count(source)) return;  // a participant of this host: shm path
+    if (!vehicle && host_ports.count(m.source.port_be) && host_addresses.count(m.source.address_be))
+      return;  // its mirror, sent where the group routes (same port, another address of ours)
     std::int64_t participant = 0;
     if (vehicle) {
       auto it = vehicle_sources.find(source);
@@ -273,6 +319,13 @@ bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint) {
   std::uint64_t v = 0;
   for (int i = 0; i < 8; ++i) v = (v << 8) | std::to_integer<std::uint8_t>(data[i]);
   return static_cast<std::int64_t>(v) == fingerprint;
+}
+
+bool RuntimeImpl::mirrored(const std::string& channel) const {
+  if (options.mirror) return true;
+  for (const auto& glob : options.mirror_channels)
+    if (::fnmatch(glob.c_str(), channel.c_str(), 0) == 0) return true;
+  return false;
 }
 
 TopicClass RuntimeImpl::class_of(const std::string& channel) const {
@@ -616,6 +669,7 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
       std::erase_if(m, [&](const auto& kv) { return kv.second == b.participant_id; });
     };
     forget_sources(vehicle ? vehicle_sources : host_sources);
+    if (!vehicle) std::erase_if(host_ports, [&](const auto& kv) { return kv.second == b.participant_id; });
     const std::string where = vehicle ? " on host " + std::to_string(b.host_id) : "";
     if (change == discovery::Change::left) {
       scope_map.erase(b.participant_id);
@@ -631,14 +685,20 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
         if (!b.vehicle_source.empty()) vehicle_sources[b.vehicle_source] = b.participant_id;
       } else {
         if (!b.local_source.empty()) host_sources[b.local_source] = b.participant_id;
+        if (const auto port = port_of(b.local_source); port != 0) host_ports[port] = b.participant_id;
         if (!b.vehicle_source.empty()) host_sources[b.vehicle_source] = b.participant_id;
       }
       // Its messages may have arrived before its beacon and been taken for a stock LCM
       // sender's: now that we know who it is, that foreign match goes (its real one, if its
       // type matches, comes from the beacon).
-      for (const auto* src : {&b.local_source, &b.vehicle_source}) {
-        if (src->empty()) continue;
-        const auto key = std::hash<std::string>{}(*src);
+      std::vector<std::string> sources = {b.local_source, b.vehicle_source};
+      if (!vehicle)  // its mirror: the local_source port from any address of this host
+        if (const auto port = port_of(b.local_source); port != 0)
+          for (const auto a : host_addresses)
+            sources.push_back(udpm::to_string(udpm::Source{a, port}));
+      for (const auto& src : sources) {
+        if (src.empty()) continue;
+        const auto key = std::hash<std::string>{}(src);
         for (auto& [id, sub] : subs) {
           auto& st = *sub->state;
           std::lock_guard l2(st.mu);
@@ -848,7 +908,26 @@ RuntimeOptions RuntimeOptions::from_env() {
     else throw Error(Errc::invalid_argument, "LCMX_VEHICLE_PUBLISH='" + s + "': expected on_demand or always");
   }
   o.udp_limit = static_cast<std::size_t>(env_number("LCMX_UDP_LIMIT", static_cast<long>(o.udp_limit), 1, 1L << 28));
-  o.mirror = env_number("LCMX_MIRROR", o.mirror ? 1 : 0, 0, 1) == 1;
+  if (const char* v = std::getenv("LCMX_MIRROR"); v && *v) {
+    const std::string s = v;
+    if (s == "1") {
+      o.mirror = true;
+    } else if (s != "0") {
+      o.mirror = false;
+      for (std::size_t pos = 0; pos <= s.size();) {
+        const auto comma = std::min(s.find(',', pos), s.size());
+        auto glob = s.substr(pos, comma - pos);
+        glob.erase(0, glob.find_first_not_of(" \t"));
+        glob.erase(glob.find_last_not_of(" \t") + 1);
+        if (glob.empty() || glob.size() > 255)
+          throw Error(Errc::invalid_argument,
+                      "LCMX_MIRROR='" + s + "': expected 0, 1 or comma-separated channel patterns "
+                      "(e.g. CAM_*,POSE) with no empty entry");
+        o.mirror_channels.push_back(glob);
+        pos = comma + 1;
+      }
+    }
+  }
   for (auto [var, cls] : {std::pair{"LCMX_LARGE_TOPICS", TopicClass::large},
                           std::pair{"LCMX_SMALL_TOPICS", TopicClass::small}}) {
     const char* v = std::getenv(var);

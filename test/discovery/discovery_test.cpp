@@ -53,6 +53,7 @@ lcmx::udpm::GroupConfig test_group(int salt) {
   lcmx::udpm::GroupConfig g;
   g.address = "239.253." + std::to_string((id >> 8) & 0xff) + "." + std::to_string(id & 0xff);
   g.port = static_cast<std::uint16_t>(20000 + id % 40000);
+  g.interface = "lo";  // the root namespace: never join on the machine's real interface
   return g;
 }
 

@@ -45,6 +45,8 @@ using ms = std::chrono::milliseconds;
 // ---- unique names ----
 
 // A discovery group of its own for test `index` of this process: never LCM's default group.
+// Host-local mode (no iface=): inside a test's network namespace. Tests in the root namespace
+// add "&iface=lo" (Session does), so they never join a group on the machine's real interface.
 inline std::string unique_url(int index) {
   const unsigned h = static_cast<unsigned>(::getpid()) * 64u + static_cast<unsigned>(index);
   unsigned a = 1 + (h / 250u) % 250u, b = 1 + h % 250u;
@@ -349,7 +351,7 @@ class Watchdog {
 class Session {
  public:
   explicit Session(int index, ms timeout = 30000ms, ms beacon = 100ms, ms lease = 600ms)
-      : index(index), url(unique_url(index)), beacon_ms(beacon), lease_ms(lease),
+      : index(index), url(unique_url(index) + "&iface=lo"), beacon_ms(beacon), lease_ms(lease),
         watchdog_(timeout, [this] { kill_all(); }) {
     ::setenv("LCMX_DISCOVERY_URL", url.c_str(), 1);
     ::setenv("LCMX_BEACON_PERIOD_MS", std::to_string(beacon.count()).c_str(), 1);

@@ -44,6 +44,17 @@ inline std::string without_iface(const std::string& url) {
   return p == std::string::npos ? url : url.substr(0, p);
 }
 
+// LCM's default URL (liblcm's and lcmx's default host-local group).
+inline const std::string kLcmDefaultUrl = "udpm://239.255.76.67:7667?ttl=0";
+
+// Hosts that look like ordinary computers (OrdinaryHosts below): two LAN interfaces, "eth" (the
+// default route's) and "wlan", no multicast route, no vehicle group, lcmx and stock programs
+// on LCM's default URL with default options. The namespaces are this test's own, so the
+// default group and port are unique to the test.
+struct Ordinary {
+  lcmx::test::MulticastRoute routes = lcmx::test::MulticastRoute::default_route;
+};
+
 class Hosts {
  public:
   // `index` makes groups and channels unique within this process (one per TEST_CASE).
@@ -55,6 +66,16 @@ class Hosts {
         discovery_url(it::unique_url(index)),
         beacon_ms(beacon),
         lease_ms(lease) {}
+  // Ordinary computers (see Ordinary): lcmx_env() sets no group at all.
+  Hosts(int hosts, int index, Ordinary o, ms timeout = 50000ms)
+      : index_(index),
+        watchdog_(timeout, "multihost test " + std::to_string(index)),
+        emu_(lcmx::test::Emulation::create(
+            {.hosts = hosts, .links = {{.name = "eth"}, {.name = "wlan"}}, .routes = o.routes})),
+        vehicle_url(),
+        discovery_url(kLcmDefaultUrl),
+        beacon_ms(100ms),
+        lease_ms(800ms) {}
   Hosts(const Hosts&) = delete;
   Hosts& operator=(const Hosts&) = delete;
   ~Hosts() {
@@ -81,10 +102,11 @@ class Hosts {
 
   // The environment of an lcmx process: this test's groups and short beacon period / lease.
   std::vector<std::string> lcmx_env(std::vector<std::string> extra = {}) const {
-    std::vector<std::string> e = {"LCMX_DISCOVERY_URL=" + discovery_url,
-                                  "LCMX_VEHICLE_URL=" + vehicle_url,
-                                  "LCMX_BEACON_PERIOD_MS=" + std::to_string(beacon_ms.count()),
+    std::vector<std::string> e = {"LCMX_BEACON_PERIOD_MS=" + std::to_string(beacon_ms.count()),
                                   "LCMX_LEASE_MS=" + std::to_string(lease_ms.count())};
+    // Ordinary hosts: the defaults (unset, so a value inherited from ctest cannot leak in).
+    e.push_back(discovery_url == kLcmDefaultUrl ? "LCMX_DISCOVERY_URL" : "LCMX_DISCOVERY_URL=" + discovery_url);
+    e.push_back(vehicle_url.empty() ? "LCMX_VEHICLE_URL" : "LCMX_VEHICLE_URL=" + vehicle_url);
     for (auto& x : extra) e.push_back(std::move(x));
     return e;
   }

@@ -16,6 +16,8 @@
 #include <cstring>
 #include <mutex>
 #include <optional>
+#include <unordered_map>
+#include <vector>
 
 #include "lcmx/udpm/error.hpp"
 #include "lcmx/udpm/wire.hpp"
@@ -87,8 +89,7 @@ void validate(const GroupConfig& cfg, in_addr& group) {
   if (cfg.port == 0) bad("port 0 (expected 1..65535)");
   if (cfg.ttl < 0 || cfg.ttl > 255) bad("ttl " + std::to_string(cfg.ttl) + " (expected 0..255)");
   if (cfg.recv_buffer_bytes < 0) bad("negative recv_buffer_bytes " + std::to_string(cfg.recv_buffer_bytes));
-  if (cfg.interface.empty() || cfg.interface.size() >= IFNAMSIZ)
-    bad("bad interface name '" + cfg.interface + "'");
+  if (cfg.interface.size() >= IFNAMSIZ) bad("bad interface name '" + cfg.interface + "'");
 }
 
 // The interface's index and first IPv4 address (network order).
@@ -108,21 +109,106 @@ std::pair<int, in_addr> resolve_interface(const std::string& name) {
   return {static_cast<int>(index), *found};
 }
 
-// A classic BPF socket filter for the receive socket that drops datagrams from `own` (this
-// Group's send socket) and accepts everything else. For UDP the filter runs on the datagram
-// with the UDP header at offset 0 (source port) and the IPv4 header at SKF_NET_OFF (source
-// address at +12); BPF_ABS loads are big-endian, hence the ntoh*.
-void drop_own_datagrams(int fd, const Source& own) {
-  sock_filter code[] = {
-      BPF_STMT(BPF_LD | BPF_W | BPF_ABS, static_cast<std::uint32_t>(SKF_NET_OFF) + 12),
-      BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohl(own.address_be), 0, 3),
-      BPF_STMT(BPF_LD | BPF_H | BPF_ABS, 0),
-      BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohs(own.port_be), 0, 1),
-      BPF_STMT(BPF_RET | BPF_K, 0),           // ours: drop
-      BPF_STMT(BPF_RET | BPF_K, 0xffffffffu),  // anyone else's: keep all of it
-  };
-  sock_fprog prog{static_cast<unsigned short>(std::size(code)), code};
+// Where the kernel routes the group (where liblcm's INADDR_ANY join and its sends go).
+struct Route {
+  int index = 0;
+  in_addr address{};  // the source address the kernel picks for it
+  std::string name;
+  bool operator==(const Route& o) const { return index == o.index && address.s_addr == o.address.s_addr; }
+};
+
+// Asks the kernel (connect() of a UDP socket does the route lookup and picks the source
+// address), then finds the interface holding that address. nullopt: no route (liblcm then fails
+// with "LCM requires a valid multicast route"). Throws Error(system) on other faults.
+std::optional<Route> route_of(in_addr group, std::uint16_t port) {
+  Fd s(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+  if (s.get() < 0) throw_errno("udpm group: socket", errno);
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_addr = group;
+  to.sin_port = htons(port);
+  if (::connect(s.get(), reinterpret_cast<const sockaddr*>(&to), sizeof to) != 0) {
+    if (errno == ENETUNREACH || errno == EHOSTUNREACH || errno == ENODEV || errno == EADDRNOTAVAIL ||
+        errno == EINVAL)
+      return std::nullopt;
+    throw_errno("udpm group: route lookup (connect)", errno);
+  }
+  sockaddr_in from{};
+  socklen_t len = sizeof from;
+  if (::getsockname(s.get(), reinterpret_cast<sockaddr*>(&from), &len) != 0)
+    throw_errno("udpm group: getsockname", errno);
+  ifaddrs* list = nullptr;
+  if (::getifaddrs(&list) != 0) throw_errno("udpm group: getifaddrs", errno);
+  std::optional<Route> route;
+  for (ifaddrs* i = list; i != nullptr && !route; i = i->ifa_next)
+    if (i->ifa_addr != nullptr && i->ifa_addr->sa_family == AF_INET &&
+        reinterpret_cast<const sockaddr_in*>(i->ifa_addr)->sin_addr.s_addr == from.sin_addr.s_addr) {
+      const unsigned index = ::if_nametoindex(i->ifa_name);
+      if (index != 0) route = Route{static_cast<int>(index), from.sin_addr, i->ifa_name};
+    }
+  ::freeifaddrs(list);
+  return route;
+}
+
+// A classic BPF socket filter for the receive socket that drops datagrams from this Group's
+// send sockets (source port `port_be` and one of `addresses`) and accepts everything else. For
+// UDP the filter runs on the datagram with the UDP header at offset 0 (source port) and the
+// IPv4 header at SKF_NET_OFF (source address at +12); BPF_ABS loads are big-endian, hence the
+// ntoh*. Attaching again replaces the filter atomically.
+void drop_own_datagrams(int fd, std::uint16_t port_be, const std::vector<std::uint32_t>& addresses) {
+  const auto n = static_cast<std::uint8_t>(std::min<std::size_t>(addresses.size(), 16));
+  std::vector<sock_filter> code;
+  code.push_back(BPF_STMT(BPF_LD | BPF_H | BPF_ABS, 0));
+  code.push_back(BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohs(port_be), 0, static_cast<std::uint8_t>(n + 1)));
+  code.push_back(BPF_STMT(BPF_LD | BPF_W | BPF_ABS, static_cast<std::uint32_t>(SKF_NET_OFF) + 12));
+  for (std::uint8_t i = 0; i < n; ++i)
+    code.push_back(BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohl(addresses[i]), static_cast<std::uint8_t>(n - i), 0));
+  code.push_back(BPF_STMT(BPF_RET | BPF_K, 0xffffffffu));  // anyone else's: keep all of it
+  code.push_back(BPF_STMT(BPF_RET | BPF_K, 0));            // ours: drop
+  sock_fprog prog{static_cast<unsigned short>(code.size()), code.data()};
   set_opt(fd, SOL_SOCKET, SO_ATTACH_FILTER, prog, "udpm group: SO_ATTACH_FILTER");
+}
+
+void join(int fd, in_addr group, int ifindex) {
+  ip_mreqn mreq{};
+  mreq.imr_multiaddr = group;
+  mreq.imr_ifindex = ifindex;
+  if (::setsockopt(fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &mreq, sizeof mreq) != 0 && errno != EADDRINUSE)
+    throw_errno("udpm group: join", errno);
+}
+
+// A send socket on interface `ifindex`, bound to `address`:`port_be` (0: ephemeral).
+Fd open_send_socket(const GroupConfig& cfg, int ifindex, in_addr address, std::uint16_t port_be,
+                    const std::string& where) {
+  const int zero = 0;
+  Fd s(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
+  if (s.get() < 0) throw_errno("udpm group: socket" + where, errno);
+  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_ALL, zero, "udpm group: IP_MULTICAST_ALL");
+  ip_mreqn ifreq{};
+  ifreq.imr_ifindex = ifindex;
+  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_IF, ifreq, "udpm group: IP_MULTICAST_IF");
+  const unsigned char ttl = static_cast<unsigned char>(cfg.ttl);
+  const unsigned char loop = cfg.multicast_loop ? 1 : 0;
+  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_TTL, ttl, "udpm group: IP_MULTICAST_TTL");
+  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_LOOP, loop, "udpm group: IP_MULTICAST_LOOP");
+  sockaddr_in src{};
+  src.sin_family = AF_INET;
+  src.sin_addr = address;
+  src.sin_port = port_be;
+  if (::bind(s.get(), reinterpret_cast<const sockaddr*>(&src), sizeof src) != 0) {
+    char buf[INET_ADDRSTRLEN] = {};
+    ::inet_ntop(AF_INET, &address, buf, sizeof buf);
+    throw_errno("udpm group: bind send socket to " + std::string(buf) + ":" + std::to_string(ntohs(port_be)) + where,
+                errno);
+  }
+  return s;
+}
+
+std::uint16_t bound_port(int fd) {
+  sockaddr_in a{};
+  socklen_t len = sizeof a;
+  if (::getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) != 0) throw_errno("udpm group: getsockname", errno);
+  return a.sin_port;
 }
 
 }  // namespace
@@ -142,11 +228,21 @@ struct Group::Impl {
   sockaddr_in dest{};
   Source local{};
   int effective_rcvbuf = 0;
+  in_addr group{};
+  bool host_local = false;  // GroupConfig::interface empty (see Group)
+  int primary_index = 0;    // the interface publish() sends on (lo in host-local mode)
 
   // --- send side (any thread) ---
-  std::mutex send_mutex;  // guards sequence and keeps one message's fragments together
+  std::mutex send_mutex;  // guards sequence, routed_fd, routed_name; keeps one message's fragments together
   std::uint32_t sequence = 0;
+  Fd routed_fd;             // host-local mode, group routed to another interface than lo
+  std::string routed_name;  // the interface publish_routed() uses
   std::atomic<std::uint64_t> packets_sent{0}, messages_sent{0}, bytes_sent{0};
+
+  // --- routing (the receive thread) ---
+  std::optional<Route> route_seen;           // the route as last resolved
+  std::vector<int> joined;                   // interfaces the receive socket joined
+  std::vector<std::uint32_t> own_addresses;  // source addresses of our send sockets, ever
 
   // --- receive side (the receive thread) ---
   detail::Reassembler reassembler;
@@ -160,16 +256,50 @@ struct Group::Impl {
   Counters recv_counters;
   mutable Counters snapshot;
 
+  // Duplicate filter: per sender, the newest sequence delivered and a bitmap of the 64 before it
+  // (bit i: top - i delivered), as in IPsec's anti-replay window. Bounded: cleared when it
+  // holds kMaxSenders senders.
+  struct Window {
+    std::uint32_t top;
+    std::uint64_t bits;
+  };
+  static constexpr std::size_t kMaxSenders = 4096;
+  std::unordered_map<std::uint64_t, Window> windows;
+
+  // True the first time (source, sequence) is seen.
+  bool fresh(const Source& source, std::uint32_t seq) {
+    if (windows.size() >= kMaxSenders) windows.clear();
+    const std::uint64_t key = (std::uint64_t{source.address_be} << 16) | source.port_be;
+    auto [it, inserted] = windows.try_emplace(key, Window{seq, 1});
+    if (inserted) return true;
+    Window& w = it->second;
+    const std::uint32_t ahead = seq - w.top;  // modulo 2^32
+    if (ahead != 0 && ahead < 0x80000000u) {  // newer
+      w.bits = ahead >= 64 ? 1 : (w.bits << ahead) | 1;
+      w.top = seq;
+      return true;
+    }
+    const std::uint32_t behind = w.top - seq;
+    if (behind >= 64) {  // far behind: a restarted sender (same port); start over
+      w = Window{seq, 1};
+      return true;
+    }
+    const std::uint64_t bit = std::uint64_t{1} << behind;
+    if ((w.bits & bit) != 0) return false;
+    w.bits |= bit;
+    return true;
+  }
+
   explicit Impl(const GroupConfig& c)
       : cfg(c),
         reassembler({c.max_reassembly_bytes, c.max_partial_messages,
                      std::chrono::duration_cast<detail::Reassembler::Clock::duration>(c.reassembly_timeout)}),
         slots(std::make_unique_for_overwrite<std::byte[]>(kRecvBatch * kRecvSlot)) {}
 
-  void send_all(mmsghdr* m, std::size_t n) {
+  void send_all(int fd, mmsghdr* m, std::size_t n) {
     std::size_t done = 0;
     while (done < n) {
-      const int r = ::sendmmsg(send_fd.get(), m + done, static_cast<unsigned>(n - done), 0);
+      const int r = ::sendmmsg(fd, m + done, static_cast<unsigned>(n - done), 0);
       if (r < 0) {
         if (errno == EINTR) continue;
         throw_errno("udpm publish on " + to_url(cfg), errno);
@@ -190,7 +320,7 @@ struct Group::Impl {
     }
   }
 
-  void publish(std::string_view channel, std::span<const std::byte> payload) {
+  void publish(std::string_view channel, std::span<const std::byte> payload, bool routed) {
     if (channel.size() > kMaxChannelLength)
       throw Error(Error::Code::channel_too_long, "udpm publish: channel '" + std::string(channel) + "' is " +
                                                      std::to_string(channel.size()) + " bytes (max 63)");
@@ -206,6 +336,7 @@ struct Group::Impl {
     const std::size_t nframes = datagram_count(channel.size(), payload.size());
 
     std::lock_guard lock(send_mutex);
+    const int fd = routed && routed_fd.get() >= 0 ? routed_fd.get() : send_fd.get();
     const std::uint32_t seq = sequence++;
     mmsghdr m[kSendBatch]{};
     if (nframes == 1) {
@@ -218,7 +349,7 @@ struct Group::Impl {
       m[0].msg_hdr.msg_namelen = sizeof dest;
       m[0].msg_hdr.msg_iov = all;
       m[0].msg_hdr.msg_iovlen = payload.empty() ? 3 : 4;
-      send_all(m, 1);
+      send_all(fd, m, 1);
     } else {
       // LC03, exactly as liblcm 1.3.1 cuts it (see wire.hpp).
       std::byte hdrs[kSendBatch][kLongHeaderSize];
@@ -256,7 +387,7 @@ struct Group::Impl {
           }
           offset += len;
         }
-        send_all(m, n);
+        send_all(fd, m, n);
       }
     }
     messages_sent.fetch_add(1, std::memory_order_relaxed);
@@ -301,6 +432,10 @@ struct Group::Impl {
     }
     const Source source{names[i].sin_addr.s_addr, names[i].sin_port};
     if (!parsed->fragment) {
+      if (!fresh(source, parsed->sequence)) {
+        ++recv_counters.duplicates_dropped;
+        return 0;
+      }
       ++recv_counters.messages_received;
       on_message(Message{parsed->channel, parsed->payload, source, parsed->sequence});
       return 1;
@@ -308,6 +443,10 @@ struct Group::Impl {
     ++recv_counters.fragments_received;
     auto complete = reassembler.add(*parsed, source, detail::Reassembler::Clock::now());
     if (!complete) return 0;
+    if (!fresh(complete->source, complete->sequence)) {
+      ++recv_counters.duplicates_dropped;
+      return 0;
+    }
     ++recv_counters.messages_received;
     on_message(Message{complete->channel, std::span<const std::byte>(complete->data.get(), complete->size),
                        complete->source, complete->sequence});
@@ -348,9 +487,19 @@ Group::~Group() = default;
 Group Group::open(const GroupConfig& cfg) {
   in_addr group{};
   validate(cfg, group);
-  const auto [ifindex, if_addr] = resolve_interface(cfg.interface);
+  const bool host_local = cfg.interface.empty();
+  const std::string primary = host_local ? "lo" : cfg.interface;
+  const auto [ifindex, if_addr] = resolve_interface(primary);
   auto impl = std::make_unique<Impl>(cfg);
+  impl->group = group;
+  impl->host_local = host_local;
+  impl->primary_index = ifindex;
   const std::string where = " (" + to_url(cfg) + ")";
+  std::optional<Route> route;
+  if (host_local) {
+    route = route_of(group, cfg.port);
+    impl->route_seen = route;
+  }
 
   // ---- receive socket ----
   Fd r(::socket(AF_INET, SOCK_DGRAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0));
@@ -360,7 +509,8 @@ Group Group::open(const GroupConfig& cfg) {
   // port. SO_REUSEPORT too lets programs that set only that one share it as well.
   set_opt(r.get(), SOL_SOCKET, SO_REUSEADDR, one, "udpm group: SO_REUSEADDR");
   set_opt(r.get(), SOL_SOCKET, SO_REUSEPORT, one, "udpm group: SO_REUSEPORT");
-  // Only the groups this socket joined, not every group joined on this host with our port.
+  // Only the groups (and interfaces) this socket joined, not every group joined on this host
+  // with our port.
   set_opt(r.get(), IPPROTO_IP, IP_MULTICAST_ALL, zero, "udpm group: IP_MULTICAST_ALL");
   (void)::setsockopt(r.get(), SOL_SOCKET, SO_RXQ_OVFL, &one, sizeof one);  // best effort
   if (cfg.recv_buffer_bytes > 0) {
@@ -380,48 +530,129 @@ Group Group::open(const GroupConfig& cfg) {
   bind_addr.sin_port = htons(cfg.port);
   if (::bind(r.get(), reinterpret_cast<const sockaddr*>(&bind_addr), sizeof bind_addr) != 0)
     throw_errno("udpm group: bind 0.0.0.0:" + std::to_string(cfg.port) + where, errno);
-  ip_mreqn mreq{};
-  mreq.imr_multiaddr = group;
-  mreq.imr_ifindex = ifindex;
-  if (::setsockopt(r.get(), IPPROTO_IP, IP_ADD_MEMBERSHIP, &mreq, sizeof mreq) != 0)
-    throw_errno("udpm group: join " + cfg.address + " on " + cfg.interface + where, errno);
+  try {
+    join(r.get(), group, ifindex);
+  } catch (const Error& e) {
+    throw Error(Error::Code::system, "udpm group: join " + cfg.address + " on " + primary + where + ": " +
+                                         std::strerror(e.sys_errno()), e.sys_errno());
+  }
+  impl->joined.push_back(ifindex);
+  if (route && route->index != ifindex) {
+    try {
+      join(r.get(), group, route->index);
+      impl->joined.push_back(route->index);
+    } catch (const Error& e) {  // lo still works; stock programs on this host are not heard
+      spdlog::warn("lcmx::udpm {}: cannot join on {}, where the group routes to: {}", to_url(cfg), route->name,
+                   e.what());
+    }
+  }
 
-  // ---- send socket ----
-  Fd s(::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0));
-  if (s.get() < 0) throw_errno("udpm group: socket" + where, errno);
-  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_ALL, zero, "udpm group: IP_MULTICAST_ALL");
-  ip_mreqn ifreq{};
-  ifreq.imr_ifindex = ifindex;
-  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_IF, ifreq, "udpm group: IP_MULTICAST_IF");
-  const unsigned char ttl = static_cast<unsigned char>(cfg.ttl);
-  const unsigned char loop = cfg.multicast_loop ? 1 : 0;
-  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_TTL, ttl, "udpm group: IP_MULTICAST_TTL");
-  set_opt(s.get(), IPPROTO_IP, IP_MULTICAST_LOOP, loop, "udpm group: IP_MULTICAST_LOOP");
+  // ---- send sockets: publish() on the interface (lo in host-local mode), and publish_routed()
+  // from the same port where the group routes to ----
+  const bool routed_elsewhere = route && route->index != ifindex;
+  Fd s, rs;
+  for (int attempt = 0;; ++attempt) {
+    s = open_send_socket(cfg, ifindex, if_addr, 0, where);
+    if (!routed_elsewhere) break;
+    try {
+      rs = open_send_socket(cfg, route->index, route->address, bound_port(s.get()), where);
+      break;
+    } catch (const Error& e) {
+      if (e.sys_errno() == EADDRINUSE && attempt < 16) continue;  // that port is taken there: another one
+      spdlog::warn("lcmx::udpm {}: stock LCM programs on this host will not hear publish_routed(): {}",
+                   to_url(cfg), e.what());
+      break;
+    }
+  }
   sockaddr_in src{};
-  src.sin_family = AF_INET;
-  src.sin_addr = if_addr;
-  src.sin_port = 0;
-  if (::bind(s.get(), reinterpret_cast<const sockaddr*>(&src), sizeof src) != 0)
-    throw_errno("udpm group: bind send socket to " + cfg.interface + where, errno);
   socklen_t slen = sizeof src;
   if (::getsockname(s.get(), reinterpret_cast<sockaddr*>(&src), &slen) != 0)
     throw_errno("udpm group: getsockname", errno);
   impl->local = Source{src.sin_addr.s_addr, src.sin_port};
-  // Nothing has been sent from `s` yet, so no own datagram can be queued before the filter.
-  if (!cfg.receive_own) drop_own_datagrams(r.get(), impl->local);
+  impl->own_addresses.push_back(src.sin_addr.s_addr);
+  if (rs.get() >= 0) impl->own_addresses.push_back(route->address.s_addr);
+  impl->routed_name = rs.get() >= 0 ? route->name : primary;
+  // Nothing has been sent yet, so no own datagram can be queued before the filter.
+  if (!cfg.receive_own) drop_own_datagrams(r.get(), impl->local.port_be, impl->own_addresses);
 
   impl->dest.sin_family = AF_INET;
   impl->dest.sin_addr = group;
   impl->dest.sin_port = htons(cfg.port);
   impl->recv_fd = std::move(r);
   impl->send_fd = std::move(s);
-  spdlog::debug("lcmx::udpm opened {} (ifindex {}, from {}, SO_RCVBUF {})", to_url(cfg), ifindex,
-                to_string(impl->local), impl->effective_rcvbuf);
+  impl->routed_fd = std::move(rs);
+  spdlog::debug("lcmx::udpm opened {} (ifindex {}, from {}, SO_RCVBUF {}{}{})", to_url(cfg), ifindex,
+                to_string(impl->local), impl->effective_rcvbuf, host_local ? ", routed to " : "",
+                host_local ? (route ? route->name : std::string("nowhere")) : "");
   return Group(std::move(impl));
 }
 
+bool Group::refresh() {
+  Impl& g = *impl_;
+  if (!g.host_local) return false;
+  try {
+    const auto route = route_of(g.group, g.cfg.port);
+    if (route == g.route_seen) return false;
+    g.route_seen = route;
+    const std::string url = to_url(g.cfg);
+    if (route && std::find(g.joined.begin(), g.joined.end(), route->index) == g.joined.end()) {
+      try {
+        join(g.recv_fd.get(), g.group, route->index);
+        g.joined.push_back(route->index);
+      } catch (const Error& e) {
+        spdlog::warn("lcmx::udpm {}: cannot join on {}, where the group now routes to: {}", url, route->name, e.what());
+      }
+    }
+    Fd rs;
+    if (route && route->index != g.primary_index) {
+      try {
+        rs = open_send_socket(g.cfg, route->index, route->address, g.local.port_be, " (" + url + ")");
+      } catch (const Error& e) {
+        spdlog::warn("lcmx::udpm {}: stock LCM programs on this host will not hear publish_routed(): {}", url,
+                     e.what());
+      }
+    }
+    std::string name = rs.get() >= 0 ? route->name : "lo";
+    if (rs.get() >= 0 &&
+        std::find(g.own_addresses.begin(), g.own_addresses.end(), route->address.s_addr) == g.own_addresses.end()) {
+      g.own_addresses.push_back(route->address.s_addr);
+      if (!g.cfg.receive_own) drop_own_datagrams(g.recv_fd.get(), g.local.port_be, g.own_addresses);
+    }
+    std::string joined;
+    for (int i : g.joined) {
+      char n[IF_NAMESIZE] = {};
+      if (!joined.empty()) joined += ",";
+      joined += ::if_indextoname(static_cast<unsigned>(i), n) != nullptr ? std::string(n) : std::to_string(i);
+    }
+    spdlog::info("lcmx::udpm {}: the group now routes to {}: listening on {}, sending to stock LCM programs on {}",
+                 url, route ? route->name : std::string("nowhere"), joined, name);
+    std::lock_guard lock(g.send_mutex);
+    g.routed_fd = std::move(rs);
+    g.routed_name = std::move(name);
+    return true;
+  } catch (const std::exception& e) {
+    spdlog::warn("lcmx::udpm {}: route lookup failed: {}", to_url(g.cfg), e.what());
+    return false;
+  }
+}
+
+std::string Group::routed_interface() const {
+  std::lock_guard lock(impl_->send_mutex);
+  return impl_->routed_name;
+}
+
+bool Group::is_own(const Source& source) const {
+  if (source.port_be != impl_->local.port_be) return false;
+  const auto& a = impl_->own_addresses;
+  return std::find(a.begin(), a.end(), source.address_be) != a.end();
+}
+
 void Group::publish(std::string_view channel, std::span<const std::byte> payload) {
-  impl_->publish(channel, payload);
+  impl_->publish(channel, payload, false);
+}
+
+void Group::publish_routed(std::string_view channel, std::span<const std::byte> payload) {
+  impl_->publish(channel, payload, true);
 }
 
 int Group::fd() const noexcept { return impl_ ? impl_->recv_fd.get() : -1; }

@@ -105,8 +105,9 @@ GroupConfig parse_url(std::string_view url) {
 
 std::string to_url(const GroupConfig& cfg) {
   std::string url = std::string(kScheme) + cfg.address + ":" + std::to_string(cfg.port) +
-                    "?ttl=" + std::to_string(cfg.ttl) + "&iface=" + cfg.interface +
-                    "&recv_buf_size=" + std::to_string(cfg.recv_buffer_bytes);
+                    "?ttl=" + std::to_string(cfg.ttl);
+  if (!cfg.interface.empty()) url += "&iface=" + cfg.interface;
+  url += "&recv_buf_size=" + std::to_string(cfg.recv_buffer_bytes);
   if (!cfg.multicast_loop) url += "&multicast_loop=false";
   return url;
 }

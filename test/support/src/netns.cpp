@@ -619,7 +619,21 @@ Emulation Emulation::create(const EmulationSpec& spec) {
         tc += "qdisc add dev " + l.name + " root handle 10: netem delay " + *l.delay + "\n";
       }
     }
-    b += "route add 224.0.0.0/4 dev " + s->links[0].name + "\n";
+    switch (spec.routes) {
+      case MulticastRoute::first_link:
+        b += "route add 224.0.0.0/4 dev " + s->links[0].name + "\n";
+        break;
+      case MulticastRoute::default_route: {
+        const auto& sn = s->subnets[0];
+        const std::uint32_t gateway = sn.network + static_cast<std::uint32_t>((std::uint64_t{1} << (32 - sn.prefix)) - 2);
+        if (gateway <= sn.network + static_cast<std::uint32_t>(spec.hosts))
+          throw SetupError("MulticastRoute::default_route: subnet " + s->links[0].subnet + " has no address left for a gateway");
+        b += "route add default via " + ip_string(gateway) + " dev " + s->links[0].name + "\n";
+        break;
+      }
+      case MulticastRoute::none:
+        break;
+    }
     cmds.push_back(Cmd{{LCMX_TEST_IP, "-n", s->hosts[i].name, "-batch", "-"}, b});
     if (!tc.empty()) cmds.push_back(Cmd{{LCMX_TEST_TC, "-n", s->hosts[i].name, "-batch", "-"}, tc});
   }

@@ -70,7 +70,9 @@ enum class VehiclePublish {
 
 struct RuntimeOptions {
   // Host-local group (LCM's default URL): discovery on this host, messages from stock LCM
-  // programs, and the mirror. Tests use their own group/port.
+  // programs, and the mirror. Tests use their own group/port. With no iface= it works like
+  // liblcm's whatever the routing table says (joined on lo and where the kernel routes the group;
+  // see lcmx/udpm/group.hpp); "&iface=lo" pins it to lo.
   std::string discovery_url = "udpm://239.255.76.67:7667?ttl=0";
   // Vehicle group across hosts, e.g. "udpm://239.255.76.68:7668?ttl=1&iface=eth0"; the
   // interface is required. Empty: this host only.
@@ -79,9 +81,12 @@ struct RuntimeOptions {
   // A message larger than this (encoded bytes) makes an automatic topic large: one LCM
   // datagram (LC02) carries up to 65499 bytes with the channel name.
   std::size_t udp_limit = 65000;
-  // Also publish small messages on the host-local group, so stock lcm-logger / lcm-spy on
-  // this host see them.
+  // Also publish small messages on the host-local group, where the kernel routes it (as stock
+  // LCM programs send), so stock programs on this host (lcm-logger, lcm-spy, drivers) hear them:
+  // every channel with `mirror`, or the channels matching one of `mirror_channels` (fnmatch
+  // globs, e.g. {"CAM_*", "POSE"}). Large topics are never mirrored.
   bool mirror = false;
+  std::vector<std::string> mirror_channels;
   // Per-channel class overrides (channel name -> class).
   std::map<std::string, TopicClass> topic_class;
   // Liveness (DESIGN.md "Leases"): a participant of another host is gone after `lease`
@@ -100,7 +105,8 @@ struct RuntimeOptions {
   std::vector<std::string> bridge_carry;
 
   // Defaults overridden by the environment: LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL,
-  // LCMX_VEHICLE_PUBLISH (on_demand|always), LCMX_UDP_LIMIT, LCMX_MIRROR (0|1),
+  // LCMX_VEHICLE_PUBLISH (on_demand|always), LCMX_UDP_LIMIT, LCMX_MIRROR (0, 1 = every
+  // channel, or comma-separated channel globs such as "CAM_*,POSE" = mirror_channels),
   // LCMX_LARGE_TOPICS / LCMX_SMALL_TOPICS (comma-separated channels), LCMX_BEACON_PERIOD_MS,
   // LCMX_LEASE_MS. Throws lcmx::Error(invalid_argument) naming a bad variable.
   static RuntimeOptions from_env();

@@ -1,5 +1,5 @@
 #pragma once
-// Group configuration and LCM-style URLs ("udpm://239.255.76.67:7667?ttl=0&iface=lo").
+// Group configuration and LCM-style URLs ("udpm://239.255.76.67:7667?ttl=0", "...&iface=eth0").
 
 #include <chrono>
 #include <cstddef>
@@ -13,9 +13,13 @@ struct GroupConfig {
   std::string address = "239.255.76.67";  // IPv4 multicast group (224.0.0.0/4)
   std::uint16_t port = 7667;              // 1..65535
   int ttl = 0;                            // IP_MULTICAST_TTL 0..255; 0 = this host only
-  // Interface NAME. The group is joined on it (IP_ADD_MEMBERSHIP, ip_mreqn ifindex) and packets
-  // are sent on it (IP_MULTICAST_IF) from its first IPv4 address.
-  std::string interface = "lo";
+  // Interface NAME: the group is joined on it (IP_ADD_MEMBERSHIP, ip_mreqn ifindex) and packets
+  // are sent on it (IP_MULTICAST_IF) from its first IPv4 address ("pinned").
+  // Empty (a URL without iface=): the host-local mode, which works like liblcm's whatever the
+  // routing table says: joined on lo AND on the interface the kernel routes the group to (the one
+  // liblcm joins and sends on), publish() on lo, publish_routed() where the kernel routes the
+  // group (see Group).
+  std::string interface;
   // SO_RCVBUF request in bytes (SO_RCVBUFFORCE first when permitted); 0 keeps the kernel default.
   int recv_buffer_bytes = 4 << 20;
   bool multicast_loop = true;  // IP_MULTICAST_LOOP on the sending socket
@@ -36,8 +40,9 @@ struct GroupConfig {
 };
 
 // Parses "udpm://[ADDRESS][:PORT][?key=value&...]". Missing address or port take GroupConfig's
-// defaults. Keys: ttl, iface, recv_buf_size, multicast_loop (true/false/1/0). Unknown or
-// repeated keys are errors. The reassembly fields keep their defaults.
+// defaults; no iface= gives the host-local mode (interface empty). Keys: ttl, iface,
+// recv_buf_size, multicast_loop (true/false/1/0). Unknown or repeated keys are errors. The
+// reassembly fields keep their defaults.
 // Throws: Error(invalid_config) whose message names the bad part.
 GroupConfig parse_url(std::string_view url);
 

@@ -43,11 +43,29 @@ struct Counters {
   std::uint64_t duplicate_fragments = 0;  // LC03 fragments received twice (ignored)
   std::uint64_t oversize_dropped = 0;    // messages larger than max_reassembly_bytes
   std::uint64_t kernel_dropped = 0;      // datagrams the kernel dropped (SO_RXQ_OVFL), cumulative
+  std::uint64_t duplicates_dropped = 0;  // messages whose (source, sequence) was delivered already
 };
 
 // Move-only owner of the receive socket (bound to INADDR_ANY:port with SO_REUSEADDR and
 // SO_REUSEPORT, so stock liblcm and other Groups share the port; joined on the interface) and
 // the send socket (bound to the interface's IPv4 address and an ephemeral port).
+//
+// Host-local mode (GroupConfig::interface empty; LCM's default URL has no iface=). liblcm joins
+// with INADDR_ANY and sends with no IP_MULTICAST_IF, so the kernel picks the interface the group
+// routes to: lo if 224.0.0.0/4 (or the group) routes there, else usually the LAN interface of the
+// default route. Its ttl=0 sends never leave the host, but are looped back to this host only as
+// arriving on that interface, and only to sockets that joined there (or, for liblcm's own
+// receive sockets, IP_MULTICAST_ALL=1: any interface the host joined). So a host-local Group:
+//  - joins on lo and on the interface the group routes to (each datagram arrives on one
+//    interface, so a socket gets it once however many interfaces it joined; a repeated
+//    (source, sequence) is dropped all the same, see duplicates_dropped);
+//  - publish() sends on lo (beacons: they keep working whatever happens to the LAN interface);
+//  - publish_routed() sends on the routed interface, where every stock program (C, Java's
+//    lcm-spy, Python) joined, from the same port as publish() (a second source address);
+//  - refresh() follows route changes: joins the newly routed interface too, moves
+//    publish_routed() there. With no route at all (liblcm refuses to start then) it is lo.
+// With ttl=0 nothing leaves the host; joining a LAN interface sends IGMP reports there, as
+// liblcm's join does.
 //
 // Threads: drain(), poll(), counters() and the other accessors belong to one thread at a time
 // (the "receive thread"). publish() may be called from any number of threads, concurrently with
@@ -76,6 +94,19 @@ class Group {
   // fails (the message may have been partly sent; its sequence number is used up).
   void publish(std::string_view channel, std::span<const std::byte> payload);
 
+  // Like publish(), but where stock LCM programs on this host listen: in host-local mode the
+  // interface the kernel routes the group to (lo when it routes nowhere); pinned, the same as
+  // publish(). Same sequence counter as publish(). Thread-safe; throws as publish().
+  void publish_routed(std::string_view channel, std::span<const std::byte> payload);
+
+  // Host-local mode: re-reads the route of the group; if it now routes to an interface not yet
+  // joined, joins it too (earlier memberships stay), and moves publish_routed() to it. Pinned: no-op.
+  // Returns true if anything changed. Receive thread. Never throws (failures are logged).
+  bool refresh();
+
+  // The interface publish_routed() sends on (e.g. "eth0", "lo").
+  std::string routed_interface() const;
+
   // The receive socket: readable when datagrams are waiting (for poll/epoll). Do not read it.
   int fd() const noexcept;
 
@@ -92,9 +123,12 @@ class Group {
   // Returns the number of messages delivered (0 on timeout).
   std::size_t poll(std::chrono::milliseconds timeout, const Handler& on_message);
 
-  // The address and port this Group's packets come from; compare with Message::source to drop
-  // this Group's own looped-back messages.
+  // The address and port publish()'s packets come from (announced in beacons). publish_routed()
+  // sends from the same port and the routed interface's address.
   Source local_source() const;
+  // Whether `source` is one of this Group's send sockets (either address, current or past).
+  // Receive thread.
+  bool is_own(const Source& source) const;
 
   // A snapshot refreshed at each call; call it from the receive thread.
   const Counters& counters() const noexcept;

@@ -9,7 +9,8 @@
 //   host ns "lx<pid>_<n>_h0"   host ns "lx<pid>_<n>_h1"  ...
 //
 // Inside each host: lo up (127.0.0.1, multicast flag on), one veth per link named after the
-// link with its IPv4 address, a route 224.0.0.0/4 via the first link's interface, IPv6 off (so
+// link with its IPv4 address, a route 224.0.0.0/4 via the first link's interface (or a default
+// route, or none: EmulationSpec::routes), IPv6 off (so
 // the interface counters only see what the test sends, plus ARP/IGMP), ARP retries every 100 ms
 // (not 1 s, so traffic resumes quickly after set_link_up). Bridges have multicast snooping and
 // STP off, so multicast floods to every host on the link.
@@ -63,9 +64,18 @@ struct LinkSpec {
   std::optional<std::string> delay;
 };
 
+// How every host routes multicast (224.0.0.0/4), i.e. where liblcm joins and sends.
+enum class MulticastRoute {
+  first_link,     // "224.0.0.0/4 dev <first link>": the vehicle network (default)
+  default_route,  // an ordinary computer: "default via <first link's last address>" and no
+                  // multicast route (the laptop, Jetson, CI runner), so groups route to the LAN
+  none,           // no route beyond the links' subnets: liblcm refuses to start, lo still works
+};
+
 struct EmulationSpec {
   int hosts = 2;                          // 1..250
   std::vector<LinkSpec> links = {LinkSpec{}};  // 1..8 links; one bridge per link
+  MulticastRoute routes = MulticastRoute::first_link;
 };
 
 // Moves the calling thread into a network namespace; moves it back on destruction (aborts if
