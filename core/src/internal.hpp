@@ -307,6 +307,11 @@ class PublisherImpl final : public PublisherCore {
   std::atomic<std::uint64_t> published_{0};
 };
 
+// Whether an LCM encoding starts with `fingerprint` (big-endian). udp_receive.cpp.
+bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint);
+// This host's IPv4 addresses, network order (empty if getifaddrs fails). udp_receive.cpp.
+std::set<std::uint32_t> local_addresses();
+
 // Pushes an intra-process item to a subscriber's queue (drop oldest when full) and wakes
 // its node.
 void push_intra(SubscriberCore& sub, IntraItem item);
