@@ -201,6 +201,12 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   // Same-host participants' host-local ports: their mirror comes from that port and the address
   // of the interface the group routes to (an address of this host), not from local_source.
   std::map<std::uint16_t, std::int64_t> host_ports;  // network order -> participant
+  // Neighbours: participants of this network namespace with another host id (another
+  // /dev/shm: no shared memory). Without a vehicle group they are reached over UDP on the
+  // host-local group (path udp); with one, over the vehicle group like any other host.
+  std::map<std::int64_t, lcmx_msgs::beacon_t> neighbour_remotes;
+  std::map<std::string, std::int64_t> neighbour_sources;  // "ip:port" -> participant
+  std::map<std::uint16_t, std::int64_t> neighbour_ports;  // network order -> participant
   std::set<std::uint32_t> host_addresses;            // this host's IPv4 addresses (network order)
   // Receive thread (recv_mu held): follows the host-local group's route, re-reads host_addresses.
   void refresh_routes();
@@ -254,7 +260,9 @@ class PublisherImpl final : public PublisherCore {
   // Runtime side (RuntimeImpl::mu held).
   void add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_ptr<PairCounters> stats);
   void remove_intra(const SubscriberCore* sub);
-  void set_remote_subscribers(std::size_t shm, std::size_t udp);
+  // Subscribers of other processes: shm (this host), udp (other hosts, vehicle group),
+  // local_udp (neighbours, host-local group).
+  void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp);
   bool large() const { return large_.load(); }
   // A bridge of this host now carries the topic: it is large from now on (sticky).
   void mark_large();
@@ -293,6 +301,7 @@ class PublisherImpl final : public PublisherCore {
   std::shared_ptr<const Targets> intra_ = std::make_shared<Targets>();
   std::size_t remote_subscribers_ = 0;  // same host (shm) + other hosts (udp)
   std::atomic<std::size_t> udp_subscribers_{0};
+  std::atomic<std::size_t> local_udp_subscribers_{0};  // neighbours: sent on the host-local group
   std::atomic<bool> large_{false};
   const bool mirrored_;  // RuntimeOptions::mirror / mirror_channels select this channel
   bool warned_large_udp_ = false;        // guarded by publish_mu

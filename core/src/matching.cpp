@@ -70,7 +70,7 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
     Path path;
   };
   std::vector<Candidate> candidates;
-  for (const auto* scope_map : {&remotes, &vehicle_remotes})
+  for (const auto* scope_map : {&remotes, &vehicle_remotes, &neighbour_remotes})
   for (const auto& [pid, b] : *scope_map) {
     const Path path = scope_map == &remotes ? Path::shm : Path::udp;
     const bool from_bridge = (b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) != 0;
@@ -183,10 +183,10 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
 // Counts subscribers of other processes that report a match with `pub` (they opened its
 // segment), and reports remote subscribers of another type.
 void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& events) {
-  std::size_t counts[2] = {0, 0};  // shm (this host), udp (other hosts)
-  for (const auto* scope_map : {&remotes, &vehicle_remotes})
+  std::size_t counts[3] = {0, 0, 0};  // shm (this host), udp (other hosts), neighbours
+  for (const auto* scope_map : {&remotes, &vehicle_remotes, &neighbour_remotes})
   for (const auto& [pid, b] : *scope_map) {
-    auto& n = counts[scope_map == &remotes ? 0 : 1];
+    auto& n = counts[scope_map == &remotes ? 0 : scope_map == &vehicle_remotes ? 1 : 2];
     for (const auto& e : b.endpoints) {
       if (e.kind != lcmx_msgs::endpoint_t::KIND_SUBSCRIBER || e.topic != pub.channel()) continue;
       if (!compatible(e.fingerprint, pub.type.fingerprint)) {
@@ -206,7 +206,7 @@ void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& ev
           ++n;
     }
   }
-  pub.set_remote_subscribers(counts[0], counts[1]);
+  pub.set_remote_subscribers(counts[0], counts[1], counts[2]);
 }
 
 // The bridges of this host (DESIGN.md "Message Bridge"): while one runs, large topics reach

@@ -30,9 +30,12 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
   const auto& b = p.beacon;
   const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
   const bool same_host = static_cast<std::uint64_t>(b.host_id) == host;
-  if (!vehicle && !same_host && change == discovery::Change::joined) report_neighbour(b);
-  if (vehicle == same_host) return;
-  auto& scope_map = vehicle ? vehicle_remotes : remotes;
+  // A neighbour: this network namespace (host scope), another host id. Without a vehicle
+  // group it is matched here, over UDP on the host-local group.
+  const bool neighbour = !vehicle && !same_host;
+  if (neighbour && change == discovery::Change::joined) report_neighbour(b);
+  if (vehicle == same_host && !(neighbour && !vehicle_group)) return;
+  auto& scope_map = vehicle ? vehicle_remotes : neighbour ? neighbour_remotes : remotes;
   std::vector<Event> events;
   {
     std::lock_guard lock(mu);
@@ -40,8 +43,9 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
     auto forget_sources = [&](std::map<std::string, std::int64_t>& m) {
       std::erase_if(m, [&](const auto& kv) { return kv.second == b.participant_id; });
     };
-    forget_sources(vehicle ? vehicle_sources : host_sources);
-    if (!vehicle) std::erase_if(host_ports, [&](const auto& kv) { return kv.second == b.participant_id; });
+    forget_sources(vehicle ? vehicle_sources : neighbour ? neighbour_sources : host_sources);
+    std::erase_if(neighbour ? neighbour_ports : host_ports,
+                  [&](const auto& kv) { return !vehicle && kv.second == b.participant_id; });
     const std::string where = vehicle ? " on host " + std::to_string(b.host_id) : "";
     if (change == discovery::Change::left) {
       scope_map.erase(b.participant_id);
@@ -55,6 +59,9 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
       scope_map[b.participant_id] = b;
       if (vehicle) {
         if (!b.vehicle_source.empty()) vehicle_sources[b.vehicle_source] = b.participant_id;
+      } else if (neighbour) {
+        if (!b.local_source.empty()) neighbour_sources[b.local_source] = b.participant_id;
+        if (const auto port = port_of(b.local_source); port != 0) neighbour_ports[port] = b.participant_id;
       } else {
         if (!b.local_source.empty()) host_sources[b.local_source] = b.participant_id;
         if (const auto port = port_of(b.local_source); port != 0) host_ports[port] = b.participant_id;
@@ -116,9 +123,8 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
 
 // A host-scope beacon (this network namespace) from a participant with another host id: it
 // sees another /dev/shm (another container) or has LCMX_HOST_ID set. No shared memory with
-// it: it is another host, reached over the vehicle group if there is one. Said once per
-// participant: an error Event when there is no vehicle group (nothing can reach it), a log
-// line otherwise.
+// it: it is reached over UDP, on the vehicle group if there is one (as another host), else
+// on the host-local group (a neighbour, on_participant). Logged once per participant.
 void RuntimeImpl::report_neighbour(const lcmx_msgs::beacon_t& b) {
   {
     std::lock_guard lock(mu);
@@ -128,12 +134,9 @@ void RuntimeImpl::report_neighbour(const lcmx_msgs::beacon_t& b) {
   const std::string text = "participant " + b.process_name + " pid " + std::to_string(b.pid) +
                            " shares this network namespace but not this host's identity "
                            "(another /dev/shm, e.g. another container, or LCMX_HOST_ID): no "
-                           "shared memory with it; " +
-                           (vehicle_group ? std::string("it is reached over the vehicle group")
-                                          : std::string("no vehicle group is configured "
-                                                        "(vehicle_url), so nothing reaches it"));
-  if (vehicle_group) spdlog::info("lcmx: {}", text);
-  else emit({Event{Event::Kind::error, "", text}});
+                           "shared memory with it; it is reached over UDP on the " +
+                           (vehicle_group ? std::string("vehicle group") : std::string("host-local group"));
+  spdlog::info("lcmx: {}", text);
 }
 
 // Host scope: everything. Vehicle scope: the same endpoints without what only this host can

@@ -57,7 +57,7 @@ bool PublisherImpl::wants_vehicle() const {
 }
 
 bool PublisherImpl::wants_udp() const {
-  return wants_vehicle() || (mirrored_ && !large_.load());
+  return wants_vehicle() || (mirrored_ && !large_.load()) || local_udp_subscribers_.load() > 0;
 }
 
 void PublisherImpl::mark_large() {
@@ -112,7 +112,9 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
     }
     send(*rt.vehicle_group, "vehicle");
   }
-  if (mirrored_ && !large_.load()) send(*rt.local_group, "host-local");
+  // The mirror, and subscribers of neighbours (this network namespace, another /dev/shm).
+  if ((mirrored_ && !large_.load()) || local_udp_subscribers_.load() > 0)
+    send(*rt.local_group, "host-local");
 }
 
 // Encodes once: straight into a shm slot when shm readers exist (UDP is sent from the same
@@ -274,10 +276,11 @@ void PublisherImpl::remove_intra(const SubscriberCore* sub) {
   subs_cv.notify_all();
 }
 
-void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp) {
+void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp) {
   std::lock_guard lock(intra_mu);
-  remote_subscribers_ = shm + udp;
+  remote_subscribers_ = shm + udp + local_udp;
   udp_subscribers_.store(udp);
+  local_udp_subscribers_.store(local_udp);
   subs_cv.notify_all();
 }
 

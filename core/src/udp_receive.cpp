@@ -161,6 +161,11 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     if (vehicle) {
       auto it = vehicle_sources.find(source);
       if (it != vehicle_sources.end()) participant = it->second;
+    } else if (auto it = neighbour_sources.find(source); it != neighbour_sources.end()) {
+      participant = it->second;  // a neighbour (this network namespace, another /dev/shm)
+    } else if (auto p = neighbour_ports.find(m.source.port_be);
+               p != neighbour_ports.end() && host_addresses.count(m.source.address_be)) {
+      participant = p->second;  // ... sent where the group routes (another address of ours)
     }
     for (auto& [id, sub] : subs) {
       if (sub->channel() != m.channel) continue;
