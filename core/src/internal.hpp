@@ -13,6 +13,7 @@
 #include <optional>
 #include <set>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "lcmx/core/runtime.hpp"
@@ -79,8 +80,19 @@ class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
   const std::shared_ptr<RuntimeImpl> runtime;
   const std::string name;
   const NodeOptions options;
+  const std::uint64_t uid;  // unique in the process, never reused (unlike the address)
+
+  // A fault the executor survived (an exception on its thread): log + Event::Kind::error.
+  void report_fault(const std::string& what) noexcept;
+  std::uint64_t fault_count() const {
+    std::lock_guard lock(fault_mu);
+    return faults;
+  }
 
  private:
+  mutable std::mutex fault_mu;
+  std::uint64_t faults = 0;
+  std::chrono::steady_clock::time_point last_fault_report{};
   std::size_t poll_all(std::vector<std::shared_ptr<SubscriberCore>>& subs);
   std::size_t poll_one(SubscriberCore& sub);
   std::size_t poll_intra(SubscriberCore& sub);
@@ -130,7 +142,8 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   const RuntimeOptions options;
   const std::uint64_t participant_id;
   const std::uint64_t host;
-  std::string shm_base_prefix;  // "lcmx_<host hex>_<pid>_"
+  std::string own_shm_prefix;   // "lcmx_<tag hex>_": tag = host id mixed with the pid namespace
+  std::string shm_base_prefix;  // own_shm_prefix + "<pid>_"
   std::shared_ptr<udpm::Group> local_group;    // host-local group (always)
   std::shared_ptr<udpm::Group> vehicle_group;  // vehicle group (null: single host)
   // Configured class, else large when a bridge of this host carries the channel, else automatic.
@@ -165,6 +178,12 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   void sync_remote_locked(SubscriberCore& sub, std::vector<Event>& events);
   void count_remote_locked(PublisherImpl& pub, std::vector<Event>& events);
   void update_bridges_locked();
+  void report_neighbour(const lcmx_msgs::beacon_t& b);  // takes mu
+  // Consecutive failures to open a same-host publisher's segment, per (subscriber,
+  // participant, endpoint); the error Event goes out at kOpenFailuresReported. Guarded by mu.
+  static constexpr int kOpenFailuresReported = 3;
+  std::map<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>, int> open_failures;
+  std::set<std::int64_t> neighbours_reported;  // guarded by mu
   void report_mismatch_locked(std::uint64_t local_endpoint, std::uint64_t remote_participant,
                               std::uint64_t remote_endpoint, const std::string& channel,
                               const std::string& text, std::vector<std::string>& errors,
@@ -226,6 +245,7 @@ class PublisherImpl final : public PublisherCore {
   void publish_bytes(std::span<const std::byte> data) override;
   shm::WriteLoan loan(std::size_t size) override;
   void publish_loan(shm::WriteLoan&& loan, std::size_t size) override;
+  void drop_loan(shm::WriteLoan&& loan) noexcept override;
   std::size_t subscriber_count() const override;
   bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const override;
   std::uint64_t published() const override { return published_.load(); }
@@ -258,8 +278,14 @@ class PublisherImpl final : public PublisherCore {
   void write_encoded(const void* object, bool shm, bool udp);
   void note_generation();  // publish_mu held
 
+  std::unique_lock<std::mutex> lock_no_loan(const char* what);
+
   std::string channel_;
   mutable std::mutex publish_mu;  // serialises publishers' writes into shm
+  // A Loan is out (guarded by publish_mu): other publish calls wait on loan_cv_.
+  std::condition_variable loan_cv_;
+  bool loan_out_ = false;
+  std::thread::id loan_thread_;
   std::optional<shm::Writer> writer_;
   std::string announced_segment_;  // guarded by publish_mu
   mutable std::mutex intra_mu;    // guards intra_, remote_subscribers_
@@ -280,6 +306,11 @@ class PublisherImpl final : public PublisherCore {
   void note_size(std::size_t size);
   std::atomic<std::uint64_t> published_{0};
 };
+
+// Whether an LCM encoding starts with `fingerprint` (big-endian). udp_receive.cpp.
+bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint);
+// This host's IPv4 addresses, network order (empty if getifaddrs fails). udp_receive.cpp.
+std::set<std::uint32_t> local_addresses();
 
 // Pushes an intra-process item to a subscriber's queue (drop oldest when full) and wakes
 // its node.

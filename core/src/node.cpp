@@ -32,8 +32,12 @@ namespace {
 thread_local bool t_fanout_yield = false;
 }  // namespace
 
+namespace {
+std::atomic<std::uint64_t> g_next_node_uid{1};
+}  // namespace
+
 NodeImpl::NodeImpl(std::shared_ptr<RuntimeImpl> rt, std::string n, NodeOptions o)
-    : runtime(std::move(rt)), name(std::move(n)), options(o) {
+    : runtime(std::move(rt)), name(std::move(n)), options(o), uid(g_next_node_uid.fetch_add(1)) {
   if (name.empty()) throw Error(Errc::invalid_argument, "node name is empty");
   if (options.executor.threads < 1)
     throw Error(Errc::invalid_argument, "node '" + name + "': executor.threads must be >= 1");
@@ -56,9 +60,39 @@ void NodeImpl::start() {
       for (;;) {
         const auto self = weak.lock();
         if (!self || self->stopping.load(std::memory_order_acquire)) return;
-        self->run_once(std::chrono::seconds(1));
+        try {
+          self->run_once(std::chrono::seconds(1));
+        } catch (const std::exception& e) {
+          // Nothing may end an executor thread but stop(): report and carry on (after a
+          // pause, so that a lasting fault does not spin a CPU).
+          self->report_fault(std::string("executor: ") + e.what());
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        } catch (...) {
+          self->report_fault("executor: unknown exception");
+          std::this_thread::sleep_for(std::chrono::milliseconds(1));
+        }
       }
     });
+}
+
+// Logs (at most once per 5 s per node) and emits an Event::Kind::error for a fault the
+// executor survived. Never throws (a throwing on_event callback is logged).
+void NodeImpl::report_fault(const std::string& what) noexcept {
+  try {
+    const auto now = std::chrono::steady_clock::now();
+    {
+      std::lock_guard lock(fault_mu);
+      ++faults;
+      if (last_fault_report != std::chrono::steady_clock::time_point{} &&
+          now - last_fault_report < std::chrono::seconds(5))
+        return;
+      last_fault_report = now;
+    }
+    runtime->emit({Event{Event::Kind::error, "", "node '" + name + "': " + what}});  // logs it
+  } catch (const std::exception& e) {
+    spdlog::error("lcmx: node '{}': reporting a fault failed: {}", name, e.what());
+  } catch (...) {
+  }
 }
 
 void NodeImpl::stop() {
@@ -235,14 +269,19 @@ std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
     }
     m->stats->drops.store(m->reader->drops(), std::memory_order_relaxed);
   }
-  // Publishers that left: once everything they committed has been read, forget them.
+  // Publishers that left: once everything they committed has been read and their writer is
+  // gone (closed, or its process dead), forget them. A writer whose process lives on (e.g.
+  // stopped past its lease) keeps its match registered: when it is back, the runtime revives
+  // the match (sync_remote_locked), so nothing it commits meanwhile is lost uncounted.
+  const auto over = [](const Match& m) {
+    return m.retiring && m.reader && !m.reader->has_data() && !m.reader->writer_alive();
+  };
   bool drained = false;
-  for (auto& m : st.snapshot)
-    drained = drained || (m->retiring && m->reader && !m->reader->has_data());
+  for (auto& m : st.snapshot) drained = drained || over(*m);
   if (drained) {
     std::lock_guard lock(st.mu);
     std::erase_if(st.matches, [&](const auto& m) {
-      if (!(m->retiring && m->reader && !m->reader->has_data())) return false;
+      if (!over(*m)) return false;
       st.retired_drops += m->stats->drops.load();
       return true;
     });
@@ -274,13 +313,15 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
   using Clock = std::chrono::steady_clock;
   const auto start = Clock::now();
   const auto deadline = start + timeout;
+  // Keyed by the node's unique id, not its address: a node destroyed and another allocated
+  // at the same address must not inherit the first one's subscriber list and version.
   thread_local std::vector<std::shared_ptr<SubscriberCore>> local;
   thread_local std::uint64_t local_version = ~0ull;
-  thread_local const NodeImpl* local_owner = nullptr;
-  if (local_owner != this) {
+  thread_local std::uint64_t local_owner = 0;
+  if (local_owner != uid) {
     local.clear();
     local_version = ~0ull;
-    local_owner = this;
+    local_owner = uid;
   }
   // Reused (no allocation per call); `armed` is emptied after every wait.
   thread_local std::vector<shm::WaitToken> tokens;
@@ -337,8 +378,19 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     sleepers.fetch_add(1, std::memory_order_seq_cst);
     bool ready = doorbell.load(std::memory_order_seq_cst) != bell;
     for (auto& [sub, m] : armed) ready = ready || m->reader->has_data();
-    if (!ready) shm::wait_any(tokens, std::min<Clock::duration>(deadline - Clock::now(),
-                                                                std::chrono::seconds(1)));
+    // The deadline may have passed since the check above: never hand wait_any a negative
+    // timeout (which means forever).
+    const auto left = std::min<Clock::duration>(deadline - Clock::now(), std::chrono::seconds(1));
+    if (!ready && left > Clock::duration::zero()) {
+      try {
+        shm::wait_any(tokens, left);
+      } catch (const std::exception& e) {
+        // Still disarm below; the caller polls again (bounded by its deadline), after a
+        // pause so that a lasting fault does not spin a CPU.
+        report_fault(std::string("waiting for messages failed: ") + e.what());
+        std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      }
+    }
     sleepers.fetch_sub(1, std::memory_order_seq_cst);
     t_fanout_yield = false;
     for (auto& [sub, m] : armed) {

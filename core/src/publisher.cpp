@@ -149,7 +149,7 @@ void PublisherImpl::note_generation() {
 void PublisherImpl::publish_ref(const void* object,
                                 std::shared_ptr<const void> (*copy)(const void*)) {
   auto t = targets();
-  std::lock_guard lock(publish_mu);
+  auto lock = lock_no_loan("publish");
   const bool shm = writer_->registered_readers() > 0;
   const bool udp = wants_udp();
   if (!shm && !udp) check_size(type.encoded_size(object));  // also with only in-process subscribers
@@ -162,7 +162,7 @@ void PublisherImpl::publish_ref(const void* object,
 void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   if (!object) throw Error(Errc::invalid_argument, "publish on '" + channel_ + "': null message");
   auto t = targets();
-  std::lock_guard lock(publish_mu);
+  auto lock = lock_no_loan("publish");
   const bool shm = writer_->registered_readers() > 0;
   const bool udp = wants_udp();
   if (!shm && !udp) check_size(type.encoded_size(object.get()));
@@ -174,7 +174,7 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
 void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   check_size(data.size());
   auto t = targets();
-  std::lock_guard lock(publish_mu);
+  auto lock = lock_no_loan("publish");
   note_size(data.size());
   if (writer_->registered_readers() > 0) {
     try {
@@ -189,12 +189,26 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   published_.fetch_add(1);
 }
 
+// publish_mu, once no Loan is out (see PublisherCore::loan). Throws Error(invalid_argument)
+// if the calling thread holds the Loan.
+std::unique_lock<std::mutex> PublisherImpl::lock_no_loan(const char* what) {
+  std::unique_lock lock(publish_mu);
+  if (loan_out_ && loan_thread_ == std::this_thread::get_id())
+    throw Error(Errc::invalid_argument,
+                std::string(what) + " on '" + channel_ +
+                    "': this thread holds a Loan of the publisher; publish or drop it first");
+  loan_cv_.wait(lock, [&] { return !loan_out_; });
+  return lock;
+}
+
 shm::WriteLoan PublisherImpl::loan(std::size_t size) {
   check_size(size);
-  std::lock_guard lock(publish_mu);
+  auto lock = lock_no_loan("loan");
   try {
     auto loan = writer_->loan(size);
     note_generation();
+    loan_out_ = true;
+    loan_thread_ = std::this_thread::get_id();
     return loan;
   } catch (const shm::Error& e) {
     throw Error(Errc::transport, "loan on '" + channel_ + "': " + e.what());
@@ -209,10 +223,28 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
   std::lock_guard lock(publish_mu);
   note_size(size);
   // In-process subscribers get a copy taken before the slot is handed to other processes.
+  // If this throws, the loan stays out: the Loan's destructor drops it.
   if (!t->empty()) deliver_intra(*t, make_bytes({loan.data(), size}));
   if (wants_udp()) send_udp({loan.data(), size});
-  writer_->commit(std::move(loan), size);
+  auto end = [&] {  // committed or refused: the loan is over, waiting publishers go on
+    loan_out_ = false;
+    loan_cv_.notify_all();
+  };
+  try {
+    writer_->commit(std::move(loan), size);
+  } catch (const shm::Error& e) {
+    end();
+    throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
+  }
+  end();
   published_.fetch_add(1);
+}
+
+void PublisherImpl::drop_loan(shm::WriteLoan&& loan) noexcept {
+  std::lock_guard lock(publish_mu);
+  { shm::WriteLoan gone = std::move(loan); }  // gives the slot back (Writer used under publish_mu)
+  loan_out_ = false;
+  loan_cv_.notify_all();
 }
 
 std::size_t PublisherImpl::subscriber_count() const {

@@ -79,10 +79,11 @@ bool walk_endpoint(Walker& w) {
 }
 
 bool walk_beacon(Walker& w) {
-  // fingerprint, version, participant_id, host_id, pid, process_name, sequence, revision,
-  // flags, lease_ms, timestamp_us, scope, local_source, vehicle_source
-  if (!(w.i64() && w.i32() && w.i64() && w.i64() && w.i32() && w.str() && w.i64() && w.i64() &&
-        w.i8() && w.i32() && w.i64() && w.i8() && w.str() && w.str()))
+  // fingerprint, version, participant_id, host_id, pid, start_time, pid_namespace,
+  // process_name, sequence, revision, flags, lease_ms, timestamp_us, scope, local_source,
+  // vehicle_source
+  if (!(w.i64() && w.i32() && w.i64() && w.i64() && w.i32() && w.i64() && w.i64() && w.str() &&
+        w.i64() && w.i64() && w.i8() && w.i32() && w.i64() && w.i8() && w.str() && w.str()))
     return false;
   std::int32_t n = 0;
   if (!w.count(&n, kMinString)) return false;

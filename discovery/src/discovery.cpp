@@ -2,12 +2,17 @@
 
 #include <poll.h>
 #include <sys/eventfd.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <atomic>
+#include <cerrno>
+#include <deque>
 #include <map>
 #include <mutex>
+#include <set>
 #include <thread>
+#include <vector>
 
 #include <spdlog/spdlog.h>
 
@@ -17,6 +22,10 @@
 namespace lcmx::discovery {
 
 using Clock = std::chrono::steady_clock;
+
+#ifndef SYS_pidfd_open
+#define SYS_pidfd_open 434
+#endif
 
 struct Discovery::Impl {
   Options options;
@@ -32,9 +41,27 @@ struct Discovery::Impl {
   std::int64_t sequence = 0;
   std::atomic<std::uint64_t> self_id{0};  // our participant id, to ignore our own echo
 
-  mutable std::mutex mutex;  // guards peers and counters
+  mutable std::mutex mutex;  // guards peers, counters, exited
   std::map<std::int64_t, Participant> peers;
   Counters counters;
+  // Participants whose process was seen to exit (pidfd): their late beacons are ignored.
+  // Bounded: the oldest are forgotten first.
+  std::set<std::int64_t> exited;
+  std::deque<std::int64_t> exited_order;
+
+  // Process watches (discovery thread only): a pidfd per peer of this host in our pid
+  // namespace, polled with the group; readable = the process exited.
+  struct Watch {
+    int fd = -1;           // -1: cannot be watched (other pid namespace, no pidfd): lease only
+    std::int32_t pid = 0;
+    std::int64_t start_time = 0;
+  };
+  std::map<std::int64_t, Watch> watches;
+  static constexpr std::size_t kMaxWatches = 1024;  // pidfds open at most
+  std::size_t open_watches = 0;
+  const std::uint64_t own_pid_namespace = pid_namespace();
+  const std::uint64_t own_start_time = process_start_time(static_cast<int>(::getpid()));
+  std::atomic<bool> want_watch_sync{false};
   Clock::time_point last_malformed_log{};
   Clock::time_point last_send_error_log{};  // discovery thread only
 
@@ -47,6 +74,8 @@ struct Discovery::Impl {
     if (wake_fd < 0) throw std::runtime_error("discovery: eventfd failed");
   }
   ~Impl() {
+    for (auto& [id, w] : watches)
+      if (w.fd >= 0) ::close(w.fd);
     if (wake_fd >= 0) ::close(wake_fd);
   }
 
@@ -68,6 +97,9 @@ struct Discovery::Impl {
       self_id = static_cast<std::uint64_t>(b.participant_id);
     }
     b.version = kBeaconVersion;
+    b.pid = static_cast<std::int32_t>(::getpid());
+    b.start_time = static_cast<std::int64_t>(own_start_time);
+    b.pid_namespace = static_cast<std::int64_t>(own_pid_namespace);
     b.sequence = ++sequence;
     b.flags = static_cast<std::int8_t>(b.flags | flags);
     b.lease_ms = static_cast<std::int32_t>(options.lease.count());
@@ -119,6 +151,7 @@ struct Discovery::Impl {
     {
       std::lock_guard lock(mutex);
       ++counters.beacons_received;
+      if (exited.count(b->participant_id)) return;  // sent before its process exited
       auto it = peers.find(b->participant_id);
       if (b->flags & lcmx_msgs::beacon_t::FLAG_GOODBYE) {
         if (it == peers.end()) return;
@@ -142,7 +175,93 @@ struct Discovery::Impl {
         copy = it->second;
       }
     }
+    // A new peer to watch, or a watch to close: the discovery thread does it.
+    if (watching() && change != Change::updated) {
+      want_watch_sync = true;
+      wake();
+    }
     if (on_change) on_change(change, copy);
+  }
+
+  bool watching() const {
+    return options.watch_processes && options.scope == lcmx_msgs::beacon_t::SCOPE_HOST &&
+           !options.observer;
+  }
+
+  // Discovery thread. Opens a pidfd for every new peer in our pid namespace (checking its
+  // start time, so a reused pid is never watched) and closes those of peers that left. A peer
+  // whose process is already gone is declared gone now.
+  void sync_watches() {
+    if (!watching()) return;
+    std::vector<std::tuple<std::int64_t, std::int32_t, std::int64_t, std::int64_t>> current;
+    {
+      std::lock_guard lock(mutex);
+      for (const auto& [id, p] : peers)
+        current.emplace_back(id, p.beacon.pid, p.beacon.start_time, p.beacon.pid_namespace);
+    }
+    std::set<std::int64_t> live;
+    std::vector<std::int64_t> gone;
+    for (const auto& [id, pid, start, pidns] : current) {
+      live.insert(id);
+      if (watches.count(id)) continue;
+      Watch w;
+      w.pid = pid;
+      w.start_time = start;
+      // Bounded: past kMaxWatches peers (a flood of spoofed beacons), the lease alone.
+      if (open_watches < kMaxWatches && pid > 0 && start > 0 && pidns != 0 &&
+          static_cast<std::uint64_t>(pidns) == own_pid_namespace) {
+        const int fd = static_cast<int>(::syscall(SYS_pidfd_open, pid, 0));
+        if (fd < 0 && errno == ESRCH) {
+          gone.push_back(id);
+        } else if (fd >= 0) {
+          // After the open: a matching start time means the pidfd names that very process.
+          if (process_start_time(pid) == static_cast<std::uint64_t>(start)) {
+            w.fd = fd;
+            ++open_watches;
+          } else {
+            ::close(fd);
+            gone.push_back(id);
+          }
+        }
+      }
+      watches[id] = w;
+    }
+    for (auto it = watches.begin(); it != watches.end();) {
+      if (live.count(it->first)) {
+        ++it;
+        continue;
+      }
+      if (it->second.fd >= 0) ::close(it->second.fd), --open_watches;
+      it = watches.erase(it);
+    }
+    for (auto id : gone) process_exited(id);
+  }
+
+  // Discovery thread: the peer's process exited. Declares it gone at once.
+  void process_exited(std::int64_t id) {
+    if (auto it = watches.find(id); it != watches.end()) {
+      if (it->second.fd >= 0) ::close(it->second.fd), --open_watches;
+      watches.erase(it);
+    }
+    Participant p;
+    {
+      std::lock_guard lock(mutex);
+      auto it = peers.find(id);
+      if (it == peers.end()) return;
+      p = std::move(it->second);
+      peers.erase(it);
+      ++counters.exits_seen;
+      if (exited.insert(id).second) {
+        exited_order.push_back(id);
+        if (exited_order.size() > 1024) {
+          exited.erase(exited_order.front());
+          exited_order.pop_front();
+        }
+      }
+    }
+    spdlog::info("lcmx discovery: participant {} ({} pid {}) exited", p.beacon.participant_id,
+                 p.beacon.process_name, p.beacon.pid);
+    if (on_change) on_change(Change::left, p);
   }
 
   void expire_leases() {
@@ -156,6 +275,7 @@ struct Discovery::Impl {
           gone.push_back(std::move(it->second));
           it = peers.erase(it);
           ++counters.leases_expired;
+          want_watch_sync = true;
         } else {
           ++it;
         }
@@ -179,6 +299,8 @@ struct Discovery::Impl {
 
   void run() {
     auto next_periodic = Clock::now();
+    std::vector<pollfd> fds;
+    std::vector<std::int64_t> watched;  // participant of fds[2 + i]
     while (!stopping.load()) {
       const auto now = Clock::now();
       if (!options.observer && (want_announce.exchange(false) || now >= next_periodic)) {
@@ -194,8 +316,16 @@ struct Discovery::Impl {
       until = std::min(until, next_expiry());
       auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       wait = std::clamp(wait, std::chrono::milliseconds(0), std::chrono::milliseconds(1000));
-      pollfd fds[2] = {{wake_fd, POLLIN, 0}, {receive ? group->fd() : -1, POLLIN, 0}};
-      const int r = ::poll(fds, 2, static_cast<int>(wait.count()));
+      fds.resize(2);
+      fds[0] = {wake_fd, POLLIN, 0};
+      fds[1] = {receive ? group->fd() : -1, POLLIN, 0};
+      watched.clear();
+      for (const auto& [id, w] : watches)
+        if (w.fd >= 0) {
+          fds.push_back({w.fd, POLLIN, 0});
+          watched.push_back(id);
+        }
+      const int r = ::poll(fds.data(), fds.size(), static_cast<int>(wait.count()));
       if (r > 0 && (fds[0].revents & POLLIN)) {
         std::uint64_t v;
         [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);
@@ -207,6 +337,10 @@ struct Discovery::Impl {
           spdlog::warn("lcmx discovery: receive failed: {}", e.what());
         }
       }
+      if (r > 0)
+        for (std::size_t i = 2; i < fds.size(); ++i)
+          if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) process_exited(watched[i - 2]);
+      if (want_watch_sync.exchange(false)) sync_watches();
     }
     if (!options.observer) send(lcmx_msgs::beacon_t::FLAG_GOODBYE);
   }

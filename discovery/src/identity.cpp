@@ -47,8 +47,16 @@ std::uint64_t host_id() {
   // thread-self: a thread that entered another namespace (setns) is on that host.
   if (::stat("/proc/thread-self/ns/net", &st) == 0 || ::stat("/proc/self/ns/net", &st) == 0)
     netns = static_cast<std::uint64_t>(st.st_ino);
+  // The /dev/shm this process sees (device + inode): containers that share the network
+  // namespace but not /dev/shm cannot use each other's shared memory, so they are two hosts.
+  std::uint64_t shm_dev = 0, shm_ino = 0;
+  if (::stat("/dev/shm", &st) == 0) {
+    shm_dev = static_cast<std::uint64_t>(st.st_dev);
+    shm_ino = static_cast<std::uint64_t>(st.st_ino);
+  }
   std::uint64_t h = fnv1a(machine);
   h = fnv1a(std::to_string(netns), h);
+  h = fnv1a(std::to_string(shm_dev) + ":" + std::to_string(shm_ino), h);
   return h == 0 ? 1 : h;
 }
 
@@ -60,6 +68,12 @@ std::uint64_t random_participant_id() {
 }
 
 std::string process_name() { return read_first_line("/proc/self/comm"); }
+
+std::uint64_t pid_namespace() {
+  struct stat st {};
+  if (::stat("/proc/self/ns/pid", &st) != 0) return 0;
+  return static_cast<std::uint64_t>(st.st_ino);
+}
 
 std::uint64_t process_start_time(int pid) {
   std::ifstream f("/proc/" + std::to_string(pid) + "/stat");

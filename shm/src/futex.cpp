@@ -91,6 +91,58 @@ WaitResult wait_fallback(std::span<const WaitToken> tokens, std::chrono::nanosec
 
 std::atomic<int> g_waitv_state{0};  // 0 unknown, 1 supported, -1 not supported
 
+// futex_waitv on up to FUTEX_WAITV_MAX tokens, relative timeout (negative: forever).
+WaitResult wait_v(std::span<const WaitToken> tokens, std::chrono::nanoseconds timeout) {
+  futex_waitv w[FUTEX_WAITV_MAX];
+  std::memset(w, 0, tokens.size() * sizeof(w[0]));
+  for (std::size_t i = 0; i < tokens.size(); ++i) {
+    w[i].val = tokens[i].expected;
+    w[i].uaddr = reinterpret_cast<std::uintptr_t>(addr(tokens[i].word));
+    w[i].flags = FUTEX_32 | (tokens[i].process_private ? FUTEX_PRIVATE_FLAG : 0);
+  }
+  timespec abs{};
+  if (timeout.count() >= 0) abs = to_timespec(mono_now() + timeout);  // absolute, MONOTONIC
+  long rc = ::syscall(SYS_futex_waitv, w, static_cast<unsigned>(tokens.size()), 0u,
+                      timeout.count() < 0 ? nullptr : &abs, CLOCK_MONOTONIC);
+  if (rc >= 0) return WaitResult::woken;
+  switch (errno) {
+    case EAGAIN: return WaitResult::woken;
+    case EINTR: return WaitResult::woken;
+    case ETIMEDOUT: return WaitResult::timeout;
+    case ENOSYS:
+      g_waitv_state.store(-1, std::memory_order_relaxed);
+      return wait_fallback(tokens, timeout);
+    default: throw sys_error("futex_waitv", errno);
+  }
+}
+
+// More tokens than one futex_waitv takes. The kernel sleeps on the first FUTEX_WAITV_MAX
+// (the caller's first tokens: a node's doorbell and its first readers) for at most
+// kChunkStep at a time; between sleeps every word is compared with its expected value. No
+// wake-up is lost: a wake on a token outside the sleeping set always comes with a changed
+// word (futex protocol: the waker changes the word before waking), which the next
+// comparison sees, kChunkStep later at the latest.
+constexpr std::chrono::nanoseconds kChunkStep = std::chrono::milliseconds(1);
+
+WaitResult wait_chunked(std::span<const WaitToken> tokens, std::chrono::nanoseconds timeout) {
+  const auto deadline = mono_now() + timeout;
+  const auto head = tokens.first(FUTEX_WAITV_MAX);
+  for (;;) {
+    for (const auto& t : tokens)
+      if (t.word->load(std::memory_order_seq_cst) != t.expected) return WaitResult::woken;
+    auto step = kChunkStep;
+    if (timeout.count() >= 0) {
+      const auto left = deadline - mono_now();
+      if (left.count() <= 0) return WaitResult::timeout;
+      step = std::min(step, left);
+    }
+    if (wait_v(head, step) == WaitResult::woken) {
+      for (const auto& t : head)
+        if (t.word->load(std::memory_order_seq_cst) != t.expected) return WaitResult::woken;
+    }
+  }
+}
+
 }  // namespace
 
 int futex_wake_all(const std::atomic<std::uint32_t>* word) noexcept {
@@ -120,32 +172,9 @@ WaitResult wait_any(std::span<const WaitToken> tokens, std::chrono::nanoseconds 
     if (t.word == nullptr) throw Error(Errc::invalid_argument, "wait_any: null futex word");
   }
   if (tokens.size() == 1) return wait_one(tokens[0], timeout);
-  if (tokens.size() > FUTEX_WAITV_MAX) {
-    throw Error(Errc::invalid_argument, "wait_any: more than 128 tokens");
-  }
   if (!futex_waitv_supported()) return wait_fallback(tokens, timeout);
-
-  futex_waitv w[FUTEX_WAITV_MAX];
-  std::memset(w, 0, tokens.size() * sizeof(w[0]));
-  for (std::size_t i = 0; i < tokens.size(); ++i) {
-    w[i].val = tokens[i].expected;
-    w[i].uaddr = reinterpret_cast<std::uintptr_t>(addr(tokens[i].word));
-    w[i].flags = FUTEX_32 | (tokens[i].process_private ? FUTEX_PRIVATE_FLAG : 0);
-  }
-  timespec abs{};
-  if (timeout.count() >= 0) abs = to_timespec(mono_now() + timeout);  // absolute, MONOTONIC
-  long rc = ::syscall(SYS_futex_waitv, w, static_cast<unsigned>(tokens.size()), 0u,
-                      timeout.count() < 0 ? nullptr : &abs, CLOCK_MONOTONIC);
-  if (rc >= 0) return WaitResult::woken;
-  switch (errno) {
-    case EAGAIN: return WaitResult::woken;
-    case EINTR: return WaitResult::woken;
-    case ETIMEDOUT: return WaitResult::timeout;
-    case ENOSYS:
-      g_waitv_state.store(-1, std::memory_order_relaxed);
-      return wait_fallback(tokens, timeout);
-    default: throw sys_error("futex_waitv", errno);
-  }
+  if (tokens.size() > FUTEX_WAITV_MAX) return wait_chunked(tokens, timeout);
+  return wait_v(tokens, timeout);
 }
 
 }  // namespace lcmx::shm

@@ -1,7 +1,11 @@
 // Discovery: beacon codec against hostile input, and two participants on a test group
 // (join, update, goodbye, lease expiry, observer query).
+#include <signal.h>
+#include <sys/prctl.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <cstring>
@@ -203,4 +207,83 @@ TEST_CASE("malformed datagrams on the beacon channel are counted, not fatal", "[
   g.publish(lcmx::discovery::kBeaconChannel, bad);
   REQUIRE(eventually([&] { return a.counters().malformed >= 2; }));
   CHECK(a.participants().empty());
+}
+
+TEST_CASE("a peer's process that exits is gone at once (pidfd) - a reused pid or another pid namespace is not watched",
+          "[discovery][liveness]") {
+  lcmx::discovery::Options o;
+  o.group = test_group(3);
+  o.period = 50ms;
+  std::mutex mu;
+  std::vector<std::pair<lcmx::discovery::Change, std::int64_t>> seen;
+  auto left = [&](std::int64_t id) {
+    std::lock_guard lock(mu);
+    return std::count_if(seen.begin(), seen.end(), [&](auto& s) {
+      return s.first == lcmx::discovery::Change::left && s.second == id;
+    });
+  };
+  // A child process that only waits to be killed (forked before any thread of ours).
+  const pid_t child = ::fork();
+  REQUIRE(child >= 0);
+  if (child == 0) {
+    ::prctl(PR_SET_PDEATHSIG, SIGKILL);  // never outlives the test
+    for (;;) ::pause();
+  }
+  // Kills and reaps the child on every exit path; never signals anything but a real child
+  // pid (kill(-1) would signal every process of the user).
+  struct Reap {
+    pid_t pid;
+    void now() {
+      if (pid > 0) {
+        ::kill(pid, SIGKILL);
+        ::waitpid(pid, nullptr, 0);
+      }
+      pid = 0;
+    }
+    ~Reap() { now(); }
+  } reap{child};
+  REQUIRE(eventually([&] { return lcmx::discovery::process_start_time(child) != 0; }));
+
+  lcmx::discovery::Discovery a(o, [] { return sample_beacon(1); },
+                               [&](lcmx::discovery::Change c, const lcmx::discovery::Participant& p) {
+                                 std::lock_guard lock(mu);
+                                 seen.push_back({c, p.beacon.participant_id});
+                               });
+  auto g = lcmx::udpm::Group::open(o.group);
+  const auto own_ns = static_cast<std::int64_t>(lcmx::discovery::pid_namespace());
+  std::int64_t seq = 0;
+  auto announce = [&](std::int64_t id, pid_t pid, std::uint64_t start, std::int64_t pidns) {
+    auto b = sample_beacon(id);
+    b.pid = pid;
+    b.start_time = static_cast<std::int64_t>(start);
+    b.pid_namespace = pidns;
+    b.lease_ms = 10000;  // far longer than this test: a departure seen is not the lease
+    b.sequence = ++seq;
+    g.publish(lcmx::discovery::kBeaconChannel, lcmx::discovery::encode_beacon(b));
+  };
+  const auto child_start = lcmx::discovery::process_start_time(child);
+  announce(10, child, child_start, own_ns);        // the child, watched
+  announce(11, child, child_start, own_ns + 1);    // "the same pid" in another pid namespace
+  announce(12, ::getpid(), lcmx::discovery::process_start_time(::getpid()) + 1, own_ns);  // pid reused
+  announce(13, ::getpid(), lcmx::discovery::process_start_time(::getpid()), own_ns);      // us, alive
+  REQUIRE(eventually([&] { return a.counters().beacons_received >= 4; }));
+  // The reused pid names another process: gone at once.
+  CHECK(eventually([&] { return left(12) == 1; }, 2000ms));
+  reap.now();
+  const auto t0 = std::chrono::steady_clock::now();
+  REQUIRE(eventually([&] { return left(10) == 1; }, 3000ms));
+  const auto took = std::chrono::steady_clock::now() - t0;
+  CHECK(took < 1000ms);
+  CHECK(a.counters().exits_seen == 2);
+  // Its late beacon does not bring it back.
+  announce(10, child, child_start, own_ns);
+  announce(13, ::getpid(), lcmx::discovery::process_start_time(::getpid()), own_ns);
+  REQUIRE(eventually([&] { return a.counters().beacons_received >= 6; }));
+  auto ids = a.participants();
+  std::vector<std::int64_t> present;
+  for (const auto& p : ids) present.push_back(p.beacon.participant_id);
+  std::sort(present.begin(), present.end());
+  CHECK(present == std::vector<std::int64_t>{11, 13});  // other pid namespace: lease only
+  CHECK(left(11) == 0);
+  CHECK(left(13) == 0);
 }

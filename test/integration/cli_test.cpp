@@ -172,5 +172,5 @@ TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye) - a kill -9 aft
 }
 
 #else
-TEST_CASE("lcmx tool tests", "[integration][cli]") { WARN("lcmx tool not built (LCMX_BUILD_APPS=OFF)") - }
+TEST_CASE("lcmx tool tests", "[integration][cli]") { WARN("lcmx tool not built (LCMX_BUILD_APPS=OFF)"); }
 #endif

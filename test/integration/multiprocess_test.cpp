@@ -102,7 +102,7 @@ TEST_CASE("late publisher: a subscriber waiting first gets every message", "[int
   CHECK(fin.str("paths") == "shm");
 }
 
-TEST_CASE("publisher killed -9: subscribers live on - segment reclaimed - unmatched after the lease",
+TEST_CASE("publisher killed -9: subscribers live on - segment reclaimed - unmatched when its process exits",
           "[integration]") {
   Session s(3);
   const auto a = unique_channel("KILLPUB_A", 3);
@@ -126,10 +126,10 @@ TEST_CASE("publisher killed -9: subscribers live on - segment reclaimed - unmatc
   const long long b0 = of(sub.summaries("status"), b).num("received");
   REQUIRE(poll_sub(sub, b, [&](const Summary& x) { return x.num("received") >= b0 + 40; }, 10000ms));
 
-  // Unmatched after the lease (not before: no goodbye was sent).
+  // Unmatched: no goodbye was sent, but its process exit is seen (pidfd; the lease would do
+  // it too, lifecycle_test.cpp checks it is the exit).
   REQUIRE(sub.wait_seen("EVENT publisher_unmatched " + a, 5000ms));
-  const auto after = std::chrono::duration_cast<ms>(Clock::now() - killed_at);
-  CHECK(after >= s.lease_ms - 150ms);
+  INFO("unmatched " << std::chrono::duration_cast<ms>(Clock::now() - killed_at).count() << " ms after the kill");
   const auto st = of(sub.summaries("status"), a);
   CHECK(st.num("publishers") == 0);
   CHECK(st.num("duplicates") == 0);

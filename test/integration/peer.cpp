@@ -13,6 +13,8 @@
 //     "MATCHED". Exits when every channel received --expect messages (N > 0), or on "quit".
 //     "status" on stdin prints the summary without exiting.
 //   idle --channel C --type ...   advertise (and with --local-sub subscribe), "READY", wait for "quit".
+//   many --channel C --topics N --count R   raw publishers on C_0..C_<N-1>, each matched, then R
+//        rounds of one 8-byte message per channel; "PUBLISHED <n>", wait for "quit".
 //
 // Summary, one line per channel, then "END":
 //   SUMMARY channel=C received=R first=F last=L duplicates=D out_of_order=O gaps=G drops=X
@@ -90,6 +92,7 @@ const char* kind_name(lcmx::Event::Kind k) {
     case lcmx::Event::Kind::publisher_unmatched: return "publisher_unmatched";
     case lcmx::Event::Kind::participant_joined: return "participant_joined";
     case lcmx::Event::Kind::participant_left: return "participant_left";
+    case lcmx::Event::Kind::error: return "error";
   }
   return "?";
 }
@@ -149,6 +152,7 @@ struct Config {
   std::size_t queue_depth = 16;
   std::uint32_t shm_slots = 8;
   std::size_t initial_slot = 4096;
+  int topics = 1;
 };
 
 // What one subscriber saw.
@@ -471,12 +475,45 @@ int run_idle(const Config& cfg, lcmx::Runtime& rt, Stdin& in, Clock::time_point 
   return 0;
 }
 
+// Raw publishers on `--topics` channels "<channel>_<k>": waits (deadline) until each has a
+// subscriber, prints "MATCHED", publishes --count rounds (one message per channel each: the
+// round number as 8 bytes), prints "PUBLISHED <n>", then waits for "quit".
+int run_many(const Config& cfg, lcmx::Runtime& rt, Clock::time_point deadline) {
+  auto node = rt.create_node(cfg.node);
+  std::vector<lcmx::RawPublisher> pubs;
+  for (int k = 0; k < cfg.topics; ++k)
+    pubs.push_back(node.advertise_raw(cfg.channels.at(0) + "_" + std::to_string(k)));
+  say("READY");
+  for (auto& p : pubs)
+    while (!p.wait_for_subscribers(1, 50ms))
+      if (deadline_passed(deadline) || g_quit) {
+        say("TIMEOUT waiting for subscribers on " + p.channel());
+        return 3;
+      }
+  say("MATCHED " + std::to_string(pubs.size()));
+  std::uint64_t n = 0;
+  for (std::int64_t round = 0; round < cfg.count; ++round)
+    for (auto& p : pubs) {
+      std::byte data[8];
+      std::memcpy(data, &round, sizeof data);
+      p.publish(data);
+      ++n;
+    }
+  say("PUBLISHED " + std::to_string(n));
+  while (!g_quit) {
+    if (deadline_passed(deadline)) return 3;
+    std::this_thread::sleep_for(5ms);
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"lcmx_test_peer: a participant for lcmx's integration tests"};
   Config cfg;
-  app.add_option("role", cfg.role, "pub | sub | idle")->required()->check(CLI::IsMember({"pub", "sub", "idle"}));
+  app.add_option("role", cfg.role, "pub | sub | idle | many")->required()->check(CLI::IsMember({"pub", "sub", "idle", "many"}));
+  app.add_option("--topics", cfg.topics, "many: raw publishers on <channel>_0 .. <channel>_<topics-1>");
   app.add_option("--channel", cfg.channels, "channel (sub: may repeat)");
   app.add_option("--type", cfg.type, "pose | image | bench")->check(CLI::IsMember({"pose", "image", "bench"}));
   app.add_option("--id", cfg.id, "publisher tag carried in every message");
@@ -516,6 +553,7 @@ int main(int argc, char** argv) {
     int rc = 0;
     if (cfg.role == "pub") rc = run_pub(cfg, rt, in, deadline);
     else if (cfg.role == "sub") rc = run_sub(cfg, rt, in, deadline);
+    else if (cfg.role == "many") rc = run_many(cfg, rt, deadline);
     else rc = run_idle(cfg, rt, in, deadline);
     rt.on_event(nullptr);
     return rc;

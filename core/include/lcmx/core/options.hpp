@@ -89,8 +89,11 @@ struct RuntimeOptions {
   std::vector<std::string> mirror_channels;
   // Per-channel class overrides (channel name -> class).
   std::map<std::string, TopicClass> topic_class;
-  std::chrono::milliseconds beacon_period{1000};
-  std::chrono::milliseconds lease{3500};
+  // Liveness (DESIGN.md "Leases"): a participant of another host is gone after `lease`
+  // without a beacon (3 beacons fit in it); one of this host (same pid namespace) is gone
+  // as soon as its process exits (pidfd), its lease still covers a hung process.
+  std::chrono::milliseconds beacon_period{400};
+  std::chrono::milliseconds lease{1500};
   bool reclaim_orphans = true;  // remove shm segments of dead processes at start
 
   // This participant is a Message Bridge (`lcmx bridge`): its beacons carry FLAG_BRIDGE, its

@@ -13,6 +13,7 @@
 
 #include <chrono>
 #include <memory>
+#include <optional>
 #include <span>
 
 #include "lcmx/core/detail/endpoint.hpp"
@@ -59,15 +60,43 @@ class Publisher : public detail::PublisherHandle {
 
 // A slot loaned from shared memory by RawPublisher::loan(): write at data(), then
 // RawPublisher::publish(std::move(loan), size). Dropped unpublished: nothing is sent.
+// Ownership: the Loan keeps its publisher (and its shared memory) alive, so it may outlive
+// the RawPublisher handle it came from; it is then only dropped (nothing can publish it).
+// Contract: one Loan per publisher at a time. While it is out, publish() and loan() of the
+// same publisher from other threads wait until it is published or dropped; from the thread
+// that took it they throw lcmx::Error(invalid_argument) (waiting would never end).
 class Loan {
  public:
-  std::byte* data() const noexcept { return loan_.data(); }
-  std::size_t capacity() const noexcept { return loan_.capacity(); }
+  Loan() = default;  // empty
+  Loan(Loan&& other) noexcept : owner_(std::move(other.owner_)), loan_(std::move(other.loan_)) {
+    other.loan_.reset();
+  }
+  Loan& operator=(Loan&& other) noexcept {
+    if (this != &other) {
+      release();
+      owner_ = std::move(other.owner_);
+      loan_ = std::move(other.loan_);
+      other.loan_.reset();
+    }
+    return *this;
+  }
+  ~Loan() { release(); }
+
+  std::byte* data() const noexcept { return loan_ ? loan_->data() : nullptr; }
+  std::size_t capacity() const noexcept { return loan_ ? loan_->capacity() : 0; }
+  explicit operator bool() const noexcept { return owner_ != nullptr; }
 
  private:
   friend class RawPublisher;
-  explicit Loan(shm::WriteLoan l) : loan_(std::move(l)) {}
-  shm::WriteLoan loan_;
+  Loan(std::shared_ptr<detail::PublisherCore> owner, shm::WriteLoan l)
+      : owner_(std::move(owner)), loan_(std::move(l)) {}
+  void release() noexcept {
+    if (owner_ && loan_) owner_->drop_loan(std::move(*loan_));
+    owner_.reset();
+    loan_.reset();
+  }
+  std::shared_ptr<detail::PublisherCore> owner_;  // first: outlives loan_
+  std::optional<shm::WriteLoan> loan_;            // empty in an empty Loan
 };
 
 class RawPublisher : public detail::PublisherHandle {
@@ -77,8 +106,17 @@ class RawPublisher : public detail::PublisherHandle {
   // Copies `data` once: into a shm slot and/or one buffer shared by in-process subscribers.
   void publish(std::span<const std::byte> data) { core_->publish_bytes(data); }
   // Zero-copy: write straight into a shared-memory slot of at least `size` bytes.
-  Loan loan(std::size_t size) { return Loan(core_->loan(size)); }
-  void publish(Loan&& loan, std::size_t size) { core_->publish_loan(std::move(loan.loan_), size); }
+  Loan loan(std::size_t size) { return Loan(core_, core_->loan(size)); }
+  // Throws Error(invalid_argument) for an empty Loan or one of another publisher (the Loan
+  // is then left as it was).
+  void publish(Loan&& loan, std::size_t size) {
+    if (!loan.owner_ || !loan.loan_ || loan.owner_ != core_)
+      throw Error(Errc::invalid_argument, "publish on '" + core_->channel() +
+                                              "': the Loan is empty or of another publisher");
+    core_->publish_loan(std::move(*loan.loan_), size);
+    loan.owner_.reset();
+    loan.loan_.reset();
+  }
 
  private:
   friend class Node;

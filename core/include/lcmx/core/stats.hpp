@@ -34,6 +34,10 @@ struct Event {
     publisher_unmatched,  // ... no longer (publisher gone, lease expired)
     participant_joined,
     participant_left,
+    // A fault lcmx survived at run time: an exception on an executor thread, a publisher's
+    // shared memory that cannot be opened (the pair then uses another path or none). The
+    // message says what.
+    error,
   };
   Kind kind;
   std::string channel;  // empty for participant events

@@ -5,7 +5,9 @@
 //    `period` otherwise, and a goodbye when it stops;
 //  - answers an observer's query (FLAG_QUERY) with a beacon at once;
 //  - receives other participants' beacons, ignores its own, and declares a participant gone
-//    after its lease (the lease it announced) or at once on its goodbye.
+//    after its lease (the lease it announced) or at once on its goodbye;
+//  - in host scope, watches each peer's process (pidfd, same pid namespace) and declares it
+//    gone as soon as the process exits.
 // Observers (the lcmx tool) send only queries, never appear as participants.
 //
 // Threads: on_change is called on the discovery thread, never concurrently with itself; it
@@ -33,9 +35,13 @@ struct Options {
   // hands beacon-channel messages to deliver().
   std::shared_ptr<udpm::Group> shared_group;
   std::int8_t scope = lcmx_msgs::beacon_t::SCOPE_HOST;  // written into every beacon
-  std::chrono::milliseconds period{1000};           // periodic beacon
-  std::chrono::milliseconds lease{3500};            // announced; others drop us after this
+  std::chrono::milliseconds period{400};            // periodic beacon
+  std::chrono::milliseconds lease{1500};            // announced; others drop us after this
   bool observer = false;                            // query only, never announce
+  // Host scope: a peer in our pid namespace is watched with a pidfd (pid + start time from
+  // its beacon, so a reused pid is never taken for it) and declared gone as soon as its
+  // process exits, not only after its lease. Peers in other pid namespaces: lease only.
+  bool watch_processes = true;
 };
 
 // What is known about another participant: its latest beacon and when it arrived.
@@ -51,6 +57,7 @@ struct Counters {
   std::uint64_t beacons_received = 0;
   std::uint64_t malformed = 0;
   std::uint64_t leases_expired = 0;
+  std::uint64_t exits_seen = 0;  // peers declared gone because their process exited (pidfd)
   std::uint64_t goodbyes = 0;
 };
 

@@ -21,9 +21,13 @@ enum class WaitResult { woken, timeout };
 
 // Sleeps until any token's word differs from its expected value, a wake-up on one of them,
 // or the timeout (negative = forever). May return woken spuriously. Uses futex_waitv (Linux
-// >= 5.16) for several tokens; with one token, plain FUTEX_WAIT. On kernels without
-// futex_waitv and several tokens, waits on the first token and returns at least every 1 ms
-// (documented fallback, costs a little CPU when idle).
+// >= 5.16) for several tokens; with one token, plain FUTEX_WAIT. Any number of tokens: above
+// the 128 futex_waitv takes, the kernel sleeps on the first 128 and the others' words are
+// compared every 1 ms (a change there is seen at most 1 ms late, never lost; costs a little
+// CPU when idle). On kernels without futex_waitv and several tokens, waits on the first token
+// and returns at least every 1 ms (same costs).
+// Throws Error(invalid_argument) for no token or a null word, Error(system) on an unexpected
+// errno.
 WaitResult wait_any(std::span<const WaitToken> tokens, std::chrono::nanoseconds timeout);
 
 bool futex_waitv_supported() noexcept;

@@ -113,8 +113,13 @@ class PublisherCore {
   virtual void publish_shared(std::shared_ptr<const void> object) = 0;
   // Raw bytes (an LCM encoding, with its fingerprint, or any payload on a raw channel).
   virtual void publish_bytes(std::span<const std::byte> data) = 0;
+  // One Loan per publisher at a time (the shm Writer lends one slot). While it is out,
+  // publish_*() and loan() from other threads wait until it is published or dropped; from
+  // the thread that took it they throw Error(invalid_argument) (they would wait forever).
   virtual shm::WriteLoan loan(std::size_t size) = 0;
   virtual void publish_loan(shm::WriteLoan&& loan, std::size_t size) = 0;
+  // The Loan was dropped unpublished: gives the slot back and lets waiting publishers on.
+  virtual void drop_loan(shm::WriteLoan&& loan) noexcept = 0;
 
   virtual std::size_t subscriber_count() const = 0;
   virtual bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const = 0;

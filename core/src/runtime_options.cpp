@@ -1,0 +1,79 @@
+// RuntimeOptions::from_env: defaults overridden by LCMX_* environment variables.
+#include <algorithm>
+#include <cerrno>
+#include <cstdlib>
+#include <string>
+#include <utility>
+
+#include "lcmx/core/error.hpp"
+#include "lcmx/core/options.hpp"
+
+namespace lcmx {
+
+namespace {
+long env_number(const char* name, long fallback, long min, long max) {
+  const char* v = std::getenv(name);
+  if (!v || !*v) return fallback;
+  char* end = nullptr;
+  errno = 0;
+  const long n = std::strtol(v, &end, 10);
+  if (errno || end == v || *end || n < min || n > max)
+    throw Error(Errc::invalid_argument, std::string(name) + "='" + v + "': expected an integer in [" +
+                                            std::to_string(min) + ", " + std::to_string(max) + "]");
+  return n;
+}
+}  // namespace
+
+RuntimeOptions RuntimeOptions::from_env() {
+  RuntimeOptions o;
+  if (const char* url = std::getenv("LCMX_DISCOVERY_URL"); url && *url) o.discovery_url = url;
+  if (const char* url = std::getenv("LCMX_VEHICLE_URL"); url && *url) o.vehicle_url = url;
+  if (const char* v = std::getenv("LCMX_VEHICLE_PUBLISH"); v && *v) {
+    const std::string s = v;
+    if (s == "always") o.vehicle_publish = VehiclePublish::always;
+    else if (s == "on_demand") o.vehicle_publish = VehiclePublish::on_demand;
+    else throw Error(Errc::invalid_argument, "LCMX_VEHICLE_PUBLISH='" + s + "': expected on_demand or always");
+  }
+  o.udp_limit = static_cast<std::size_t>(env_number("LCMX_UDP_LIMIT", static_cast<long>(o.udp_limit), 1, 1L << 28));
+  if (const char* v = std::getenv("LCMX_MIRROR"); v && *v) {
+    const std::string s = v;
+    if (s == "1") {
+      o.mirror = true;
+    } else if (s != "0") {
+      o.mirror = false;
+      for (std::size_t pos = 0; pos <= s.size();) {
+        const auto comma = std::min(s.find(',', pos), s.size());
+        auto glob = s.substr(pos, comma - pos);
+        glob.erase(0, glob.find_first_not_of(" \t"));
+        glob.erase(glob.find_last_not_of(" \t") + 1);
+        if (glob.empty() || glob.size() > 255)
+          throw Error(Errc::invalid_argument,
+                      "LCMX_MIRROR='" + s + "': expected 0, 1 or comma-separated channel patterns "
+                      "(e.g. CAM_*,POSE) with no empty entry");
+        o.mirror_channels.push_back(glob);
+        pos = comma + 1;
+      }
+    }
+  }
+  for (auto [var, cls] : {std::pair{"LCMX_LARGE_TOPICS", TopicClass::large},
+                          std::pair{"LCMX_SMALL_TOPICS", TopicClass::small}}) {
+    const char* v = std::getenv(var);
+    if (!v) continue;
+    std::string list = v;
+    for (std::size_t pos = 0; pos <= list.size();) {
+      const auto comma = std::min(list.find(',', pos), list.size());
+      const auto name = list.substr(pos, comma - pos);
+      if (!name.empty()) {
+        if (name.size() > kMaxChannelLength)
+          throw Error(Errc::invalid_argument, std::string(var) + ": channel '" + name + "' is longer than 63 bytes");
+        o.topic_class[name] = cls;
+      }
+      pos = comma + 1;
+    }
+  }
+  o.beacon_period = std::chrono::milliseconds(env_number("LCMX_BEACON_PERIOD_MS", o.beacon_period.count(), 10, 60000));
+  o.lease = std::chrono::milliseconds(env_number("LCMX_LEASE_MS", o.lease.count(), 50, 600000));
+  return o;
+}
+
+}  // namespace lcmx

@@ -1,0 +1,109 @@
+// RuntimeOptions::from_env (core/src/runtime_options.cpp) on its own: defaults, each variable,
+// and a clear error naming a bad one.
+#include <catch2/catch.hpp>
+#include <cstdlib>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "lcmx/core.hpp"
+
+namespace {
+
+// Sets variables for one test and restores the previous environment afterwards.
+class Env {
+ public:
+  Env() {
+    for (const char* v : kVars) {
+      const char* old = std::getenv(v);
+      saved_.push_back(old ? std::optional<std::string>(old) : std::nullopt);
+      ::unsetenv(v);
+    }
+  }
+  ~Env() {
+    for (std::size_t i = 0; i < std::size(kVars); ++i) {
+      if (saved_[i]) ::setenv(kVars[i], saved_[i]->c_str(), 1);
+      else ::unsetenv(kVars[i]);
+    }
+  }
+  void set(const char* name, const char* value) { ::setenv(name, value, 1); }
+
+ private:
+  static constexpr const char* kVars[] = {
+      "LCMX_DISCOVERY_URL", "LCMX_VEHICLE_URL", "LCMX_VEHICLE_PUBLISH", "LCMX_UDP_LIMIT",
+      "LCMX_MIRROR",        "LCMX_LARGE_TOPICS", "LCMX_SMALL_TOPICS",   "LCMX_BEACON_PERIOD_MS",
+      "LCMX_LEASE_MS"};
+  std::vector<std::optional<std::string>> saved_;
+};
+
+std::string error_of(const std::function<void()>& f) {
+  try {
+    f();
+  } catch (const lcmx::Error& e) {
+    CHECK(e.code() == lcmx::Errc::invalid_argument);
+    return e.what();
+  }
+  return "";
+}
+
+}  // namespace
+
+TEST_CASE("RuntimeOptions::from_env: no variable set gives the defaults", "[core][options]") {
+  Env env;
+  const auto o = lcmx::RuntimeOptions::from_env();
+  const lcmx::RuntimeOptions d;
+  CHECK(o.discovery_url == d.discovery_url);
+  CHECK(o.vehicle_url.empty());
+  CHECK(o.lease == d.lease);
+  CHECK(o.beacon_period == d.beacon_period);
+  CHECK(o.udp_limit == d.udp_limit);
+  CHECK_FALSE(o.mirror);
+  CHECK(o.topic_class.empty());
+}
+
+TEST_CASE("RuntimeOptions::from_env: every variable is read", "[core][options]") {
+  Env env;
+  env.set("LCMX_DISCOVERY_URL", "udpm://239.255.1.2:7000?ttl=0");
+  env.set("LCMX_VEHICLE_URL", "udpm://239.255.1.3:7001?ttl=1&iface=lo");
+  env.set("LCMX_VEHICLE_PUBLISH", "always");
+  env.set("LCMX_UDP_LIMIT", "1000");
+  env.set("LCMX_MIRROR", "CAM_*, POSE");
+  env.set("LCMX_LARGE_TOPICS", "IMG,,LIDAR");
+  env.set("LCMX_SMALL_TOPICS", "ODOM");
+  env.set("LCMX_BEACON_PERIOD_MS", "250");
+  env.set("LCMX_LEASE_MS", "900");
+  const auto o = lcmx::RuntimeOptions::from_env();
+  CHECK(o.discovery_url == "udpm://239.255.1.2:7000?ttl=0");
+  CHECK(o.vehicle_url == "udpm://239.255.1.3:7001?ttl=1&iface=lo");
+  CHECK(o.vehicle_publish == lcmx::VehiclePublish::always);
+  CHECK(o.udp_limit == 1000);
+  CHECK_FALSE(o.mirror);
+  CHECK(o.mirror_channels == std::vector<std::string>{"CAM_*", "POSE"});
+  CHECK(o.topic_class.size() == 3);
+  CHECK(o.topic_class.at("IMG") == lcmx::TopicClass::large);
+  CHECK(o.topic_class.at("LIDAR") == lcmx::TopicClass::large);
+  CHECK(o.topic_class.at("ODOM") == lcmx::TopicClass::small);
+  CHECK(o.beacon_period == std::chrono::milliseconds(250));
+  CHECK(o.lease == std::chrono::milliseconds(900));
+  env.set("LCMX_MIRROR", "1");
+  CHECK(lcmx::RuntimeOptions::from_env().mirror);
+}
+
+TEST_CASE("RuntimeOptions::from_env: a bad value is an invalid_argument naming the variable", "[core][options]") {
+  Env env;
+  auto bad = [&](const char* name, const char* value) {
+    Env inner;
+    inner.set(name, value);
+    const auto what = error_of([] { lcmx::RuntimeOptions::from_env(); });
+    INFO(name << "=" << value << ": " << what);
+    CHECK(what.find(name) != std::string::npos);
+  };
+  bad("LCMX_LEASE_MS", "abc");
+  bad("LCMX_LEASE_MS", "10");  // below 50
+  bad("LCMX_BEACON_PERIOD_MS", "-1");
+  bad("LCMX_UDP_LIMIT", "0");
+  bad("LCMX_VEHICLE_PUBLISH", "sometimes");
+  bad("LCMX_MIRROR", "CAM_*,,POSE");
+  bad("LCMX_LARGE_TOPICS", std::string(64, 'X').c_str());
+}
