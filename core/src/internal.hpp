@@ -32,6 +32,9 @@ struct Match {
   Path path = Path::intra;
   std::shared_ptr<PairCounters> stats = std::make_shared<PairCounters>();
   std::unique_ptr<shm::Reader> reader;  // shm path; used by the executor only
+  // Samples found not intact (ReadSample::intact): counted in stats->drops with the
+  // reader's. Executor only (the subscriber's `busy` held).
+  std::uint64_t torn = 0;
   bool foreign = false;                 // udp from a non-lcmx sender (stock LCM program)
   // The publisher left: the executor reads what it committed, then drops the match.
   std::atomic<bool> retiring{false};
@@ -163,8 +166,8 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   const RuntimeOptions options;
   const std::uint64_t participant_id;
   const std::uint64_t host;
-  std::string own_shm_prefix;   // "lcmx_<tag hex>_": tag = host id mixed with the pid namespace
-  std::string shm_base_prefix;  // own_shm_prefix + "<pid>_"
+  std::string own_shm_prefix;   // "lcmx_<host id hex>_"
+  std::string shm_base_prefix;  // own_shm_prefix + shm::process_tag() + "_" ("<pid>n<pidns>_")
   std::shared_ptr<udpm::Group> local_group;    // host-local group (always)
   std::shared_ptr<udpm::Group> vehicle_group;  // vehicle group (null: single host)
   // Configured class, else large when a bridge of this host carries the channel, else automatic.
@@ -280,6 +283,9 @@ class PublisherImpl final : public PublisherCore {
   std::size_t subscriber_count() const override;
   bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const override;
   std::uint64_t published() const override { return published_.load(); }
+  PublisherStats stats() const override {
+    return {published_.load(), shm_dropped_.load(std::memory_order_relaxed)};
+  }
   const std::string& channel() const override { return channel_; }
 
   // Runtime side (RuntimeImpl::mu held).
@@ -339,6 +345,9 @@ class PublisherImpl final : public PublisherCore {
   bool wants_vehicle() const;  // other hosts, over UDP (not while a bridge carries the topic)
   void note_size(std::size_t size);
   std::atomic<std::uint64_t> published_{0};
+  // shm::Writer::dropped(): messages no shm subscriber got because every slot was pinned.
+  // Written under publish_mu after each shm commit, read by stats() from any thread.
+  std::atomic<std::uint64_t> shm_dropped_{0};
 };
 
 // Whether an LCM encoding starts with `fingerprint` (big-endian). udp_receive.cpp.

@@ -259,16 +259,18 @@ std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
       }
       if (!s) break;
       m->stats->received.fetch_add(1, std::memory_order_relaxed);
-      if (sub.deliver_bytes({s->data(), s->size()})) {
+      bool torn = false;
+      if (sub.deliver_bytes({s->data(), s->size()}, &*s, &torn)) {
         sub.delivered.fetch_add(1, std::memory_order_relaxed);
         ++n;
       }
+      if (torn) ++m->torn;
       if (t_fanout_yield) {
         t_fanout_yield = false;
         ::sched_yield();
       }
     }
-    m->stats->drops.store(m->reader->drops(), std::memory_order_relaxed);
+    m->stats->drops.store(m->reader->drops() + m->torn, std::memory_order_relaxed);
   }
   // Publishers that left: once everything they committed has been read and their writer is
   // gone (closed, or its process dead), forget them. A writer whose process lives on (e.g.
@@ -378,10 +380,16 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     if (udp && armed.empty() && wait_udp(bell, deadline)) continue;
     sleepers.fetch_add(1, std::memory_order_seq_cst);
     bool ready = doorbell.load(std::memory_order_seq_cst) != bell;
-    for (auto& [sub, m] : armed) ready = ready || m->reader->has_data();
+    // A Reader backing off (a failed generation follow, a truncated file, a Writer seen
+    // inside a slot probe) has no commit to wake it: wake up when it may be polled again.
+    auto until = deadline;
+    for (auto& [sub, m] : armed) {
+      ready = ready || m->reader->has_data();
+      if (const auto r = m->reader->retry_at(); r != Clock::time_point{}) until = std::min(until, r);
+    }
     // The deadline may have passed since the check above: never hand wait_any a negative
     // timeout (which means forever).
-    const auto left = std::min<Clock::duration>(deadline - Clock::now(), std::chrono::seconds(1));
+    const auto left = std::min<Clock::duration>(until - Clock::now(), std::chrono::seconds(1));
     if (!ready && left > Clock::duration::zero()) {
       try {
         shm::wait_any(tokens, left);
@@ -512,8 +520,17 @@ bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
   return deliver_bytes(scratch_);
 }
 
-bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes) {
+// Zero-copy: the callback reads the slot itself, so intact() is checked before (a torn view
+// is withheld) and after it (the slot was rewritten or truncated during the callback: it may
+// have read a torn view; delivered, and counted as a drop).
+bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes,
+                                      const shm::ReadSample* sample, bool* torn) {
+  if (sample != nullptr && !sample->intact()) {
+    if (torn != nullptr) *torn = true;
+    return false;
+  }
   cb_(RawMessage{channel(), bytes});
+  if (sample != nullptr && !sample->intact() && torn != nullptr) *torn = true;
   return true;
 }
 

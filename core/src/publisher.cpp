@@ -143,6 +143,7 @@ void PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
 // A larger message moved the writer to a new segment generation: announce its name at once
 // so subscribers that join now open the right one.
 void PublisherImpl::note_generation() {
+  shm_dropped_.store(writer_->dropped(), std::memory_order_relaxed);
   if (writer_->segment_name() == announced_segment_) return;
   announced_segment_ = writer_->segment_name();
   node->runtime->changed();
@@ -234,6 +235,7 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
   };
   try {
     writer_->commit(std::move(loan), size);
+    shm_dropped_.store(writer_->dropped(), std::memory_order_relaxed);
   } catch (const shm::Error& e) {
     end();
     throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());

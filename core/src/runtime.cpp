@@ -29,12 +29,11 @@ std::string hex(std::uint64_t v) {
 RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     : options(std::move(o)), participant_id(discovery::random_participant_id()),
       host(discovery::host_id()) {
-  // The name tag mixes the pid namespace into the host id: processes of several pid
-  // namespaces sharing /dev/shm may have the same pid, never the same names.
-  const std::uint64_t pidns = discovery::pid_namespace();
-  const std::uint64_t tag = (host ^ (pidns * 0x9e3779b97f4a7c15ull)) | 1;
-  own_shm_prefix = std::string(shm::kPrefix) + hex(tag) + "_";
-  shm_base_prefix = own_shm_prefix + std::to_string(::getpid()) + "_";
+  // Segment names: "lcmx_<host id hex>_<pid>n<pid-namespace inode hex>_<endpoint>_g<N>".
+  // shm::process_tag() ("<pid>n<pidns>") keeps processes of several pid namespaces sharing
+  // /dev/shm (containers) apart: equal pids, never equal names.
+  own_shm_prefix = std::string(shm::kPrefix) + hex(host) + "_";
+  shm_base_prefix = own_shm_prefix + shm::process_tag() + "_";
   for (const auto& glob : options.bridge_carry)
     if (glob.empty() || glob.size() > 255)
       throw Error(Errc::invalid_argument, "bridge_carry: a topic pattern must have 1..255 characters");
@@ -43,7 +42,8 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     if (glob.empty() || glob.size() > 255)
       throw Error(Errc::invalid_argument, "mirror_channels: a channel pattern must have 1..255 characters");
   if (options.reclaim_orphans) {
-    // Only segments of this pid namespace (name tag): their owners' pids mean something here.
+    // Segments of this host id, whatever pid namespace made them: liveness is the Writer's
+    // OFD lock (exact across pid namespaces), never a pid.
     const auto r = shm::reclaim_orphans(own_shm_prefix);
     if (r.removed > 0) spdlog::info("lcmx: removed {} shared-memory segments of dead processes", r.removed);
   }

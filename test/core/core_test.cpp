@@ -85,7 +85,7 @@ TEST_CASE("intra-process subscriber gets the publisher's pointer", "[core][intra
   CHECK(stats.publishers[0].path == lcmx::Path::intra);
 }
 
-TEST_CASE("publish(const T&) copies once for all in-process subscribers; every object is destroyed",
+TEST_CASE("publish(const T&) copies once for all in-process subscribers and every object is destroyed",
           "[core][intra]") {
   Counted::reset();
   {
@@ -227,7 +227,7 @@ TEST_CASE("raw and typed endpoints interoperate through the LCM encoding", "[cor
   CHECK(typed_sub.stats().decode_errors == 1);
 }
 
-TEST_CASE("spin_once is for manual nodes; it returns the callbacks it ran", "[core][executor]") {
+TEST_CASE("spin_once is for manual nodes and returns the callbacks it ran", "[core][executor]") {
   auto rt = lcmx::Runtime::create(test_options());
   auto threaded = rt.create_node("t");
   CHECK_THROWS_AS(threaded.spin_once(0ms), lcmx::Error);

@@ -63,10 +63,11 @@ inline std::string unique_channel(const std::string& base, int index) {
 
 inline bool shm_exists(const std::string& name) { return ::access(("/dev/shm/" + name).c_str(), F_OK) == 0; }
 
-// lcmx segment names: "lcmx_<host hex>_<pid>_<endpoint>_g<N>". Those created by `pid`.
+// lcmx segment names: "lcmx_<host hex>_<pid>n<pidns hex>_<endpoint>_g<N>" (shm::process_tag).
+// Those created by `pid` (in any pid namespace).
 inline std::vector<std::string> shm_segments_of(pid_t pid) {
   std::vector<std::string> out;
-  const std::string mid = "_" + std::to_string(pid) + "_";
+  const std::string mid = "_" + std::to_string(pid) + "n";
   if (DIR* d = ::opendir("/dev/shm")) {
     while (const dirent* e = ::readdir(d)) {
       const std::string n = e->d_name;

@@ -31,6 +31,8 @@ class PublisherHandle {
     return core_->wait_for_subscribers(n, timeout);
   }
   std::uint64_t published() const { return core_->published(); }
+  // Counters (thread-safe): published, and shm_dropped (see PublisherStats).
+  PublisherStats stats() const { return core_->stats(); }
   const std::string& channel() const { return core_->channel(); }
   explicit operator bool() const { return core_ != nullptr; }
 

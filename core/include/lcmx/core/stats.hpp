@@ -19,6 +19,14 @@ struct PairStats {
   std::uint64_t drops = 0;
 };
 
+struct PublisherStats {
+  std::uint64_t published = 0;    // publish() calls that completed (every path)
+  // Messages no subscriber of other processes got because every shared-memory slot was
+  // pinned by lagging zero-copy readers (shm::Writer::dropped()); those subscribers count
+  // them in their drops too. publish() never throws for this.
+  std::uint64_t shm_dropped = 0;
+};
+
 struct SubscriberStats {
   std::uint64_t delivered = 0;      // callbacks run
   std::uint64_t drops = 0;          // lost over all pairs

@@ -49,7 +49,8 @@ class TypedSubscriberCore final : public SubscriberCore {
     return deliver_bytes(bytes);
   }
 
-  bool deliver_bytes(std::span<const std::byte> bytes) override {
+  bool deliver_bytes(std::span<const std::byte> bytes, const shm::ReadSample* sample = nullptr,
+                     bool* torn = nullptr) override {
     // Reuse the last decoded object when nobody kept it: decoding into the same object
     // reuses its buffers (no allocation for same-sized images).
     if (!scratch_ || scratch_.use_count() > 1) scratch_ = std::make_shared<T>();
@@ -58,6 +59,12 @@ class TypedSubscriberCore final : public SubscriberCore {
       if (decode_errors.fetch_add(1) == 0)
         spdlog::error("lcmx: channel '{}': a message did not decode as {} (wrong type?)",
                       channel(), T::getTypeName());
+      return false;
+    }
+    // Decoded from shared memory: if the slot was rewritten (or the file truncated) while we
+    // read it, the object may mix two messages. Withheld; the caller counts a drop.
+    if (sample != nullptr && !sample->intact()) {
+      if (torn != nullptr) *torn = true;
       return false;
     }
     if (shared_) shared_(std::const_pointer_cast<const T>(scratch_)); else ref_(*scratch_);
@@ -117,7 +124,8 @@ class RawSubscriberCore final : public SubscriberCore {
   RawSubscriberCore(std::string channel, SubscriberOptions o,
                     std::function<void(const RawMessage&)> cb);
   bool deliver_intra(const IntraItem& item) override;
-  bool deliver_bytes(std::span<const std::byte> bytes) override;
+  bool deliver_bytes(std::span<const std::byte> bytes, const shm::ReadSample* sample = nullptr,
+                     bool* torn = nullptr) override;
 
  private:
   std::function<void(const RawMessage&)> cb_;

@@ -13,8 +13,11 @@
 #include <string>
 #include <vector>
 
+#include "lcmx/shm/segment.hpp"
+
 #include "lcmx/core/error.hpp"
 #include "lcmx/core/options.hpp"
+#include "lcmx/core/stats.hpp"
 
 namespace lcmx {
 class Runtime;
@@ -77,7 +80,12 @@ class SubscriberCore {
   // Typed subscribers: the publisher's object (same type) or raw bytes to decode.
   // Raw subscribers: bytes, or a typed object to encode. Returns false if undecodable.
   virtual bool deliver_intra(const IntraItem& item) = 0;
-  virtual bool deliver_bytes(std::span<const std::byte> bytes) = 0;
+  // `sample`: the shm sample `bytes` views (nullptr: bytes of our own). Typed subscribers
+  // decode, then check sample->intact() before the callback; raw subscribers check it before
+  // and after their zero-copy callback. A sample found not intact sets `*torn` (a drop for
+  // the caller to count); withheld unless found only after a raw callback.
+  virtual bool deliver_bytes(std::span<const std::byte> bytes,
+                             const shm::ReadSample* sample = nullptr, bool* torn = nullptr) = 0;
 
   const std::string& channel() const { return channel_; }
   const TypeInfo& type() const { return type_; }
@@ -105,7 +113,6 @@ std::shared_ptr<const Bytes> make_bytes(std::span<const std::byte> data);
 }  // namespace detail
 }  // namespace lcmx
 
-#include "lcmx/shm/segment.hpp"
 
 namespace lcmx::detail {
 
@@ -131,6 +138,7 @@ class PublisherCore {
   virtual std::size_t subscriber_count() const = 0;
   virtual bool wait_for_subscribers(std::size_t n, std::chrono::milliseconds timeout) const = 0;
   virtual std::uint64_t published() const = 0;
+  virtual PublisherStats stats() const = 0;
   virtual const std::string& channel() const = 0;
 };
 
