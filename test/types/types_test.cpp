@@ -1,6 +1,7 @@
 // lcmx::types: parser, fingerprints against lcm-gen's getHash(), registry, parse errors.
 #include <catch2/catch.hpp>
 
+#include <chrono>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -157,6 +158,36 @@ TEST_CASE("a constant as array size is a fixed dimension hashed as the constant'
   CHECK(by_const[0].base_hash == literal[0].base_hash);
   // ...and the hash depends on the size as written.
   CHECK(parse("struct s { int32_t a[0x4]; }", "h.lcm")[0].base_hash != literal[0].base_hash);
+}
+
+TEST_CASE("a struct name may carry its package, as lcm-gen allows", "[unit]") {
+  const auto types = parse("package p;\nstruct q.r.s_t { t_t x; }", "q.lcm");
+  REQUIRE(types.size() == 1);
+  CHECK(types[0].package == "q.r");
+  CHECK(types[0].name == "s_t");
+  CHECK(types[0].members[0].type_name == "p.t_t");  // members: the file's package
+}
+
+TEST_CASE("deep type graphs hash in linear time", "[unit]") {
+  // 60 types, each with two members of the next: 2^60 paths, hashed once each type.
+  std::string text = "package deep;\nstruct t60 { int32_t leaf; }\n";
+  for (int i = 59; i >= 0; --i)
+    text += "struct t" + std::to_string(i) + " { t" + std::to_string(i + 1) + " a; t" +
+            std::to_string(i + 1) + " b; }\n";
+  const auto start = std::chrono::steady_clock::now();
+  const TypeRegistry r = TypeRegistry::load_texts({{"deep.lcm", text}});
+  CHECK(std::chrono::steady_clock::now() - start < std::chrono::seconds(2));
+  // Each level: rotl1(base + 2 * hash(next)).
+  std::uint64_t expect = 0;
+  for (int i = 60; i >= 0; --i) {
+    const StructType& t = r.at("deep.t" + std::to_string(i));
+    const std::uint64_t h = static_cast<std::uint64_t>(t.base_hash) + 2 * expect;
+    expect = (h << 1) | (h >> 63);
+    CHECK(t.fingerprint == expect);
+  }
+  CHECK(r.at("deep.t0").min_encoded_size == (std::size_t{1} << 48));  // 4 * 2^60, saturated
+  CHECK_THROWS_WITH(zero_value(r.at("deep.t0")), Catch::Contains("more than 2^24 elements"));
+  CHECK(zero_value(r.at("deep.t50")).as<Struct>().fields.size() == 2);
 }
 
 TEST_CASE("bad .lcm files are errors with file:line:col", "[unit]") {

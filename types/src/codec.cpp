@@ -335,39 +335,46 @@ class Encoder {
   std::vector<PathItem> path_;
 };
 
-Value zero_scalar(const Member& m, int depth);
-Value zero_struct(const StructType& t, int depth);
+// zero_value's walk; `budget` bounds the nodes made (fixed arrays of huge types).
+struct ZeroMaker {
+  std::size_t budget = std::size_t{1} << 24;
 
-Value zero_array(const Member& m, std::size_t dim, int depth) {
-  const Dimension& d = m.dims[dim];
-  const auto n = d.variable ? 0 : static_cast<std::size_t>(d.fixed);
-  const bool last = dim + 1 == m.dims.size();
-  if (last && m.primitive == Primitive::byte) return Bytes(n, 0);
-  Array a;
-  a.reserve(n);
-  for (std::size_t i = 0; i < n; ++i) a.push_back(last ? zero_scalar(m, depth) : zero_array(m, dim + 1, depth));
-  return a;
-}
-
-Value zero_scalar(const Member& m, int depth) {
-  if (!m.primitive) return zero_struct(*m.nested, depth + 1);
-  switch (*m.primitive) {
-    case Primitive::float32: return 0.0f;
-    case Primitive::float64: return 0.0;
-    case Primitive::boolean: return false;
-    case Primitive::string: return std::string();
-    default: return std::int64_t{0};
+  void charge(const StructType& t, std::size_t n) {
+    if (n > budget) throw Error("zero_value: " + t.full_name() + " has more than 2^24 elements");
+    budget -= n;
   }
-}
-
-Value zero_struct(const StructType& t, int depth) {
-  if (depth > kMaxDepth) throw Error("zero_value: " + t.full_name() + " nests deeper than " + std::to_string(kMaxDepth));
-  Struct s;
-  s.type = &t;
-  for (const Member& m : t.members)
-    s.fields.push_back({m.name, m.dims.empty() ? zero_scalar(m, depth) : zero_array(m, 0, depth)});
-  return s;
-}
+  Value array(const StructType& t, const Member& m, std::size_t dim, int depth) {
+    const Dimension& d = m.dims[dim];
+    const auto n = d.variable ? 0 : static_cast<std::size_t>(d.fixed);
+    const bool last = dim + 1 == m.dims.size();
+    charge(t, last && m.primitive == Primitive::byte ? 1 : n);
+    if (last && m.primitive == Primitive::byte) return Bytes(n, 0);
+    Array a;
+    a.reserve(n);
+    for (std::size_t i = 0; i < n; ++i) a.push_back(last ? scalar(m, depth) : array(t, m, dim + 1, depth));
+    return a;
+  }
+  Value scalar(const Member& m, int depth) {
+    if (!m.primitive) return structure(*m.nested, depth + 1);
+    switch (*m.primitive) {
+      case Primitive::float32: return 0.0f;
+      case Primitive::float64: return 0.0;
+      case Primitive::boolean: return false;
+      case Primitive::string: return std::string();
+      default: return std::int64_t{0};
+    }
+  }
+  Value structure(const StructType& t, int depth) {
+    if (depth > kMaxDepth)
+      throw Error("zero_value: " + t.full_name() + " nests deeper than " + std::to_string(kMaxDepth));
+    charge(t, t.members.size());
+    Struct s;
+    s.type = &t;
+    for (const Member& m : t.members)
+      s.fields.push_back({m.name, m.dims.empty() ? scalar(m, depth) : array(t, m, 0, depth)});
+    return s;
+  }
+};
 
 }  // namespace
 
@@ -400,6 +407,6 @@ std::vector<std::uint8_t> encode(const StructType& type, const Value& value) {
   return out;
 }
 
-Value zero_value(const StructType& type) { return zero_struct(type, 0); }
+Value zero_value(const StructType& type) { return ZeroMaker{}.structure(type, 0); }
 
 }  // namespace lcmx::types

@@ -241,7 +241,13 @@ class Parser {
     s.file = file_;
     s.line = kw.line;
     s.package = package_;
-    s.name = expect_identifier("struct name").text;
+    const Token name = expect_word("a struct name");
+    if (!is_type_name(name.text)) fail(name, "invalid struct name '" + name.text + "'");
+    s.name = name.text;
+    if (const auto dot = s.name.rfind('.'); dot != std::string::npos) {  // `struct pkg.name_t`
+      s.package = s.name.substr(0, dot);
+      s.name = s.name.substr(dot + 1);
+    }
     expect("{");
     while (!accept("}")) {
       if (tok_.eof()) fail(tok_, "end of file inside struct '" + s.name + "' (missing '}')");

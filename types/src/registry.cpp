@@ -15,14 +15,32 @@ namespace {
 // lcm-gen's _computeHash: a type already being hashed further up contributes 0; otherwise
 // its base hash plus the recursive hash of every non-primitive member (once per member), then
 // rotated left by one bit.
-std::uint64_t recursive_hash(const StructType& t, std::vector<const StructType*>& stack) {
-  if (std::find(stack.begin(), stack.end(), &t) != stack.end()) return 0;
-  stack.push_back(&t);
+// Memoized: a type whose computation cut no cycle reaches no cycle, so its hash does not depend
+// on the stack (without this, types nesting two members of the next type, 40 deep, would take
+// 2^40 steps, as lcm-gen's generated code does once per process).
+struct Walk {
+  std::vector<const StructType*> stack;
+  std::unordered_map<const StructType*, std::uint64_t> done;
+  bool cut = false;  // a cycle was cut below the current type
+};
+
+std::uint64_t recursive_hash(const StructType& t, Walk& w) {
+  if (std::find(w.stack.begin(), w.stack.end(), &t) != w.stack.end()) {
+    w.cut = true;
+    return 0;
+  }
+  if (auto it = w.done.find(&t); it != w.done.end()) return it->second;
+  const bool outer_cut = w.cut;
+  w.cut = false;
+  w.stack.push_back(&t);
   auto h = static_cast<std::uint64_t>(t.base_hash);
   for (const Member& m : t.members)
-    if (!m.primitive) h += recursive_hash(*m.nested, stack);
-  stack.pop_back();
-  return (h << 1) + ((h >> 63) & 1);
+    if (!m.primitive) h += recursive_hash(*m.nested, w);
+  w.stack.pop_back();
+  const std::uint64_t result = (h << 1) + ((h >> 63) & 1);
+  if (!w.cut) w.done.emplace(&t, result);
+  w.cut = w.cut || outer_cut;
+  return result;
 }
 
 constexpr std::size_t kSizeCap = std::size_t{1} << 48;  // saturation for min sizes
@@ -49,19 +67,27 @@ std::size_t primitive_min_size(Primitive p) {
 }
 
 // Smallest encoding of a struct (without fingerprint); a type on the stack counts 0 (only a
-// variable-length array can hold a recursive type, and it may be empty).
-std::size_t min_size(const StructType& t, std::vector<const StructType*>& stack) {
-  if (std::find(stack.begin(), stack.end(), &t) != stack.end()) return 0;
-  stack.push_back(&t);
+// variable-length array can hold a recursive type, and it may be empty). Memoized as above.
+std::size_t min_size(const StructType& t, Walk& w) {
+  if (std::find(w.stack.begin(), w.stack.end(), &t) != w.stack.end()) {
+    w.cut = true;
+    return 0;
+  }
+  if (auto it = w.done.find(&t); it != w.done.end()) return static_cast<std::size_t>(it->second);
+  const bool outer_cut = w.cut;
+  w.cut = false;
+  w.stack.push_back(&t);
   std::size_t total = 0;
   for (const Member& m : t.members) {
     std::size_t count = 1;
     for (const Dimension& d : m.dims) count = d.variable ? 0 : sat_mul(count, static_cast<std::size_t>(d.fixed));
     if (count == 0) continue;
-    const std::size_t element = m.primitive ? primitive_min_size(*m.primitive) : min_size(*m.nested, stack);
+    const std::size_t element = m.primitive ? primitive_min_size(*m.primitive) : min_size(*m.nested, w);
     total = sat_add(total, sat_mul(count, element));
   }
-  stack.pop_back();
+  w.stack.pop_back();
+  if (!w.cut) w.done.emplace(&t, total);
+  w.cut = w.cut || outer_cut;
   return total;
 }
 
@@ -127,10 +153,11 @@ void TypeRegistry::resolve() {
     }
   }
   by_fingerprint_.clear();
-  std::vector<const StructType*> stack;
+  Walk hashes, sizes;
   for (auto& t : types_) {
-    t->fingerprint = recursive_hash(*t, stack);
-    t->min_encoded_size = min_size(*t, stack);
+    hashes.cut = sizes.cut = false;
+    t->fingerprint = recursive_hash(*t, hashes);
+    t->min_encoded_size = min_size(*t, sizes);
     by_fingerprint_.emplace(t->fingerprint, t.get());  // first one wins
   }
 }

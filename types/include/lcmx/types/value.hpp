@@ -69,7 +69,8 @@ Value decode(const TypeRegistry& registry, const void* data, std::size_t size);
 std::vector<std::uint8_t> encode(const StructType& type, const Value& value);
 
 // A tree of `type` with every field zero: numbers 0, strings "", variable arrays empty,
-// fixed arrays full of zeros.
+// fixed arrays full of zeros. Throws Error for a type of more than 2^24 nodes or nested
+// deeper than 64.
 Value zero_value(const StructType& type);
 
 // One line of JSON: structs are objects (fields in order), arrays and Bytes are arrays of
