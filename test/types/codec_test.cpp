@@ -460,3 +460,29 @@ TEST_CASE("text rendering nests structs and abbreviates long arrays", "[unit]") 
   CHECK_THAT(arrays, Contains("\nflags: [true, false]\n"));
   CHECK_THAT(to_text(decode(r, ab.data(), ab.size()), TextOptions{0, 2}), Contains("blob: <5 bytes: 00 01 7f 80 ff>"));
 }
+
+TEST_CASE("field paths select parts of a tree and name what is missing", "[unit]") {
+  const TypeRegistry& r = corpus();
+  const auto bytes = lcm_encode(make_scene());
+  const Value v = decode(r, bytes.data(), bytes.size());
+  CHECK(to_json(field(v, "stamp.frame")) == R"("map")");
+  CHECK(field(v, "paths[0].points[1].x").as<double>() == 1.5);
+  CHECK(field(v, "arrays.cube[3][2][1]").as<std::int64_t>() == 321);
+  CHECK(field(v, "arrays.blob[4]").as<std::int64_t>() == 0xff);
+  CHECK(field(v, "arrays.image[2][1]").as<std::int64_t>() == 205);
+  CHECK(field(v, "deep.two.three[1].stamp.utime").as<std::int64_t>() == 33);
+  CHECK(to_json(field(v, "")) == to_json(v));
+  CHECK(field(v, "paths[0].points").as<Array>().size() == 2);
+
+  CHECK_THAT(error_of([&] { field(v, "stamp.nope"); }), Contains("no field 'nope' in stamp"));
+  CHECK_THAT(error_of([&] { field(v, "nope"); }), Contains("no field 'nope' in corpus_b.scene_t"));
+  CHECK_THAT(error_of([&] { field(v, "landmarks[3]"); }),
+             Contains("index 3 out of range (3 elements) at landmarks[3]"));
+  CHECK_THAT(error_of([&] { field(v, "arrays.blob[5]"); }), Contains("out of range (5 elements)"));
+  CHECK_THAT(error_of([&] { field(v, "stamp[0]"); }), Contains("stamp is not an array"));
+  CHECK_THAT(error_of([&] { field(v, "stamp.utime.x"); }), Contains("stamp.utime is not a struct"));
+  CHECK_THAT(error_of([&] { field(v, "landmarks[x]"); }), Contains("bad index 'x'"));
+  CHECK_THAT(error_of([&] { field(v, "landmarks[1"); }), Contains("expected [index]"));
+  CHECK_THAT(error_of([&] { field(v, "stamp..frame"); }), Contains("empty field name"));
+  CHECK_THAT(error_of([&] { field(v, ".stamp"); }), Contains("misplaced '.'"));
+}

@@ -407,6 +407,58 @@ std::vector<std::uint8_t> encode(const StructType& type, const Value& value) {
   return out;
 }
 
+Value field(const Value& value, std::string_view path) {
+  const Value* v = &value;
+  std::size_t i = 0;
+  std::string done;  // the path walked so far, for errors
+  auto bad = [&](const std::string& why) { throw Error("field '" + std::string(path) + "': " + why); };
+  while (i < path.size()) {
+    if (path[i] == '[') {
+      const std::size_t close = path.find(']', i);
+      if (close == std::string_view::npos || close == i + 1) bad("expected [index]");
+      std::size_t index = 0;
+      for (std::size_t k = i + 1; k < close; ++k) {
+        if (path[k] < '0' || path[k] > '9' || index > (std::size_t{1} << 40)) bad("bad index '" + std::string(path.substr(i + 1, close - i - 1)) + "'");
+        index = index * 10 + static_cast<std::size_t>(path[k] - '0');
+      }
+      const std::string parent = done.empty() ? "(message)" : done;
+      done += std::string(path.substr(i, close + 1 - i));
+      const bool last = close + 1 == path.size();
+      if (const auto* b = std::get_if<Bytes>(&v->data)) {
+        if (index >= b->size())
+          bad("index " + std::to_string(index) + " out of range (" + std::to_string(b->size()) + " elements) at " + done);
+        if (!last) bad(done + " is a byte, it has no parts");
+        return static_cast<std::int64_t>((*b)[index]);
+      }
+      const auto* a = std::get_if<Array>(&v->data);
+      if (!a) bad(parent + " is not an array");
+      if (index >= a->size())
+        bad("index " + std::to_string(index) + " out of range (" + std::to_string(a->size()) + " elements) at " + done);
+      v = &(*a)[index];
+      i = close + 1;
+      continue;
+    }
+    if (path[i] == '.') {
+      if (done.empty() || i + 1 >= path.size()) bad("misplaced '.'");
+      ++i;
+    }
+    std::size_t end = i;
+    while (end < path.size() && path[end] != '.' && path[end] != '[') ++end;
+    const std::string_view name = path.substr(i, end - i);
+    if (name.empty()) bad("empty field name");
+    const auto* s = std::get_if<Struct>(&v->data);
+    if (!s) bad((done.empty() ? "(message)" : done) + " is not a struct");
+    const Value* next = s->find(name);
+    if (!next)
+      bad("no field '" + std::string(name) + "' in " +
+          (done.empty() ? (s->type ? s->type->full_name() : "(message)") : done));
+    done += (done.empty() ? "" : ".") + std::string(name);
+    v = next;
+    i = end;
+  }
+  return *v;
+}
+
 Value zero_value(const StructType& type) { return ZeroMaker{}.structure(type, 0); }
 
 }  // namespace lcmx::types

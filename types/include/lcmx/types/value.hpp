@@ -73,6 +73,12 @@ std::vector<std::uint8_t> encode(const StructType& type, const Value& value);
 // deeper than 64.
 Value zero_value(const StructType& type);
 
+// The part of `value` at `path`: fields separated by '.', array elements by [index], e.g.
+// "pose.position[2]", "points[0]", "data[10]" (an element of Bytes is an int64). Empty path:
+// the whole value. Returns a copy. Throws Error naming the first part that does not exist
+// ("no field 'q' in pose", "index 9 out of range (3 elements) at points[9]") or a bad path.
+Value field(const Value& value, std::string_view path);
+
 // One line of JSON: structs are objects (fields in order), arrays and Bytes are arrays of
 // numbers, NaN/infinity are null, strings are escaped (invalid UTF-8 bytes become \u00XX).
 std::string to_json(const Value& value);
