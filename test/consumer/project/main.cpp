@@ -6,9 +6,11 @@
 #include <cstdio>
 #include <mutex>
 #include <string>
+#include <vector>
 
 #include "consumer_msgs/greeting_t.hpp"
 #include "lcmx/core.hpp"
+#include "lcmx/types/types.hpp"
 
 int main() {
   try {
@@ -43,6 +45,16 @@ int main() {
     }
     if (received.id != 42 || received.text != m.text || received.values != m.values) {
       std::fprintf(stderr, "consumer: message received but different\n");
+      return 1;
+    }
+    // The same message decoded at run time from my.lcm (lcmx::types), without generated code.
+    std::vector<std::uint8_t> bytes(static_cast<std::size_t>(m.getEncodedSize()));
+    m.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    const auto types = lcmx::types::TypeRegistry::load({MY_LCM});
+    const lcmx::types::Value tree = lcmx::types::decode(types, bytes.data(), bytes.size());
+    if (lcmx::types::to_json(tree) !=
+        R"({"id":42,"text":"hello from a consumer project","n":3,"values":[1.5,2.5,3.5]})") {
+      std::fprintf(stderr, "consumer: lcmx::types decoded %s\n", lcmx::types::to_json(tree).c_str());
       return 1;
     }
     std::printf("consumer ok: %s (%s)\n", received.text.c_str(), consumer_msgs::greeting_t::getTypeName());
