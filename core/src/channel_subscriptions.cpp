@@ -8,7 +8,7 @@
 #include <set>
 
 #include "internal.hpp"
-#include "lcmx/discovery/discovery.hpp"
+#include "lcmx/discovery/beacon_codec.hpp"
 
 namespace lcmx::detail {
 
