@@ -1,5 +1,7 @@
 #include "bridge_cmd.hpp"
 
+#include <memory>
+
 #include <signal.h>
 #include <spdlog/cfg/env.h>
 #include <spdlog/spdlog.h>
@@ -14,6 +16,7 @@
 
 #include "lcmx/bridge/bridge.hpp"
 #include "lcmx/core.hpp"
+#include "verb.hpp"
 
 namespace lcmx::cli {
 namespace {
@@ -34,6 +37,38 @@ std::string pad(std::string s, std::size_t w) {
 }
 
 }  // namespace
+
+Verb add_bridge(CLI::App& app, const Globals& g) {
+  struct State {
+    std::string config, status_url, key_prefix;
+    bool check = false, key_force = false;
+    int status_wait = 3000;
+  };
+  auto st = std::make_shared<State>();
+  auto* bridge = app.add_subcommand(
+      "bridge", "run this host's Message Bridge (--config FILE), or inspect bridges (status, keygen)");
+  bridge->fallthrough();
+  bridge->add_option("--config", st->config, "bridge config file (TOML, see docs/bridge.md)");
+  bridge->add_flag("--check", st->check, "validate the config file and exit (0 ok, 2 bad)");
+  auto* status = bridge->add_subcommand(
+      "status", "per bridge on this host: peers, active link, bytes per link, messages/bytes/drops per channel");
+  status->add_option("--url", st->status_url, "host-local discovery group (default: lcmx --url, LCMX_DISCOVERY_URL)");
+  status->add_option("--wait", st->status_wait, "wait up to this long for bridges' status, in milliseconds")
+      ->check(CLI::Range(50, 60000))
+      ->capture_default_str();
+  auto* keygen = bridge->add_subcommand("keygen", "write a CURVE key pair: PREFIX.key (secret, 0600), PREFIX.pub");
+  keygen->add_option("--out", st->key_prefix, "file name prefix")->required();
+  keygen->add_flag("--force", st->key_force, "overwrite existing files");
+  return {bridge, [st, status, keygen, &g] {
+            if (status->parsed()) return bridge_status(st->status_url.empty() ? g.url : st->status_url, st->status_wait);
+            if (keygen->parsed()) return bridge_keygen(st->key_prefix, st->key_force);
+            if (st->config.empty()) {
+              std::cerr << "lcmx bridge: --config FILE is required (or: lcmx bridge status | keygen)\n";
+              return 2;
+            }
+            return bridge_run(st->config, st->check);
+          }};
+}
 
 int bridge_run(const std::string& config_path, bool check_only) {
   bridge::Config cfg;

@@ -1,4 +1,5 @@
-// lcmx: the command-line tool. Verbs: nodes, topics, bridge (more verbs come with later issues).
+// lcmx: the command-line tool. Verbs: nodes, topics, bridge; each registered in main() with one
+// line (verb.hpp).
 // It listens to discovery as an observer: it asks every participant to beacon at once and
 // never appears as a participant itself.
 #include <CLI/CLI.hpp>
@@ -7,6 +8,7 @@
 #include <cstdlib>
 #include <iostream>
 #include <memory>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -14,6 +16,7 @@
 #include "lcmx/discovery/discovery.hpp"
 #include "bridge_cmd.hpp"
 #include "topology.hpp"
+#include "verb.hpp"
 
 namespace {
 
@@ -44,73 +47,86 @@ std::vector<lcmx::discovery::Participant> observe(const std::string& url, const 
   return all;
 }
 
+// The verb of the command line: the first argument that is neither an option of `lcmx` nor
+// such an option's value; nullopt if there is none.
+std::optional<std::string> verb_of(CLI::App& app, int argc, char** argv) {
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--") return i + 1 < argc ? std::optional<std::string>(argv[i + 1]) : std::nullopt;
+    if (a.size() > 1 && a[0] == '-') {
+      const CLI::Option* o = a.find('=') == std::string::npos ? app.get_option_no_throw(a) : nullptr;
+      if (o != nullptr && o->get_type_size() > 0) ++i;  // skip its value
+      continue;
+    }
+    return a;
+  }
+  return std::nullopt;
+}
+
+// `lcmx nodes` / `lcmx topics`: observe, print.
+lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, const std::string& name,
+                                  const std::string& description,
+                                  void (*print)(std::ostream&, const std::vector<lcmx::discovery::Participant>&)) {
+  auto* cmd = app.add_subcommand(name, description);
+  return {cmd, [&g, print] {
+            spdlog::set_level(spdlog::level::warn);
+            try {
+              print(std::cout, observe(g.url, g.vehicle_url, g.wait_ms));
+            } catch (const std::exception& e) {
+              std::cerr << "lcmx: " << e.what() << "\n";
+              return 1;
+            }
+            return 0;
+          }};
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"lcmx: inspect and operate an lcmx system (https://... see README.md)"};
+  CLI::App app{"lcmx: inspect and operate an lcmx system (see README.md)"};
   app.require_subcommand(1);
   app.fallthrough();  // global options may also come after the verb
-  std::string url = lcmx::RuntimeOptions::from_env().discovery_url;
-  int wait_ms = 400;
-  app.add_option("--url", url, "discovery group (default: LCMX_DISCOVERY_URL or LCM's default)")
+  lcmx::cli::Globals g;
+  try {
+    g.url = lcmx::RuntimeOptions::from_env().discovery_url;
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx: " << e.what() << "\n";
+    return 2;
+  }
+  app.add_option("--url", g.url, "discovery group (default: LCMX_DISCOVERY_URL or LCM's default)")
       ->capture_default_str();
-  std::string vehicle_url;
-  if (const char* v = std::getenv("LCMX_VEHICLE_URL")) vehicle_url = v;
-  app.add_option("--vehicle-url", vehicle_url,
+  if (const char* v = std::getenv("LCMX_VEHICLE_URL")) g.vehicle_url = v;
+  app.add_option("--vehicle-url", g.vehicle_url,
                  "vehicle group, to see other hosts too (default: LCMX_VEHICLE_URL)")
       ->capture_default_str();
-  app.add_option("--wait", wait_ms, "how long to listen for beacons, in milliseconds")
+  app.add_option("--wait", g.wait_ms, "how long to listen for beacons, in milliseconds")
       ->check(CLI::Range(50, 60000))
       ->capture_default_str();
 
-  auto* nodes = app.add_subcommand("nodes", "list participants (processes) and their nodes");
-  auto* topics = app.add_subcommand(
-      "topics", "list topics: type, publishers, subscribers, path per pair, rate, drops");
+  // The verbs, one line each (see verb.hpp).
+  std::vector<lcmx::cli::Verb> verbs;
+  verbs.push_back(add_observer_verb(app, g, "nodes", "list participants (processes) and their nodes",
+                                    lcmx::cli::print_nodes));
+  verbs.push_back(add_observer_verb(app, g, "topics",
+                                    "list topics: type, publishers, subscribers, path per pair, rate, drops",
+                                    lcmx::cli::print_topics));
+  verbs.push_back(lcmx::cli::add_bridge(app, g));
 
-  auto* bridge = app.add_subcommand(
-      "bridge", "run this host's Message Bridge (--config FILE), or inspect bridges (status, keygen)");
-  bridge->fallthrough();
-  std::string bridge_config;
-  bool bridge_check = false;
-  bridge->add_option("--config", bridge_config, "bridge config file (TOML, see docs/bridge.md)");
-  bridge->add_flag("--check", bridge_check, "validate the config file and exit (0 ok, 2 bad)");
-  auto* bstatus = bridge->add_subcommand(
-      "status", "per bridge on this host: peers, active link, bytes per link, messages/bytes/drops per channel");
-  std::string status_url = url;
-  int status_wait = 3000;
-  bstatus->add_option("--url", status_url, "host-local discovery group (default: LCMX_DISCOVERY_URL)")
-      ->capture_default_str();
-  bstatus->add_option("--wait", status_wait, "wait up to this long for bridges' status, in milliseconds")
-      ->check(CLI::Range(50, 60000))
-      ->capture_default_str();
-  auto* keygen = bridge->add_subcommand("keygen", "write a CURVE key pair: PREFIX.key (secret, 0600), PREFIX.pub");
-  std::string key_prefix;
-  bool key_force = false;
-  keygen->add_option("--out", key_prefix, "file name prefix")->required();
-  keygen->add_flag("--force", key_force, "overwrite existing files");
-
+  // An unknown verb is named (also before --help, which would otherwise print the top-level help).
+  if (const auto verb = verb_of(app, argc, argv)) {
+    try {
+      (void)app.get_subcommand(*verb);
+    } catch (const CLI::OptionNotFound&) {
+      std::cerr << "lcmx: unknown command '" << *verb << "'\nRun 'lcmx --help' for the list of commands.\n";
+      return 2;
+    }
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
-  if (bridge->parsed()) {
-    if (bstatus->parsed()) return lcmx::cli::bridge_status(status_url, status_wait);
-    if (keygen->parsed()) return lcmx::cli::bridge_keygen(key_prefix, key_force);
-    if (bridge_config.empty()) {
-      std::cerr << "lcmx bridge: --config FILE is required (or: lcmx bridge status | keygen)\n";
-      return 2;
-    }
-    return lcmx::cli::bridge_run(bridge_config, bridge_check);
-  }
-  spdlog::set_level(spdlog::level::warn);
-  try {
-    const auto ps = observe(url, vehicle_url, wait_ms);
-    if (nodes->parsed()) lcmx::cli::print_nodes(std::cout, ps);
-    if (topics->parsed()) lcmx::cli::print_topics(std::cout, ps);
-  } catch (const std::exception& e) {
-    std::cerr << "lcmx: " << e.what() << "\n";
-    return 1;
-  }
-  return 0;
+  for (auto& v : verbs)
+    if (v.command->parsed()) return v.run();
+  return 2;  // not reached: require_subcommand(1)
 }

@@ -1,6 +1,12 @@
-// Process liveness: pid + start time (guards against pid reuse).
+// Process identity: pid + start time (guards against pid reuse), pid namespace.
+// Liveness of segment owners and Readers is NOT judged from pids (see locks.cpp); pids are
+// used only for pidfd-based death notification inside one pid namespace (owner_watch.cpp).
 #include <signal.h>
+#include <sys/stat.h>
 #include <unistd.h>
+
+#include <atomic>
+#include <random>
 
 #include <cerrno>
 #include <cstdio>
@@ -77,4 +83,32 @@ bool process_alive(std::int32_t pid, std::uint64_t start_time) {
   return s->start_time == start_time;
 }
 
+std::uint64_t self_pidns() noexcept {
+  struct stat st {};
+  if (::stat("/proc/self/ns/pid", &st) != 0) return 0;
+  return static_cast<std::uint64_t>(st.st_ino);
+}
+
 }  // namespace lcmx::shm::detail
+
+namespace lcmx::shm {
+
+std::string process_tag() {
+  char buf[64];
+  std::uint64_t ns = detail::self_pidns();
+  if (ns == 0) {  // no /proc: a random component instead, stable per process
+    static std::atomic<std::uint64_t> random_tag{0};
+    static std::atomic<pid_t> random_pid{0};
+    if (random_pid.load() != ::getpid()) {
+      std::random_device rd;
+      random_tag.store((std::uint64_t{rd()} << 32) | rd());
+      random_pid.store(::getpid());
+    }
+    ns = random_tag.load();
+  }
+  std::snprintf(buf, sizeof buf, "%dn%llx", static_cast<int>(::getpid()),
+                static_cast<unsigned long long>(ns));
+  return buf;
+}
+
+}  // namespace lcmx::shm

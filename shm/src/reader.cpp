@@ -17,7 +17,13 @@
 //      are visible: return a zero-copy sample. WRITING => the Writer is probing or writing
 //      it: re-check a bounded number of times (a probe that saw a pin restores `next`
 //      without touching the payload; seqs are never reused, so seeing `next` again proves
-//      it). Anything else => overwritten: unpin, drop one, advance.
+//      it). Still WRITING after the spins and the Writer alive: it was preempted inside a
+//      probe or is overwriting the slot; unpin and return nullopt without a drop (the next
+//      take() looks again). Writer dead: it died mid-write: drop one, advance.
+//      Anything else => overwritten: unpin, drop one, advance.
+//   e. ReadSample::intact() re-checks after the caller's read (seqlock style: acquire fence,
+//      then slot.seq and our entry's state word): a sample whose slot was rewritten while it
+//      was read (our entry taken from us, or the file truncated under us) is not intact.
 //   All offsets come from the geometry validated at open; slot indices and sizes read from
 //   shared memory are range-checked before use.
 #include <unistd.h>
@@ -39,13 +45,17 @@ inline void cpu_relax() noexcept {
 #endif
 }
 
-std::shared_ptr<GenView> make_view(std::unique_ptr<Segment> seg, std::int32_t pid,
-                                   std::uint64_t start) {
+std::shared_ptr<GenView> make_view(std::unique_ptr<Segment> seg, std::int32_t pid) {
   auto v = std::make_shared<GenView>();
-  v->entry = register_subscriber(*seg, pid, start);
+  std::tie(v->entry, v->word) = register_subscriber(*seg, seg->lock.get(), pid);
   v->pid = pid;
   v->seg = std::move(seg);
   return v;
+}
+
+// Messages of the Writer lost between global position `here` and `to` (both global).
+std::uint64_t gap(std::uint64_t here, std::uint64_t to) {
+  return to > here && to - here < (std::uint64_t{1} << 48) ? to - here : 0;
 }
 
 // Opens generation `gen` of base, or, if it is gone, the newest one above `floor`.
@@ -66,12 +76,20 @@ std::unique_ptr<Segment> open_generation_or_newer(const std::string& base, std::
 }  // namespace
 
 ReaderImpl::~ReaderImpl() {
-  if (armed) armed->seg->hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
+  if (armed && armed->sub().armed.exchange(0, std::memory_order_acq_rel) != 0) {
+    armed->seg->hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
+  }
   for (int i = 0; i < kMaxPins; ++i) unpin(i);
+  // The Writer exited and may have left later generations for Readers like us: the last
+  // Reader that needs them removes them.
+  const bool closed = cur && cur->seg->hdr->writer_closed.load(std::memory_order_acquire) != 0;
+  armed.reset();
+  cur.reset();  // deregisters (no view of ours is left)
+  if (closed && ::getpid() == pid) release_unneeded_generations(base);
 }
 
 GenView::~GenView() {
-  if (seg && ::getpid() == pid) deregister_subscriber(*seg, entry);
+  if (seg && ::getpid() == pid) deregister_subscriber(*seg, entry, seg->lock.get());
 }
 
 void ReaderImpl::unpin(int pin) noexcept {
@@ -98,25 +116,72 @@ bool ReaderImpl::try_follow() {
     dead_end = true;
     return false;
   }
-  std::unique_ptr<Segment> seg;
-  try {
-    seg = open_generation_or_newer(base, ng, s.generation);
-  } catch (const Error& e) {
-    if (e.code() != Errc::not_found) throw;
-    dead_end = true;  // Writer gone: nothing newer will come
-    return false;
-  }
-  // Messages of skipped generations (if any) are drops; first_global_seq makes it exact.
+  const auto now = std::chrono::steady_clock::now();
+  if (now < retry_at) return false;
   const std::uint64_t here = s.first_global_seq + next;
-  if (seg->first_global_seq > here && seg->first_global_seq - here < (std::uint64_t{1} << 48)) {
-    drops += seg->first_global_seq - here;
-  }
-  if (seg->generation <= s.generation) {
-    dead_end = true;
+  std::shared_ptr<GenView> view;
+  try {
+    auto seg = open_generation_or_newer(base, ng, s.generation);
+    if (seg->generation <= s.generation) {
+      dead_end = true;
+      return false;
+    }
+    view = make_view(std::move(seg), pid);
+  } catch (const Error& e) {
+    if (e.code() == Errc::not_found) {
+      // Writer gone and its later generations removed (e.g. by reclaim after its exit):
+      // nothing newer will come. A clean exit recorded how many it published: count them.
+      dead_end = true;
+      if (s.hdr->writer_closed.load(std::memory_order_acquire) != 0) {
+        drops += gap(here, s.hdr->final_seq.load(std::memory_order_relaxed));
+      }
+      return false;
+    }
+    // E.g. the new generation's table is full or its file is refused: retry later (100 ms,
+    // doubling to 1 s) instead of failing on every call; report the first failure only.
+    const bool first = backoff.count() == 0;
+    backoff = first ? std::chrono::milliseconds(100)
+                    : std::min(backoff * 2, std::chrono::milliseconds(1000));
+    retry_at = now + backoff;
+    if (first) throw;
     return false;
   }
-  cur = make_view(std::move(seg), pid, start_time);  // old view deregisters when unpinned
+  backoff = std::chrono::milliseconds(0);
+  retry_at = {};
+  // Messages of skipped generations (if any) are drops; first_global_seq makes it exact.
+  drops += gap(here, view->seg->first_global_seq);
+  cur = std::move(view);  // the old view deregisters when unpinned
   next = 0;
+  publish_counters();
+  if (cur->seg->hdr->writer_closed.load(std::memory_order_acquire) != 0) {
+    release_unneeded_generations(base, cur->seg->generation);
+  }
+  return true;
+}
+
+// The current generation's file was truncated by another process (our mapping reads zeros
+// from the faulting page on). The Writer moves to a fresh generation at its next loan; go
+// there by name and count what was lost in between. Until it exists: nothing to read
+// (has_data() false for 10 ms at a time).
+bool ReaderImpl::follow_fault() {
+  const Segment& s = *cur->seg;
+  auto hi = find_highest_generation(base);
+  std::unique_ptr<Segment> seg;
+  if (hi && *hi > s.generation) {
+    try {
+      seg = open_segment(generation_name(base, *hi));
+    } catch (const Error&) {
+      seg.reset();
+    }
+  }
+  if (!seg || seg->generation <= s.generation || seg->faulted()) {
+    retry_at = std::chrono::steady_clock::now() + std::chrono::milliseconds(10);
+    return false;
+  }
+  drops += gap(s.first_global_seq + next, seg->first_global_seq);
+  cur = make_view(std::move(seg), pid);
+  next = 0;
+  retry_at = {};
   publish_counters();
   return true;
 }
@@ -145,6 +210,17 @@ ReadSample::~ReadSample() {
   if (reader_ != nullptr) reader_->unpin(pin_);
 }
 
+bool ReadSample::intact() const noexcept {
+  if (reader_ == nullptr || pin_ < 0 || pin_ >= detail::kMaxPins) return false;
+  const auto& gen = reader_->pin_gen[pin_];
+  if (!gen) return false;
+  // Seqlock-style validation: our payload reads happen before these loads.
+  std::atomic_thread_fence(std::memory_order_acquire);
+  const auto* sh = reinterpret_cast<const detail::SlotHeader*>(data_ - detail::kSlotHeaderSize);
+  const std::uint64_t local = sequence_ - gen->seg->first_global_seq;
+  return sh->seq.load(std::memory_order_relaxed) == local && gen->still_ours();
+}
+
 // ---- Reader ----
 
 Reader::Reader(std::unique_ptr<detail::ReaderImpl> impl) : impl_(std::move(impl)) {}
@@ -162,7 +238,6 @@ Reader Reader::open(const std::string& segment_name) {
   }
   auto impl = std::make_unique<ReaderImpl>();
   impl->pid = static_cast<std::int32_t>(::getpid());
-  impl->start_time = self_start_time();
   std::unique_ptr<Segment> seg;
   if (auto sg = split_generation(segment_name)) {
     impl->base = sg->first;
@@ -184,7 +259,7 @@ Reader Reader::open(const std::string& segment_name) {
       break;  // Writer gone: stay on the last one
     }
   }
-  impl->cur = make_view(std::move(seg), impl->pid, impl->start_time);
+  impl->cur = make_view(std::move(seg), impl->pid);
   impl->next = impl->cur->seg->hdr->write_seq.load(std::memory_order_acquire);
   return Reader(std::move(impl));
 }
@@ -207,6 +282,10 @@ std::optional<ReadSample> Reader::take() {
   // Bound: after case b at most N+1 iterations per generation; a few generation hops.
   const std::uint64_t budget = 4 * std::uint64_t{r.cur->seg->geo.slot_count} + 64;
   for (std::uint64_t iter = 0; iter < budget; ++iter) {
+    if (r.cur->seg->faulted()) {
+      if (std::chrono::steady_clock::now() >= r.retry_at && r.follow_fault()) continue;
+      break;
+    }
     const Segment& s = *r.cur->seg;
     const std::uint64_t n = s.geo.slot_count;
     const std::uint64_t w = s.hdr->write_seq.load(std::memory_order_acquire);
@@ -234,9 +313,21 @@ std::optional<ReadSample> Reader::take() {
       cpu_relax();
       sq = sh.seq.load(std::memory_order_seq_cst);
     }
+    if (sq == kSlotWriting && locked_by_other(s.lock.get(), kWriterLockByte)) {
+      // Case d, Writer alive: preempted (or stopped) inside a probe, or overwriting. Not a
+      // drop yet. has_data() says false for 1 ms so an executor sleeps instead of spinning
+      // on a stopped Writer; the Writer's next commit wakes it.
+      pin_word.store(kPinFree, std::memory_order_release);
+      r.retry_at = std::chrono::steady_clock::now() + std::chrono::milliseconds(1);
+      break;
+    }
     // size is read only once sq == next: the seq load read-from the Writer's release and
     // our pin keeps the slot stable from here on.
     const std::uint64_t size = sq == r.next ? sh.size : 0;
+    if (s.faulted()) {  // truncated while we looked: nothing read here is real
+      pin_word.store(kPinFree, std::memory_order_release);
+      continue;
+    }
     if (sq != r.next || size > s.geo.slot_size) {
       pin_word.store(kPinFree, std::memory_order_release);
       ++r.drops;
@@ -256,9 +347,19 @@ std::optional<ReadSample> Reader::take() {
 
 bool Reader::has_data() const noexcept {
   const auto& r = *impl_;
+  if (r.retry_at != std::chrono::steady_clock::time_point{} &&
+      std::chrono::steady_clock::now() < r.retry_at) {
+    return false;  // backing off after a failed follow (see try_follow)
+  }
+  if (r.cur->seg->faulted()) return true;  // take() moves on to the Writer's new file
   const auto& h = *r.cur->seg->hdr;
   if (h.write_seq.load(std::memory_order_acquire) != r.next) return true;
   return !r.dead_end && h.next_generation.load(std::memory_order_acquire) != 0;
+}
+
+std::chrono::steady_clock::time_point Reader::retry_at() const noexcept {
+  const auto t = impl_->retry_at;
+  return t > std::chrono::steady_clock::now() ? t : std::chrono::steady_clock::time_point{};
 }
 
 std::uint32_t Reader::armed_readers() const noexcept {
@@ -271,9 +372,9 @@ std::uint64_t Reader::drops() const noexcept { return impl_->drops; }
 std::uint64_t Reader::received() const noexcept { return impl_->received; }
 
 bool Reader::writer_alive() const {
-  const auto& h = *impl_->cur->seg->hdr;
-  if (h.writer_closed.load(std::memory_order_acquire) != 0) return false;
-  return detail::process_alive(h.owner_pid, h.owner_start_time);
+  const auto& seg = *impl_->cur->seg;
+  if (seg.hdr->writer_closed.load(std::memory_order_acquire) != 0) return false;
+  return detail::locked_by_other(seg.lock.get(), detail::kWriterLockByte);
 }
 
 const std::string& Reader::segment_name() const { return impl_->cur->seg->name; }
@@ -284,15 +385,20 @@ WaitToken Reader::arm() {
   r.armed = r.cur;
   auto& h = *r.armed->seg->hdr;
   // seq_cst: Reader side of the waiter Dekker (see writer.cpp); the futex_word load comes
-  // after the waiters increment in the single total order.
+  // after the waiters increment in the single total order. `armed` (after the increment)
+  // lets a reclaimer take back the count of a Reader killed while armed.
   h.waiters.fetch_add(1, std::memory_order_seq_cst);
+  r.armed->sub().armed.store(1, std::memory_order_release);
   return WaitToken{&h.futex_word, h.futex_word.load(std::memory_order_seq_cst)};
 }
 
 void Reader::disarm() noexcept {
   auto& r = *impl_;
   if (!r.armed) return;
-  r.armed->seg->hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
+  // Whoever resets `armed` from 1 subtracts (a reclaimer only does so for dead Readers).
+  if (r.armed->sub().armed.exchange(0, std::memory_order_acq_rel) != 0) {
+    r.armed->seg->hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
+  }
   r.armed.reset();
 }
 

@@ -1,25 +1,20 @@
-// Segment files: create (O_EXCL), open + validate, names, subscriber table.
+// Segment files: create (O_EXCL, fallocate, Writer lock), open (ownership, mode, size
+// checks), names, subscriber table, release of a departed Writer's generations.
 #include <dirent.h>
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
-#include <boost/interprocess/exceptions.hpp>
-#include <boost/interprocess/shared_memory_object.hpp>
-
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <map>
 
 #include "impl.hpp"
 
-namespace bip = boost::interprocess;
-
 namespace lcmx::shm::detail {
 namespace {
-
-Error from_boost(const std::string& what, const bip::interprocess_exception& e) {
-  switch (e.get_error_code()) {
-    case bip::not_found_error: return Error(Errc::not_found, what + ": no such segment");
-    default: return Error(Errc::system, what + ": " + e.what());
-  }
-}
 
 bool is_digits(const std::string& s) {
   if (s.empty() || s.size() > 18) return false;
@@ -29,7 +24,51 @@ bool is_digits(const std::string& s) {
   return true;
 }
 
+std::string errno_text(int e) { return std::strerror(e); }
+
+int shm_open_cloexec(const std::string& name, int flags, mode_t mode = 0) {
+  return ::shm_open(("/" + name).c_str(), flags | O_CLOEXEC | O_NOFOLLOW, mode);
+}
+
+struct Fd {  // plain RAII descriptor (not tracked for fork: holds no lock)
+  int fd = -1;
+  explicit Fd(int f) : fd(f) {}
+  Fd(const Fd&) = delete;
+  Fd& operator=(const Fd&) = delete;
+  ~Fd() {
+    if (fd >= 0) ::close(fd);
+  }
+  int release() { return std::exchange(fd, -1); }
+};
+
+// Ownership policy for files we map: ours (same euid) or root's, regular, not writable by
+// "others". Group write is allowed (lcmx creates 0660 files: the group is trusted).
+const char* untrusted_why(const struct stat& st) {
+  if (!S_ISREG(st.st_mode)) return "not a regular file";
+  if (st.st_uid != ::geteuid() && st.st_uid != 0) return "owned by another user";
+  if ((st.st_mode & S_IWOTH) != 0) return "writable by others";
+  return nullptr;
+}
+
 }  // namespace
+
+Mapping& Mapping::operator=(Mapping&& o) noexcept {
+  if (this != &o) {
+    this->~Mapping();
+    addr = std::exchange(o.addr, nullptr);
+    len = o.len;
+    guard = std::exchange(o.guard, -1);
+  }
+  return *this;
+}
+
+Mapping::~Mapping() {
+  if (addr == nullptr) return;
+  guard_unregister(guard);  // first: the handler must not touch a range we give back
+  ::munmap(addr, len);
+  addr = nullptr;
+  guard = -1;
+}
 
 std::optional<HeaderInfo> validate_header(const void* mem, std::uint64_t file_size,
                                           std::string* why) {
@@ -62,65 +101,100 @@ std::optional<HeaderInfo> validate_header(const void* mem, std::uint64_t file_si
   info.first_global_seq = h->first_global_seq;
   info.owner_pid = h->owner_pid;
   info.owner_start_time = h->owner_start_time;
+  info.owner_pidns = h->owner_pidns;
   return info;
 }
 
 std::optional<HeaderInfo> peek_segment(const std::string& name, std::string* why) {
-  try {
-    bip::shared_memory_object shm(bip::open_only, name.c_str(), bip::read_only);
-    bip::offset_t size = 0;
-    if (!shm.get_size(size) || size < static_cast<bip::offset_t>(kHeaderSize)) {
-      if (why) *why = "file smaller than the header";
-      return std::nullopt;
-    }
-    bip::mapped_region r(shm, bip::read_only, 0, kHeaderSize);
-    return validate_header(r.get_address(), static_cast<std::uint64_t>(size), why);
-  } catch (const bip::interprocess_exception& e) {
-    if (why) *why = e.what();
+  Fd fd(shm_open_cloexec(name, O_RDONLY));
+  if (fd.fd < 0) {
+    if (why) *why = errno_text(errno);
     return std::nullopt;
   }
+  struct stat st {};
+  if (::fstat(fd.fd, &st) != 0 || st.st_size < static_cast<off_t>(kHeaderSize)) {
+    if (why) *why = "file smaller than the header";
+    return std::nullopt;
+  }
+  if (const char* w = untrusted_why(st)) {
+    if (why) *why = w;
+    return std::nullopt;
+  }
+  Mapping m(::mmap(nullptr, kHeaderSize, PROT_READ, MAP_SHARED, fd.fd, 0), kHeaderSize);
+  if (m.addr == MAP_FAILED) {
+    m.addr = nullptr;
+    if (why) *why = "mmap: " + errno_text(errno);
+    return std::nullopt;
+  }
+  auto info = validate_header(m.addr, static_cast<std::uint64_t>(st.st_size), why);
+  if (info && m.faulted()) {
+    if (why) *why = "truncated while reading";
+    return std::nullopt;
+  }
+  return info;
+}
+
+bool writer_lock_held(const std::string& name) noexcept {
+  Fd fd(shm_open_cloexec(name, O_RDONLY));
+  if (fd.fd < 0) return false;
+  return locked_by_other(fd.fd, kWriterLockByte);
 }
 
 bool unlink_segment(const std::string& name) noexcept {
-  return bip::shared_memory_object::remove(name.c_str());
+  return ::shm_unlink(("/" + name).c_str()) == 0;
 }
 
 std::unique_ptr<Segment> create_segment(const std::string& name, const Geometry& geo,
                                         std::uint64_t generation, std::uint64_t first_global_seq,
                                         std::int32_t pid, std::uint64_t start_time) {
-  std::optional<bip::shared_memory_object> shm;
-  for (int attempt = 0; attempt < 2 && !shm; ++attempt) {
-    try {
-      bip::permissions perm;
-      perm.set_permissions(0660);
-      shm.emplace(bip::create_only, name.c_str(), bip::read_write, perm);
-    } catch (const bip::interprocess_exception& e) {
-      if (e.get_error_code() != bip::already_exists_error || attempt > 0) {
-        throw Error(Errc::system, "create segment " + name + ": " + e.what());
-      }
-      std::string why;
-      auto info = peek_segment(name, &why);
-      if (!info || process_alive(info->owner_pid, info->owner_start_time)) {
-        throw Error(Errc::system, "create segment " + name + ": already exists" +
-                                      (info ? " (owner alive)" : " (" + why + ")"));
-      }
-      unlink_segment(name);  // stale, owner dead: remove and retry once
+  int fd = -1;
+  for (int attempt = 0; attempt < 2 && fd < 0; ++attempt) {
+    fd = shm_open_cloexec(name, O_RDWR | O_CREAT | O_EXCL, 0660);
+    if (fd >= 0) break;
+    const int e = errno;
+    if (e != EEXIST || attempt > 0) {
+      throw Error(Errc::system, "create segment " + name + ": shm_open: " + errno_text(e));
     }
+    if (writer_lock_held(name)) {
+      throw Error(Errc::system, "create segment " + name + ": already exists (owner alive)");
+    }
+    std::string why;
+    if (!peek_segment(name, &why)) {
+      throw Error(Errc::system, "create segment " + name + ": already exists (" + why + ")");
+    }
+    unlink_segment(name);  // stale, owner dead: remove and retry once
   }
   auto seg = std::make_unique<Segment>();
   seg->name = name;
-  try {
-    shm->truncate(static_cast<bip::offset_t>(geo.total_size));
-    seg->region = bip::mapped_region(*shm, bip::read_write, 0, geo.total_size);
-  } catch (const bip::interprocess_exception& e) {
+  seg->lock = LockFd(fd);
+  auto fail = [&](const std::string& what, int e) {
     unlink_segment(name);
-    throw Error(Errc::system, "map segment " + name + ": " + e.what());
+    throw Error(Errc::system, "segment " + name + ": " + what + ": " + errno_text(e));
+  };
+  // Writer lock first: from now on anyone can tell this file's owner is alive.
+  if (!try_lock(fd, kWriterLockByte)) fail("writer lock (fcntl F_OFD_SETLK)", errno);
+  ::fchmod(fd, 0660);  // independent of the umask
+  // Reserve every page now: on a full tmpfs (Docker's default /dev/shm is 64 MiB) this is
+  // ENOSPC here instead of a SIGBUS when a page is first touched.
+  if (int e = ::posix_fallocate(fd, 0, static_cast<off_t>(geo.total_size)); e != 0) {
+    unlink_segment(name);
+    throw Error(Errc::system,
+                "segment " + name + ": cannot reserve " + std::to_string(geo.total_size) +
+                    " bytes in /dev/shm (posix_fallocate: " + errno_text(e) +
+                    "; is /dev/shm full or too small?)");
   }
+  // Map through a separate open file description: a fork()ed child inheriting the mapping
+  // must not keep the lock's description (and so the lock) alive.
+  Fd mfd(shm_open_cloexec(name, O_RDWR));
+  if (mfd.fd < 0) fail("reopen for mapping", errno);
+  void* a = ::mmap(nullptr, geo.total_size, PROT_READ | PROT_WRITE, MAP_SHARED, mfd.fd, 0);
+  if (a == MAP_FAILED) fail("mmap", errno);
+  seg->map = Mapping(a, geo.total_size);
   seg->geo = geo;
   seg->generation = generation;
   seg->first_global_seq = first_global_seq;
-  // ftruncate zero-fills: every atomic starts at 0, which is a valid object representation.
-  auto* h = static_cast<SegmentHeader*>(seg->region.get_address());
+  // posix_fallocate zero-fills: every atomic starts at 0, a valid object representation.
+  auto* h = static_cast<SegmentHeader*>(a);
   seg->hdr = h;
   h->version = kVersion;
   h->slot_count = geo.slot_count;
@@ -130,6 +204,7 @@ std::unique_ptr<Segment> create_segment(const std::string& name, const Geometry&
   h->generation = generation;
   h->owner_pid = pid;
   h->owner_start_time = start_time;
+  h->owner_pidns = self_pidns();
   h->first_global_seq = first_global_seq;
   h->subscribers_offset = geo.subscribers_offset;
   h->desc_offset = geo.desc_offset;
@@ -151,25 +226,49 @@ std::unique_ptr<Segment> create_segment(const std::string& name, const Geometry&
 std::unique_ptr<Segment> open_segment(const std::string& name) {
   auto seg = std::make_unique<Segment>();
   seg->name = name;
-  bip::offset_t size = 0;
-  try {
-    bip::shared_memory_object shm(bip::open_only, name.c_str(), bip::read_write);
-    if (!shm.get_size(size)) throw Error(Errc::system, "fstat " + name);
-    if (size < static_cast<bip::offset_t>(kHeaderSize)) {
-      throw Error(Errc::corrupt, "segment " + name + ": file smaller than the header");
+  Fd mfd(shm_open_cloexec(name, O_RDWR));
+  if (mfd.fd < 0) {
+    const int e = errno;
+    if (e == ENOENT) throw Error(Errc::not_found, "open segment " + name + ": no such segment");
+    if (e == ELOOP) {  // O_NOFOLLOW: a symbolic link planted under the name
+      throw Error(Errc::untrusted, "open segment " + name + ": is a symbolic link");
     }
-    // Map the whole file as it is now; validate before computing any address from it.
-    seg->region = bip::mapped_region(shm, bip::read_write, 0, static_cast<std::size_t>(size));
-  } catch (const bip::interprocess_exception& e) {
-    throw from_boost("open segment " + name, e);
+    throw Error(Errc::system, "open segment " + name + ": " + errno_text(e));
   }
+  struct stat st {};
+  if (::fstat(mfd.fd, &st) != 0) {
+    throw Error(Errc::system, "fstat segment " + name + ": " + errno_text(errno));
+  }
+  // A segment name comes from an unauthenticated beacon: check who may have written it
+  // before mapping it read-write.
+  if (const char* why = untrusted_why(st)) {
+    throw Error(Errc::untrusted, "segment " + name + ": refused: " + why);
+  }
+  if (st.st_size < static_cast<off_t>(kHeaderSize)) {
+    throw Error(Errc::corrupt, "segment " + name + ": file smaller than the header");
+  }
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  void* a = ::mmap(nullptr, size, PROT_READ | PROT_WRITE, MAP_SHARED, mfd.fd, 0);
+  if (a == MAP_FAILED) {
+    throw Error(Errc::system, "mmap segment " + name + ": " + errno_text(errno));
+  }
+  seg->map = Mapping(a, size);
   std::string why;
-  auto info = validate_header(seg->region.get_address(), static_cast<std::uint64_t>(size), &why);
+  auto info = validate_header(a, size, &why);
   if (!info) throw Error(Errc::corrupt, "segment " + name + ": " + why);
+  // Our own description for OFD locks (entry lock, liveness tests); same file as mapped.
+  int lfd = shm_open_cloexec(name, O_RDWR);
+  struct stat lst {};
+  if (lfd < 0 || ::fstat(lfd, &lst) != 0 || lst.st_ino != st.st_ino || lst.st_dev != st.st_dev) {
+    if (lfd >= 0) ::close(lfd);
+    throw Error(Errc::not_found, "segment " + name + ": replaced while opening");
+  }
+  seg->lock = LockFd(lfd);
+  if (seg->faulted()) throw Error(Errc::corrupt, "segment " + name + ": truncated while opening");
   seg->geo = info->geo;
   seg->generation = info->generation;
   seg->first_global_seq = info->first_global_seq;
-  seg->hdr = static_cast<SegmentHeader*>(seg->region.get_address());
+  seg->hdr = static_cast<SegmentHeader*>(a);
   if (auto sg = split_generation(name); sg && sg->second != seg->generation) {
     throw Error(Errc::corrupt, "segment " + name + ": generation field does not match the name");
   }
@@ -210,49 +309,77 @@ std::optional<std::uint64_t> find_highest_generation(const std::string& base) {
 }
 
 // ---- subscriber table ----
-// Entry states: Free -> Claiming (CAS, registrant) -> Active (store release)
-//               Active|Claiming(pid != 0, dead) -> Reclaiming (CAS, reclaimer) -> Free
-//               Active -> Free (owner deregisters; only the owner stores to its Active entry)
-// pid/start_time are written only by the Claiming owner (start first, then pid release) and
-// zeroed before Free, so a Claiming entry with pid == 0 is a registration in progress.
+// Mutating entry i requires its OFD lock (byte kEntryLockBase + i): a live Reader holds the
+// lock of its entry for as long as it is registered; a registrant or reclaimer takes the
+// lock of a free or dead entry with a non-blocking F_OFD_SETLK, so winning the lock proves
+// the previous owner is dead (or never existed) in any pid namespace. Under the lock the
+// entry is (re)initialised from scratch whatever state a killed process left it in (killed
+// mid-register, mid-deregister or mid-reclaim: nothing is wedged). The state word carries
+// an epoch, bumped on every transition (compare-exchange), so a stale view can never free
+// an entry re-claimed since (no ABA) and a Reader can tell its entry was taken from it.
+// Readers of the table without the lock: the Writer's pin scan and counts (read-only).
 
-std::size_t reclaim_dead_subscribers(const Segment& seg) {
+namespace {
+
+void clear_dead_entry(const Segment& seg, SubscriberEntry& e) noexcept {
+  // Release the dead Reader's pins (seq_cst: the Writer's pin scan is seq_cst).
+  for (auto& p : e.pins) p.store(kPinFree, std::memory_order_seq_cst);
+  // A Reader killed while armed left the waiter count raised: every commit would make a
+  // useless wake syscall. The exchange makes exactly one clearer subtract it.
+  if (e.armed.exchange(0, std::memory_order_acq_rel) != 0) {
+    seg.hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
+  }
+  e.pid.store(0, std::memory_order_relaxed);
+}
+
+}  // namespace
+
+bool subscriber_alive(const Segment& seg, std::uint32_t i) noexcept {
+  const std::uint32_t w = seg.sub(i).state.load(std::memory_order_acquire);
+  if (sub_state(w) == kSubFree) return false;
+  return locked_by_other(seg.lock.get(), kEntryLockBase + i);
+}
+
+std::size_t reclaim_dead_subscribers(const Segment& seg) noexcept {
   std::size_t n = 0;
+  const int fd = seg.lock.get();
   const std::uint32_t hw =
       std::min(seg.hdr->sub_high_water.load(std::memory_order_seq_cst), seg.geo.max_subscribers);
   for (std::uint32_t i = 0; i < hw; ++i) {
     auto& e = seg.sub(i);
-    std::uint32_t s = e.state.load(std::memory_order_acquire);
-    if (s != kSubActive && s != kSubClaiming) continue;
-    const std::int32_t pid = e.pid.load(std::memory_order_acquire);  // pairs with pid release
-    if (pid == 0) continue;  // Claiming in progress
-    if (process_alive(pid, e.start_time.load(std::memory_order_relaxed))) continue;
-    // CAS cases: success => we alone clear it; failure => it changed (reclaimed by someone
-    // else, deregistered, re-registered): leave it.
-    if (!e.state.compare_exchange_strong(s, kSubReclaiming, std::memory_order_acq_rel)) continue;
-    for (auto& p : e.pins) p.store(kPinFree, std::memory_order_seq_cst);
-    e.pid.store(0, std::memory_order_relaxed);
-    e.start_time.store(0, std::memory_order_relaxed);
-    e.state.store(kSubFree, std::memory_order_release);
-    ++n;
+    std::uint32_t w = e.state.load(std::memory_order_acquire);
+    const bool leftovers = e.armed.load(std::memory_order_relaxed) != 0;
+    if (sub_state(w) == kSubFree && !leftovers) continue;
+    if (!try_lock(fd, kEntryLockBase + i)) continue;  // owner (or a registrant) alive
+    w = e.state.load(std::memory_order_acquire);
+    clear_dead_entry(seg, e);
+    if (sub_state(w) != kSubFree) {
+      // CAS cases: success => freed with a new epoch; failure => impossible while we hold
+      // the lock unless a hostile process wrote the word: leave it to the next pass.
+      if (e.state.compare_exchange_strong(w, sub_word(sub_epoch(w) + 1, kSubFree),
+                                          std::memory_order_acq_rel)) {
+        ++n;
+      }
+    }
+    unlock(fd, kEntryLockBase + i);
   }
   return n;
 }
 
-std::uint32_t register_subscriber(const Segment& seg, std::int32_t pid, std::uint64_t start) {
-  reclaim_dead_subscribers(seg);
+std::pair<std::uint32_t, std::uint32_t> register_subscriber(const Segment& seg, int lock,
+                                                            std::int32_t pid) {
   for (std::uint32_t i = 0; i < seg.geo.max_subscribers; ++i) {
     auto& e = seg.sub(i);
-    std::uint32_t expected = kSubFree;
-    // CAS cases: success => the entry is ours; failure => in use by someone: next entry.
-    if (!e.state.compare_exchange_strong(expected, kSubClaiming, std::memory_order_acq_rel)) {
-      continue;
-    }
-    for (auto& p : e.pins) p.store(kPinFree, std::memory_order_relaxed);
+    std::uint32_t w = e.state.load(std::memory_order_acquire);
+    // Cheap skip of entries of live Readers (one fcntl instead of two).
+    if (sub_state(w) != kSubFree && locked_by_other(lock, kEntryLockBase + i)) continue;
+    // Lock cases: acquired => no live process owns or is changing entry i; else skip it.
+    if (!try_lock(lock, kEntryLockBase + i)) continue;
+    w = e.state.load(std::memory_order_acquire);
+    clear_dead_entry(seg, e);  // whatever a dead owner or a killed reclaimer left
     e.drops.store(0, std::memory_order_relaxed);
     e.next.store(0, std::memory_order_relaxed);
-    e.start_time.store(start, std::memory_order_relaxed);
-    e.pid.store(pid, std::memory_order_release);
+    e.pid.store(pid, std::memory_order_relaxed);
     // Raise the high-water mark (seq_cst) before any pin can be stored: the writer loads it
     // after its kSlotWriting store, so it scans every entry that can hold a pin it must see.
     auto& hw = seg.hdr->sub_high_water;
@@ -260,19 +387,81 @@ std::uint32_t register_subscriber(const Segment& seg, std::int32_t pid, std::uin
     // CAS cases: cur >= i+1 => done; else retry with the reloaded value.
     while (cur < i + 1 && !hw.compare_exchange_weak(cur, i + 1, std::memory_order_seq_cst)) {
     }
-    e.state.store(kSubActive, std::memory_order_release);
-    return i;
+    const std::uint32_t mine = sub_word(sub_epoch(w) + 1, kSubActive);
+    // CAS cases: success => ours with a fresh epoch; failure => the word was changed by a
+    // process not following the lock protocol (hostile): give the entry up.
+    if (!e.state.compare_exchange_strong(w, mine, std::memory_order_seq_cst)) {
+      unlock(lock, kEntryLockBase + i);
+      continue;
+    }
+    return {i, mine};  // the lock stays held until deregister (or our death)
   }
   throw Error(Errc::no_subscriber_slot, "segment " + seg.name + ": subscriber table full");
 }
 
-void deregister_subscriber(const Segment& seg, std::uint32_t entry) noexcept {
+void deregister_subscriber(const Segment& seg, std::uint32_t entry, int lock) noexcept {
   auto& e = seg.sub(entry);
   // Release: our reads of pinned payloads happen-before the writer reuses those slots.
   for (auto& p : e.pins) p.store(kPinFree, std::memory_order_release);
   e.pid.store(0, std::memory_order_relaxed);
-  e.start_time.store(0, std::memory_order_relaxed);
-  e.state.store(kSubFree, std::memory_order_release);
+  std::uint32_t w = e.state.load(std::memory_order_relaxed);
+  if (sub_state(w) != kSubFree) {
+    e.state.compare_exchange_strong(w, sub_word(sub_epoch(w) + 1, kSubFree),
+                                    std::memory_order_release);
+  }
+  unlock(lock, kEntryLockBase + entry);
+}
+
+// ---- a departed Writer's generations ----
+
+bool has_live_subscriber(const Segment& seg) noexcept {
+  const std::uint32_t hw =
+      std::min(seg.hdr->sub_high_water.load(std::memory_order_seq_cst), seg.geo.max_subscribers);
+  for (std::uint32_t i = 0; i < hw; ++i) {
+    if (subscriber_alive(seg, i)) return true;
+  }
+  return false;
+}
+
+std::size_t release_unneeded_generations(const std::string& base,
+                                         std::uint64_t caller_gen) noexcept {
+  std::size_t removed = 0;
+  try {
+    std::map<std::uint64_t, std::string> names;
+    for (const auto& n : list_shm(base + "_g")) {
+      auto sg = split_generation(n);
+      if (sg && sg->first == base) names.emplace(sg->second, n);
+    }
+    // The oldest generation a live Reader is registered in (the caller's own counts even if
+    // its name is gone). Only a cleanly closed Writer leaves generations for lagging
+    // Readers; a crashed one's files all go (Readers that mapped them keep their mapping).
+    std::uint64_t oldest = caller_gen;
+    std::vector<std::pair<std::uint64_t, std::string>> ours;
+    for (const auto& [gen, name] : names) {
+      std::unique_ptr<Segment> seg;
+      try {
+        seg = open_segment(name);
+      } catch (const Error&) {
+        continue;  // foreign, corrupt or untrusted: left alone (reclaim warns)
+      }
+      if (seg->generation != gen) continue;
+      if (locked_by_other(seg->lock.get(), kWriterLockByte)) {
+        return removed;  // a live Writer owns this base (again): not ours to clean
+      }
+      const bool closed = seg->hdr->writer_closed.load(std::memory_order_acquire) != 0;
+      if (closed && gen < oldest && has_live_subscriber(*seg)) oldest = gen;
+      ours.emplace_back(gen, name);
+    }
+    // Generations below the oldest Reader are needed by nobody; from it on they are needed
+    // to follow, as long as there is something newer than it to follow to.
+    const bool keep_tail = !ours.empty() && ours.back().first > oldest;
+    for (const auto& [gen, name] : ours) {
+      if (gen >= oldest && keep_tail) break;
+      if (unlink_segment(name)) ++removed;
+    }
+  } catch (...) {  // allocation: leave the rest to a later pass
+  }
+  return removed;
 }
 
 }  // namespace lcmx::shm::detail

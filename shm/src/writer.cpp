@@ -19,8 +19,11 @@
 //   A writer dying between 2 and 4 leaves seq = WRITING: that message is never delivered.
 //
 // Slot bound: every live Reader pins at most kMaxPins slots, so with
-// slot_count >= kMaxPins * live_readers + 1 a free slot always exists. Below that bound loan()
-// may throw Error(system, "all slots pinned") after reclaiming dead Readers' pins.
+// slot_count >= kMaxPins * live_readers + 1 a free slot always exists. Below that bound (the
+// default: 8 slots, up to 32 Readers) every slot may be pinned: after reclaiming dead
+// Readers' pins, loan() then hands out a private drop buffer; committing it takes the next
+// seq without a slot (desc = pack(m, slot_count), an index no Reader accepts), so every
+// Reader counts that message as a drop, and Writer::dropped() counts it here. Never throws.
 #include <unistd.h>
 
 #include <algorithm>
@@ -44,33 +47,59 @@ std::uint64_t initial_slot_size(const WriterOptions& o) {
   return round_up(std::max<std::uint64_t>(o.initial_slot_size, 1), kCacheLine);
 }
 
+constexpr std::uint32_t kScratchSlot = ~std::uint32_t{0};
+
 }  // namespace
 
+// Clean exit: every generation gets final_seq, then writer_closed (release), and its
+// sleepers are woken. Generations older than the oldest one with a live Reader are
+// unlinked; from that one on they stay if it is older than the current one (its Readers
+// need the later names to follow, and the kept name of their own generation shows others -
+// reclaim_orphans - that they are there). Readers that mapped a generation keep reading it
+// after the unlink. What is left is unlinked by the last Reader to need it
+// (release_unneeded_generations), or by reclaim_orphans once no live Reader needs it.
 WriterImpl::~WriterImpl() {
-  if (seg && ::getpid() == pid) {  // a fork()ed child's copy must not tear down the parent's
-    seg->hdr->writer_closed.store(1, std::memory_order_release);
-    bump_and_wake(*seg);
+  if (!seg || ::getpid() != pid) return;  // a fork()ed child's copy must not tear down ours
+  const std::uint64_t total = seg->first_global_seq + write_seq;
+  std::vector<Segment*> all;
+  for (const auto& g : old_gens) all.push_back(g.get());
+  all.push_back(seg.get());
+  for (Segment* g : all) {
+    g->hdr->final_seq.store(total, std::memory_order_relaxed);
+    g->hdr->writer_closed.store(1, std::memory_order_release);
+    bump_and_wake(*g);
   }
-  if (::getpid() == pid) {
-    for (const auto& g : old_gens) unlink_segment(g->name);
-    if (seg) unlink_segment(seg->name);
+  // Same rule as release_unneeded_generations: keep [oldest generation with a live Reader,
+  // current] if that is more than the current one, else unlink everything.
+  std::size_t first_kept = all.size();
+  for (std::size_t k = 0; k + 1 < all.size(); ++k) {
+    if (has_live_subscriber(*all[k])) {
+      first_kept = k;
+      break;
+    }
   }
+  for (std::size_t k = 0; k < first_kept; ++k) unlink_segment(all[k]->name);
+}
+
+// Dead Readers of the current generation: their pins and waiter counts (a Reader killed
+// armed costs a wake syscall per commit) are reclaimed every 256 commits, or at the first
+// 16th commit after 1 s.
+void WriterImpl::maybe_reclaim() noexcept {
+  if ((commits & 15) != 0) return;  // the clock is read every 16th commit only
+  const auto now = std::chrono::steady_clock::now();
+  if ((commits & 255) != 0 && now < next_reclaim) return;
+  next_reclaim = now + std::chrono::seconds(1);
+  reclaim_dead_subscribers(*seg);
 }
 
 void WriterImpl::release_old_generations(bool reclaim_dead) noexcept {
   while (!old_gens.empty()) {
     const Segment& g = *old_gens.front();
-    if (reclaim_dead) {
-      try {
-        reclaim_dead_subscribers(g);
-      } catch (...) {  // liveness checks allocate; on failure just keep the generation
-        return;
-      }
-    }
+    if (reclaim_dead) reclaim_dead_subscribers(g);
     const std::uint32_t hw =
         std::min(g.hdr->sub_high_water.load(std::memory_order_acquire), g.geo.max_subscribers);
     for (std::uint32_t i = 0; i < hw; ++i) {
-      if (g.sub(i).state.load(std::memory_order_acquire) != kSubFree) return;  // still used
+      if (sub_state(g.sub(i).state.load(std::memory_order_acquire)) != kSubFree) return;
     }
     unlink_segment(g.name);  // Readers that mapped it keep their mapping
     old_gens.pop_front();
@@ -83,11 +112,14 @@ void WriterImpl::bump_and_wake(const Segment& s) noexcept {
   if (s.hdr->waiters.load(std::memory_order_seq_cst) > 0) futex_wake_all(&s.hdr->futex_word);
 }
 
-void WriterImpl::grow(std::size_t size) {
+// same_size: the current generation was truncated by another process (its mapping now
+// reads zeros): move to a fresh file of the same geometry; Readers follow by name.
+void WriterImpl::grow(std::size_t size, bool same_size) {
   const std::uint64_t old_size = seg->geo.slot_size;
   std::uint64_t want = std::max<std::uint64_t>(round_up(size, 4096), 2 * old_size);
   want = std::min<std::uint64_t>(want, opt.max_message_size);
   want = round_up(std::max<std::uint64_t>(want, size), kCacheLine);
+  if (same_size) want = old_size;
   const Geometry geo = make_geometry(seg->geo.slot_count, seg->geo.max_subscribers, want);
   const std::uint64_t gen = seg->generation + 1;
   const std::uint64_t first = seg->first_global_seq + write_seq;
@@ -126,13 +158,13 @@ bool WriterImpl::readers_caught_up() const noexcept {
       std::min(seg->hdr->sub_high_water.load(std::memory_order_acquire), seg->geo.max_subscribers);
   for (std::uint32_t i = 0; i < hw; ++i) {
     const auto& e = seg->sub(i);
-    if (e.state.load(std::memory_order_acquire) == kSubFree) continue;
+    if (sub_state(e.state.load(std::memory_order_acquire)) == kSubFree) continue;
     if (e.next.load(std::memory_order_relaxed) < write_seq) return false;
   }
   return true;
 }
 
-std::uint32_t WriterImpl::acquire_slot() {
+std::optional<std::uint32_t> WriterImpl::acquire_slot() {
   const std::uint32_t n = seg->geo.slot_count;
   // Readers keeping up (the common case): reuse the newest message's slot, still in the
   // cache, instead of the round-robin one (large messages: a cold 6 MB slot costs a copy's
@@ -161,11 +193,14 @@ std::uint32_t WriterImpl::acquire_slot() {
     // Every slot pinned: clear pins of dead Readers, then one more round.
     if (round == 0 && reclaim_dead_subscribers(*seg) == 0) break;
   }
-  throw Error(Errc::system, "segment " + seg->name + ": all slots pinned (slot_count " +
-                                std::to_string(n) + " < kMaxPins * live readers + 1)");
+  return std::nullopt;  // every slot pinned by live Readers: the caller drops the message
 }
 
 void WriterImpl::abort_loan(std::uint32_t slot) noexcept {
+  if (slot == kScratchSlot) {
+    loan_out = false;
+    return;
+  }
   // The payload may be partly overwritten: the old message is gone (Readers count a drop).
   seg->slot(slot).seq.store(kSlotEmpty, std::memory_order_release);
   slot_seq[slot] = kSlotEmpty;
@@ -174,6 +209,19 @@ void WriterImpl::abort_loan(std::uint32_t slot) noexcept {
 
 std::uint64_t WriterImpl::commit(std::uint32_t slot, std::size_t size) {
   const std::uint64_t m = write_seq;
+  ++commits;
+  if (slot == kScratchSlot) {
+    // Dropped: m takes a descriptor with an invalid slot index, so every Reader counts it.
+    seg->desc(static_cast<std::uint32_t>(m % seg->geo.slot_count))
+        .store(pack_desc(m, seg->geo.slot_count), std::memory_order_release);
+    seg->hdr->write_seq.store(m + 1, std::memory_order_release);
+    write_seq = m + 1;
+    loan_out = false;
+    ++dropped;
+    bump_and_wake(*seg);
+    maybe_reclaim();
+    return seg->first_global_seq + m;
+  }
   auto& sh = seg->slot(slot);
   sh.size = size;
   // Release: payload + size visible to a Reader whose slot.seq load reads m.
@@ -187,7 +235,8 @@ std::uint64_t WriterImpl::commit(std::uint32_t slot, std::size_t size) {
   slot_seq[slot] = m;
   loan_out = false;
   bump_and_wake(*seg);
-  if (!old_gens.empty()) release_old_generations(++commits % 1024 == 0);
+  if (!old_gens.empty()) release_old_generations(commits % 1024 == 0);
+  maybe_reclaim();
   return seg->first_global_seq + m;
 }
 
@@ -245,10 +294,11 @@ Writer Writer::create(const std::string& base_name, const WriterOptions& options
   for (const auto& n : list_shm(base_name + "_g")) {
     auto sg = split_generation(n);
     if (!sg || sg->first != base_name) continue;
-    auto info = peek_segment(n, nullptr);
-    if (info && process_alive(info->owner_pid, info->owner_start_time)) {
-      throw Error(Errc::system, "Writer: base name " + base_name + " is in use by pid " +
-                                    std::to_string(info->owner_pid) + " (" + n + ")");
+    if (writer_lock_held(n)) {
+      auto info = peek_segment(n, nullptr);
+      throw Error(Errc::system, "Writer: base name " + base_name + " is in use by a live " +
+                                    "Writer (pid " + std::to_string(info ? info->owner_pid : 0) +
+                                    " in its pid namespace, " + n + ")");
     }
   }
   auto impl = std::make_unique<WriterImpl>();
@@ -256,6 +306,7 @@ Writer Writer::create(const std::string& base_name, const WriterOptions& options
   impl->opt = options;
   impl->pid = static_cast<std::int32_t>(::getpid());
   impl->start_time = self_start_time();
+  impl->pidns = self_pidns();
   const Geometry geo =
       make_geometry(options.slot_count, options.max_subscribers, initial_slot_size(options));
   impl->seg = create_segment(generation_name(base_name, 0), geo, 0, 0, impl->pid,
@@ -274,11 +325,17 @@ WriteLoan Writer::loan(std::size_t size) {
                                      " bytes > max_message_size " +
                                      std::to_string(w.opt.max_message_size));
   }
+  if (w.seg->faulted()) w.grow(w.seg->geo.slot_size, true);  // truncated by someone else
   if (size > w.seg->geo.slot_size) w.grow(size);
-  const std::uint32_t s = w.acquire_slot();
+  const auto s = w.acquire_slot();
   w.loan_out = true;
-  w.loan_slot = s;
-  return WriteLoan(&w, s, w.seg->payload(s), w.seg->geo.slot_size);
+  if (!s) {
+    if (w.scratch.size() < w.seg->geo.slot_size) w.scratch.resize(w.seg->geo.slot_size);
+    w.loan_slot = detail::kScratchSlot;
+    return WriteLoan(&w, detail::kScratchSlot, w.scratch.data(), w.seg->geo.slot_size);
+  }
+  w.loan_slot = *s;
+  return WriteLoan(&w, *s, w.seg->payload(*s), w.seg->geo.slot_size);
 }
 
 std::uint64_t Writer::commit(WriteLoan&& loan, std::size_t size) {
@@ -309,16 +366,11 @@ std::uint32_t Writer::live_readers() const noexcept {
   const std::uint32_t hw =
       std::min(seg.hdr->sub_high_water.load(std::memory_order_acquire), seg.geo.max_subscribers);
   std::uint32_t n = 0;
-  for (std::uint32_t i = 0; i < hw; ++i) {
-    auto& e = seg.sub(i);
-    if (e.state.load(std::memory_order_acquire) != detail::kSubActive) continue;
-    if (detail::process_alive(e.pid.load(std::memory_order_acquire),
-                              e.start_time.load(std::memory_order_relaxed))) {
-      ++n;
-    }
-  }
+  for (std::uint32_t i = 0; i < hw; ++i) n += detail::subscriber_alive(seg, i) ? 1 : 0;
   return n;
 }
+
+std::uint64_t Writer::dropped() const noexcept { return impl_->dropped; }
 
 // Counts the current generation and the older ones still kept: a Reader registered in an
 // older generation has not followed yet but will read this one's messages, so they must be
@@ -329,7 +381,10 @@ std::uint32_t Writer::registered_readers() const noexcept {
         std::min(seg.hdr->sub_high_water.load(std::memory_order_acquire), seg.geo.max_subscribers);
     std::uint32_t n = 0;
     for (std::uint32_t i = 0; i < hw; ++i)
-      if (seg.sub(i).state.load(std::memory_order_acquire) == detail::kSubActive) ++n;
+      if (detail::sub_state(seg.sub(i).state.load(std::memory_order_acquire)) ==
+          detail::kSubActive) {
+        ++n;
+      }
     return n;
   };
   std::uint32_t n = count(*impl_->seg);

@@ -6,11 +6,14 @@
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <condition_variable>
+#include <map>
 #include <mutex>
 #include <thread>
 
 #include "lcmx/core.hpp"
+#include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/discovery/discovery.hpp"
+#include "lcmx/udpm/udpm.hpp"
 #include "lcmx_examples/image_t.hpp"
 #include "lcmx_examples/pose_t.hpp"
 
@@ -23,7 +26,8 @@ lcmx::RuntimeOptions test_options() {
   const int id = static_cast<int>(::getpid()) * 8 + n++;
   lcmx::RuntimeOptions o;
   o.discovery_url = "udpm://239.254." + std::to_string((id >> 8) & 0xff) + "." +
-                    std::to_string(id & 0xff) + ":" + std::to_string(20000 + id % 40000) + "?ttl=0";
+                    std::to_string(id & 0xff) + ":" + std::to_string(20000 + id % 40000) +
+                    "?ttl=0&iface=lo";  // the root namespace: lo only, never the real interface
   o.beacon_period = 100ms;
   o.lease = 600ms;
   return o;
@@ -383,4 +387,57 @@ TEST_CASE("a bridge participant: flag, carried topics, no self-delivery", "[core
     }
     return false;
   }));
+}
+
+// RuntimeOptions::mirror_channels (LCMX_MIRROR="CAM_*,POSE"): only matching small channels
+// also go on the host-local group, for stock LCM programs.
+TEST_CASE("mirror_channels: only the matching channels are mirrored on the host-local group", "[core][mirror]") {
+  auto opts = test_options();
+  opts.mirror_channels = {"CAM_*", "POSE"};
+  auto rt = lcmx::Runtime::create(opts);
+  auto cfg = lcmx::udpm::parse_url(opts.discovery_url);
+  auto stock = lcmx::udpm::Group::open(cfg);  // what a stock program on this host hears
+  auto node = rt.create_node("mirror", manual());
+  auto cam = node.advertise_raw("CAM_FRONT");
+  auto pose = node.advertise_raw("POSE");
+  auto odom = node.advertise_raw("ODOM");
+  auto posex = node.advertise_raw("POSE_X");
+  const std::vector<std::byte> payload(100, std::byte{1});
+  for (int i = 0; i < 5; ++i)
+    for (auto* p : {&odom, &posex, &cam, &pose}) p->publish(payload);
+  std::map<std::string, int> got;
+  CHECK(eventually([&] {
+    stock.poll(5ms, [&](const lcmx::udpm::Message& m) {
+      if (m.channel != lcmx::discovery::kBeaconChannel) ++got[std::string(m.channel)];
+    });
+    return got["CAM_FRONT"] == 5 && got["POSE"] == 5;
+  }));
+  // ODOM and POSE_X were published before each CAM_FRONT/POSE: had they been sent, they would
+  // have arrived first.
+  CHECK(got.count("ODOM") == 0);
+  CHECK(got.count("POSE_X") == 0);
+}
+
+TEST_CASE("LCMX_MIRROR: 0 or 1 or channel patterns - a bad one names the variable", "[core][mirror][errors]") {
+  struct Restore {
+    ~Restore() { ::unsetenv("LCMX_MIRROR"); }
+  } restore;
+  ::setenv("LCMX_MIRROR", "1", 1);
+  CHECK(lcmx::RuntimeOptions::from_env().mirror);
+  ::setenv("LCMX_MIRROR", "0", 1);
+  CHECK(!lcmx::RuntimeOptions::from_env().mirror);
+  CHECK(lcmx::RuntimeOptions::from_env().mirror_channels.empty());
+  ::setenv("LCMX_MIRROR", "CAM_*, POSE", 1);
+  const auto o = lcmx::RuntimeOptions::from_env();
+  CHECK(!o.mirror);
+  CHECK(o.mirror_channels == std::vector<std::string>{"CAM_*", "POSE"});
+  for (const char* bad : {"CAM_*,,POSE", ",", "POSE,"}) {
+    ::setenv("LCMX_MIRROR", bad, 1);
+    try {
+      (void)lcmx::RuntimeOptions::from_env();
+      FAIL("no error for LCMX_MIRROR=" << bad);
+    } catch (const lcmx::Error& e) {
+      CHECK(std::string(e.what()).find("LCMX_MIRROR") != std::string::npos);
+    }
+  }
 }

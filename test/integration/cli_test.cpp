@@ -96,11 +96,42 @@ TEST_CASE("lcmx --help and lcmx topics --help exit 0 - a bad flag exits non-zero
   auto bad_verb = s.run({LCMX_TOOL, "frobnicate"});
   INFO(bad_verb.out);
   CHECK(bad_verb.rc != 0);
-  CHECK_FALSE(bad_verb.out.empty());
+  CHECK(contains(bad_verb.out, "lcmx: unknown command 'frobnicate'"));
   auto bad_url = s.run({LCMX_TOOL, "--url", "udpm://not-an-address:1", "nodes"});
   INFO(bad_url.out);
   CHECK(bad_url.rc != 0);
   CHECK(contains(bad_url.out, "lcmx:"));
+}
+
+// Issue 9 item 5: an unknown verb is named, whatever follows it (--help too: it used to print
+// the top-level help and exit 0), and `lcmx <verb> --help` is that verb's help.
+TEST_CASE("lcmx: an unknown command is named and fails (also before --help) - each verb has its own --help",
+          "[integration][cli]") {
+  Session s(48);
+  for (const std::vector<std::string>& argv :
+       {std::vector<std::string>{LCMX_TOOL, "bogus"}, {LCMX_TOOL, "bogus", "--help"},
+        {LCMX_TOOL, "--wait", "100", "bogus"}, {LCMX_TOOL, "--url=udpm://239.1.2.3:4", "bogus", "nodes"}}) {
+    auto r = s.run(argv);
+    INFO(r.out);
+    CHECK(r.rc != 0);
+    CHECK(contains(r.out, "lcmx: unknown command 'bogus'"));
+    CHECK(contains(r.out, "lcmx --help"));
+    CHECK_FALSE(contains(r.out, "Subcommands:"));  // not the top-level help
+  }
+  auto top = s.run({LCMX_TOOL, "--help"});
+  CHECK(top.rc == 0);
+  for (const char* verb : {"nodes", "topics", "bridge"}) CHECK(contains(top.out, verb));
+  auto nodes = s.run({LCMX_TOOL, "nodes", "--help"});
+  CHECK(nodes.rc == 0);
+  CHECK(contains(nodes.out, "list participants"));
+  CHECK_FALSE(contains(nodes.out, "list topics"));
+  auto bridge = s.run({LCMX_TOOL, "bridge", "--help"});
+  CHECK(bridge.rc == 0);
+  CHECK(contains(bridge.out, "--config"));
+  auto status = s.run({LCMX_TOOL, "--wait", "100", "bridge", "status", "--help"});
+  CHECK(status.rc == 0);
+  CHECK(contains(status.out, "per bridge on this host"));
+  CHECK_FALSE(contains(status.out, "--config"));
 }
 
 TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye) - a kill -9 after its lease", "[integration][cli]") {

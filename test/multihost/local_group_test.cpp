@@ -100,8 +100,8 @@ class JavaLikeReceiver {
 
 }  // namespace
 
-TEST_CASE("ordinary computer (default route via the LAN): stock liblcm on LCM's default URL -> lcmx, "
-          "exactly once, nothing leaves the host",
+TEST_CASE("ordinary computer (default route via the LAN): stock liblcm on LCM's default URL -> lcmx "
+          "exactly once - nothing leaves the host",
           "[multihost][interop][local]") {
   LCMX_REQUIRE_NETNS();
   Hosts h(2, 30, Ordinary{});
@@ -126,7 +126,7 @@ TEST_CASE("ordinary computer (default route via the LAN): stock liblcm on LCM's 
   CHECK(neighbour.wait() == 0);
 }
 
-TEST_CASE("ordinary computer: lcmx with LCMX_MIRROR=1 -> stock liblcm and a Java-like receiver, exactly once; "
+TEST_CASE("ordinary computer: lcmx with LCMX_MIRROR=1 -> stock liblcm and a Java-like receiver exactly once - "
           "lcmx on the host still gets it once over shm",
           "[multihost][interop][local]") {
   LCMX_REQUIRE_NETNS();
@@ -215,7 +215,7 @@ TEST_CASE("ordinary computer: a bad LCMX_MIRROR is an error naming the variable"
   }
 }
 
-TEST_CASE("no route at all: liblcm refuses to start, lcmx still works on lo; once LCM's lo route is added, "
+TEST_CASE("no route at all: liblcm refuses to start and lcmx still works on lo - once LCM's lo route is added "
           "stock and the running lcmx hear each other",
           "[multihost][interop][local]") {
   LCMX_REQUIRE_NETNS();
@@ -256,7 +256,7 @@ TEST_CASE("no route at all: liblcm refuses to start, lcmx still works on lo; onc
   }
 }
 
-TEST_CASE("a LAN route that comes after lcmx started: lcmx follows it, stock programs started since are heard",
+TEST_CASE("a LAN route that comes after lcmx started: lcmx follows it - stock programs started since are heard",
           "[multihost][interop][local]") {
   LCMX_REQUIRE_NETNS();
   Hosts h(1, 35, Ordinary{MulticastRoute::none});

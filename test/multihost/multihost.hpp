@@ -87,10 +87,10 @@ class Hosts {
 
   lcmx::test::Emulation& emu() { return emu_; }
 
-  // Routes this test's host-local group to lo in every host. Stock liblcm cannot pin an
-  // interface: it sends (and joins) by the routing table, whose 224.0.0.0/4 route points at the
-  // vehicle link here, while lcmx pins the host-local group to lo. A deployment mixing stock LCM
-  // programs on the host-local group with a vehicle network needs the same host route.
+  // Routes this test's host-local group to lo in every host (what LCM's documentation tells
+  // users of a computer without a network to do), so stock liblcm joins and sends on lo. Without
+  // it the group routes to the vehicle link here, which lcmx's host-local mode handles too (the
+  // ordinary-computer cases: local_group_test.cpp).
   void route_local_group_to_lo() {
     const auto cfg_start = discovery_url.find("://") + 3;
     const auto group = discovery_url.substr(cfg_start, discovery_url.find(':', cfg_start) - cfg_start);

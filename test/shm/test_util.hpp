@@ -6,7 +6,9 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
+#include <sched.h>
 #include <sys/mman.h>
+#include <sys/mount.h>
 #include <sys/syscall.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -159,10 +161,33 @@ struct Pipe {
 // A fork()ed child running fn (returning its exit code); killed -9 and reaped on destruction.
 class Child {
  public:
-  explicit Child(const std::function<int()>& fn) {
-    pid_ = ::fork();
-    if (pid_ < 0) std::abort();
+  // clone_flags: 0 = fork(). CLONE_NEWPID and/or CLONE_NEWNS emulate a container: the child
+  // is pid 1 of a new pid namespace (killing it kills the namespace) and, with CLONE_NEWNS,
+  // gets a private mount tree with its own /proc ("unshare --pid --fork --mount-proc").
+  // `setup` runs in the child before fn (e.g. mount a private /dev/shm); nonzero = exit code.
+  explicit Child(const std::function<int()>& fn, int clone_flags = 0,
+                 const std::function<int()>& setup = {}) {
+    if (clone_flags == 0) {
+      pid_ = ::fork();
+    } else {
+      pid_ = static_cast<pid_t>(::syscall(SYS_clone, clone_flags | SIGCHLD, nullptr, nullptr,
+                                          nullptr, nullptr));
+    }
+    if (pid_ < 0) {
+      error_ = errno;
+      return;
+    }
     if (pid_ == 0) {
+      if ((clone_flags & CLONE_NEWNS) != 0) {
+        if (::mount(nullptr, "/", nullptr, MS_REC | MS_PRIVATE, nullptr) != 0) std::_Exit(97);
+        if ((clone_flags & CLONE_NEWPID) != 0 &&
+            ::mount("proc", "/proc", "proc", MS_NOSUID | MS_NODEV | MS_NOEXEC, nullptr) != 0) {
+          std::_Exit(98);
+        }
+      }
+      if (setup) {
+        if (int rc = setup(); rc != 0) std::_Exit(rc);
+      }
       int rc = 1;
       try {
         rc = fn();
@@ -184,10 +209,15 @@ class Child {
     }
   }
   pid_t pid() const { return pid_; }
-  void kill9() { ::kill(pid_, SIGKILL); }
+  bool started() const { return pid_ > 0; }
+  int error() const { return error_; }  // errno of a failed fork/clone
+  void kill9() {
+    if (pid_ > 0) ::kill(pid_, SIGKILL);
+  }
   // Waits for the child's exit (pidfd + poll, deadline). Returns the raw wait status, or -1
   // on timeout.
   int wait(std::chrono::milliseconds timeout) {
+    if (pid_ <= 0) return -1;
     if (reaped_) return status_;
     int pfd = static_cast<int>(::syscall(SYS_pidfd_open, pid_, 0));
     if (pfd >= 0) {
@@ -206,6 +236,7 @@ class Child {
 
  private:
   pid_t pid_ = -1;
+  int error_ = 0;
   bool reaped_ = false;
   int status_ = 0;
 };

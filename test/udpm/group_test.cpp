@@ -263,7 +263,7 @@ TEST_CASE("drain resumes after a throwing callback without losing datagrams", "[
   CHECK(seen == std::vector<std::uint32_t>{0, 1, 2, 3, 4});
 }
 
-TEST_CASE("A message whose (source, sequence) was delivered already is dropped, also fragmented",
+TEST_CASE("A message whose source and sequence were delivered already is dropped - also fragmented",
           "[integration][group][dedupe]") {
   auto cfg = unique_config();
   auto rx = Group::open(cfg);

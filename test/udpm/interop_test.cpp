@@ -155,3 +155,65 @@ TEST_CASE("interop: lcm-logger records what lcmx publishes on LCM's default URL"
   CHECK(n >= 1);
   CHECK(first_size == 3000);
 }
+
+// Host-local mode (no iface=) on a host whose group routes to its LAN interface, like an
+// ordinary computer's: joined on lo and lan0, publish() on lo, publish_routed() on lan0 from the
+// same port, both recognised as its own, neither received by itself with receive_own = false;
+// liblcm's ttl=0 datagrams (sent on lan0) are heard, and liblcm hears publish_routed().
+TEST_CASE("interop: host-local mode on a LAN-routed host - lo and the routed interface both ways",
+          "[integration][interop]") {
+  Netns ns(NetnsRoute::lan);
+  EnterNetns in(ns);
+  auto cfg = unique_config();
+  cfg.interface = "";  // what a URL without iface= gives
+  auto rx = Group::open(cfg);
+  auto self_cfg = cfg;
+  self_cfg.receive_own = false;
+  auto tx = Group::open(self_cfg);
+  CHECK(rx.routed_interface() == "lan0");
+  CHECK(tx.routed_interface() == "lan0");
+  CHECK_FALSE(rx.refresh());  // the route did not change
+
+  // stock -> lcmx: liblcm sends where the group routes (lan0).
+  {
+    Child pub({LCMX_UDPM_PEER, "pub", lcm_url(cfg), "FROM_LIBLCM", "20", "300"});
+    std::vector<std::uint32_t> got;
+    REQUIRE(poll_until(rx, [&](const Message& m) { if (m.channel == "FROM_LIBLCM") got.push_back(payload_index(m.data)); },
+                       [&] { return got.size() >= 20; }));
+    CHECK(pub.wait() == 0);
+    CHECK(got.size() == 20);
+    CHECK(rx.counters().duplicates_dropped == 0);
+  }
+
+  // publish() from 127.0.0.1, publish_routed() from lan0's address, one port.
+  tx.drain([](const Message&) {});  // liblcm's, above
+  const auto before = tx.counters().packets_received;
+  tx.publish("ON_LO", make_payload(1, 100));
+  tx.publish_routed("ON_LAN", make_payload(2, 100));
+  std::vector<std::string> channels;
+  std::vector<Source> sources;
+  REQUIRE(poll_until(rx, [&](const Message& m) { channels.emplace_back(m.channel); sources.push_back(m.source); },
+                     [&] { return channels.size() >= 2; }));
+  REQUIRE(channels == std::vector<std::string>{"ON_LO", "ON_LAN"});
+  CHECK(to_string(sources[0]) == "127.0.0.1:" + std::to_string(ntohs(tx.local_source().port_be)));
+  CHECK(to_string(sources[1]) == std::string(kLanAddress) + ":" + std::to_string(ntohs(tx.local_source().port_be)));
+  CHECK(tx.is_own(sources[0]));
+  CHECK(tx.is_own(sources[1]));
+  CHECK_FALSE(rx.is_own(sources[1]));
+  tx.poll(50ms, [](const Message&) {});
+  CHECK(tx.counters().packets_received == before);  // its own, dropped in the kernel
+
+  // lcmx -> stock: liblcm joined where the group routes and hears publish_routed().
+  Child sub({LCMX_UDPM_PEER, "sub", lcm_url(cfg), "TO_LIBLCM", "10", "10000"});
+  REQUIRE(sub.read_line() == std::optional<std::string>("ready"));
+  for (std::uint32_t i = 0; i < 10; ++i) tx.publish_routed("TO_LIBLCM", make_payload(i, 500));
+  std::vector<std::string> lines;
+  for (int guard = 0; guard < 12; ++guard) {
+    auto line = sub.read_line();
+    if (!line) break;
+    lines.push_back(*line);
+  }
+  CHECK(sub.wait() == 0);
+  REQUIRE(lines.size() == 11);
+  CHECK(lines.back() == "done 10");
+}

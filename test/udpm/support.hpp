@@ -272,19 +272,33 @@ inline int run(const std::vector<std::string>& argv) {
 
 // ---- network namespaces ----
 // Creates "lcmxt_<pid>_<n>" with lo up and a multicast route on lo; deletes it on destruction.
+// NetnsRoute::lan instead looks like an ordinary computer: a veth pair lan0/lan1 inside the
+// namespace, lan0 10.77.0.1/24 with the default route (via 10.77.0.254), no multicast route.
 // Namespaces left behind by dead test processes (lcmxt_<pid>_* whose pid is gone) are removed.
+enum class NetnsRoute { lo, lan };
+inline constexpr const char* kLanAddress = "10.77.0.1";
+
 class Netns {
  public:
-  Netns() {
+  explicit Netns(NetnsRoute route = NetnsRoute::lo) {
     remove_stale();
     static int counter = 0;
     name_ = "lcmxt_" + std::to_string(::getpid()) + "_" + std::to_string(++counter);
     if (run({LCMX_IP, "netns", "add", name_}) != 0) throw std::runtime_error("ip netns add " + name_ + " failed");
     created_ = true;
-    if (run({LCMX_IP, "-n", name_, "link", "set", "lo", "up"}) != 0 ||
-        run({LCMX_IP, "-n", name_, "route", "add", "224.0.0.0/4", "dev", "lo"}) != 0) {
+    bool ok = run({LCMX_IP, "-n", name_, "link", "set", "lo", "up"}) == 0;
+    if (route == NetnsRoute::lo) {
+      ok = ok && run({LCMX_IP, "-n", name_, "route", "add", "224.0.0.0/4", "dev", "lo"}) == 0;
+    } else {
+      ok = ok && run({LCMX_IP, "-n", name_, "link", "add", "lan0", "type", "veth", "peer", "name", "lan1"}) == 0 &&
+           run({LCMX_IP, "-n", name_, "addr", "add", std::string(kLanAddress) + "/24", "dev", "lan0"}) == 0 &&
+           run({LCMX_IP, "-n", name_, "link", "set", "lan1", "up"}) == 0 &&
+           run({LCMX_IP, "-n", name_, "link", "set", "lan0", "up"}) == 0 &&
+           run({LCMX_IP, "-n", name_, "route", "add", "default", "via", "10.77.0.254", "dev", "lan0"}) == 0;
+    }
+    if (!ok) {
       del();
-      throw std::runtime_error("cannot set up lo in " + name_);
+      throw std::runtime_error("cannot set up the interfaces of " + name_);
     }
   }
   Netns(const Netns&) = delete;

@@ -26,8 +26,13 @@
 
 namespace lcmx::shm {
 
-// Every segment name lcmx creates starts with this, e.g. "lcmx_3f2a..._1234_7_g0".
+// Every segment name lcmx creates starts with this, e.g. "lcmx_3f2a..._1234n4026531836_7_g0".
 inline constexpr const char* kPrefix = "lcmx_";
+
+// This process's part of segment names: "<pid>n<pid-namespace inode, hex>" (a random
+// component instead if /proc is unavailable). Unique among processes sharing /dev/shm even
+// across pid namespaces (containers), where bare pids collide.
+std::string process_tag();
 
 enum class Errc {
   too_large,         // message exceeds WriterOptions::max_message_size
@@ -36,6 +41,7 @@ enum class Errc {
   no_subscriber_slot,// segment's subscriber table is full of live readers
   invalid_argument,  // bad options or name
   system,            // an OS call failed (message says which, with errno text)
+  untrusted,         // segment file owned by another user (not root) or writable by others
 };
 
 class Error : public std::runtime_error {
@@ -100,11 +106,16 @@ class Writer {
   // segment closed and wakes sleeping Readers (they then see writer_alive() == false).
   ~Writer();
 
-  // Reserves a slot of at least `size` bytes, moving to a larger generation first if needed.
+  // Reserves a slot of at least `size` bytes, moving to a larger generation first if needed
+  // (or to a fresh one if another process truncated the current file).
   // Never waits for Readers: skips slots pinned by Readers (reclaiming pins of dead Readers).
-  // Throws Error(too_large) if size > max_message_size, Error(system) if growth fails or all
-  // slots are pinned (only if slot_count < kMaxPins * live Readers + 1), and
-  // Error(invalid_argument) if another WriteLoan of this Writer is still alive (one at a time).
+  // If every slot is pinned by live Readers (possible when slot_count < kMaxPins * live
+  // Readers + 1, e.g. the defaults with 3+ Readers holding samples), the loan is a private
+  // buffer: committing it publishes nothing but takes a sequence number, so every Reader
+  // counts it as a drop, and dropped() counts it here. Never throws for pinned slots.
+  // Throws Error(too_large) if size > max_message_size, Error(system) if growth fails (e.g.
+  // /dev/shm full: posix_fallocate's ENOSPC), and Error(invalid_argument) if another
+  // WriteLoan of this Writer is still alive (one at a time).
   WriteLoan loan(std::size_t size);
 
   // Publishes the first `size` bytes of the loan as the next message and wakes all waiting
@@ -117,7 +128,8 @@ class Writer {
   std::uint64_t write(const void* data, std::size_t size);
 
   const std::string& segment_name() const;     // current generation's name
-  std::uint64_t published() const noexcept;    // messages committed so far
+  std::uint64_t published() const noexcept;    // messages committed so far (dropped included)
+  std::uint64_t dropped() const noexcept;      // commits dropped because every slot was pinned
   std::uint32_t live_readers() const noexcept; // Readers registered now (dead ones not counted)
   // Readers registered now in this or an older generation they have not left yet, dead
   // ones included until reclaimed. Cheap (no /proc access): for the publish hot path;
@@ -142,6 +154,11 @@ class ReadSample {
   const std::byte* data() const noexcept { return data_; }
   std::size_t size() const noexcept { return size_; }
   std::uint64_t sequence() const noexcept { return sequence_; }  // as returned by commit()
+  // Call AFTER reading (decoding/copying) the data: true if the slot still holds this message
+  // and this Reader's registration was never taken over, i.e. nothing rewrote what was read
+  // (seqlock-style re-check). False after a hostile truncation or a broken pin: discard what
+  // was read and count it as a drop. Cheap (two loads).
+  bool intact() const noexcept;
 
  private:
   friend class Reader;
@@ -170,8 +187,9 @@ class Reader {
 
   // Opens a Writer's segment by name (any generation; follows to the newest) and registers
   // in its subscriber table, reclaiming entries of dead processes. The first message
-  // returned is the next one committed after open. Throws Error (not_found, corrupt,
-  // no_subscriber_slot, system).
+  // returned is the next one committed after open. The file must be owned by our euid or
+  // root and not writable by others (names come from unauthenticated beacons). Throws Error
+  // (not_found, corrupt, untrusted, no_subscriber_slot, system).
   static Reader open(const std::string& segment_name);
 
   Reader(Reader&&) noexcept;
@@ -181,17 +199,28 @@ class Reader {
   // The next message in order, pinned; nullopt when there is none new. Messages overwritten
   // before being read are skipped and counted in drops(). Follows generations.
   // Throws Error(too_many_pins -> invalid_argument) if kMaxPins samples are alive; when
-  // following the Writer to a new generation, the errors of open() (no_subscriber_slot,
-  // corrupt, system) — the Reader then stays where it was and may retry.
+  // following the Writer to a new generation fails, the error of open() (no_subscriber_slot,
+  // corrupt, untrusted, system) once: the Reader stays where it was and retries by itself
+  // after 100 ms (doubling up to 1 s; has_data() is false meanwhile, take() returns nullopt
+  // without throwing again until a follow succeeds). After a clean Writer exit, a Reader
+  // still in an older generation drains every later one (the Writer leaves them for it);
+  // anything it cannot reach any more is counted in drops().
   std::optional<ReadSample> take();
 
   bool has_data() const noexcept;             // take() would return a message now (hint)
+  // While has_data() is false only because the Reader is backing off (a failed generation
+  // follow, a truncated file, a Writer seen inside a slot probe): when to poll again. No
+  // commit may wake a futex wait for it, so bound the wait by this. Epoch (time_point{})
+  // when not backing off.
+  std::chrono::steady_clock::time_point retry_at() const noexcept;
   // While armed: how many Readers (this one included) are armed on this segment, i.e. were
   // woken together by the last commit (hint, for fan-out scheduling). 0 when not armed.
   std::uint32_t armed_readers() const noexcept;
   std::uint64_t drops() const noexcept;       // messages this Reader lost
   std::uint64_t received() const noexcept;    // messages returned by take()
-  bool writer_alive() const;                  // the Writer's process still runs
+  // The Writer still runs and has not closed the segment: its OFD lock on the segment file is
+  // held (works across pid namespaces; no pid is involved). One fcntl call.
+  bool writer_alive() const;
   const std::string& segment_name() const;    // current generation
 
   // Sleep protocol (no lost wake-ups):
@@ -206,11 +235,14 @@ class Reader {
   std::unique_ptr<detail::ReaderImpl> impl_;
 };
 
-// Removes segments with `prefix` whose creating process is dead (pid + start time do not
-// match a live process). Segments of live owners are left alone (not counted). Files with the
-// prefix that are foreign, truncated or corrupt (header cannot be parsed) are left alone,
-// logged with spdlog::warn (one line each) and counted in `skipped`. Never throws for bad
-// files.
+// (Liveness and death notification for core: lcmx/shm/liveness.hpp.)
+
+// Removes segments with `prefix` whose Writer is gone (its OFD lock on the file is free:
+// exact in every pid namespace sharing /dev/shm, immune to pid reuse), except generations a
+// live Reader still needs to drain a cleanly exited Writer. Segments of live Writers are
+// left alone (not counted). Files with the prefix that are foreign, truncated, corrupt or
+// untrusted are left alone, logged with spdlog::warn (one line each) and counted in
+// `skipped`. Never throws for bad files.
 struct ReclaimReport {
   std::size_t removed = 0;
   std::size_t skipped = 0;

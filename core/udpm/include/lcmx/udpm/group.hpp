@@ -60,8 +60,9 @@ struct Counters {
 //    interface, so a socket gets it once however many interfaces it joined; a repeated
 //    (source, sequence) is dropped all the same, see duplicates_dropped);
 //  - publish() sends on lo (beacons: they keep working whatever happens to the LAN interface);
-//  - publish_routed() sends on the routed interface, where every stock program (C, Java's
-//    lcm-spy, Python) joined, from the same port as publish() (a second source address);
+//  - publish_routed() sends on the routed interface, where every stock program (liblcm's C and
+//    C++ programs, Java's lcm-spy) joined, from the same port as publish() (a second source
+//    address);
 //  - refresh() follows route changes: joins the newly routed interface too, moves
 //    publish_routed() there. With no route at all (liblcm refuses to start then) it is lo.
 // With ttl=0 nothing leaves the host; joining a LAN interface sends IGMP reports there, as
@@ -104,7 +105,7 @@ class Group {
   // Returns true if anything changed. Receive thread. Never throws (failures are logged).
   bool refresh();
 
-  // The interface publish_routed() sends on (e.g. "eth0", "lo").
+  // The interface publish_routed() sends on (e.g. "eth0", "lo"). Thread-safe.
   std::string routed_interface() const;
 
   // The receive socket: readable when datagrams are waiting (for poll/epoll). Do not read it.

@@ -36,7 +36,9 @@ namespace lcmx::shm::detail {
 
 inline constexpr std::size_t kCacheLine = 64;
 inline constexpr std::uint32_t kMagic = 0x584d434cu;  // "LCMX" little-endian
-inline constexpr std::uint32_t kVersion = 2;  // 2: SubscriberEntry::next replaces received
+// 2: SubscriberEntry::next replaces received. 3: liveness by OFD locks (see below), state
+// word with an epoch, armed flag, owner pid namespace, final_seq.
+inline constexpr std::uint32_t kVersion = 3;
 inline constexpr int kMaxPins = 4;                     // == Reader::kMaxPins
 
 inline constexpr std::uint64_t kSlotEmpty = ~std::uint64_t{0} - 1;
@@ -52,13 +54,26 @@ inline constexpr std::uint32_t kMaxSlotCount = (1u << kDescIndexBits) - 1;
 inline constexpr std::uint32_t kMaxSubscribersLimit = 4096;
 inline constexpr std::uint64_t kMaxSlotSize = std::uint64_t{1} << 40;
 
+// SubscriberEntry::state = (epoch << 8) | SubState. The epoch changes on every transition,
+// so a compare-exchange that read the word before someone freed and re-claimed the entry
+// fails (no ABA). Mutating an entry also requires its OFD lock (below).
 enum SubState : std::uint32_t {
   kSubFree = 0,
-  kSubClaiming = 1,   // being registered (pid may still be 0)
   kSubActive = 2,
-  kSubReclaiming = 3, // a reclaimer won the CAS and is clearing it
 };
+constexpr std::uint32_t sub_state(std::uint32_t word) noexcept { return word & 0xffu; }
+constexpr std::uint32_t sub_epoch(std::uint32_t word) noexcept { return word >> 8; }
+constexpr std::uint32_t sub_word(std::uint32_t epoch, std::uint32_t state) noexcept {
+  return (epoch << 8) | state;
+}
 
+// Liveness: open file description (OFD) locks on the segment file, which the kernel drops
+// when the holder dies, in any pid namespace sharing the file. Byte kWriterLockByte is held
+// (write lock) by the Writer for its lifetime; byte kEntryLockBase + i by the Reader owning
+// subscriber entry i (and briefly by a process registering into or reclaiming entry i). The
+// bytes are lock offsets only (they may lie past the end of the file).
+inline constexpr std::uint64_t kWriterLockByte = 0;
+inline constexpr std::uint64_t kEntryLockBase = 1;
 constexpr std::uint64_t pack_desc(std::uint64_t seq, std::uint32_t slot) noexcept {
   return (seq << kDescIndexBits) | slot;
 }
@@ -76,7 +91,7 @@ struct SegmentHeader {
   std::uint64_t slot_size;            // payload bytes per slot, multiple of kCacheLine
   std::uint64_t total_size;           // bytes of the whole segment
   std::uint64_t generation;
-  std::int32_t owner_pid;
+  std::int32_t owner_pid;             // in the owner's pid namespace (informational, pidfd)
   std::uint32_t reserved0;
   std::uint64_t owner_start_time;     // /proc/<pid>/stat field 22 (clock ticks since boot)
   std::uint64_t first_global_seq;
@@ -88,7 +103,11 @@ struct SegmentHeader {
   std::atomic<std::uint64_t> next_generation;  // 0 = none; else successor's generation
   std::atomic<std::uint32_t> writer_closed;    // 1 once the Writer was destroyed
   std::atomic<std::uint32_t> sub_high_water;   // entries [0, hw) may be non-free
-  std::uint64_t reserved1[2];
+  std::uint64_t owner_pidns;          // inode of the owner's /proc/self/ns/pid (0 = unknown)
+  // Messages the Writer committed in all generations (global count), stored before
+  // writer_closed (release) in every generation it still had: a Reader that cannot reach
+  // a later generation after the Writer exited counts the rest as drops.
+  std::atomic<std::uint64_t> final_seq;
   // ---- line 2: writer-side index ----
   std::atomic<std::uint64_t> write_seq;  // messages committed in this generation
   std::uint64_t reserved2[7];
@@ -99,9 +118,10 @@ struct SegmentHeader {
 };
 
 struct SubscriberEntry {
-  std::atomic<std::uint32_t> state;      // SubState
-  std::atomic<std::int32_t> pid;
-  std::atomic<std::uint64_t> start_time;
+  std::atomic<std::uint32_t> state;      // sub_word(epoch, SubState)
+  std::atomic<std::int32_t> pid;         // informational (liveness is the entry's lock)
+  std::atomic<std::uint32_t> armed;      // 1 while counted in SegmentHeader::waiters
+  std::uint32_t reserved;
   std::atomic<std::uint64_t> pins[kMaxPins];
   std::atomic<std::uint64_t> drops;      // informational (the Reader keeps its own copy)
   // Seq (this generation) of the next message this Reader will take. A hint for the Writer's
@@ -134,10 +154,13 @@ static_assert(offsetof(SegmentHeader, owner_pid) == 40);
 static_assert(offsetof(SegmentHeader, first_global_seq) == 56);
 static_assert(offsetof(SegmentHeader, subscribers_offset) == 1 * kCacheLine);
 static_assert(offsetof(SegmentHeader, next_generation) == 1 * kCacheLine + 32);
+static_assert(offsetof(SegmentHeader, owner_pidns) == 1 * kCacheLine + 48);
+static_assert(offsetof(SegmentHeader, final_seq) == 1 * kCacheLine + 56);
 static_assert(offsetof(SegmentHeader, write_seq) == 2 * kCacheLine);
 static_assert(offsetof(SegmentHeader, futex_word) == 3 * kCacheLine);
 static_assert(offsetof(SegmentHeader, waiters) == 3 * kCacheLine + 4);
 static_assert(sizeof(SubscriberEntry) == kCacheLine);
+static_assert(offsetof(SubscriberEntry, armed) == 8);
 static_assert(offsetof(SubscriberEntry, pins) == 16);
 static_assert(offsetof(SubscriberEntry, next) == 56);
 static_assert(sizeof(SlotHeader) == kCacheLine);
