@@ -116,7 +116,7 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
   }
   // A participant of this host that vanished without a goodbye may have left shared memory.
   if (!vehicle && change == discovery::Change::left && options.reclaim_orphans) {
-    const auto r = shm::reclaim_orphans(own_shm_prefix);
+    const auto r = shm::reclaim_orphans();
     if (r.removed > 0)
       spdlog::info("lcmx: removed {} shared-memory segments of {} pid {}", r.removed,
                    b.process_name, b.pid);

@@ -42,9 +42,8 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     if (glob.empty() || glob.size() > 255)
       throw Error(Errc::invalid_argument, "mirror_channels: a channel pattern must have 1..255 characters");
   if (options.reclaim_orphans) {
-    // Segments of this host id, whatever pid namespace made them: liveness is the Writer's
-    // OFD lock (exact across pid namespaces), never a pid.
-    const auto r = shm::reclaim_orphans(own_shm_prefix);
+    // Every lcmx segment whose writer is dead (shm's liveness is exact across pid namespaces).
+    const auto r = shm::reclaim_orphans();
     if (r.removed > 0) spdlog::info("lcmx: removed {} shared-memory segments of dead processes", r.removed);
   }
 }
