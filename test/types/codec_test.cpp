@@ -266,7 +266,7 @@ TEST_CASE("lcm-gen-encoded messages decode and re-encode to the same bytes", "[u
   round_trip(r, plain);
 }
 
-TEST_CASE("random trees encode as lcm-gen does, for every corpus type", "[unit]") {
+TEST_CASE("random trees encode as lcm-gen does - every corpus type", "[unit]") {
   const TypeRegistry& r = corpus();
   random_round_trips<corpus_a::primitives_t>(r, "corpus_a.primitives_t");
   random_round_trips<corpus_a::arrays_t>(r, "corpus_a.arrays_t");
@@ -311,7 +311,7 @@ TEST_CASE("lcmx's own messages decode: a beacon and a large image", "[unit]") {
   round_trip(r, pc);
 }
 
-TEST_CASE("truncated, mismatched and hostile messages are errors", "[unit]") {
+TEST_CASE("truncated - mismatched - hostile messages are errors", "[unit]") {
   const TypeRegistry& r = corpus();
   const std::vector<std::uint8_t> good = lcm_encode(make_scene());
   const StructType& scene = r.at("corpus_b.scene_t");
@@ -404,6 +404,11 @@ TEST_CASE("encoding a tree that does not fit its type names the field", "[unit]"
   v.as<Struct>().find("corners")->as<Array>()[2].as<Struct>().find("y")->data = std::string("no");
   CHECK_THAT(error_of([&] { encode(t, v); }), Contains("corners[2].y: expected a number"));
 
+  // A zero value encodes like a value-initialized generated object (recursive tree_t too).
+  CHECK(encode(r.at("corpus_b.tree_t"), zero_value(r.at("corpus_b.tree_t"))) == lcm_encode(corpus_b::tree_t{}));
+  CHECK(encode(r.at("corpus_b.scene_t"), zero_value(r.at("corpus_b.scene_t"))).size() ==
+        static_cast<std::size_t>(corpus_b::scene_t{}.getEncodedSize()));
+
   const StructType& p = r.at("corpus_a.primitives_t");
   Value q = zero_value(p);
   q.as<Struct>().find("i8")->data = std::int64_t{128};
@@ -416,7 +421,7 @@ TEST_CASE("encoding a tree that does not fit its type names the field", "[unit]"
   CHECK(decode(p, encode(p, q).data(), encode(p, q).size()).as<Struct>().find("f64")->as<double>() == 3.0);
 }
 
-TEST_CASE("JSON rendering is one line, in field order, escaped", "[unit]") {
+TEST_CASE("JSON rendering is one line in field order and escaped", "[unit]") {
   const TypeRegistry& r = corpus();
   corpus_b::stamp_t st;
   st.utime = -5;

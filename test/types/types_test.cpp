@@ -110,7 +110,7 @@ TEST_CASE("lcmx's own lcmtypes fingerprints equal their generated getHash()", "[
   check_hash<lcmx_examples::bench_t>(r, "lcmx_examples.bench_t");
 }
 
-TEST_CASE("the parser keeps members, dimensions and constants as declared", "[unit]") {
+TEST_CASE("the parser keeps members and dimensions and constants as declared", "[unit]") {
   const TypeRegistry& r = corpus();
   const StructType& p = r.at("corpus_a.primitives_t");
   CHECK(p.file.find("primitives.lcm") != std::string::npos);
@@ -160,7 +160,7 @@ TEST_CASE("a constant as array size is a fixed dimension hashed as the constant'
   CHECK(parse("struct s { int32_t a[0x4]; }", "h.lcm")[0].base_hash != literal[0].base_hash);
 }
 
-TEST_CASE("a struct name may carry its package, as lcm-gen allows", "[unit]") {
+TEST_CASE("a struct name may carry its package as lcm-gen allows", "[unit]") {
   const auto types = parse("package p;\nstruct q.r.s_t { t_t x; }", "q.lcm");
   REQUIRE(types.size() == 1);
   CHECK(types[0].package == "q.r");

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <unordered_map>
 
 #include "lcmx/types/value.hpp"
 
@@ -335,6 +336,30 @@ class Encoder {
   std::vector<PathItem> path_;
 };
 
+// Nodes in a zero tree of `t` (variable arrays empty), saturated at `cap`; memoized per type.
+std::size_t zero_nodes(const StructType& t, std::size_t cap, int depth,
+                       std::unordered_map<const StructType*, std::size_t>& memo) {
+  if (depth > kMaxDepth)
+    throw Error("zero_value: " + t.full_name() + " nests deeper than " + std::to_string(kMaxDepth));
+  if (auto it = memo.find(&t); it != memo.end()) return it->second;
+  std::size_t total = 1;
+  for (const Member& m : t.members) {
+    std::size_t count = 1, nodes = 1;
+    for (const Dimension& d : m.dims) {
+      count = d.variable ? 0 : std::min(cap, count * static_cast<std::size_t>(d.fixed));
+      nodes = std::min(cap, nodes + count);
+    }
+    if (count == 0) {  // an empty variable array (a recursive type's only way to nest itself)
+      total = std::min(cap, total + nodes);
+      continue;
+    }
+    const std::size_t element = m.primitive ? 1 : zero_nodes(*m.nested, cap, depth + 1, memo);
+    total = std::min(cap, total + nodes + (count > cap / std::max<std::size_t>(element, 1) ? cap : count * element));
+  }
+  memo.emplace(&t, total);
+  return total;
+}
+
 // zero_value's walk; `budget` bounds the nodes made (fixed arrays of huge types).
 struct ZeroMaker {
   std::size_t budget = std::size_t{1} << 24;
@@ -459,6 +484,12 @@ Value field(const Value& value, std::string_view path) {
   return *v;
 }
 
-Value zero_value(const StructType& type) { return ZeroMaker{}.structure(type, 0); }
+Value zero_value(const StructType& type) {
+  constexpr std::size_t cap = std::size_t{1} << 24;
+  std::unordered_map<const StructType*, std::size_t> memo;
+  if (zero_nodes(type, cap + 1, 0, memo) > cap)  // counted first: nothing is allocated
+    throw Error("zero_value: " + type.full_name() + " has more than 2^24 elements");
+  return ZeroMaker{}.structure(type, 0);
+}
 
 }  // namespace lcmx::types
