@@ -449,6 +449,7 @@ TEST_CASE("subscribe_channels: every channel the filter accepts, with its name, 
 
   sub.reset();  // unsubscribes every channel
   CHECK(early.subscriber_count() == 0);
+}
 
 // RuntimeOptions::mirror_channels (LCMX_MIRROR="CAM_*,POSE"): only matching small channels
 // also go on the host-local group, for stock LCM programs.
