@@ -18,6 +18,7 @@
 
 #include "lcmx/core/runtime.hpp"
 #include "lcmx/discovery/discovery.hpp"
+#include "lcmx/shm/liveness.hpp"
 #include "lcmx/shm/segment.hpp"
 
 namespace lcmx::detail {
@@ -211,6 +212,23 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   static constexpr int kOpenFailuresReported = 3;
   std::map<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>, int> open_failures;
   std::set<std::int64_t> neighbours_reported;  // guarded by mu
+  // Fast death notice for shm publishers in another pid namespace (a container sharing
+  // /dev/shm: no pidfd for them, discovery leaves them to their lease): shm::OwnerWatch on
+  // the segment we read, its fd in rx_epoll (receive thread). A publisher whose writer died
+  // is "dead": its matches retire at once (publisher_unmatched) and its stale beacon does not
+  // match it again. Guarded by mu; owner_watch null if it could not be set up (lease only).
+  struct WatchedPublisher {
+    std::uint64_t participant = 0, endpoint = 0;
+    std::string segment;
+  };
+  std::unique_ptr<shm::OwnerWatch> owner_watch;
+  std::map<std::uint64_t, WatchedPublisher> owner_keys;               // watch key -> publisher
+  std::set<std::pair<std::uint64_t, std::uint64_t>> owner_watched;    // (participant, endpoint)
+  std::set<std::pair<std::uint64_t, std::uint64_t>> dead_publishers;  // (participant, endpoint)
+  const std::uint64_t own_pid_namespace;
+  void watch_owner_locked(const lcmx_msgs::beacon_t& b, const lcmx_msgs::endpoint_t& e);
+  void forget_owner_locked(std::uint64_t participant);
+  void on_owner_death();  // receive thread, no lock held
   void report_mismatch_locked(std::uint64_t local_endpoint, std::uint64_t remote_participant,
                               std::uint64_t remote_endpoint, const std::string& channel,
                               const std::string& text, std::vector<std::string>& errors,

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <cstdlib>
 
 #include "internal.hpp"
 
@@ -90,6 +91,10 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
         continue;
       }
       if (path == Path::shm && e.shm_segment.empty()) continue;  // bridges' segments too
+      // Its writer died (OwnerWatch) but its beacon has not expired yet: gone.
+      if (path == Path::shm &&
+          dead_publishers.count({static_cast<std::uint64_t>(b.participant_id), static_cast<std::uint64_t>(e.id)}))
+        continue;
       wanted.insert({static_cast<std::uint64_t>(b.participant_id), static_cast<std::uint64_t>(e.id)});
       candidates.push_back({&b, &e, path == Path::shm && from_bridge ? Path::bridge : path});
     }
@@ -143,13 +148,18 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
       try {
         m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment));
         open_failures.erase(fkey);
+        watch_owner_locked(*b, *e);
       } catch (const shm::Error& err) {
         // The publisher may be gone or be creating a new generation: retried on its next
         // beacon. Failing on several beacons in a row is no transient: an error Event, once.
         spdlog::debug("lcmx: channel '{}': cannot open {} yet: {}", sub.channel(), e->shm_segment,
                       err.what());
         if (open_failures.size() >= 4096) open_failures.clear();  // bounded
-        if (++open_failures[fkey] == kOpenFailuresReported)
+        // A file refused as untrusted (foreign owner, writable by others) is no transient:
+        // said at once.
+        const int failures = ++open_failures[fkey];
+        if (failures == kOpenFailuresReported ||
+            (failures == 1 && err.code() == shm::Errc::untrusted))
           events.push_back({Event::Kind::error, sub.channel(),
                             "channel '" + sub.channel() + "': node '" + st.node_name +
                                 "' cannot open the shared memory '" + e->shm_segment +
@@ -233,6 +243,100 @@ void RuntimeImpl::update_bridges_locked() {
       ++revision;
       announce_pending = true;
     }
+}
+
+// A publisher in another pid namespace (no pidfd for it): watch its writer (OwnerWatch) so
+// that its death is noticed in milliseconds, not after its lease. One watch per publisher.
+void RuntimeImpl::watch_owner_locked(const lcmx_msgs::beacon_t& b, const lcmx_msgs::endpoint_t& e) {
+  if (!owner_watch || b.pid_namespace == 0 ||
+      static_cast<std::uint64_t>(b.pid_namespace) == own_pid_namespace)
+    return;  // same pid namespace: discovery's pidfd says it at once
+  const std::pair<std::uint64_t, std::uint64_t> pub{static_cast<std::uint64_t>(b.participant_id),
+                                                    static_cast<std::uint64_t>(e.id)};
+  if (owner_watched.count(pub) || owner_watched.size() >= 4096) return;  // bounded
+  try {
+    const auto key = owner_watch->watch(e.shm_segment);
+    owner_keys[key] = {pub.first, pub.second, e.shm_segment};
+    owner_watched.insert(pub);
+  } catch (const shm::Error& err) {
+    spdlog::debug("lcmx: cannot watch the writer of {}: {} (its lease applies)", e.shm_segment,
+                  err.what());
+  }
+}
+
+void RuntimeImpl::forget_owner_locked(std::uint64_t participant) {
+  for (auto it = owner_keys.begin(); it != owner_keys.end();) {
+    if (it->second.participant != participant) {
+      ++it;
+      continue;
+    }
+    if (owner_watch) owner_watch->unwatch(it->first);
+    owner_watched.erase({it->second.participant, it->second.endpoint});
+    it = owner_keys.erase(it);
+  }
+  std::erase_if(dead_publishers, [&](const auto& p) { return p.first == participant; });
+}
+
+namespace {
+// Whether the writer of `segment` ("<base>_g<N>") or of one of its next generations runs: a
+// writer that grew closes older generations without dying.
+bool writer_runs(const std::string& segment) {
+  const auto g = segment.rfind("_g");
+  if (g == std::string::npos) return shm::owner_alive(segment);
+  const std::string base = segment.substr(0, g + 2);
+  const long n = std::strtol(segment.c_str() + g + 2, nullptr, 10);
+  for (long k = n; k < n + 8; ++k)
+    if (shm::owner_alive(base + std::to_string(k))) return true;
+  return false;
+}
+}  // namespace
+
+// Receive thread: OwnerWatch says writers died (or closed). A writer that only moved to a
+// newer generation is watched there instead; the others' publishers are gone at once, as on a
+// goodbye: their matches retire (the executor still reads what they committed).
+void RuntimeImpl::on_owner_death() {
+  std::vector<Event> events;
+  bool any = false;
+  {
+    std::lock_guard lock(mu);
+    if (!owner_watch) return;
+    std::vector<std::uint64_t> keys;
+    try {
+      keys = owner_watch->take_dead();
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx: OwnerWatch: {}", e.what());
+      return;
+    }
+    for (const auto key : keys) {
+      auto it = owner_keys.find(key);
+      if (it == owner_keys.end()) continue;
+      const auto w = it->second;
+      owner_keys.erase(it);
+      owner_watched.erase({w.participant, w.endpoint});
+      if (writer_runs(w.segment)) {  // grew (or closed an old generation): watch the current one
+        if (auto b = remotes.find(static_cast<std::int64_t>(w.participant)); b != remotes.end())
+          for (const auto& e : b->second.endpoints)
+            if (static_cast<std::uint64_t>(e.id) == w.endpoint && !e.shm_segment.empty())
+              watch_owner_locked(b->second, e);
+        continue;
+      }
+      dead_publishers.insert({w.participant, w.endpoint});
+      any = true;
+      spdlog::info("lcmx: the writer of {} died: its publisher is gone", w.segment);
+    }
+    if (any) {
+      for (auto& [id, sub] : subs) sync_remote_locked(*sub, events);
+      ++revision;
+      announce_pending = true;
+    }
+  }
+  if (!any) return;
+  if (announce_pending.exchange(false)) {
+    if (disco) disco->announce_now();
+    if (disco_vehicle) disco_vehicle->announce_now();
+  }
+  if (options.reclaim_orphans) shm::reclaim_orphans(own_shm_prefix);
+  emit(std::move(events));
 }
 
 }  // namespace lcmx::detail

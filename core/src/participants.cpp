@@ -49,6 +49,7 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
     const std::string where = vehicle ? " on host " + std::to_string(b.host_id) : "";
     if (change == discovery::Change::left) {
       scope_map.erase(b.participant_id);
+      if (!vehicle) forget_owner_locked(static_cast<std::uint64_t>(b.participant_id));
       events.push_back({Event::Kind::participant_left, "",
                         "participant " + b.process_name + " pid " + std::to_string(b.pid) + where + " left"});
     } else {

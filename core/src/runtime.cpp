@@ -28,7 +28,7 @@ std::string hex(std::uint64_t v) {
 
 RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     : options(std::move(o)), participant_id(discovery::random_participant_id()),
-      host(discovery::host_id()) {
+      host(discovery::host_id()), own_pid_namespace(discovery::pid_namespace()) {
   // Segment names: "lcmx_<host id hex>_<pid>n<pid-namespace inode hex>_<endpoint>_g<N>".
   // shm::process_tag() ("<pid>n<pidns>") keeps processes of several pid namespaces sharing
   // /dev/shm (containers) apart: equal pids, never equal names.
@@ -89,6 +89,18 @@ void RuntimeImpl::start_transports() {
   if (::epoll_ctl(rx_epoll, EPOLL_CTL_ADD, rx_wake_fd, &ev) != 0)
     throw Error(Errc::transport, "epoll_ctl failed");
   add_udp_waiter(-1);  // the receive thread's own registration
+  try {
+    owner_watch = std::make_unique<shm::OwnerWatch>();
+    epoll_event oev{};
+    oev.events = EPOLLIN;
+    oev.data.fd = owner_watch->fd();
+    if (::epoll_ctl(rx_epoll, EPOLL_CTL_ADD, owner_watch->fd(), &oev) != 0)
+      throw shm::Error(shm::Errc::system, "epoll_ctl failed");
+  } catch (const shm::Error& e) {
+    owner_watch.reset();
+    spdlog::warn("lcmx: no fast death notice for publishers in other pid namespaces (their "
+                 "lease applies): {}", e.what());
+  }
 
   std::weak_ptr<RuntimeImpl> weak = weak_from_this();
   auto make = [&](std::int8_t scope, std::shared_ptr<udpm::Group> group) {

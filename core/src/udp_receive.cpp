@@ -48,12 +48,16 @@ void RuntimeImpl::receive_loop() {
       refresh_routes();
     }
     if (n <= 0) continue;
-    for (int i = 0; i < n; ++i)
+    bool owner_event = false;
+    for (int i = 0; i < n; ++i) {
       if (evs[i].data.fd == rx_wake_fd) {
         std::uint64_t v;
         [[maybe_unused]] auto r = ::read(rx_wake_fd, &v, sizeof v);
       }
+      if (owner_watch && evs[i].data.fd == owner_watch->fd()) owner_event = true;
+    }
     if (stopped.load()) break;
+    if (owner_event) on_owner_death();
     std::lock_guard lock(recv_mu);
     drain_locked(true);
   }

@@ -1,4 +1,5 @@
 #include "lcmx/discovery/identity.hpp"
+#include "lcmx/shm/liveness.hpp"
 
 #include <sys/stat.h>
 #include <unistd.h>
@@ -47,16 +48,12 @@ std::uint64_t host_id() {
   // thread-self: a thread that entered another namespace (setns) is on that host.
   if (::stat("/proc/thread-self/ns/net", &st) == 0 || ::stat("/proc/self/ns/net", &st) == 0)
     netns = static_cast<std::uint64_t>(st.st_ino);
-  // The /dev/shm this process sees (device + inode): containers that share the network
-  // namespace but not /dev/shm cannot use each other's shared memory, so they are two hosts.
-  std::uint64_t shm_dev = 0, shm_ino = 0;
-  if (::stat("/dev/shm", &st) == 0) {
-    shm_dev = static_cast<std::uint64_t>(st.st_dev);
-    shm_ino = static_cast<std::uint64_t>(st.st_ino);
-  }
+  // The /dev/shm this process sees (shm::shm_domain_id: device + inode): containers that
+  // share the network namespace but not /dev/shm cannot use each other's shared memory, so
+  // they are two hosts.
   std::uint64_t h = fnv1a(machine);
   h = fnv1a(std::to_string(netns), h);
-  h = fnv1a(std::to_string(shm_dev) + ":" + std::to_string(shm_ino), h);
+  h = fnv1a(std::to_string(shm::shm_domain_id()), h);
   return h == 0 ? 1 : h;
 }
 

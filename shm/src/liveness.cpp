@@ -26,7 +26,11 @@ bool owner_alive(const std::string& segment_name) noexcept {
 std::uint64_t shm_domain_id() noexcept {
   struct stat st {};
   if (::stat("/dev/shm", &st) != 0) return 0;
-  return static_cast<std::uint64_t>(st.st_dev);
+  // Device and inode: a container whose /dev/shm is a bind mount of another directory of the
+  // same tmpfs has the same device but other files.
+  const std::uint64_t id = (static_cast<std::uint64_t>(st.st_dev) * 0x9e3779b97f4a7c15ull) ^
+                           static_cast<std::uint64_t>(st.st_ino);
+  return id == 0 ? 1 : id;
 }
 
 namespace {

@@ -22,8 +22,8 @@ namespace lcmx::shm {
 // holds the file. False if the file is gone or its Writer exited or died. One open + fcntl.
 bool owner_alive(const std::string& segment_name) noexcept;
 
-// Identity of the shared-memory domain /dev/shm (device number of its file system; 0 if it
-// cannot be stat'ed). Two processes of one host can exchange segments only if their
+// Identity of the shared-memory domain /dev/shm (its device and inode mixed; 0 if it cannot
+// be stat'ed). discovery::host_id() includes it (one notion of "same /dev/shm"). Two processes of one host can exchange segments only if their
 // domains are equal (containers with a private /dev/shm have another one): put it in the
 // host identity / beacons and choose another path when it differs.
 std::uint64_t shm_domain_id() noexcept;
