@@ -503,3 +503,56 @@ TEST_CASE("on a terminal (tmux): play shows a progress bar, starts paused, space
   CHECK(pane("rec").find("40 messages") != std::string::npos);
   CHECK(read_log(rec_log).size() == 40);
 }
+
+TEST_CASE("record --increment --split-mb starts FILE.NN+1 files, SIGHUP starts the next one, nothing is lost",
+          "[integration][log]") {
+  Session s(89, 60000ms);
+  TmpDir d;
+  const std::string base = d.file("split.lcmlog");
+  const std::string ch = unique_channel("SPLIT", 89);
+  const int n = 200;
+  auto& rec = s.spawn({LCMX_TOOL, "record", base, "-c", ch, "-i", "--split-mb", "0.05", "--flush-interval", "10",
+                       "--json"},
+                      {}, true);
+  REQUIRE(rec.expect("lcmx record: recording to " + base + ".00"));
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "bench", "--size", "1000", "--count", std::to_string(n),
+                      "--rate", "400", "--subscribers", "1", "--id", "SP", "--hold"});
+  REQUIRE(pub.expect("PUBLISHED", 20000ms));
+  auto total = [&] {
+    std::size_t t = 0;
+    for (int i = 0; i < 100; ++i) {
+      char suffix[16];
+      std::snprintf(suffix, sizeof suffix, ".%02d", i);
+      if (file_size(base + suffix) == 0 && i > 0) break;
+      t += count_channel(base + suffix, ch);
+    }
+    return t;
+  };
+  REQUIRE(wait_until([&] { return total() == static_cast<std::size_t>(n); }, 10000ms, 20ms));
+  const auto files_before = [&] {
+    int k = 0;
+    while (file_size(base + (k < 10 ? ".0" : ".") + std::to_string(k)) > 0) ++k;
+    return k;
+  }();
+  CHECK(files_before >= 3);  // 200 x ~1 KB in 50 KB files
+  rec.signal(SIGHUP);
+  char next[16];
+  std::snprintf(next, sizeof next, ".%02d", files_before);
+  // The next file exists (empty until something comes) once the writer has seen the SIGHUP.
+  CHECK(wait_until([&] { return ::access((base + next).c_str(), F_OK) == 0; }, 5000ms, 10ms));
+  pub.send("quit");
+  rec.signal(SIGINT);
+  REQUIRE(rec.wait(10000ms) == 0);
+  INFO(rec.text());
+  CHECK(json_num(json_line(rec.text()), "messages") == n);
+  CHECK(json_num(json_line(rec.text()), "lost") == 0);
+  // Each file numbers its events from 0, and holds whole events only.
+  for (int i = 0; i < files_before; ++i) {
+    char suffix[16];
+    std::snprintf(suffix, sizeof suffix, ".%02d", i);
+    el::Reader r = el::Reader::open(base + suffix);
+    const auto evs = read_log(base + suffix, &r);
+    CHECK(r.damage_count() == 0);
+    if (!evs.empty()) CHECK(evs.front().number == 0);
+  }
+}
