@@ -44,7 +44,7 @@ TEST_CASE("failover: the most preferred up link, at once on loss, back after the
   CHECK(failover::next_active(links, 1, t0, 0ms) == 0);
 }
 
-TEST_CASE("failover: a link is up while answered within the timeout; stale pongs prove nothing", "[bridge][failover]") {
+TEST_CASE("failover: a link is up while answered within the timeout, stale pongs prove nothing", "[bridge][failover]") {
   const auto t0 = failover::Clock::now();
   CHECK_FALSE(failover::link_up(false, t0, t0, 500ms));  // never answered
   CHECK(failover::link_up(true, t0, t0 + 499ms, 500ms));
