@@ -49,21 +49,6 @@ std::string hex64(std::uint64_t v) {
   return s;
 }
 
-std::size_t primitive_size(Primitive p) {
-  switch (p) {
-    case Primitive::int8:
-    case Primitive::boolean:
-    case Primitive::byte: return 1;
-    case Primitive::int16: return 2;
-    case Primitive::int32:
-    case Primitive::float32: return 4;
-    case Primitive::int64:
-    case Primitive::float64: return 8;
-    case Primitive::string: return 5;
-  }
-  return 1;
-}
-
 // Smallest encoding of one element of `m` below dimension `dim` (0 when a variable dimension
 // below it may be empty).
 std::size_t element_min_size(const Member& m, std::size_t dim) {
@@ -73,7 +58,7 @@ std::size_t element_min_size(const Member& m, std::size_t dim) {
     count *= static_cast<std::size_t>(m.dims[i].fixed);  // <= 2^31 each; checked below
     if (count > (std::size_t{1} << 40)) return std::size_t{1} << 40;
   }
-  const std::size_t element = m.primitive ? primitive_size(*m.primitive) : m.nested->min_encoded_size;
+  const std::size_t element = m.primitive ? min_encoded_size(*m.primitive) : m.nested->min_encoded_size;
   if (element != 0 && count > (std::size_t{1} << 48) / element) return std::size_t{1} << 48;
   return count * element;
 }

@@ -51,21 +51,6 @@ std::size_t sat_mul(std::size_t a, std::size_t b) {
   return a > kSizeCap / b ? kSizeCap : std::min(kSizeCap, a * b);
 }
 
-std::size_t primitive_min_size(Primitive p) {
-  switch (p) {
-    case Primitive::int8:
-    case Primitive::boolean:
-    case Primitive::byte: return 1;
-    case Primitive::int16: return 2;
-    case Primitive::int32:
-    case Primitive::float32: return 4;
-    case Primitive::int64:
-    case Primitive::float64: return 8;
-    case Primitive::string: return 5;  // int32 length (>= 1) + the terminating NUL
-  }
-  return 0;
-}
-
 // Smallest encoding of a struct (without fingerprint); a type on the stack counts 0 (only a
 // variable-length array can hold a recursive type, and it may be empty). Memoized as above.
 std::size_t min_size(const StructType& t, Walk& w) {
@@ -82,7 +67,7 @@ std::size_t min_size(const StructType& t, Walk& w) {
     std::size_t count = 1;
     for (const Dimension& d : m.dims) count = d.variable ? 0 : sat_mul(count, static_cast<std::size_t>(d.fixed));
     if (count == 0) continue;
-    const std::size_t element = m.primitive ? primitive_min_size(*m.primitive) : min_size(*m.nested, w);
+    const std::size_t element = m.primitive ? min_encoded_size(*m.primitive) : min_size(*m.nested, w);
     total = sat_add(total, sat_mul(count, element));
   }
   w.stack.pop_back();
@@ -221,6 +206,21 @@ const StructType* TypeRegistry::find(std::uint64_t fingerprint) const noexcept {
 const StructType& TypeRegistry::at(std::string_view full_name) const {
   if (const StructType* t = find(full_name)) return *t;
   throw Error("unknown type '" + std::string(full_name) + "' (not in the type path)");
+}
+
+std::size_t min_encoded_size(Primitive p) noexcept {
+  switch (p) {
+    case Primitive::int8:
+    case Primitive::boolean:
+    case Primitive::byte: return 1;
+    case Primitive::int16: return 2;
+    case Primitive::int32:
+    case Primitive::float32: return 4;
+    case Primitive::int64:
+    case Primitive::float64: return 8;
+    case Primitive::string: return 5;  // int32 length (>= 1) + the terminating NUL
+  }
+  return 0;
 }
 
 }  // namespace lcmx::types

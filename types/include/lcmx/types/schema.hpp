@@ -47,6 +47,8 @@ enum class Primitive { int8, int16, int32, int64, float32, float64, string, bool
 // The `.lcm` spelling: "int8_t", ..., "float", "double", "string", "boolean", "byte".
 std::string_view to_string(Primitive p) noexcept;
 std::optional<Primitive> primitive_from_name(std::string_view name) noexcept;
+// Fewest bytes one value takes encoded: 1, 2, 4 or 8; a string 5 (int32 length + its NUL).
+std::size_t min_encoded_size(Primitive p) noexcept;
 
 struct StructType;
 
