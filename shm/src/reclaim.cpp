@@ -5,6 +5,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include <cerrno>
 #include <set>
 
 #include "impl.hpp"
@@ -30,6 +31,9 @@ ReclaimReport reclaim_orphans(const std::string& prefix) {
     auto info = detail::peek_segment(name, &why);
     auto sg = detail::split_generation(name);
     if (!info || !sg) {
+      // Removed meanwhile by its owner or another reclaimer (several processes starting at
+      // once): nothing to leave alone, nothing to warn about.
+      if (::stat(("/dev/shm/" + name).c_str(), &st) != 0 && errno == ENOENT) continue;
       ++report.skipped;
       spdlog::warn("lcmx shm reclaim: leaving /dev/shm/{} alone: {}", name,
                    info ? "no generation suffix" : why);
