@@ -187,7 +187,9 @@ int run_pub(const Settings& s, bool image) {
 struct ChannelCheck {
   struct Inc {
     std::uint64_t last = 0;
+    std::int64_t seen_ns = 0;  // last message from this incarnation
   };
+  std::uint64_t since_prune = 0;
   std::unordered_map<std::uint64_t, Inc> incs;  // executor thread only
   // Written by the executor thread, read by the reporting thread.
   std::atomic<std::uint64_t> received{0}, gaps{0}, dups{0}, torn{0}, malformed{0};
@@ -216,7 +218,15 @@ struct ChannelCheck {
         }
       }
     }
+    // Forget publisher incarnations silent for 10 s (killed ones), so this bookkeeping does not
+    // grow with every restart and the survivor's RSS shows lcmx's memory, not the bench's.
+    const std::int64_t now = now_ns();
+    if (++since_prune >= 1000) {
+      since_prune = 0;
+      std::erase_if(incs, [now](const auto& kv) { return now - kv.second.seen_ns > 10'000'000'000LL; });
+    }
     auto [it, fresh] = incs.try_emplace(h.incarnation);
+    it->second.seen_ns = now;
     if (fresh) {
       it->second.last = h.seq;
       return;
