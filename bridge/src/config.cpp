@@ -152,44 +152,25 @@ bool glob_match(const std::vector<std::string>& globs, std::string_view topic) {
   return false;
 }
 
-// toml++ 3.3.0 (Debian 12) reaches __builtin_unreachable() (undefined behaviour) when it meets a
-// non-ASCII character where it expects whitespace or a key, e.g. `name = "a"é` (its
-// is_non_ascii_horizontal_whitespace has no case for most code points; found by
-// fuzz_bridge_config). No valid lcmx config has one there, so such text is refused before
-// toml++ sees it. Returns the 1-based line of the first non-ASCII byte outside strings and
-// comments, or 0.
-std::size_t non_ascii_outside_strings(std::string_view t) {
+// toml++ 3.3.0 (Debian 12) reaches __builtin_unreachable() (undefined behaviour) when it asks
+// whether a non-ASCII character is whitespace (its is_non_ascii_horizontal_whitespace has no
+// case for most code points), which it does wherever it scans a bare token, a key or the
+// whitespace after a line-ending backslash: `name = "a"é`, `x = 3.o[".ƹ` (found by
+// fuzz_bridge_config, twice). Telling those places apart means lexing exactly as toml++ does,
+// so the rule is simple instead: non-ASCII characters only in comment lines (first non-blank
+// character '#'), which toml++ reads as comments in every state; lcmx's keys and values (names,
+// addresses, channel globs, key paths) are ASCII. Returns the 1-based line of the first
+// non-ASCII byte elsewhere, or 0.
+std::size_t non_ascii_outside_comment_lines(std::string_view t) {
   std::size_t line = 1;
-  for (std::size_t i = 0; i < t.size();) {
-    const char c = t[i];
-    if (c == '\n') {
-      ++line, ++i;
-    } else if (c == '#') {  // comment: to the end of the line
-      while (i < t.size() && t[i] != '\n') ++i;
-    } else if (c == '"' || c == '\'') {
-      const bool multi = t.compare(i, 3, std::string(3, c)) == 0;
-      i += multi ? 3 : 1;
-      while (i < t.size()) {
-        if (t[i] == '\n') {
-          if (!multi) break;  // unterminated: toml++ reports it
-          ++line;
-        }
-        if (c == '"' && t[i] == '\\') {
-          if (i + 1 < t.size() && t[i + 1] == '\n') ++line;
-          i += 2;
-          continue;
-        }
-        if (t[i] == c && (!multi || t.compare(i, 3, std::string(3, c)) == 0)) {
-          i += multi ? 3 : 1;
-          break;
-        }
-        ++i;
-      }
-    } else if (static_cast<unsigned char>(c) >= 0x80) {
-      return line;
-    } else {
-      ++i;
-    }
+  for (std::size_t i = 0; i < t.size(); ++line) {
+    const std::size_t end = std::min(t.find('\n', i), t.size());
+    const std::size_t first = t.find_first_not_of(" \t", i);
+    const bool comment = first < end && t[first] == '#';
+    if (!comment)
+      for (std::size_t k = i; k < end; ++k)
+        if (static_cast<unsigned char>(t[k]) >= 0x80) return line;
+    i = end + 1;
   }
   return 0;
 }
@@ -206,9 +187,9 @@ bool Config::carried(std::string_view topic) const { return glob_match(carry, to
 
 Config parse_config(std::string_view text, const std::filesystem::path& file) {
   Checker c(file);
-  if (const auto line = non_ascii_outside_strings(text))
+  if (const auto line = non_ascii_outside_comment_lines(text))
     throw ConfigError(file.string() + ": line " + std::to_string(line) +
-                      ": a non-ASCII character outside a string or comment");
+                      ": a non-ASCII character (allowed only in comment lines)");
   toml::table root;
   try {
     root = toml::parse(text, file.string());
