@@ -10,6 +10,7 @@
 #include <mutex>
 #include <thread>
 
+#include "core_support.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/discovery/discovery.hpp"
@@ -20,29 +21,8 @@
 namespace {
 
 using namespace std::chrono_literals;
-
-lcmx::RuntimeOptions test_options() {
-  static std::atomic<int> n{0};
-  const int id = static_cast<int>(::getpid()) * 8 + n++;
-  lcmx::RuntimeOptions o;
-  o.discovery_url = "udpm://239.254." + std::to_string((id >> 8) & 0xff) + "." +
-                    std::to_string(id & 0xff) + ":" + std::to_string(20000 + id % 40000) +
-                    "?ttl=0&iface=lo";  // the root namespace: lo only, never the real interface
-  o.beacon_period = 100ms;
-  o.lease = 600ms;
-  return o;
-}
-
-// Waits for pred() with a deadline (condition polling, not a sleep to synchronise).
-template <class Pred>
-bool eventually(Pred pred, std::chrono::milliseconds deadline = 5000ms) {
-  const auto end = std::chrono::steady_clock::now() + deadline;
-  while (!pred()) {
-    if (std::chrono::steady_clock::now() > end) return false;
-    std::this_thread::yield();
-  }
-  return true;
-}
+using lcmx::core_test::eventually;
+using lcmx::core_test::test_options;
 
 // A message type that records every construction and destruction.
 struct Counted : lcmx_examples::pose_t {

@@ -11,33 +11,15 @@
 #include <thread>
 #include <vector>
 
+#include "core_support.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx/shm/futex.hpp"
 
 namespace {
 
 using namespace std::chrono_literals;
-
-lcmx::RuntimeOptions test_options() {
-  static std::atomic<int> n{0};
-  const int id = static_cast<int>(::getpid()) * 8 + n++;
-  lcmx::RuntimeOptions o;
-  o.discovery_url = "udpm://239.253." + std::to_string((id >> 8) & 0xff) + "." +
-                    std::to_string(id & 0xff) + ":" + std::to_string(20000 + id % 40000) + "?ttl=0";
-  o.beacon_period = 100ms;
-  o.lease = 600ms;
-  return o;
-}
-
-template <class Pred>
-bool eventually(Pred pred, std::chrono::milliseconds deadline = 5000ms) {
-  const auto end = std::chrono::steady_clock::now() + deadline;
-  while (!pred()) {
-    if (std::chrono::steady_clock::now() > end) return false;
-    std::this_thread::yield();
-  }
-  return true;
-}
+using lcmx::core_test::eventually;
+using lcmx::core_test::test_options;
 
 lcmx::NodeOptions manual() {
   lcmx::NodeOptions o;

@@ -14,6 +14,7 @@
 #include <mutex>
 #include <thread>
 
+#include "core_support.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx/shm/segment.hpp"
 
@@ -21,27 +22,17 @@ namespace {
 
 using namespace std::chrono_literals;
 using Clock = std::chrono::steady_clock;
+using lcmx::core_test::eventually;
 
-lcmx::RuntimeOptions shm_test_options(int salt) {
-  const int id = static_cast<int>(::getpid()) * 8 + 4 + salt;
-  lcmx::RuntimeOptions o;
-  o.discovery_url = "udpm://239.253." + std::to_string((id >> 8) & 0xff) + "." +
-                    std::to_string(id & 0xff) + ":" + std::to_string(20000 + id % 40000) +
-                    "?ttl=0&iface=lo";  // the root namespace: lo only
-  o.beacon_period = 100ms;
+// The publisher child and this process share one group; a 2 s lease outlasts the child's
+// stepwise pauses.
+lcmx::RuntimeOptions shm_test_options() {
+  auto o = lcmx::core_test::test_options();
   o.lease = 2000ms;
   return o;
 }
 
-template <class Pred>
-bool eventually(Pred pred, std::chrono::milliseconds deadline = 10000ms) {
-  const auto end = Clock::now() + deadline;
-  while (!pred()) {
-    if (Clock::now() > end) return false;
-    std::this_thread::sleep_for(1ms);  // polling a condition with a deadline
-  }
-  return true;
-}
+constexpr auto kWait = 10000ms;  // eventually()'s deadline here
 
 // A publisher process: publishes message k (8 bytes, k) on `channel` each time it reads a
 // byte 'p' from its command pipe ('g': 16 KiB starting with k, so its segment grows); 's' writes "published shm_dropped\n" to its report pipe;
@@ -143,7 +134,7 @@ std::uint64_t value_of(const lcmx::RawMessage& m) {
 
 TEST_CASE("9 lagging RawSubscribers pin every slot: publish() never throws and drops are counted on both sides",
           "[core][shm]") {
-  const auto o = shm_test_options(0);
+  const auto o = shm_test_options();
   const std::string channel = "PINNED_" + std::to_string(::getpid());
   constexpr int kReaders = 9, kMessages = 20;
   PublisherChild child(o, channel, kReaders);
@@ -179,7 +170,7 @@ TEST_CASE("9 lagging RawSubscribers pin every slot: publish() never throws and d
   // message >= 8); then every slot is pinned and messages 8.. are dropped.
   for (int k = 0; k < kMessages; ++k) {
     child.send('p');
-    if (k < 8) REQUIRE(eventually([&] { return blocked.load() == k + 1; }));
+    if (k < 8) REQUIRE(eventually([&] { return blocked.load() == k + 1; }, kWait));
   }
   child.send('s');
   const auto line = child.line();
@@ -198,7 +189,7 @@ TEST_CASE("9 lagging RawSubscribers pin every slot: publish() never throws and d
     CHECK(eventually([&] {
       const auto st = s.stats();
       return st.delivered + st.drops == static_cast<std::uint64_t>(kMessages);
-    }));
+    }, kWait));
     const auto st = s.stats();
     INFO("delivered " << st.delivered << " drops " << st.drops);
     CHECK(st.drops >= dropped);
@@ -208,7 +199,7 @@ TEST_CASE("9 lagging RawSubscribers pin every slot: publish() never throws and d
 
 TEST_CASE("a raw shm sample whose segment is truncated during its callback is counted as a drop",
           "[core][shm]") {
-  const auto o = shm_test_options(1);
+  const auto o = shm_test_options();
   const std::string channel = "TORN_" + std::to_string(::getpid());
   PublisherChild child(o, channel, 1);
   auto rt = lcmx::Runtime::create(o);
@@ -223,7 +214,7 @@ TEST_CASE("a raw shm sample whose segment is truncated during its callback is co
   });
   REQUIRE(child.ready());
   child.send('p');
-  REQUIRE(eventually([&] { return got.load() == 1; }));
+  REQUIRE(eventually([&] { return got.load() == 1; }, kWait));
   REQUIRE(truncated.load() > 0);
   // The view the callback had may have been torn: not silent, a drop of its pair.
   CHECK(eventually([&] { return sub.stats().drops == 1; }, 3000ms));
@@ -233,7 +224,7 @@ TEST_CASE("a raw shm sample whose segment is truncated during its callback is co
 
 TEST_CASE("a reader whose generation follow failed delivers later without a commit waking it",
           "[core][shm][executor]") {
-  const auto o = shm_test_options(2);
+  const auto o = shm_test_options();
   const std::string channel = "RETRY_" + std::to_string(::getpid());
   PublisherChild child(o, channel, 1);
   auto rt = lcmx::Runtime::create(o);
@@ -254,7 +245,7 @@ TEST_CASE("a reader whose generation follow failed delivers later without a comm
     for (const auto& n : child.segments())
       if (n.size() > 3 && n.compare(n.size() - 3, 3, "_g1") == 0) g1 = n;
     return !g1.empty();
-  }));
+  }, kWait));
   std::vector<lcmx::shm::Reader> fill;
   for (int i = 0; i < 4096; ++i) {
     try {

@@ -13,28 +13,6 @@ using namespace lcmx::it;
 
 namespace {
 
-Summary of(const std::vector<Summary>& all, const std::string& channel) {
-  for (const auto& s : all)
-    if (s.str("channel") == channel) return s;
-  FAIL("no summary for channel " << channel);
-  return {};
-}
-
-std::optional<Summary> poll_sub(Child& sub, const std::string& channel,
-                                const std::function<bool(const Summary&)>& pred, ms timeout) {
-  const auto deadline = Clock::now() + timeout;
-  for (;;) {
-    auto last = of(sub.summaries("status"), channel);
-    if (pred(last)) return last;
-    if (Clock::now() >= deadline) {
-      UNSCOPED_INFO("last status of " << channel << ": received=" << last.str("received")
-                                      << " drops=" << last.str("drops"));
-      return std::nullopt;
-    }
-    std::this_thread::sleep_for(20ms);  // polling interval of a condition with a deadline
-  }
-}
-
 // Resumes a stopped child on every exit path (a failed REQUIRE included).
 struct Resume {
   Child& c;

@@ -10,32 +10,6 @@ using namespace lcmx::it;
 
 namespace {
 
-// The summary of `channel` in a list of summaries (FAIL if absent).
-Summary of(const std::vector<Summary>& all, const std::string& channel) {
-  for (const auto& s : all)
-    if (s.str("channel") == channel) return s;
-  FAIL("no summary for channel " << channel);
-  return {};
-}
-
-// Asks a subscriber peer for its status until `pred` holds for `channel` (deadline).
-std::optional<Summary> poll_sub(Child& sub, const std::string& channel,
-                                const std::function<bool(const Summary&)>& pred, ms timeout) {
-  const auto deadline = Clock::now() + timeout;
-  std::optional<Summary> last;
-  for (;;) {
-    last = of(sub.summaries("status"), channel);
-    if (pred(*last)) return last;
-    if (Clock::now() >= deadline) {
-      UNSCOPED_INFO("last status of " << channel << ": received=" << last->str("received")
-                                      << " publishers=" << last->str("publishers")
-                                      << " drops=" << last->str("drops"));
-      return std::nullopt;
-    }
-    std::this_thread::sleep_for(20ms);  // polling interval of a condition with a deadline
-  }
-}
-
 // Asks a publisher peer how many messages it has published.
 long long published(Child& pub) {
   pub.send("status");

@@ -25,13 +25,6 @@ std::vector<std::string> in_pid_namespace(std::vector<std::string> peer_args) {
   return argv;
 }
 
-Summary summary_of(const std::vector<Summary>& all, const std::string& channel) {
-  for (const auto& s : all)
-    if (s.str("channel") == channel) return s;
-  FAIL("no summary for channel " << channel);
-  return {};
-}
-
 bool can_unshare_pid() {
   Child c({LCMX_UNSHARE, "--pid", "--fork", "--mount-proc", "--propagation", "private", "/bin/true"}, {}, true);
   return c.wait(10000ms) == 0;
@@ -82,7 +75,7 @@ TEST_CASE("a publisher's segment file that others may write is refused: an error
   auto& sub = s.peer({"sub", "--channel", ch, "--type", "pose"});
   REQUIRE(sub.expect("READY"));
   REQUIRE(sub.wait_seen("EVENT error " + ch, 5000ms));
-  const auto fin = summary_of(sub.summaries("quit"), ch);
+  const auto fin = of(sub.summaries("quit"), ch);
   CHECK(sub.wait() == 0);  // no crash
   INFO(sub.output());
   CHECK(sub.text().find("writable by others") != std::string::npos);

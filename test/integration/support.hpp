@@ -317,6 +317,31 @@ class Child {
   std::vector<std::string> history_;
 };
 
+// The summary of `channel` in a list of summaries (FAIL if absent).
+inline Summary of(const std::vector<Summary>& all, const std::string& channel) {
+  for (const auto& s : all)
+    if (s.str("channel") == channel) return s;
+  FAIL("no summary for channel " << channel);
+  return {};
+}
+
+// Asks a subscriber peer for its status until `pred` holds for `channel` (deadline).
+inline std::optional<Summary> poll_sub(Child& sub, const std::string& channel,
+                                       const std::function<bool(const Summary&)>& pred, ms timeout) {
+  const auto deadline = Clock::now() + timeout;
+  for (;;) {
+    auto last = of(sub.summaries("status"), channel);
+    if (pred(last)) return last;
+    if (Clock::now() >= deadline) {
+      UNSCOPED_INFO("last status of " << channel << ": received=" << last.str("received")
+                                      << " publishers=" << last.str("publishers")
+                                      << " drops=" << last.str("drops"));
+      return std::nullopt;
+    }
+    std::this_thread::sleep_for(20ms);  // polling interval of a condition with a deadline
+  }
+}
+
 // Overall deadline for a test: kills every registered child, then aborts the test process.
 class Watchdog {
  public:

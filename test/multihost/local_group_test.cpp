@@ -20,16 +20,6 @@ using lcmx::test::MulticastRoute;
 
 namespace {
 
-void check_exact(const Summary& s, long long n) {
-  CHECK(s.num("received") == n);
-  CHECK(s.num("first") == 0);
-  CHECK(s.num("last") == n - 1);
-  CHECK(s.num("duplicates") == 0);
-  CHECK(s.num("out_of_order") == 0);
-  CHECK(s.num("gaps") == 0);
-  CHECK(s.num("bad_content") == 0);
-}
-
 // A receiver of LCM's default group on a host, made like Java's MulticastSocket (lcm-spy,
 // lcm-logplayer-gui): joined with INADDR_ANY (where the kernel routes the group, as liblcm) and
 // IP_MULTICAST_ALL = 0 (OpenJDK sets it on Linux), so unlike liblcm's own socket it hears only

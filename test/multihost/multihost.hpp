@@ -232,4 +232,15 @@ inline std::string host_of(const std::string& nodes_out, pid_t pid) {
   return "";
 }
 
+// Every message 0..n-1 of a peer's stream arrived exactly once, in order, intact.
+inline void check_exact(const Summary& s, long long n) {
+  CHECK(s.num("received") == n);
+  CHECK(s.num("first") == 0);
+  CHECK(s.num("last") == n - 1);
+  CHECK(s.num("duplicates") == 0);
+  CHECK(s.num("out_of_order") == 0);
+  CHECK(s.num("gaps") == 0);
+  CHECK(s.num("bad_content") == 0);
+}
+
 }  // namespace lcmx::mh

@@ -9,20 +9,6 @@ using namespace lcmx::mh;
 using lcmx::it::parse_kv;
 using lcmx::it::wait_until;
 
-namespace {
-
-void check_exact(const Summary& s, long long n) {
-  CHECK(s.num("received") == n);
-  CHECK(s.num("first") == 0);
-  CHECK(s.num("last") == n - 1);
-  CHECK(s.num("duplicates") == 0);
-  CHECK(s.num("out_of_order") == 0);
-  CHECK(s.num("gaps") == 0);
-  CHECK(s.num("bad_content") == 0);
-}
-
-}  // namespace
-
 TEST_CASE("small topic from host A: exactly once and in order on B and C (udp) and on A (shm)",
           "[multihost][delivery]") {
   LCMX_REQUIRE_NETNS();

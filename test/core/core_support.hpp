@@ -1,0 +1,43 @@
+// Shared pieces of the core unit tests (lcmx_core_tests): a discovery group per call and a
+// condition wait with a deadline.
+#pragma once
+
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <string>
+#include <thread>
+
+#include "lcmx/core.hpp"
+
+namespace lcmx::core_test {
+
+using namespace std::chrono_literals;
+
+// Options with a discovery group of their own (derived from the pid and a counter, so tests
+// run in parallel and two runtimes of one test can be kept apart), short beacons and lease.
+inline lcmx::RuntimeOptions test_options() {
+  static std::atomic<int> n{0};
+  const int id = static_cast<int>(::getpid()) * 8 + n++;
+  lcmx::RuntimeOptions o;
+  o.discovery_url = "udpm://239.254." + std::to_string((id >> 8) & 0xff) + "." +
+                    std::to_string(id & 0xff) + ":" + std::to_string(20000 + id % 40000) +
+                    "?ttl=0&iface=lo";  // the root namespace: lo only, never the real interface
+  o.beacon_period = 100ms;
+  o.lease = 600ms;
+  return o;
+}
+
+// Waits for pred() with a deadline (condition polling, not a sleep to synchronise).
+template <class Pred>
+bool eventually(Pred pred, std::chrono::milliseconds deadline = 5000ms) {
+  const auto end = std::chrono::steady_clock::now() + deadline;
+  while (!pred()) {
+    if (std::chrono::steady_clock::now() > end) return false;
+    std::this_thread::yield();
+  }
+  return true;
+}
+
+}  // namespace lcmx::core_test
