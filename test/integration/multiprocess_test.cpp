@@ -10,14 +10,6 @@ using namespace lcmx::it;
 
 namespace {
 
-// Asks a publisher peer how many messages it has published.
-long long published(Child& pub) {
-  pub.send("status");
-  auto line = pub.expect("STATUS", 5000ms);
-  REQUIRE(line);
-  return std::stoll(parse_kv(*line).at("published"));
-}
-
 std::string sources(const Summary& s) { return s.str("sources"); }
 
 }  // namespace

@@ -335,11 +335,19 @@ inline std::optional<Summary> poll_sub(Child& sub, const std::string& channel,
     if (Clock::now() >= deadline) {
       UNSCOPED_INFO("last status of " << channel << ": received=" << last.str("received")
                                       << " publishers=" << last.str("publishers")
-                                      << " drops=" << last.str("drops"));
+                                      << " drops=" << last.str("drops") << " paths=" << last.str("paths"));
       return std::nullopt;
     }
     std::this_thread::sleep_for(20ms);  // polling interval of a condition with a deadline
   }
+}
+
+// Asks a publisher peer how many messages it has published.
+inline long long published(Child& pub) {
+  pub.send("status");
+  auto line = pub.expect("STATUS", 5000ms);
+  REQUIRE(line);
+  return std::stoll(parse_kv(*line).at("published"));
 }
 
 // Overall deadline for a test: kills every registered child, then aborts the test process.

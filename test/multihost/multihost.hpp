@@ -26,6 +26,9 @@ using it::Child;
 using it::Clock;
 using it::ms;
 using it::Summary;
+using it::of;
+using it::poll_sub;
+using it::published;
 
 // "udpm://239.<a>.<b>.<c>:<port>?ttl=1&iface=eth": unique per (test process, test index) and
 // in a range of its own (the host-local groups use 239.255.x.y).
@@ -165,38 +168,6 @@ class Hosts {
  private:
   std::vector<std::unique_ptr<Child>> children_;
 };
-
-// The summary of `channel` (FAIL if absent).
-inline Summary of(const std::vector<Summary>& all, const std::string& channel) {
-  for (const auto& s : all)
-    if (s.str("channel") == channel) return s;
-  FAIL("no summary for channel " << channel);
-  return {};
-}
-
-// Asks a subscriber peer for its status until `pred` holds for `channel` (deadline).
-inline std::optional<Summary> poll_sub(Child& sub, const std::string& channel,
-                                       const std::function<bool(const Summary&)>& pred, ms timeout) {
-  const auto deadline = Clock::now() + timeout;
-  for (;;) {
-    auto last = of(sub.summaries("status"), channel);
-    if (pred(last)) return last;
-    if (Clock::now() >= deadline) {
-      UNSCOPED_INFO("last status of " << channel << ": received=" << last.str("received")
-                                      << " publishers=" << last.str("publishers")
-                                      << " paths=" << last.str("paths"));
-      return std::nullopt;
-    }
-    std::this_thread::sleep_for(20ms);  // polling interval of a condition with a deadline
-  }
-}
-
-inline long long published(Child& pub) {
-  pub.send("status");
-  auto line = pub.expect("STATUS", 5000ms);
-  REQUIRE(line);
-  return std::stoll(it::parse_kv(*line).at("published"));
-}
 
 inline bool contains(const std::string& s, const std::string& needle) { return s.find(needle) != std::string::npos; }
 
