@@ -23,26 +23,6 @@ extern "C" const char* __asan_default_options() { return "allow_user_segv_handle
 
 namespace {
 
-WriterOptions opts(std::uint32_t slots, std::uint32_t subs = 8) {
-  WriterOptions o;
-  o.slot_count = slots;
-  o.max_subscribers = subs;
-  o.initial_slot_size = 4096;
-  o.max_message_size = 1 << 20;
-  return o;
-}
-
-void write_msg(Writer& w, std::uint64_t index, std::size_t size) {
-  std::vector<unsigned char> buf(size);
-  fill_message(buf.data(), size, index);
-  w.write(buf.data(), size);
-}
-
-[[noreturn]] void park(const Pipe& from_parent) {
-  from_parent.recv(60s);
-  std::_Exit(0);
-}
-
 // The test's own read-write view of a segment file (to inspect or tamper with the layout).
 struct Mapped {
   void* p = MAP_FAILED;

@@ -14,31 +14,6 @@
 using namespace lcmx::shm;
 using namespace lcmx::shm::test;
 
-namespace {
-
-WriterOptions opts(std::uint32_t slots) {
-  WriterOptions o;
-  o.slot_count = slots;
-  o.max_subscribers = 8;
-  o.initial_slot_size = 4096;
-  o.max_message_size = 1 << 20;
-  return o;
-}
-
-void write_msg(Writer& w, std::uint64_t index, std::size_t size) {
-  std::vector<unsigned char> buf(size);
-  fill_message(buf.data(), size, index);
-  w.write(buf.data(), size);
-}
-
-// Child side: blocks until the parent kills it (bounded so a lost parent cannot leak it).
-[[noreturn]] void park(const Pipe& from_parent) {
-  from_parent.recv(60s);
-  std::_Exit(0);
-}
-
-}  // namespace
-
 TEST_CASE("a slot pinned by a killed Reader is reclaimed by the Writer", "[shm][fork]") {
   Watchdog wd(20s);
   const auto base = unique_base("deadpin");

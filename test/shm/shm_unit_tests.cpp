@@ -17,21 +17,6 @@ using namespace lcmx::shm::test;
 
 namespace {
 
-WriterOptions small_opts(std::uint32_t slots = 8) {
-  WriterOptions o;
-  o.slot_count = slots;
-  o.max_subscribers = 8;
-  o.initial_slot_size = 4096;
-  o.max_message_size = 1 << 20;
-  return o;
-}
-
-std::uint64_t write_msg(Writer& w, std::uint64_t index, std::size_t size) {
-  std::vector<unsigned char> buf(size);
-  fill_message(buf.data(), size, index);
-  return w.write(buf.data(), size);
-}
-
 std::uint64_t index_of(const ReadSample& s) {
   std::uint64_t idx = ~0ull;
   REQUIRE(check_message(s.data(), s.size(), &idx));
@@ -44,7 +29,7 @@ TEST_CASE("write then read in order", "[shm]") {
   Watchdog wd(10s);
   const auto base = unique_base("order");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts());
+  auto w = Writer::create(base, opts());
   CHECK(w.segment_name() == base + "_g0");
   auto r = Reader::open(w.segment_name());
   CHECK(w.live_readers() == 1);
@@ -71,7 +56,7 @@ TEST_CASE("a Reader starts at the next commit, and open by base name works", "[s
   Watchdog wd(10s);
   const auto base = unique_base("late");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts());
+  auto w = Writer::create(base, opts());
   write_msg(w, 0, 32);
   write_msg(w, 1, 32);
   auto r = Reader::open(base);  // base name: newest generation
@@ -88,7 +73,7 @@ TEST_CASE("a lagging Reader counts exact drops and never sees a torn message", "
   Watchdog wd(10s);
   const auto base = unique_base("lag");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts(8));
+  auto w = Writer::create(base, opts(8));
   auto r = Reader::open(w.segment_name());
   for (std::uint64_t i = 0; i < 50; ++i) write_msg(w, i, 16 + (i * 37) % 4000);
   std::uint64_t expect = 42;
@@ -113,7 +98,7 @@ TEST_CASE("pinned samples are never overwritten while held", "[shm]") {
   Watchdog wd(10s);
   const auto base = unique_base("pin");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts(6));
+  auto w = Writer::create(base, opts(6));
   auto r = Reader::open(w.segment_name());
   for (std::uint64_t i = 0; i < 4; ++i) write_msg(w, i, 2000);
   std::vector<ReadSample> held;
@@ -144,7 +129,7 @@ TEST_CASE("all slots pinned by a live Reader: the message is dropped and counted
   Watchdog wd(10s);
   const auto base = unique_base("allpin");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts(2));
+  auto w = Writer::create(base, opts(2));
   auto r = Reader::open(w.segment_name());
   write_msg(w, 0, 64);
   write_msg(w, 1, 64);
@@ -168,7 +153,7 @@ TEST_CASE("WriteLoan destroyed without commit publishes nothing", "[shm]") {
   Watchdog wd(10s);
   const auto base = unique_base("abort");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts(4));
+  auto w = Writer::create(base, opts(4));
   auto r = Reader::open(w.segment_name());
   {
     auto l = w.loan(100);
@@ -202,7 +187,7 @@ TEST_CASE("growth across generations: a following Reader receives everything in 
   Watchdog wd(15s);
   const auto base = unique_base("grow");
   ShmGuard g(base);
-  auto opts = small_opts(4);
+  auto opts = opts(4);
   auto w = Writer::create(base, opts);
   auto r = Reader::open(w.segment_name());
   const std::size_t sizes[] = {100, 5000, 9000, 20000, 300000, 1 << 20};  // each grows
@@ -244,7 +229,7 @@ TEST_CASE("a sample of an old generation stays valid after the Reader moved on",
   Watchdog wd(10s);
   const auto base = unique_base("oldpin");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts(4));
+  auto w = Writer::create(base, opts(4));
   auto r = Reader::open(w.segment_name());
   write_msg(w, 0, 1000);
   auto old = r.take();
@@ -263,7 +248,7 @@ TEST_CASE("a sample of an old generation stays valid after the Reader moved on",
 TEST_CASE("too_large, bad options and bad names", "[shm]") {
   const auto base = unique_base("large");
   ShmGuard g(base);
-  auto opts = small_opts();
+  auto opts = opts();
   opts.max_message_size = 10000;
   auto w = Writer::create(base, opts);
   CHECK_THROWS_MATCHES(w.loan(10001), Error, Catch::Predicate<Error>([](const Error& e) {
@@ -279,16 +264,16 @@ TEST_CASE("too_large, bad options and bad names", "[shm]") {
     }
     return false;
   };
-  CHECK(bad("nope_" + base, small_opts()));
-  CHECK(bad(base + "/x", small_opts()));
-  auto o = small_opts();
+  CHECK(bad("nope_" + base, opts()));
+  CHECK(bad(base + "/x", opts()));
+  auto o = opts();
   o.slot_count = 1;
   CHECK(bad(base + "x", o));
-  o = small_opts();
+  o = opts();
   o.initial_slot_size = o.max_message_size + 1;
   CHECK(bad(base + "x", o));
   // Same name while the owner is alive: refused.
-  CHECK_THROWS_MATCHES(Writer::create(base, small_opts()), Error,
+  CHECK_THROWS_MATCHES(Writer::create(base, opts()), Error,
                        Catch::Predicate<Error>([](const Error& e) {
                          return e.code() == Errc::system;
                        }));
@@ -314,7 +299,7 @@ TEST_CASE("corrupt, foreign and truncated files: Error(corrupt), reclaim skips t
   {
     const auto src = unique_base("corruptsrc");
     ShmGuard gs(src);
-    auto w = Writer::create(src, small_opts(4));
+    auto w = Writer::create(src, opts(4));
     write_msg(w, 0, 100);
     image = read_shm_file(w.segment_name());
   }
@@ -357,7 +342,7 @@ TEST_CASE("corrupt, foreign and truncated files: Error(corrupt), reclaim skips t
 TEST_CASE("reclaim leaves a live Writer's segment alone", "[shm]") {
   const auto base = unique_base("live");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts());
+  auto w = Writer::create(base, opts());
   auto rep = reclaim_orphans(base);
   CHECK(rep.removed == 0);
   CHECK(rep.skipped == 0);
@@ -367,7 +352,7 @@ TEST_CASE("reclaim leaves a live Writer's segment alone", "[shm]") {
 TEST_CASE("Writer destruction unlinks, Readers keep their mapping", "[shm]") {
   const auto base = unique_base("close");
   ShmGuard g(base);
-  std::optional<Writer> w = Writer::create(base, small_opts());
+  std::optional<Writer> w = Writer::create(base, opts());
   auto r = Reader::open(w->segment_name());
   write_msg(*w, 0, 300);
   const std::string name = w->segment_name();
@@ -384,7 +369,7 @@ TEST_CASE("wait_any: idle wait times out and costs no CPU", "[shm][futex]") {
   Watchdog wd(10s);
   const auto base = unique_base("idle");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts());
+  auto w = Writer::create(base, opts());
   auto r = Reader::open(w.segment_name());
   WaitToken t = r.arm();
   REQUIRE_FALSE(r.has_data());
@@ -404,8 +389,8 @@ TEST_CASE("wait_any wakes a waiting thread on commit (one and several tokens)",
   const auto b1 = unique_base("wake1");
   const auto b2 = unique_base("wake2");
   ShmGuard g1(b1), g2(b2);
-  auto w1 = Writer::create(b1, small_opts());
-  auto w2 = Writer::create(b2, small_opts());
+  auto w1 = Writer::create(b1, opts());
+  auto w2 = Writer::create(b2, opts());
   auto r1 = Reader::open(w1.segment_name());
   auto r2 = Reader::open(w2.segment_name());
   for (int several = 0; several < 2; ++several) {
@@ -444,7 +429,7 @@ TEST_CASE("a Reader re-armed without disarming is woken by every later commit",
   Watchdog wd(20s);
   const auto base = unique_base("rearm");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts());
+  auto w = Writer::create(base, opts());
   auto r = Reader::open(w.segment_name());
   for (int round = 0; round < 20; ++round) {
     std::atomic<int> state{0};  // 1: (re-)armed and about to wait; 2: woke with data
@@ -493,7 +478,7 @@ TEST_CASE("a Writer growing wakes Readers sleeping on the old generation", "[shm
   Watchdog wd(10s);
   const auto base = unique_base("growwake");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts(4));
+  auto w = Writer::create(base, opts(4));
   auto r = Reader::open(w.segment_name());
   WaitToken t = r.arm();
   REQUIRE_FALSE(r.has_data());
@@ -513,7 +498,7 @@ TEST_CASE("two threads: writer and reader, no torn reads", "[shm]") {
   Watchdog wd(30s);
   const auto base = unique_base("threads");
   ShmGuard g(base);
-  auto opts = small_opts(8);
+  auto opts = opts(8);
   auto w = Writer::create(base, opts);
   auto r = Reader::open(w.segment_name());
   const std::uint64_t total = kSanitized ? 3000 : 20000;
@@ -553,7 +538,7 @@ TEST_CASE("tampered descriptors and sizes are dropped, never read out of bounds"
   Watchdog wd(10s);
   const auto base = unique_base("tamper");
   ShmGuard g(base);
-  auto w = Writer::create(base, small_opts(4));
+  auto w = Writer::create(base, opts(4));
   auto r = Reader::open(w.segment_name());
   write_msg(w, 0, 100);
   write_msg(w, 1, 100);

@@ -25,6 +25,8 @@
 #include <thread>
 #include <vector>
 
+#include "lcmx/shm/segment.hpp"
+
 namespace lcmx::shm::test {
 
 using namespace std::chrono_literals;
@@ -291,5 +293,28 @@ inline constexpr bool kSanitized = true;
 #else
 inline constexpr bool kSanitized = false;
 #endif
+
+// Writer options for tests: `slots` slots, `subs` readers, 4 KiB slots growing to 1 MiB.
+inline WriterOptions opts(std::uint32_t slots = 8, std::uint32_t subs = 8) {
+  WriterOptions o;
+  o.slot_count = slots;
+  o.max_subscribers = subs;
+  o.initial_slot_size = 4096;
+  o.max_message_size = 1 << 20;
+  return o;
+}
+
+// Writes test message `index` (fill_message) of `size` bytes; returns its sequence number.
+inline std::uint64_t write_msg(Writer& w, std::uint64_t index, std::size_t size) {
+  std::vector<unsigned char> buf(size);
+  fill_message(buf.data(), size, index);
+  return w.write(buf.data(), size);
+}
+
+// Child side: blocks until the parent kills it (bounded so a lost parent cannot leak it).
+[[noreturn]] inline void park(const Pipe& from_parent) {
+  from_parent.recv(60s);
+  std::_Exit(0);
+}
 
 }  // namespace lcmx::shm::test
