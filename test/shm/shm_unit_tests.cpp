@@ -187,8 +187,8 @@ TEST_CASE("growth across generations: a following Reader receives everything in 
   Watchdog wd(15s);
   const auto base = unique_base("grow");
   ShmGuard g(base);
-  auto opts = lcmx::shm::test::opts(4);
-  auto w = Writer::create(base, opts);
+  auto wo = opts(4);
+  auto w = Writer::create(base, wo);
   auto r = Reader::open(w.segment_name());
   const std::size_t sizes[] = {100, 5000, 9000, 20000, 300000, 1 << 20};  // each grows
   std::uint64_t idx = 0;
@@ -248,9 +248,9 @@ TEST_CASE("a sample of an old generation stays valid after the Reader moved on",
 TEST_CASE("too_large, bad options and bad names", "[shm]") {
   const auto base = unique_base("large");
   ShmGuard g(base);
-  auto opts = lcmx::shm::test::opts();
-  opts.max_message_size = 10000;
-  auto w = Writer::create(base, opts);
+  auto wo = opts();
+  wo.max_message_size = 10000;
+  auto w = Writer::create(base, wo);
   CHECK_THROWS_MATCHES(w.loan(10001), Error, Catch::Predicate<Error>([](const Error& e) {
                          return e.code() == Errc::too_large;
                        }));
@@ -498,8 +498,8 @@ TEST_CASE("two threads: writer and reader, no torn reads", "[shm]") {
   Watchdog wd(30s);
   const auto base = unique_base("threads");
   ShmGuard g(base);
-  auto opts = lcmx::shm::test::opts(8);
-  auto w = Writer::create(base, opts);
+  auto wo = opts(8);
+  auto w = Writer::create(base, wo);
   auto r = Reader::open(w.segment_name());
   const std::uint64_t total = kSanitized ? 3000 : 20000;
   std::thread writer([&] {
