@@ -240,13 +240,22 @@ TEST_CASE("a reader whose generation follow failed delivers later without a comm
   // Message 1 moves the publisher to generation 1; before our reader follows, generation 1's
   // subscriber table is filled, so the follow fails and the reader backs off (100 ms).
   child.send('g');
+  // Generation 1's file shows up before the publisher has finished writing its header (the
+  // magic is stored last): until then opening it says `corrupt`, so wait for a first Reader.
   std::string g1;
+  std::vector<lcmx::shm::Reader> fill;
   REQUIRE(eventually([&] {
     for (const auto& n : child.segments())
       if (n.size() > 3 && n.compare(n.size() - 3, 3, "_g1") == 0) g1 = n;
-    return !g1.empty();
+    if (g1.empty()) return false;
+    try {
+      fill.push_back(lcmx::shm::Reader::open(g1));
+      return true;
+    } catch (const lcmx::shm::Error& e) {
+      if (e.code() != lcmx::shm::Errc::corrupt) throw;
+      return false;
+    }
   }, kWait));
-  std::vector<lcmx::shm::Reader> fill;
   for (int i = 0; i < 4096; ++i) {
     try {
       fill.push_back(lcmx::shm::Reader::open(g1));
