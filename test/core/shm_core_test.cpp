@@ -208,9 +208,11 @@ TEST_CASE("a raw shm sample whose segment is truncated during its callback is co
   std::atomic<int> truncated{0};
   auto sub = node.subscribe_raw(channel, [&](const lcmx::RawMessage&) {
     // A hostile (or buggy) process with write access truncates the file under our view.
-    if (got++ == 0)
+    // `got` is counted after it, so the test reads `truncated` only once it is final.
+    if (got.load() == 0)
       for (const auto& n : child.segments())
         if (::truncate(("/dev/shm/" + n).c_str(), 0) == 0) ++truncated;
+    ++got;
   });
   REQUIRE(child.ready());
   child.send('p');
