@@ -37,6 +37,7 @@
 #include <cerrno>
 #include <cinttypes>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <ctime>
 #include <dirent.h>
@@ -325,12 +326,56 @@ void fold(const Child& c, Totals& t) {
   if (last_pub) t.published += std::strtoull(last_pub->c_str() + 4, nullptr, 10);
 }
 
-long rss_kb(pid_t pid) {
+// Waits up to `timeout_ms` for a signalled child to exit and returns its wait status. A child
+// still there is hung: its threads' stacks are printed (gdb, when installed), so the hang can be
+// diagnosed from the bench's output, then it is SIGKILLed (*killed = true).
+int wait_or_dump(const Child& c, int timeout_ms, bool* killed) {
+  int st = 0;
+  *killed = false;
+  const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(timeout_ms) * 1'000'000;
+  pid_t r = 0;
+  while ((r = ::waitpid(c.pid, &st, WNOHANG)) == 0 && now_ns() < deadline)
+    ::usleep(10'000);  // polling a child with a deadline
+  if (r != 0) return st;
+  std::fprintf(stderr, "\nsoak: %s (pid %d) did not exit within %d ms; its stacks:\n", c.role.c_str(), c.pid,
+               timeout_ms);
+  const std::string cmd = "gdb -p " + std::to_string(c.pid) +
+                          " -batch -ex 'thread apply all bt' 2>/dev/null | grep -E '^(#|Thread)' >&2";
+  if (std::system(cmd.c_str()) != 0) std::fprintf(stderr, "soak: (no gdb: no stacks)\n");
+  std::atomic<int> never{0};
+  return reap_child(c.pid, 0, never, killed);
+}
+
+// A process's resident memory (KB) from /proc/<pid>/status, split as the kernel does: anon
+// (heap, stacks: what a leak grows), file (mapped binaries) and shmem (touched pages of the
+// shared-memory segments it maps: these follow which publishers are alive, not leaks).
+struct Rss {
+  long total = -1, anon = -1, file = -1, shmem = -1;
+};
+Rss rss_kb(pid_t pid) {
   std::ifstream f("/proc/" + std::to_string(pid) + "/status");
   std::string line;
-  while (std::getline(f, line))
-    if (line.rfind("VmRSS:", 0) == 0) return std::strtol(line.c_str() + 6, nullptr, 10);
-  return -1;
+  Rss r;
+  auto field = [&](const char* key, long& out) {
+    if (line.rfind(key, 0) == 0) out = std::strtol(line.c_str() + std::strlen(key), nullptr, 10);
+  };
+  while (std::getline(f, line)) {
+    field("VmRSS:", r.total);
+    field("RssAnon:", r.anon);
+    field("RssFile:", r.file);
+    field("RssShmem:", r.shmem);
+  }
+  return r;
+}
+
+// Least-squares slope of y over x (x in seconds): KB per minute.
+double slope_kb_per_min(const std::vector<std::pair<double, double>>& xy) {
+  if (xy.size() < 2) return 0.0;
+  double sx = 0, sy = 0, sxx = 0, sxy = 0;
+  for (const auto& [x, y] : xy) sx += x, sy += y, sxx += x * x, sxy += x * y;
+  const double n = static_cast<double>(xy.size());
+  const double den = n * sxx - sx * sx;
+  return den == 0.0 ? 0.0 : 60.0 * (n * sxy - sx * sy) / den;
 }
 
 std::vector<std::string> shm_files_with(const std::string& needle) {
@@ -411,18 +456,23 @@ int orchestrate(const Settings& s, const std::string& self) {
   const std::int64_t t0 = now_ns();
   const std::int64_t end = t0 + static_cast<std::int64_t>(s.duration_s) * 1'000'000'000;
   const std::int64_t rss_at = t0 + static_cast<std::int64_t>(s.duration_s) * 250'000'000;  // 25 %
-  long rss_first = -1, rss_last = -1, rss_max = -1;
+  Rss rss_first, rss_last;
+  long rss_max = -1;
+  std::vector<std::pair<double, double>> anon_samples;  // (s since 25 %, RssAnon KB)
+  std::int64_t next_rss_sample = rss_at;
   std::int64_t next_kill = t0 + static_cast<std::int64_t>(s.kill_every_ms) * 1'000'000;
   std::int64_t next_progress = t0;
   bool ok = true;
   while (g_stop.load() == 0 && now_ns() < end) {
     pump_all(100);
     const std::int64_t now = now_ns();
-    const long r = rss_kb(live[0].pid);  // sub-0, the survivor
-    if (now >= rss_at) {
-      if (rss_first < 0) rss_first = r;
+    if (now >= next_rss_sample) {
+      const Rss r = rss_kb(live[0].pid);  // sub-0, the survivor
+      if (rss_first.total < 0) rss_first = r;
       rss_last = r;
-      rss_max = std::max(rss_max, r);
+      rss_max = std::max(rss_max, r.total);
+      anon_samples.emplace_back(static_cast<double>(now - rss_at) / 1e9, static_cast<double>(r.anon));
+      next_rss_sample = now + 1'000'000'000;
     }
     // A child that died by itself is a failure of the run (restart it, but say so).
     for (auto& c : live) {
@@ -443,9 +493,9 @@ int orchestrate(const Settings& s, const std::string& self) {
       std::uniform_int_distribution<std::size_t> pick(1, live.size() - 1);  // never sub-0
       Child& c = live[pick(rng)];
       ::kill(c.pid, sig);
-      int st = 0;
-      reap_child(c.pid, 10'000, g_stop);
-      (void)st;
+      bool hung = false;
+      wait_or_dump(c, 10'000, &hung);
+      if (hung && sig != SIGKILL) ok = false;  // a clean stop signal must end a child
       for (int i = 0; i < 50 && !c.reader.eof; ++i) c.reader.pump();
       ++kills[c.role];
       finished.push_back(std::move(c));
@@ -477,7 +527,7 @@ int orchestrate(const Settings& s, const std::string& self) {
   for (auto& c : live) {
     bool killed = false;
     std::atomic<int> never{0};
-    const int st = reap_child(c.pid, 10'000, never, &killed);
+    const int st = wait_or_dump(c, 10'000, &killed);
     if (killed || !WIFEXITED(st) || WEXITSTATUS(st) != 0) {
       std::fprintf(stderr, "soak: %s did not exit cleanly on SIGTERM\n", c.role.c_str());
       ok = false;
@@ -496,6 +546,14 @@ int orchestrate(const Settings& s, const std::string& self) {
 
   Totals t;
   for (const auto& c : finished) fold(c, t);
+  // RssAnon's trend over the whole measured window and each half: a heap that settles shows
+  // a first-half rise and a flat second half; a leak rises in both.
+  const auto half = static_cast<std::ptrdiff_t>(anon_samples.size() / 2);
+  auto kb_min = [](const std::vector<std::pair<double, double>>& xy) {
+    char b[32];
+    std::snprintf(b, sizeof b, "%+.1f KB/min", slope_kb_per_min(xy));
+    return std::string(b);
+  };
   int total_kills = 0;
   for (auto& [_, v] : kills) total_kills += v;
 
@@ -517,8 +575,17 @@ int orchestrate(const Settings& s, const std::string& self) {
      << "| **duplicates** | " << t.dups << " | 0 |\n"
      << "| **torn** (body does not match header) | " << t.torn << " | 0 |\n"
      << "| malformed (bad header/size) | " << t.bad << " | 0 |\n"
-     << "| **survivor RSS** (sub-0, KB) at 25 % / end / max | " << rss_first << " / " << rss_last << " / "
-     << rss_max << " | flat |\n"
+     << "| survivor RSS (sub-0, KB) at 25 % / end / max | " << rss_first.total << " / " << rss_last.total
+     << " / " << rss_max << " | |\n"
+     << "| survivor RssShmem (mapped segments' touched pages, KB) at 25 % / end | " << rss_first.shmem << " / "
+     << rss_last.shmem << " | |\n"
+     << "| survivor RssFile (KB) at 25 % / end | " << rss_first.file << " / " << rss_last.file << " | |\n"
+     << "| **survivor RssAnon** (heap, KB) at 25 % / end | " << rss_first.anon << " / " << rss_last.anon
+     << " | flat |\n"
+     << "| **survivor RssAnon trend** (least squares over " << anon_samples.size()
+     << " samples, 1/s from 25 %): whole / first half / second half | " << kb_min(anon_samples) << " / "
+     << kb_min({anon_samples.begin(), anon_samples.begin() + half}) << " / "
+     << kb_min({anon_samples.begin() + half, anon_samples.end()}) << " | ~0 |\n"
      << "| **leftover /dev/shm files** after the clean stop | " << left.size() << " | 0 |\n"
      << "| children that failed by themselves / reported errors | " << (ok ? 0 : 1) << " / " << t.errors
      << " | 0 / 0 |\n";
