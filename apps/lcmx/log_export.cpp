@@ -413,7 +413,7 @@ int run_export() {
     std::cerr << me << e.what() << "\n";
     return 1;
   }
-  if (progress) std::cerr << "\r\033[K";
+  if (progress) std::cerr << "\r\033[Kexporting " << o.file << ": 100.0 %  " << events << " events\n";
 
   auto damage_text = [](const eventlog::Damage& d) {
     return d.kind == eventlog::Damage::Kind::truncated
@@ -495,7 +495,7 @@ Verb add_log_export(CLI::App& log) {
       ->capture_default_str();
   c->add_option("-x,--exclude", o.exclude, "leave out channels matching this expression (repeatable)");
   c->add_flag("-f,--force", o.force, "overwrite existing output files");
-  c->add_flag("-q,--quiet", o.quiet, "no progress and no summary (errors and damage only)");
+  c->add_flag("-q,--quiet", o.quiet, "no progress line (shown on a terminal) and no summary (errors and damage only)");
   c->add_flag("--json", o.json, "print the summary as JSON on stdout");
   return {c, [] { return run_export(); }};
 }

@@ -326,6 +326,7 @@ TEST_CASE("log export --format mcap: lcm-gen messages decoded field by field, ch
   CHECK(contains(text.out, l.unknown_ch + "  [-]  0 exported, 4 of unknown type skipped (63 bytes; fingerprint "
                                           "0x1122334455667788 none: shorter than 8 bytes)"));
   CHECK(contains(text.out, l.pose_ch + "  [lcmx_examples.pose_t]  3 exported"));
+  CHECK_FALSE(contains(text.out, "exporting"));  // no progress line when stderr is no terminal
 
   const auto c = mcap_check(s, out);
   INFO(c.out.substr(0, 4000));
@@ -535,6 +536,99 @@ TEST_CASE("log export of a truncated log exports up to the damage and says where
   const auto help = s.run({LCMX_TOOL, "log", "export", "--help"});
   CHECK(help.rc == 0);
   CHECK(contains(help.out, "--fields"));
+}
+
+// The ordinary case: a log `lcmx record` made of a live lcm-gen publisher (pose_t over shared
+// memory), exported with the type path from LCMX_TYPES_PATH.
+TEST_CASE("log export of a log lcmx record made from a live lcm-gen publisher", "[integration][export]") {
+  Session s(125, 40000ms);
+  TmpDir d;
+  const std::string log = d.file("rec.lcmlog");
+  const std::string ch = unique_channel("LIVE", 125);
+  const int n = 60;
+  auto& rec = s.spawn({LCMX_TOOL, "record", log, "-c", ch, "-q"}, {}, true);
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", std::to_string(n), "--rate", "300",
+                      "--subscribers", "1"});
+  REQUIRE(pub.expect("PUBLISHED", 20000ms));
+  auto recorded = [&] {
+    try {
+      auto r = el::Reader::open(log);
+      el::Event e;
+      int k = 0;
+      while (r.next(e)) k += e.channel == ch;
+      return k;
+    } catch (const el::Error&) {
+      return 0;
+    }
+  };
+  REQUIRE(wait_until([&] { return recorded() == n; }, 10000ms, 20ms));
+  rec.signal(SIGINT);
+  REQUIRE(rec.wait(10000ms) == 0);
+
+  const auto env = std::string("LCMX_TYPES_PATH=") + LCMX_LCMTYPES_DIR;
+  const auto r = s.run({LCMX_TOOL, "log", "export", log, "-o", d.file("rec.mcap"), "--json"}, {env});
+  INFO(r.out);
+  REQUIRE(r.rc == 0);
+  CHECK(json_num(json_line(r.out), "exported") == n);
+  const auto c = mcap_check(s, d.file("rec.mcap"));
+  INFO(c.out.substr(0, 2000));
+  REQUIRE(c.rc == 0);
+  const auto msgs = c.on(ch);
+  REQUIRE(msgs.size() == static_cast<std::size_t>(n));
+  for (int i = 0; i < n; ++i) {
+    const auto& m = *msgs[static_cast<std::size_t>(i)];
+    CHECK(m.schema == "lcmx_examples.pose_t");
+    CHECK(m.at("header.seq") == std::to_string(i));
+    CHECK(num(m.at("position[0]")) == static_cast<double>(i));  // what the peer publishes
+    CHECK(num(m.at("orientation[3]")) == 1.0);
+    if (i > 0) CHECK(m.log_time >= msgs[static_cast<std::size_t>(i - 1)]->log_time);
+  }
+
+  const auto csv = s.run({LCMX_TOOL, "log", "export", log, "--format", "csv", "-o", d.file("csv"), "--fields",
+                          "header.seq,position[0]"},
+                         {env});
+  REQUIRE(csv.rc == 0);
+  std::istringstream in(slurp(d.file("csv") + "/" + ch + ".csv"));
+  std::string line;
+  REQUIRE(std::getline(in, line));
+  CHECK(line == "timestamp_us,header.seq,position[0]");
+  for (int i = 0; i < n; ++i) {
+    REQUIRE(std::getline(in, line));
+    CHECK(line.substr(line.find(',')) == "," + std::to_string(i) + "," + std::to_string(i));
+  }
+  CHECK_FALSE(std::getline(in, line));
+}
+
+TEST_CASE("log export on a terminal (tmux) shows a progress line", "[integration][export][tty]") {
+  Session s(126, 30000ms);
+  TmpDir d;
+  const std::string ch = unique_channel("TTYX", 126);
+  const std::string log = d.file("tty.lcmlog");
+  {
+    auto w = el::Writer::open(log, el::OpenMode::create);
+    for (int i = 0; i < 3000; ++i) w.write(kT0 + i * 100, ch, encode(pose(i % 3)));
+    w.close();
+  }
+  const std::string sock = "lcmxit_x" + std::to_string(::getpid());
+  struct KillServer {
+    std::string sock;
+    ~KillServer() { run_quiet({LCMX_TMUX, "-L", sock, "kill-server"}); }
+  } kill_server{sock};
+  auto tmux = [&](std::vector<std::string> args) {
+    args.insert(args.begin(), {LCMX_TMUX, "-L", sock});
+    return s.run(args, {}, 5000ms);
+  };
+  auto pane = [&] { return tmux({"capture-pane", "-p", "-t", "exp"}).out; };
+  REQUIRE(tmux({"new-session", "-d", "-s", "exp", "-x", "200", "-y", "20",
+                std::string(LCMX_TOOL) + " log export " + log + " --types " + LCMX_LCMTYPES_DIR + " -o " +
+                    d.file("tty.mcap") + "; echo EXPORT-EXIT=$?; sleep 30"})
+              .rc == 0);
+  REQUIRE(wait_until([&] { return contains(pane(), "EXPORT-EXIT="); }, 15000ms, 20ms));
+  const auto p = pane();
+  INFO(p);
+  CHECK(contains(p, "EXPORT-EXIT=0"));
+  CHECK(contains(p, "exporting " + log + ": 100.0 %  3000 events"));
+  CHECK(contains(p, "exported 3000 of 3000 events"));
 }
 
 #else
