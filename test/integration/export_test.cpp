@@ -413,6 +413,12 @@ TEST_CASE("log export --format mcap: lcm-gen messages decoded field by field, ch
   const auto bad = mcap_check(s, d.file("flipped.mcap"));
   CHECK(bad.rc == 1);
   CHECK(contains(bad.out, "FAIL Data End CRC"));
+  auto summary = slurp(out);
+  summary[summary.size() - 8 - 29 - 3] ^= 0x01;  // in the last Summary Offset record
+  std::ofstream(d.file("summary.mcap"), std::ios::binary) << summary;
+  const auto bad_summary = mcap_check(s, d.file("summary.mcap"));
+  CHECK(bad_summary.rc == 1);
+  CHECK(contains(bad_summary.out, "FAIL summary CRC"));
   std::ofstream(d.file("cut.mcap"), std::ios::binary) << slurp(out).substr(0, bytes.size() - 30);
   const auto cut = mcap_check(s, d.file("cut.mcap"));
   CHECK(cut.rc == 1);
