@@ -20,8 +20,9 @@ std::string primitive_schema(types::Primitive p) {
     case P::byte: return R"({"type":"integer","minimum":0,"maximum":255})";
     case P::float32:
     case P::float64:
-      return R"({"type":["number","null"],"description":")" + std::string(types::to_string(p)) +
-             R"x( (null: NaN or infinity)"})x";
+      // "number" alone: Foxglove's reader takes no type lists (see json_schema.hpp).
+      return R"({"type":"number","description":")" + std::string(types::to_string(p)) +
+             R"x(; NaN and infinities are written as null (JSON has no such numbers)"})x";
     case P::boolean: return R"({"type":"boolean"})";
     case P::string: return R"({"type":"string"})";
   }
@@ -95,7 +96,26 @@ std::string Builder::struct_schema(const types::StructType& t, bool top) {
   return s + "}";
 }
 
+// Why Foxglove's JSON Schema reader cannot show `t`, or "".
+std::string foxglove_problem(const types::StructType& t, std::vector<const types::StructType*>& stack) {
+  if (std::find(stack.begin(), stack.end(), &t) != stack.end()) return t.full_name() + " contains itself";
+  stack.push_back(&t);
+  std::string why;
+  for (const auto& m : t.members) {
+    if (m.dims.size() > 1) why = "multi-dimensional array " + t.full_name() + "." + m.name;
+    else if (m.nested) why = foxglove_problem(*m.nested, stack);
+    if (!why.empty()) break;
+  }
+  stack.pop_back();
+  return why;
+}
+
 }  // namespace
+
+std::string foxglove_unsupported(const types::StructType& type) {
+  std::vector<const types::StructType*> stack;
+  return foxglove_problem(type, stack);
+}
 
 std::string json_schema(const types::StructType& type) {
   Builder b;

@@ -9,7 +9,9 @@
 //    are written as exact decimal integers: readers that parse JSON numbers as doubles, like
 //    JavaScript's, lose precision beyond 2^53);
 //  - byte is "integer" 0..255, also inside byte arrays (arrays of numbers, not base64);
-//  - float and double are "number" or null (to_json() writes NaN and infinities as null);
+//  - float and double are "number"; to_json() writes NaN and infinities as null, which the
+//    description says (a strict validator must accept null for "number": a type list
+//    ["number","null"] would be exact, but Foxglove's reader rejects type lists);
 //  - boolean is "boolean", string is "string";
 //  - each array dimension is an "array"; fixed sizes set minItems = maxItems, variable ones
 //    name their size member in the description.
@@ -23,5 +25,11 @@ namespace lcmx::cli {
 
 // The schema as one line of JSON. Never throws for a type the registry resolved.
 std::string json_schema(const types::StructType& type);
+
+// Foxglove's JSON Schema reader (Foxglove/Lichtblick `parseJsonSchema`) knows objects with
+// properties, booleans, strings, numbers and integers, and arrays of those — not arrays of
+// arrays nor "$ref". Returns why a message of `type` cannot be shown there ("multi-dimensional
+// array pkg.t.m", "pkg.t contains itself"), or "" when it can.
+std::string foxglove_unsupported(const types::StructType& type);
 
 }  // namespace lcmx::cli

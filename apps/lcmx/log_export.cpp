@@ -197,7 +197,10 @@ class McapSink : public Sink {
     auto it = channels_.find(key);
     if (it == channels_.end()) {
       auto s = schemas_.find(t.fingerprint);
-      if (s == schemas_.end()) s = schemas_.emplace(t.fingerprint, w_.add_schema(t.full_name(), "jsonschema", json_schema(t))).first;
+      if (s == schemas_.end()) {
+        s = schemas_.emplace(t.fingerprint, w_.add_schema(t.full_name(), "jsonschema", json_schema(t))).first;
+        if (auto why = foxglove_unsupported(t); !why.empty()) notes_.push_back(t.full_name() + ": " + why);
+      }
       const auto id = w_.add_channel(s->second, e.channel, "json",
                                      {{"lcm_type", t.full_name()}, {"lcm_fingerprint", hex_fp(t.fingerprint)}});
       it = channels_.emplace(key, id).first;
@@ -208,9 +211,12 @@ class McapSink : public Sink {
     w_.add_message(it->second, static_cast<std::uint32_t>(e.number), ns, ns, json_);
   }
   void close() override { w_.close(); }
+  // Types whose messages Foxglove cannot show, and why.
+  const std::vector<std::string>& notes() const { return notes_; }
 
  private:
   McapWriter w_;
+  std::vector<std::string> notes_;
   std::string path_;
   std::map<std::uint64_t, std::uint16_t> schemas_;
   std::map<std::pair<std::string, std::uint64_t>, std::uint16_t> channels_;
@@ -346,6 +352,7 @@ int run_export() {
   std::uint64_t events = 0, exported = 0, filtered = 0;
   std::vector<eventlog::Damage> damage;
   std::uint64_t damage_count = 0, damaged_bytes = 0;
+  std::vector<std::string> foxglove_notes;
   const bool progress = !o.quiet && ::isatty(STDERR_FILENO);
   try {
     auto reader = eventlog::Reader::open(o.file);
@@ -401,6 +408,7 @@ int run_export() {
       ++exported;
     }
     sink->close();
+    if (const auto* m = dynamic_cast<const McapSink*>(sink.get())) foxglove_notes = m->notes();
     damage = reader.damage();
     damage_count = reader.damage_count();
     damaged_bytes = reader.damaged_bytes();
@@ -442,6 +450,8 @@ int run_export() {
       j << "]}";
       first = false;
     }
+    j << "],\"foxglove_unsupported\":[";
+    for (std::size_t i = 0; i < foxglove_notes.size(); ++i) j << (i ? "," : "") << json_str(foxglove_notes[i]);
     j << "],\"damage_count\":" << damage_count << ",\"damaged_bytes\":" << damaged_bytes << ",\"damage\":[";
     for (std::size_t i = 0; i < damage.size(); ++i)
       j << (i ? "," : "") << "{\"kind\":\"" << eventlog::to_string(damage[i].kind) << "\",\"offset\":" << damage[i].offset
@@ -467,6 +477,10 @@ int run_export() {
     }
     if (filtered) std::cout << "  " << filtered << " events on channels left out by -c/-x\n";
   }
+  if (!o.quiet)
+    for (const auto& n : foxglove_notes)
+      std::cerr << "lcmx log export: note: Foxglove's JSON Schema reader cannot show " << n
+                << " (it has no arrays of arrays nor $ref); other readers can\n";
   for (const auto& d : damage) std::cerr << "lcmx log export: " << damage_text(d) << "\n";
   if (damage_count > damage.size())
     std::cerr << "lcmx log export: " << damage_count - damage.size() << " more damaged ranges not listed\n";

@@ -332,6 +332,15 @@ TEST_CASE("log export --format mcap: lcm-gen messages decoded field by field, ch
   INFO(c.out.substr(0, 4000));
   REQUIRE(c.rc == 0);
   CHECK(contains(c.out, "OK messages=6 schemas=4 channels=4"));
+  // Foxglove's JSON Schema reader (objects, scalars, arrays of those) can show the usual types;
+  // arrays of arrays and recursive types it cannot, and the export says so.
+  CHECK(contains(c.out, "SCHEMA\tlcmx_examples.pose_t\tfoxglove=yes\n"));
+  CHECK(contains(c.out, "SCHEMA\tcorpus_a.primitives_t\tfoxglove=yes\n"));
+  CHECK(contains(c.out, "SCHEMA\tcorpus_a.arrays_t\tfoxglove=no: corpus_a.arrays_t.grid: array of"));
+  CHECK(contains(c.out, "SCHEMA\tcorpus_b.tree_t\tfoxglove=no: corpus_b.tree_t.children: array of {\"$ref\""));
+  CHECK(contains(j, "\"foxglove_unsupported\":[\"corpus_a.arrays_t: multi-dimensional array corpus_a.arrays_t.grid\","
+                    "\"corpus_b.tree_t: corpus_b.tree_t contains itself\"]"));
+  CHECK(contains(text.out, "note: Foxglove's JSON Schema reader cannot show corpus_a.arrays_t: multi-dimensional array"));
 
   const auto poses = c.on(l.pose_ch);
   REQUIRE(poses.size() == 3);

@@ -15,8 +15,10 @@ writer. Reads every record of FILE front to back and checks:
   - schemas have ids > 0, encoding "jsonschema", valid JSON Schema data; channels reference a
     schema written before them, encoding "json"; messages reference a channel written before
     them; every message is valid JSON (UTF-8) and validates against its channel's schema
-    (python3-jsonschema, Draft 2020-12).
-Prints one line per message, for the C++ test to compare field by field:
+    (python3-jsonschema, Draft 2020-12; "number" also admits null, lcmx's NaN/infinity).
+Prints per schema whether Foxglove's JSON Schema reader can use it:
+  SCHEMA <name> foxglove=yes | foxglove=no: <why>        (tab-separated)
+and one line per message, for the C++ test to compare field by field:
   MSG <topic> <schema name> <sequence> <log_time> <publish_time> <path>=<value> ... (tab-separated)
 where <path> is dotted/indexed ("header.seq", "position[2]", "data[0]") and <value> is
 json.dumps(ensure_ascii=False) of each leaf (so a string is quoted, NaN-as-null is null); then
@@ -81,8 +83,45 @@ def flatten(v, path, out):
         out.append(f"{path}={json.dumps(v, ensure_ascii=False)}")
 
 
+def foxglove_problem(schema, where):
+    """Foxglove's JSON Schema reader, as its documentation and source describe it: an object
+    with "properties"; each property of type boolean, string, number, integer, object (the
+    same rules), or array whose "items" are one of those but not an array; no "$ref", no type
+    lists. Returns why a schema is outside that, or None."""
+    if schema.get("type") != "object" or not isinstance(schema.get("properties"), dict):
+        return f"{where} is not an object with properties"
+    for name, prop in schema["properties"].items():
+        here = f"{where}.{name}"
+        t = prop.get("type")
+        if t in ("boolean", "string", "number", "integer"):
+            continue
+        if t == "object":
+            why = foxglove_problem(prop, here)
+            if why:
+                return why
+        elif t == "array":
+            it = prop.get("items", {}).get("type")
+            if it == "object":
+                why = foxglove_problem(prop["items"], here + "[]")
+                if why:
+                    return why
+            elif it not in ("boolean", "string", "number", "integer"):
+                return f"{here}: array of {json.dumps(prop.get('items'))[:60]}"
+        else:
+            return f"{here}: {json.dumps(prop)[:60]}"
+    return None
+
+
 def main(path):
     import jsonschema  # Debian: python3-jsonschema
+
+    # JSON has no NaN nor infinity: lcmx writes them as null and its schemas say so in the
+    # description of each float field, which stays "type": "number" (Foxglove's reader takes
+    # no type lists). So "number" also admits null here, and nothing else is relaxed.
+    base = jsonschema.Draft202012Validator
+    checker = base.TYPE_CHECKER.redefine(
+        "number", lambda c, x: x is None or base.TYPE_CHECKER.is_type(x, "number"))
+    validator_class = jsonschema.validators.extend(base, type_checker=checker)
 
     data = open(path, "rb").read()
     if data[:8] != MAGIC:
@@ -140,7 +179,9 @@ def main(path):
             if doc.get("title") != name:
                 raise Bad(f"schema {name}: title {doc.get('title')!r}")
             schemas[sid], raw_schema[sid] = (name, doc), body
-            validators[sid] = jsonschema.Draft202012Validator(doc)
+            validators[sid] = validator_class(doc)
+            why = foxglove_problem(doc, name)
+            print(f"SCHEMA\t{name}\tfoxglove=" + ("yes" if why is None else "no: " + why))
         elif op == CHANNEL:
             cid, sid, topic, enc = c.u16(), c.u16(), c.string(), c.string()
             meta_bytes = Cursor(c.blob32())
