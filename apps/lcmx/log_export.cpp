@@ -357,6 +357,10 @@ int run_export() {
   try {
     auto reader = eventlog::Reader::open(o.file);
     std::unique_ptr<Sink> sink;
+    if (std::error_code ec; fs::equivalent(o.output, o.file, ec)) {
+      std::cerr << me << "the output " << o.output << " is the log itself\n";
+      return 2;
+    }
     if (o.format == "mcap") {
       if (!o.force && fs::exists(o.output)) {
         std::cerr << me << o.output << " exists (use --force to overwrite)\n";

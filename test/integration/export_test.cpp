@@ -531,6 +531,19 @@ TEST_CASE("log export of a truncated log exports up to the damage and says where
   REQUIRE(c.on(ch).size() == 7);
   CHECK(c.on(ch)[6]->at("header.seq") == "6");
 
+  // A corrupt event in the middle: skipped, said where, the rest exported.
+  auto bad_bytes = all;
+  bad_bytes[offsets[3] + 25] = '\x55';  // its data length
+  std::ofstream(d.file("corrupt.lcmlog"), std::ios::binary) << bad_bytes;
+  const auto cr = s.run({LCMX_TOOL, "log", "export", d.file("corrupt.lcmlog"), "--types", LCMX_LCMTYPES_DIR, "-o",
+                         d.file("corrupt.mcap"), "--json"});
+  INFO(cr.out);
+  CHECK(cr.rc == 0);
+  CHECK(json_num(json_line(cr.out), "exported") == 9);
+  CHECK(contains(cr.out, "damaged log: " + std::to_string(offsets[4] - offsets[3]) + " bytes skipped at offset " +
+                             std::to_string(offsets[3])));
+  CHECK(mcap_check(s, d.file("corrupt.mcap")).on(ch).size() == 9);
+
   // The default output name: FILE with .mcap.
   CHECK(s.run({LCMX_TOOL, "log", "export", good}, {std::string("LCMX_TYPES_PATH=") + LCMX_LCMTYPES_DIR}).rc == 0);
   CHECK(mcap_check(s, d.file("good.mcap")).on(ch).size() == 10);
@@ -548,6 +561,10 @@ TEST_CASE("log export of a truncated log exports up to the damage and says where
   const auto missing = s.run({LCMX_TOOL, "log", "export", d.file("missing.lcmlog"), "--types", LCMX_LCMTYPES_DIR});
   CHECK(missing.rc == 1);
   CHECK(contains(missing.out, "cannot open"));
+  const auto self = s.run({LCMX_TOOL, "log", "export", good, "--types", LCMX_LCMTYPES_DIR, "-o", good, "-f"});
+  CHECK(self.rc == 2);
+  CHECK(contains(self.out, "is the log itself"));
+  CHECK(slurp(good) == all);
   const auto help = s.run({LCMX_TOOL, "log", "export", "--help"});
   CHECK(help.rc == 0);
   CHECK(contains(help.out, "--fields"));
