@@ -506,12 +506,15 @@ Verb add_log_export(CLI::App& log) {
   c->add_option("-o,--output", o.output,
                 "mcap: the file (default: FILE with extension .mcap); csv: the directory (default: FILE_csv)");
   c->add_option("--types", o.types, "`.lcm` file or directory (searched recursively); repeatable, ':'-separated "
-                                    "lists too (default: LCMX_TYPES_PATH)");
+                                    "lists too (default: LCMX_TYPES_PATH)")
+      ->allow_extra_args(false);  // one value per --types: `--types DIR FILE` leaves FILE alone
   c->add_option("--fields", o.fields,
-                "csv: columns to write, e.g. header.seq,position[0] (default: every field, flattened)");
+                "csv: columns to write, e.g. header.seq,position[0] (default: every field, flattened)")
+      ->allow_extra_args(false);
   c->add_option("-c,--channel", o.channel, "export channels whose whole name matches this regular expression")
       ->capture_default_str();
-  c->add_option("-x,--exclude", o.exclude, "leave out channels matching this expression (repeatable)");
+  c->add_option("-x,--exclude", o.exclude, "leave out channels matching this expression (repeatable)")
+      ->allow_extra_args(false);
   c->add_flag("-f,--force", o.force, "overwrite existing output files");
   c->add_flag("-q,--quiet", o.quiet, "no progress line (shown on a terminal) and no summary (errors and damage only)");
   c->add_flag("--json", o.json, "print the summary as JSON on stdout");

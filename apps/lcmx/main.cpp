@@ -79,7 +79,8 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
   auto* cmd = app.add_subcommand(name, description);
   cmd->add_option("--types", st->types,
                   "`.lcm` file or directory for package-qualified type names, found by fingerprint "
-                  "(repeatable; default: LCMX_TYPES_PATH)");
+                  "(repeatable; default: LCMX_TYPES_PATH)")
+      ->allow_extra_args(false);
   cmd->add_flag("--json", st->json, "print as one line of JSON");
   return {cmd, [&g, print, print_json, st, name] {
             spdlog::set_level(spdlog::level::warn);

@@ -440,7 +440,8 @@ TEST_CASE("log export --format csv: one file per channel, leaf fields flattened,
   TmpDir d;
   const auto l = write_log(d, 121);
   const auto dir = d.file("csv");
-  const auto r = s.run({LCMX_TOOL, "log", "export", l.path, "--format", "csv", "--types", kTypes, "-o", dir});
+  // --types before FILE: one value per --types, FILE stays the positional.
+  const auto r = s.run({LCMX_TOOL, "log", "export", "--types", kTypes, "--format", "csv", l.path, "-o", dir});
   INFO(r.out);
   REQUIRE(r.rc == 0);
   const auto pose_csv = slurp(dir + "/" + l.pose_ch + ".csv");
