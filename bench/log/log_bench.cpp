@@ -1,9 +1,12 @@
 // lcmx_bench_log: the traffic and the observer of bench/log/run_log_bench.sh (recorder and
 // player benchmarks; see bench/README.md "Log tools").
 //
-//   gen-stock URL CHANNELS RATE_HZ SIZE SECONDS [PREFIX]
+//   gen-stock URL CHANNELS RATE_HZ SIZE SECONDS [PREFIX [spread|burst]]
 //     liblcm: CHANNELS channels PREFIX_000.. (BENCH_000..) at RATE_HZ each, bench_t of SIZE bytes (seq per
-//     channel), for SECONDS. Prints "sent N".
+//     channel), for SECONDS. Prints "sent N". spread (default): channel c is sent at
+//     c / CHANNELS of each period, as independent publishers would (their phases spread);
+//     burst: all channels back to back at the start of each period, as one program that
+//     publishes them all in one loop (the stress case: bursts of CHANNELS datagrams).
 //   gen-lcmx CHANNELS RATE_HZ SIZE IMAGE_BYTES IMAGE_HZ SECONDS
 //     lcmx: the same small channels plus IMAGE (bench_t of IMAGE_BYTES) at IMAGE_HZ, over
 //     shared memory. Waits (10 s at most) for one subscriber per channel first. Prints
@@ -53,7 +56,8 @@ lcmx_examples::bench_t make_msg(std::size_t size) {
   return m;
 }
 
-int gen_stock(const char* url, int channels, double rate, std::size_t size, double seconds, const char* prefix) {
+int gen_stock(const char* url, int channels, double rate, std::size_t size, double seconds, const char* prefix,
+              bool spread) {
   lcm_t* lcm = lcm_create(url);
   if (!lcm) {
     std::fprintf(stderr, "lcm_create(%s) failed\n", url);
@@ -70,6 +74,7 @@ int gen_stock(const char* url, int channels, double rate, std::size_t size, doub
   for (std::int64_t seq = 0; Clock::now() < end; ++seq) {
     m.seq = seq;
     for (int c = 0; c < channels; ++c) {
+      if (spread && c > 0) std::this_thread::sleep_until(next + period * c / channels);
       m.send_ns = mono_ns();
       buf.resize(static_cast<std::size_t>(m.getEncodedSize()));
       m.encode(buf.data(), 0, static_cast<int>(buf.size()));
@@ -212,7 +217,7 @@ int observe(const char* url, const char* log, double seconds) {
 
 int usage() {
   std::fprintf(stderr,
-               "usage: lcmx_bench_log gen-stock URL CHANNELS RATE_HZ SIZE SECONDS [PREFIX]\n"
+               "usage: lcmx_bench_log gen-stock URL CHANNELS RATE_HZ SIZE SECONDS [PREFIX [spread|burst]]\n"
                "       lcmx_bench_log gen-lcmx CHANNELS RATE_HZ SIZE IMAGE_BYTES IMAGE_HZ SECONDS\n"
                "       lcmx_bench_log observe URL LOG SECONDS\n");
   return 2;
@@ -223,9 +228,12 @@ int usage() {
 int main(int argc, char** argv) {
   if (argc < 2) return usage();
   const std::string cmd = argv[1];
-  if (cmd == "gen-stock" && (argc == 7 || argc == 8))
+  if (cmd == "gen-stock" && argc >= 7 && argc <= 9) {
+    const std::string phase = argc == 9 ? argv[8] : "spread";
+    if (phase != "spread" && phase != "burst") return usage();
     return gen_stock(argv[2], std::atoi(argv[3]), std::atof(argv[4]), static_cast<std::size_t>(std::atol(argv[5])),
-                     std::atof(argv[6]), argc == 8 ? argv[7] : "BENCH");
+                     std::atof(argv[6]), argc >= 8 ? argv[7] : "BENCH", phase == "spread");
+  }
   if (cmd == "gen-lcmx" && argc == 8)
     return gen_lcmx(std::atoi(argv[2]), std::atof(argv[3]), static_cast<std::size_t>(std::atol(argv[4])),
                     static_cast<std::size_t>(std::atol(argv[5])), std::atof(argv[6]), std::atof(argv[7]));

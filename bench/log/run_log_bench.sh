@@ -1,26 +1,30 @@
 #!/bin/bash
 # Log tools benchmark (bench/README.md "Log tools"). Root (network namespace). One run, same
 # machine; builds nothing: give the build directory (default build/).
-#   bench/log/run_log_bench.sh [BUILD_DIR] [--stock-seconds 60] [--lcmx-seconds 20] [--play-seconds 30]
+#   bench/log/run_log_bench.sh [BUILD_DIR] [--stock-seconds 60] [--burst-seconds 20] [--lcmx-seconds 20] [--play-seconds 30]
 # 1. recorder vs lcm-logger: both record the same stock traffic (100 channels x 100 Hz x 1 KB on
 #    LCM's host-local group, in a namespace whose multicast is routed to lo): lost, CPU seconds.
+#    Twice: phases spread (100 independent publishers, --stock-seconds) and burst (all 100
+#    back to back every 10 ms, --burst-seconds).
 # 2. lcmx record on lcmx traffic: 6.2 MB images at 30 Hz over shm + 100 channels x 100 Hz small,
 #    to tmpfs (/dev/shm, --rotate 2 --split-mb 1000 to bound memory): lost, CPU per MB; default
 #    and --rt-priority 10.
-# 3. player timing: lcm-logplayer and lcmx play --udp replay scenario 1's lcm-logger log (its
-#    first --play-seconds) at speed 1 to a stock observer: |actual - due| p50/p99.
+# 3. player timing: lcm-logplayer and lcmx play --udp replay scenario 1's lcm-logger logs (the
+#    first --play-seconds of each) at speed 1 to a stock observer: |actual - due| p50/p99.
 # Prints Markdown tables; raw outputs stay in $WORK (removed at the end unless KEEP=1).
 set -euo pipefail
 BUILD=build
 STOCK_S=60
+BURST_S=20
 LCMX_S=20
 PLAY_S=30
 while [ $# -gt 0 ]; do
   case "$1" in
     --stock-seconds) STOCK_S=$2; shift 2;;
+    --burst-seconds) BURST_S=$2; shift 2;;
     --lcmx-seconds) LCMX_S=$2; shift 2;;
     --play-seconds) PLAY_S=$2; shift 2;;
-    -h|--help) sed -n 2,13p "$0"; exit 0;;
+    -h|--help) sed -n 2,15p "$0"; exit 0;;
     *) BUILD=$1; shift;;
   esac
 done
@@ -57,31 +61,41 @@ count_events() { "$LCMX" log info --json "$1" | sed -n 's/.*"events":\([0-9]*\).
 echo "# lcmx log tools benchmark ($(date -u +%F' '%H:%M' UTC'), $(nproc) CPUs, $(uname -r))"
 echo
 
-# ---- 1. recorder vs lcm-logger on stock traffic
+# ---- 1. recorder vs lcm-logger on stock traffic, in two phasings (gen-stock spread|burst):
+# spread = 100 independent publishers (phases spread over the period: the issue's scenario);
+# burst = one program publishing all 100 channels back to back every 10 ms (the stress case).
 # (ip netns exec execs: $! is the recorder itself)
-ip netns exec "$NS" lcm-logger -q -f "$WORK/lcm-logger.lcmlog" & PIDS+=($!); LOGGER=$!
-ip netns exec "$NS" env -u LCMX_DISCOVERY_URL "$LCMX" record -q -f "$WORK/lcmx-record.lcmlog" --json > "$WORK/record1.json" & PIDS+=($!); REC=$!
-wait_logged "$WORK/lcm-logger.lcmlog" WARMUP_000
-wait_logged "$WORK/lcmx-record.lcmlog" WARMUP_000
-W1=$(count_events "$WORK/lcm-logger.lcmlog"); W2=$(count_events "$WORK/lcmx-record.lcmlog")
-C1=$(cpu_s $LOGGER); C2=$(cpu_s $REC)
-SENT=$(inns "$GEN" gen-stock "$URL" 100 100 1024 "$STOCK_S" | sed -n 's/^sent \([0-9]*\).*/\1/p')
-# Let the last datagrams arrive and be flushed (both flush every 100 ms).
-for _ in $(seq 1 50); do
-  A=$(( $(count_events "$WORK/lcm-logger.lcmlog") - W1 )); B=$(( $(count_events "$WORK/lcmx-record.lcmlog") - W2 ))
-  [ "$A" -ge "$SENT" ] && [ "$B" -ge "$SENT" ] && break
-  sleep 0.1
-done
-C1=$(awk -v a="$(cpu_s $LOGGER)" -v b="$C1" 'BEGIN { printf "%.2f", a - b }')
-C2=$(awk -v a="$(cpu_s $REC)" -v b="$C2" 'BEGIN { printf "%.2f", a - b }')
-kill -INT $LOGGER $REC; wait $LOGGER $REC || true
-A=$(( $(count_events "$WORK/lcm-logger.lcmlog") - W1 )); B=$(( $(count_events "$WORK/lcmx-record.lcmlog") - W2 ))
-echo "## 1. Recorder vs lcm-logger: stock traffic, 100 channels x 100 Hz x 1 KB, ${STOCK_S} s, host-local group"
+run_rec1() {  # PHASE SECONDS
+  local phase=$1 secs=$2
+  ip netns exec "$NS" lcm-logger -q -f "$WORK/lcm-logger-$phase.lcmlog" & PIDS+=($!); local LOGGER=$!
+  ip netns exec "$NS" env -u LCMX_DISCOVERY_URL "$LCMX" record -q -f "$WORK/lcmx-record-$phase.lcmlog" --json > "$WORK/record1-$phase.json" & PIDS+=($!); local REC=$!
+  wait_logged "$WORK/lcm-logger-$phase.lcmlog" WARMUP_000
+  wait_logged "$WORK/lcmx-record-$phase.lcmlog" WARMUP_000
+  local W1 W2 C1 C2 SENT A B
+  W1=$(count_events "$WORK/lcm-logger-$phase.lcmlog"); W2=$(count_events "$WORK/lcmx-record-$phase.lcmlog")
+  C1=$(cpu_s $LOGGER); C2=$(cpu_s $REC)
+  SENT=$(inns "$GEN" gen-stock "$URL" 100 100 1024 "$secs" BENCH "$phase" | sed -n 's/^sent \([0-9]*\).*/\1/p')
+  # Let the last datagrams arrive and be flushed (both flush every 100 ms).
+  for _ in $(seq 1 50); do
+    A=$(( $(count_events "$WORK/lcm-logger-$phase.lcmlog") - W1 )); B=$(( $(count_events "$WORK/lcmx-record-$phase.lcmlog") - W2 ))
+    [ "$A" -ge "$SENT" ] && [ "$B" -ge "$SENT" ] && break
+    sleep 0.1
+  done
+  C1=$(awk -v a="$(cpu_s $LOGGER)" -v b="$C1" 'BEGIN { printf "%.2f", a - b }')
+  C2=$(awk -v a="$(cpu_s $REC)" -v b="$C2" 'BEGIN { printf "%.2f", a - b }')
+  kill -INT $LOGGER $REC; wait $LOGGER $REC || true
+  A=$(( $(count_events "$WORK/lcm-logger-$phase.lcmlog") - W1 )); B=$(( $(count_events "$WORK/lcmx-record-$phase.lcmlog") - W2 ))
+  echo "| lcm-logger | $phase | $secs | $SENT | $A | $((SENT - A)) | $C1 | 1.00 |"
+  echo "| lcmx record | $phase | $secs | $SENT | $B | $((SENT - B)) | $C2 | $(awk -v a="$C2" -v b="$C1" 'BEGIN { printf "%.2f", a / b }') |"
+}
+echo "## 1. Recorder vs lcm-logger: stock traffic, 100 channels x 100 Hz x 1 KB, host-local group"
 echo
-echo "| recorder | sent | recorded | lost | CPU s | CPU vs lcm-logger |"
-echo "|---|---:|---:|---:|---:|---:|"
-echo "| lcm-logger | $SENT | $A | $((SENT - A)) | $C1 | 1.00 |"
-echo "| lcmx record | $SENT | $B | $((SENT - B)) | $C2 | $(awk -v a="$C2" -v b="$C1" 'BEGIN { printf "%.2f", a / b }') |"
+echo "| recorder | phasing | s | sent | recorded | lost | CPU s | CPU vs lcm-logger |"
+echo "|---|---|---:|---:|---:|---:|---:|---:|"
+run_rec1 spread "$STOCK_S"
+run_rec1 burst "$BURST_S"
+echo
+echo "spread: the 100 channels' phases spread over each 10 ms period (100 independent publishers); burst: all 100 sent back to back every 10 ms (one program publishing them in one loop)."
 echo
 
 # ---- 2. lcmx record on lcmx traffic, to tmpfs (default, then --rt-priority 10)
@@ -111,32 +125,33 @@ run_rec2 "lcmx record"
 run_rec2 "lcmx record --rt-priority 10" --rt-priority 10
 echo
 
-# ---- 3. player timing on scenario 1's lcm-logger log
+# ---- 3. player timing on scenario 1's lcm-logger logs (spread, then burst)
 "$LCMX" play --help >/dev/null
-LOG="$WORK/lcm-logger.lcmlog"
-run_player() {
-  local out="$WORK/observe-$1.txt" name=$1
+run_player() {  # NAME LOG SECONDS COMMAND...
+  local name=$1 log=$2 secs=$3; shift 3
+  local out="$WORK/observe-$name.txt"
   # The observer runs SCHED_FIFO so that its own wake-ups add as little as possible (the same
   # for every player).
-  chrt -f 20 ip netns exec "$NS" "$GEN" observe "$URL" "$LOG" "$((PLAY_S + 4))" > "$out" & local OBS=$!; PIDS+=($OBS)
+  chrt -f 20 ip netns exec "$NS" "$GEN" observe "$URL" "$log" "$((secs + 4))" > "$out" & local OBS=$!; PIDS+=($OBS)
   for _ in $(seq 1 100); do grep -q ready "$out" 2>/dev/null && break; sleep 0.05; done
-  shift
-  inns timeout "$((PLAY_S + 3))" "$@" > "$WORK/player-$name.txt" 2>&1 || true
+  inns timeout "$((secs + 3))" "$@" > "$WORK/player-$name.txt" 2>&1 || true
   wait $OBS || true
   sed -n 's/^timing //p' "$out"
 }
-T1=$(run_player logplayer lcm-logplayer -s 1 "$LOG")
-T2=$(run_player lcmx env -u LCMX_DISCOVERY_URL "$LCMX" play --udp --delay 0.5 --json --end "$PLAY_S" "$LOG")
-T3=$(run_player lcmx-rt env -u LCMX_DISCOVERY_URL "$LCMX" play --udp --delay 0.5 --json --end "$PLAY_S" --rt-priority 10 "$LOG")
 field() { echo "$1" | sed -n "s/.*$2=\([0-9.]*\).*/\1/p"; }
-echo "## 3. Player timing: replaying the lcm-logger log of 1 (first ${PLAY_S} s, 10 000 msg/s) at speed 1, stock observer"
+echo "## 3. Player timing: replaying scenario 1's lcm-logger logs at speed 1 (10 000 msg/s), stock observer"
 echo
-echo "| player | received | p50 us | p99 us | max us |"
-echo "|---|---:|---:|---:|---:|"
-echo "| lcm-logplayer | $(field "$T1" matched) | $(field "$T1" p50_us) | $(field "$T1" p99_us) | $(field "$T1" max_us) |"
-echo "| lcmx play --udp | $(field "$T2" matched) | $(field "$T2" p50_us) | $(field "$T2" p99_us) | $(field "$T2" max_us) |"
-echo "| lcmx play --udp --rt-priority 10 | $(field "$T3" matched) | $(field "$T3" p50_us) | $(field "$T3" p99_us) | $(field "$T3" max_us) |"
+echo "| log | player | received | p50 us | p99 us | max us |"
+echo "|---|---|---:|---:|---:|---:|"
+for phase in spread burst; do
+  LOG="$WORK/lcm-logger-$phase.lcmlog"
+  secs=$PLAY_S; [ "$phase" = burst ] && secs=$((BURST_S < PLAY_S ? BURST_S : PLAY_S))
+  T1=$(run_player "logplayer-$phase" "$LOG" "$secs" lcm-logplayer -s 1 "$LOG")
+  T2=$(run_player "lcmx-$phase" "$LOG" "$secs" env -u LCMX_DISCOVERY_URL "$LCMX" play --udp --delay 0.5 --json --end "$secs" "$LOG")
+  echo "| $phase, first $secs s | lcm-logplayer | $(field "$T1" matched) | $(field "$T1" p50_us) | $(field "$T1" p99_us) | $(field "$T1" max_us) |"
+  echo "| $phase, first $secs s | lcmx play --udp | $(field "$T2" matched) | $(field "$T2" p50_us) | $(field "$T2" p99_us) | $(field "$T2" max_us) |"
+done
 echo
 echo "|actual - due| at a stock observer (SCHED_FIFO): due = start + (log timestamp - first log timestamp), start = the median over all messages (a constant delay is not an error)."
-for n in lcmx lcmx-rt; do echo "lcmx play ($n) own measure of publish time - due: $(sed -n 's/.*"late_us":\({[^}]*}\).*/\1/p' "$WORK/player-$n.txt")"; done
-echo "lcm-logplayer has no --end: it is stopped by timeout after ${PLAY_S} s + 3 s; the observer counts what arrives in ${PLAY_S} s + 4 s."
+for n in lcmx-spread lcmx-burst; do echo "lcmx play ($n) own measure of publish time - due: $(sed -n 's/.*"late_us":\({[^}]*}\).*/\1/p' "$WORK/player-$n.txt")"; done
+echo "lcm-logplayer has no --end: it is stopped by timeout after the log's seconds + 3 s (so it replays a little more of the log); the observer counts what arrives in the log's seconds + 4 s."
