@@ -278,19 +278,26 @@ class Ui {
                     monitor::column_name(m_.sort_column()) + (m_.descending() ? " (desc)" : "");
     if (!m_.filter().empty()) h += "  filter: /" + m_.filter() + "/";
     header(h);
-    // Columns: fixed numeric ones, the rest shared by channel, type, publishers.
-    const int wz = 7, wj = 7, wb = 7, wd = 6, wa = 6, wp = 7;
+    // Columns: fixed numeric ones; the rest shared by channel, type and publishers, each as
+    // wide as its longest entry when there is room.
+    const int wz = 6, wj = 6, wb = 6, wd = 5, wa = 5, wp = 5;
     const int fixed_w = wz + wj + wb + wd + wa + wp + 8;
-    const int flex = std::max(12, COLS - fixed_w);
-    const int wc = std::max(8, flex * 2 / 5), wt = std::max(6, flex * 3 / 10), wpub = std::max(1, flex - wc - wt);
+    const int flex = std::max(20, COLS - fixed_w);
+    int lc = 7, lt = 4;
+    for (const auto& r : rows_) {
+      lc = std::max(lc, static_cast<int>(r.channel.size()));
+      lt = std::max(lt, static_cast<int>(r.type.size()));
+    }
+    const int wc = std::clamp(lc, 8, flex / 2);
+    const int wt = std::clamp(lt, 6, (flex - wc) * 3 / 5);
+    const int wpub = std::max(1, flex - wc - wt);
     const int widths[] = {wc, wt, wpub, wp, wz, wj, wb, wd, wa};
-    const char* titles[] = {"CHANNEL", "TYPE", "PUBLISHERS", "PATH", "HZ", "JIT ms", "BW B/s", "DROPS", "AGE"};
+    const char* titles[] = {"CHANNEL", "TYPE", "PUBLISHERS", "PATH", "HZ", "JIT ms", "B/s", "DROPS", "AGE"};
     int x = 0;
     for (int i = 0; i < monitor::kColumns; ++i) {
       const bool right = i >= 4;
-      std::string t = std::to_string(i + 1) + ":" + titles[i];
       const attr_t a = (i == static_cast<int>(m_.sort_column())) ? A_REVERSE | A_BOLD : A_BOLD;
-      put(1, x, right ? rcell(t, widths[i]) : cell(t, widths[i]), a);
+      put(1, x, right ? rcell(titles[i], widths[i]) : cell(titles[i], widths[i]), a);
       x += widths[i] + 1;
     }
     const int first_row = 2, last_row = LINES - 3;
@@ -308,7 +315,7 @@ class Ui {
       put(first_row + i, 0, line, top_ + i == sel_ ? A_REVERSE : (r.drops > 0 ? A_BOLD : A_NORMAL));
     }
     if (rows_.empty()) put(first_row, 0, m_.filter().empty() ? "no channels yet" : "no channel matches the filter");
-    footer("q:quit  Up/Dn:select  Enter:open  s/1-9:sort  r:reverse  /:filter  p:pause");
+    footer("q:quit Up/Dn:select Enter:open 1-9/s:sort column r:reverse /:filter p:pause");
   }
 
   void draw_detail() {
