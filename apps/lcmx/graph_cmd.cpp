@@ -36,6 +36,7 @@ struct GraphOptions {
   bool json = false;
   bool watch = false;
   double duration_s = 0;
+  std::vector<std::string> types;
   const Globals* g = nullptr;
 };
 GraphOptions g_graph;
@@ -164,6 +165,15 @@ int run_graph() {
     dot = *d;
   }
 
+  types::TypeRegistry registry;
+  try {
+    const auto paths = types::TypeRegistry::paths_or_env(o.types);
+    if (!paths.empty()) registry = types::TypeRegistry::load(paths);
+  } catch (const types::Error& e) {
+    std::cerr << "lcmx graph: type path: " << e.what() << "\n";
+    return 2;
+  }
+
   struct sigaction sa{};
   sa.sa_handler = on_graph_signal;
   sigemptyset(&sa.sa_mask);
@@ -178,7 +188,7 @@ int run_graph() {
     return 1;
   }
   auto text_of = [&](const std::vector<discovery::Participant>& ps) {
-    return format == "json" ? graph::to_json(ps) + "\n" : graph::to_dot(ps);
+    return format == "json" ? graph::to_json(ps, &registry) + "\n" : graph::to_dot(ps, &registry);
   };
   auto emit = [&](const std::string& text) {
     if (o.output.empty()) {
@@ -239,6 +249,10 @@ Verb add_graph(CLI::App& app, const Globals& g) {
               "keep observing and rewrite FILE whenever the topology changes (until SIGINT/SIGTERM)");
   c->add_option("--duration", g_graph.duration_s, "with --watch: stop after this many seconds (0: until SIGINT)")
       ->check(CLI::NonNegativeNumber);
+  c->add_option("--types", g_graph.types,
+                "'.lcm' files or directories for package-qualified type names (by fingerprint); "
+                "default LCMX_TYPES_PATH")
+      ->type_name("PATH");
   c->footer("Examples: lcmx graph | dot -Tsvg > g.svg;  lcmx graph -o g.png;  lcmx graph --watch -o live.svg");
   return {c, [] { return run_graph(); }};
 }

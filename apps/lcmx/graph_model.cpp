@@ -59,6 +59,13 @@ std::string publisher_name(const PubIndex& idx, const lcmx_msgs::match_t& m) {
   return proc_label(*it->second.b) + "/" + it->second.e->node;
 }
 
+std::string type_of(const Endpoint& e, const types::TypeRegistry* reg) {
+  if (e.fingerprint == 0) return "";
+  if (reg != nullptr)
+    if (const auto* t = reg->find(static_cast<std::uint64_t>(e.fingerprint))) return t->full_name();
+  return e.type_name;
+}
+
 std::string node_id(const Beacon& b, const std::string& node) {
   return "n_" + std::to_string(b.participant_id) + "_" + node;
 }
@@ -84,7 +91,7 @@ std::vector<discovery::Participant> sorted(std::vector<discovery::Participant> p
   return ps;
 }
 
-std::string to_dot(const std::vector<discovery::Participant>& in) {
+std::string to_dot(const std::vector<discovery::Participant>& in, const types::TypeRegistry* reg) {
   const auto ps = sorted(in);
   const auto idx = index_publishers(ps);
   std::ostringstream o;
@@ -116,7 +123,7 @@ std::string to_dot(const std::vector<discovery::Participant>& in) {
     std::set<std::string> types;
     for (const auto& p : ps)
       for (const auto& e : p.beacon.endpoints)
-        if (e.topic == t && e.fingerprint != 0) types.insert(e.type_name);
+        if (e.topic == t && e.fingerprint != 0) types.insert(type_of(e, reg));
     std::string label = t;
     for (const auto& ty : types) label += "\n" + ty;
     o << "  " << q("t_" + t) << " [shape=ellipse, style=filled, fillcolor=\"#dde8ff\", label=" << q(label) << "];\n";
@@ -156,7 +163,7 @@ std::string to_dot(const std::vector<discovery::Participant>& in) {
   return o.str();
 }
 
-std::string to_json(const std::vector<discovery::Participant>& in) {
+std::string to_json(const std::vector<discovery::Participant>& in, const types::TypeRegistry* reg) {
   const auto ps = sorted(in);
   const auto idx = index_publishers(ps);
   std::ostringstream o;
@@ -178,14 +185,14 @@ std::string to_json(const std::vector<discovery::Participant>& in) {
         bool f = true;
         for (const auto& e : b.endpoints) {
           if (e.node != n || e.kind != Endpoint::KIND_PUBLISHER) continue;
-          o << (f ? "" : ",") << "{\"topic\":" << json_str(e.topic) << ",\"type\":" << json_str(e.type_name) << "}";
+          o << (f ? "" : ",") << "{\"topic\":" << json_str(e.topic) << ",\"type\":" << json_str(type_of(e, reg)) << "}";
           f = false;
         }
         o << "],\"subscribes\":[";
         f = true;
         for (const auto& e : b.endpoints) {
           if (e.node != n || e.kind != Endpoint::KIND_SUBSCRIBER) continue;
-          o << (f ? "" : ",") << "{\"topic\":" << json_str(e.topic) << ",\"type\":" << json_str(e.type_name)
+          o << (f ? "" : ",") << "{\"topic\":" << json_str(e.topic) << ",\"type\":" << json_str(type_of(e, reg))
             << ",\"pairs\":[";
           f = false;
           for (std::size_t m = 0; m < e.matches.size(); ++m)
@@ -204,7 +211,7 @@ std::string to_json(const std::vector<discovery::Participant>& in) {
   for (const auto& p : ps)
     for (const auto& e : p.beacon.endpoints) {
       auto& [types, pubs, subs] = topics[e.topic];
-      if (e.fingerprint != 0) types.insert(e.type_name);
+      if (e.fingerprint != 0) types.insert(type_of(e, reg));
       (e.kind == Endpoint::KIND_PUBLISHER ? pubs : subs)++;
     }
   bool f = true;

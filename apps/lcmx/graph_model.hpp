@@ -9,8 +9,12 @@
 #include <vector>
 
 #include "lcmx/discovery/discovery.hpp"
+#include "lcmx/types/types.hpp"
 
 namespace lcmx::cli::graph {
+
+// Type names: package-qualified from `registry` (the type path) by the endpoint's fingerprint
+// when it knows it, else the beacon's (lcm-gen's name, without package); "" for raw endpoints.
 
 // Participants sorted (host, process name, pid, participant id) so that output is stable.
 std::vector<discovery::Participant> sorted(std::vector<discovery::Participant> ps);
@@ -19,12 +23,14 @@ std::vector<discovery::Participant> sorted(std::vector<discovery::Participant> p
 // topics are ellipses outside; an edge node -> topic per publisher, an edge topic -> node per
 // subscriber pair, labelled with its path ("shm", "udp", ...) and, when the topic has several
 // publishers, which one. Stock LCM senders heard by a subscriber appear as "LCM sender".
-std::string to_dot(const std::vector<discovery::Participant>& participants);
+std::string to_dot(const std::vector<discovery::Participant>& participants,
+                   const types::TypeRegistry* registry = nullptr);
 
 // {"hosts":[{"host":"<hex>","processes":[{"process":..,"pid":..,"participant":..,"bridge":..,
 //   "nodes":[{"node":..,"publishes":[{"topic":..,"type":..}],
 //             "subscribes":[{"topic":..,"type":..,"pairs":[{"publisher":..,"path":..}]}]}]}]}],
 //  "topics":[{"topic":..,"types":[..],"publishers":N,"subscribers":N}]}
-std::string to_json(const std::vector<discovery::Participant>& participants);
+std::string to_json(const std::vector<discovery::Participant>& participants,
+                    const types::TypeRegistry* registry = nullptr);
 
 }  // namespace lcmx::cli::graph
