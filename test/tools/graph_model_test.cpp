@@ -16,6 +16,7 @@ Participant participant(std::int64_t id, std::int64_t host, const std::string& p
   p.beacon.host_id = host;
   p.beacon.process_name = proc;
   p.beacon.pid = pid;
+  p.beacon.flags = 0;  // lcm-gen leaves members uninitialised
   return p;
 }
 

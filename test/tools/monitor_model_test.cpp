@@ -61,6 +61,7 @@ lcmx::discovery::Participant participant(std::int64_t id, std::int64_t host, con
   p.beacon.host_id = host;
   p.beacon.process_name = proc;
   p.beacon.pid = pid;
+  p.beacon.flags = 0;  // lcm-gen leaves members uninitialised
   return p;
 }
 void add_endpoint(lcmx::discovery::Participant& p, std::int64_t id, std::int8_t kind, const std::string& node,
