@@ -95,7 +95,7 @@ std::string to_dot(const std::vector<discovery::Participant>& in, const types::T
   const auto ps = sorted(in);
   const auto idx = index_publishers(ps);
   std::ostringstream o;
-  o << "digraph lcmx {\n  rankdir=LR;\n  node [fontname=\"Helvetica\", fontsize=10];\n"
+  o << "digraph lcmx {\n  rankdir=LR;\n  graph [fontname=\"Helvetica\", fontsize=11];\n  node [fontname=\"Helvetica\", fontsize=10];\n"
        "  edge [fontname=\"Helvetica\", fontsize=9];\n";
   // Hosts and processes.
   std::map<std::int64_t, std::vector<const Beacon*>> hosts;
@@ -126,7 +126,10 @@ std::string to_dot(const std::vector<discovery::Participant>& in, const types::T
         if (e.topic == t && e.fingerprint != 0) types.insert(type_of(e, reg));
     std::string label = t;
     for (const auto& ty : types) label += "\n" + ty;
-    o << "  " << q("t_" + t) << " [shape=ellipse, style=filled, fillcolor=\"#dde8ff\", label=" << q(label) << "];\n";
+    const bool conflict = types.size() > 1;
+    if (conflict) label += "\nCONFLICT: different types";
+    o << "  " << q("t_" + t) << " [shape=ellipse, style=filled, fillcolor="
+      << (conflict ? "\"#ffd0d0\"" : "\"#dde8ff\"") << ", label=" << q(label) << "];\n";
   }
   if (stock) o << "  \"stock_lcm\" [shape=box, style=dashed, label=\"LCM sender(s)\"];\n";
   // Edges: publisher node -> topic, topic -> subscriber node (one per pair, labelled by path).
@@ -140,7 +143,9 @@ std::string to_dot(const std::vector<discovery::Participant>& in, const types::T
         continue;
       }
       if (e.matches.empty()) {
-        o << "  " << q("t_" + e.topic) << " -> " << q(node_id(b, e.node)) << " [style=dotted, label=\"no publisher\"];\n";
+        std::string why = "no publisher";
+        if (!e.errors.empty()) why = "not matched: " + e.errors.front().substr(0, 60);
+        o << "  " << q("t_" + e.topic) << " -> " << q(node_id(b, e.node)) << " [style=dotted, label=" << q(why) << "];\n";
         continue;
       }
       std::set<std::string> stock_paths;

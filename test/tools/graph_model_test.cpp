@@ -105,3 +105,15 @@ TEST_CASE("JSON: hosts, processes, nodes, publishes, subscribes with pairs, topi
         std::string::npos);
   CHECK(j.find("{\"topic\":\"ORPHAN\",\"types\":[],\"publishers\":0,\"subscribers\":1}") != std::string::npos);
 }
+
+TEST_CASE("DOT flags a topic with two types and says why a subscriber is not matched", "[graph]") {
+  auto a = participant(1, 0x1, "a", 10);
+  add(a, 1, Endpoint::KIND_PUBLISHER, "n", "T", "image_t");
+  auto b = participant(2, 0x1, "b", 20);
+  auto& s = add(b, 1, Endpoint::KIND_SUBSCRIBER, "n", "T", "pose_t");
+  s.errors.push_back("type mismatch on channel 'T'");
+  const auto dot = lcmx::cli::graph::to_dot({a, b});
+  INFO(dot);
+  CHECK(dot.find("label=\"T\\nimage_t\\npose_t\\nCONFLICT: different types\"") != std::string::npos);
+  CHECK(dot.find("[style=dotted, label=\"not matched: type mismatch on channel 'T'\"]") != std::string::npos);
+}
