@@ -209,8 +209,8 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
   CHECK(once.out.find("MON_SHM") < once.out.find("MON_STOCK"));  // by Hz, descending
 }
 
-TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topics and pair paths; JSON; SVG/PNG "
-          "through dot; --watch rewrites on change",
+TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topics and pair paths, JSON, SVG/PNG "
+          "through dot, --watch rewrites on change",
           "[integration][tools]") {
   Session s(96, 60000ms);
   TmpDir d;

@@ -159,7 +159,7 @@ TEST_CASE("type names: the type path by fingerprint, else the beacon's, else the
   CHECK(find(without.rows(t), "A")->type == "msg_t");
 }
 
-TEST_CASE("publishers and paths from beacons and our pairs; announced silent topics; our own left out",
+TEST_CASE("publishers and paths from beacons and our pairs, announced silent topics, our own left out",
           "[monitor]") {
   Model m(nullptr);
   const auto t = Clock::now();
