@@ -141,6 +141,15 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
     return has(p, "sort: Hz (desc)") && line_of(p, "MON_SHM") >= 0 && line_of(p, "MON_SHM") < line_of(p, "MON_STOCK");
   }));
 
+  // Pause and resume.
+  REQUIRE(tmux.keys("mon", {"p"}));
+  CHECK(tmux.wait_screen("mon", [](const std::string& p) {
+    const auto l = lines(p);
+    return !l.empty() && has(l[0], "PAUSED");
+  }));
+  REQUIRE(tmux.keys("mon", {"p"}));
+  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return !has(p, "PAUSED"); }));
+
   // Filter: only the stock channel is left.
   REQUIRE(tmux.keys("mon", {"/"}));
   REQUIRE(tmux.wait_screen("mon", [](const std::string& p) { return has(p, "filter (regex"); }));
@@ -192,10 +201,23 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
   REQUIRE(tmux.keys("mon", {"C-c"}));
   CHECK(tmux.wait_screen("mon", [](const std::string& p) { return has(p, "MON-EXIT=0"); }));
 
-  // q quits too; --once --json is the same table for scripts.
+  // Without a type path: the beacon's type name (no package), the stock channel's fingerprint;
+  // opening it shows the raw bytes and says why. q quits.
+  const std::string cmd2 = std::string(LCMX_IP) + " netns exec " + ns.name() +
+                           " env -u LCMX_DISCOVERY_URL -u LCMX_TYPES_PATH " + LCMX_TOOL + " monitor";
   REQUIRE(tmux.run({"new-session", "-d", "-s", "mon2", "-x", "100", "-y", "20",
-                    cmd + "; echo MON2-EXIT=$?; sleep 30"}).rc == 0);
-  REQUIRE(tmux.wait_screen("mon2", [](const std::string& p) { return has(p, "MON_STOCK"); }));
+                    cmd2 + "; echo MON2-EXIT=$?; sleep 30"}).rc == 0);
+  const bool untyped = tmux.wait_screen("mon2", [](const std::string& p) {
+    const int shm = line_of(p, "MON_SHM"), stock = line_of(p, "MON_STOCK");
+    return shm >= 0 && stock >= 0 && has(lines(p)[static_cast<std::size_t>(shm)], " pose_t ") &&
+           std::regex_search(lines(p)[static_cast<std::size_t>(stock)], std::regex(" 0x[0-9a-f]+"));
+  });
+  INFO(tmux.pane("mon2"));
+  CHECK(untyped);
+  REQUIRE(tmux.keys("mon2", {"Down", "Enter"}));
+  CHECK(tmux.wait_screen("mon2", [](const std::string& p) {
+    return has(p, "MON_STOCK") && has(p, "type unknown (fingerprint 0x") && has(p, "bytes[");
+  }));
   REQUIRE(tmux.keys("mon2", {"q"}));
   CHECK(tmux.wait_screen("mon2", [](const std::string& p) { return has(p, "MON2-EXIT=0"); }));
 
