@@ -12,10 +12,13 @@
 #include <iostream>
 #include <map>
 #include <mutex>
+#include <sstream>
 #include <thread>
+#include <utility>
 
 #include "lcmx/bridge/bridge.hpp"
 #include "lcmx/core.hpp"
+#include "log_common.hpp"
 #include "verb.hpp"
 
 namespace lcmx::cli {
@@ -41,7 +44,7 @@ std::string pad(std::string s, std::size_t w) {
 Verb add_bridge(CLI::App& app, const Globals& g) {
   struct State {
     std::string config, status_url, key_prefix;
-    bool check = false, key_force = false;
+    bool check = false, key_force = false, json = false;
     int status_wait = 3000;
   };
   auto st = std::make_shared<State>();
@@ -50,6 +53,7 @@ Verb add_bridge(CLI::App& app, const Globals& g) {
   bridge->fallthrough();
   bridge->add_option("--config", st->config, "bridge config file (TOML, see docs/bridge.md)");
   bridge->add_flag("--check", st->check, "validate the config file and exit (0 ok, 2 bad)");
+  bridge->add_flag("--json", st->json, "--check, status, keygen: print the result as JSON");
   auto* status = bridge->add_subcommand(
       "status", "per bridge on this host: peers, active link, bytes per link, messages/bytes/drops per channel");
   status->add_option("--url", st->status_url, "host-local discovery group (default: lcmx --url, LCMX_DISCOVERY_URL)");
@@ -60,23 +64,33 @@ Verb add_bridge(CLI::App& app, const Globals& g) {
   keygen->add_option("--out", st->key_prefix, "file name prefix")->required();
   keygen->add_flag("--force", st->key_force, "overwrite existing files");
   return {bridge, [st, status, keygen, &g] {
-            if (status->parsed()) return bridge_status(st->status_url.empty() ? g.url : st->status_url, st->status_wait);
-            if (keygen->parsed()) return bridge_keygen(st->key_prefix, st->key_force);
+            if (status->parsed())
+              return bridge_status(st->status_url.empty() ? g.url : st->status_url, st->status_wait, st->json);
+            if (keygen->parsed()) return bridge_keygen(st->key_prefix, st->key_force, st->json);
             if (st->config.empty()) {
               std::cerr << "lcmx bridge: --config FILE is required (or: lcmx bridge status | keygen)\n";
               return 2;
             }
-            return bridge_run(st->config, st->check);
+            return bridge_run(st->config, st->check, st->json);
           }};
 }
 
-int bridge_run(const std::string& config_path, bool check_only) {
+int bridge_run(const std::string& config_path, bool check_only, bool json) {
   bridge::Config cfg;
   try {
     cfg = bridge::load_config(config_path);
   } catch (const bridge::ConfigError& e) {
+    if (check_only && json)
+      std::cout << "{\"config\":" << json_str(config_path) << ",\"ok\":false,\"error\":" << json_str(e.what()) << "}"
+                << std::endl;
     std::cerr << "lcmx bridge: bad config: " << e.what() << "\n";
     return 2;
+  }
+  if (check_only && json) {
+    std::cout << "{\"config\":" << json_str(config_path) << ",\"ok\":true,\"name\":" << json_str(cfg.name)
+              << ",\"channels\":" << cfg.channels.size() << ",\"peers\":" << cfg.peers.size()
+              << ",\"curve\":" << (cfg.security.curve ? "true" : "false") << "}" << std::endl;
+    return 0;
   }
   if (check_only) {
     std::cout << config_path << ": ok: bridge " << cfg.name << ", " << cfg.channels.size() << " channel(s), "
@@ -144,7 +158,45 @@ void print_bridge_status(std::ostream& out, const lcmx_msgs::bridge_status_t& s)
   }
 }
 
-int bridge_status(const std::string& url, int wait_ms) {
+std::string bridge_status_json(const lcmx_msgs::bridge_status_t& s) {
+  auto strings = [](const std::vector<std::string>& v) {
+    std::string o = "[";
+    for (std::size_t i = 0; i < v.size(); ++i) o += (i ? "," : "") + json_str(v[i]);
+    return o + "]";
+  };
+  auto b = [](std::int8_t v) { return v ? "true" : "false"; };
+  char host[32];
+  std::snprintf(host, sizeof host, "%016llx", static_cast<unsigned long long>(s.host_id));
+  std::ostringstream j;
+  j << "{\"name\":" << json_str(s.name) << ",\"pid\":" << s.pid << ",\"host\":\"" << host
+    << "\",\"timestamp_us\":" << s.timestamp_us << ",\"curve\":" << b(s.curve) << ",\"bad_frames\":" << s.bad_frames
+    << ",\"demand\":" << strings(s.demand) << ",\"peers\":[";
+  for (std::size_t i = 0; i < s.peers.size(); ++i) {
+    const auto& p = s.peers[i];
+    j << (i ? "," : "") << "{\"name\":" << json_str(p.name) << ",\"up\":" << b(p.up)
+      << ",\"active_link\":" << json_str(p.active_link) << ",\"failovers\":" << p.failovers << ",\"links\":[";
+    for (std::size_t k = 0; k < p.links.size(); ++k) {
+      const auto& l = p.links[k];
+      j << (k ? "," : "") << "{\"name\":" << json_str(l.name) << ",\"address\":" << json_str(l.address)
+        << ",\"up\":" << b(l.up) << ",\"active\":" << b(l.active) << ",\"bytes_sent\":" << l.bytes_sent
+        << ",\"bytes_received\":" << l.bytes_received << ",\"heartbeat_age_ms\":" << l.heartbeat_age_ms
+        << ",\"rtt_us\":" << l.rtt_us << "}";
+    }
+    j << "],\"channels\":[";
+    for (std::size_t k = 0; k < p.channels.size(); ++k) {
+      const auto& c = p.channels[k];
+      j << (k ? "," : "") << "{\"name\":" << json_str(c.name) << ",\"messages_sent\":" << c.messages_sent
+        << ",\"bytes_sent\":" << c.bytes_sent << ",\"drops\":" << c.drops << ",\"queued\":" << c.queued
+        << ",\"messages_received\":" << c.messages_received << ",\"bytes_received\":" << c.bytes_received
+        << ",\"lost\":" << c.lost << "}";
+    }
+    j << "],\"served\":" << strings(p.served) << ",\"wanted\":" << strings(p.wanted) << "}";
+  }
+  j << "]}";
+  return j.str();
+}
+
+int bridge_status(const std::string& url, int wait_ms, bool json) {
   spdlog::set_level(spdlog::level::warn);
   std::mutex mu;
   std::condition_variable cv;
@@ -169,6 +221,14 @@ int bridge_status(const std::string& url, int wait_ms) {
       const auto more = std::min(deadline, std::chrono::steady_clock::now() + std::chrono::milliseconds(300));
       cv.wait_until(lock, more, [] { return false; });
     }
+    if (json) {
+      std::cout << "{\"bridges\":[";
+      bool first = true;
+      for (const auto& [pid, s] : seen) std::cout << (std::exchange(first, false) ? "" : ",") << bridge_status_json(s);
+      std::cout << "]}" << std::endl;
+      if (seen.empty()) std::cerr << "no bridge found on this host within " << wait_ms << " ms\n";
+      return seen.empty() ? 1 : 0;
+    }
     if (seen.empty()) {
       std::cout << "no bridge found on this host within " << wait_ms << " ms\n";
       return 1;
@@ -181,10 +241,15 @@ int bridge_status(const std::string& url, int wait_ms) {
   return 0;
 }
 
-int bridge_keygen(const std::string& prefix, bool force) {
+int bridge_keygen(const std::string& prefix, bool force, bool json) {
   try {
     const auto keys = bridge::generate_key_pair();
     bridge::write_key_pair(prefix, keys, force);
+    if (json) {
+      std::cout << "{\"secret_file\":" << json_str(prefix + ".key") << ",\"public_file\":" << json_str(prefix + ".pub")
+                << ",\"public_key\":" << json_str(keys.public_key) << "}" << std::endl;
+      return 0;
+    }
     std::cout << "wrote " << prefix << ".key (secret, mode 0600) and " << prefix << ".pub (public: " << keys.public_key
               << ")\n";
   } catch (const std::exception& e) {

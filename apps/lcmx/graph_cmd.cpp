@@ -252,7 +252,8 @@ Verb add_graph(CLI::App& app, const Globals& g) {
   c->add_option("--types", g_graph.types,
                 "'.lcm' files or directories for package-qualified type names (by fingerprint); "
                 "default LCMX_TYPES_PATH")
-      ->type_name("PATH");
+      ->type_name("PATH")
+      ->allow_extra_args(false);  // one value per --types (repeatable), as the other verbs
   c->footer("Examples: lcmx graph | dot -Tsvg > g.svg;  lcmx graph -o g.png;  lcmx graph --watch -o live.svg");
   return {c, [] { return run_graph(); }};
 }

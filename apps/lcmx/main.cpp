@@ -14,6 +14,7 @@
 
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/discovery.hpp"
+#include "lcmx/types/schema.hpp"
 #include "bridge_cmd.hpp"
 #include "log_cmds.hpp"
 #include "monitor_cmds.hpp"
@@ -65,15 +66,42 @@ std::optional<std::string> verb_of(CLI::App& app, int argc, char** argv) {
   return std::nullopt;
 }
 
-// `lcmx nodes` / `lcmx topics`: observe, print.
+// `lcmx nodes` / `lcmx topics`: observe, print (as text or JSON), with package-qualified type
+// names from the type path (--types / LCMX_TYPES_PATH) when there is one.
+using Printer = void (*)(std::ostream&, const std::vector<lcmx::discovery::Participant>&,
+                         const lcmx::types::TypeRegistry*);
 lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, const std::string& name,
-                                  const std::string& description,
-                                  void (*print)(std::ostream&, const std::vector<lcmx::discovery::Participant>&)) {
+                                  const std::string& description, Printer print, Printer print_json) {
+  struct State {
+    std::vector<std::string> types;
+    bool json = false;
+  };
+  auto st = std::make_shared<State>();
   auto* cmd = app.add_subcommand(name, description);
-  return {cmd, [&g, print] {
+  cmd->add_option("--types", st->types,
+                  "`.lcm` file or directory for package-qualified type names, found by fingerprint "
+                  "(repeatable; default: LCMX_TYPES_PATH)")
+      ->allow_extra_args(false);
+  cmd->add_flag("--json", st->json, "print as one line of JSON");
+  return {cmd, [&g, print, print_json, st, name] {
             spdlog::set_level(spdlog::level::warn);
+            // The type path is optional here: without it, names are lcm-gen's (no package). An
+            // explicit --types that does not load is an error; a bad LCMX_TYPES_PATH a warning.
+            std::optional<lcmx::types::TypeRegistry> reg;
             try {
-              print(std::cout, observe(g.url, g.vehicle_url, g.wait_ms));
+              const auto paths = lcmx::types::TypeRegistry::paths_or_env(st->types);
+              if (!paths.empty()) reg = lcmx::types::TypeRegistry::load(paths);
+            } catch (const std::exception& e) {
+              if (!st->types.empty()) {
+                std::cerr << "lcmx " << name << ": --types: " << e.what() << "\n";
+                return 2;
+              }
+              std::cerr << "lcmx " << name << ": warning: LCMX_TYPES_PATH: " << e.what()
+                        << " (type names without package)\n";
+            }
+            try {
+              const auto ps = observe(g.url, g.vehicle_url, g.wait_ms);
+              (st->json ? print_json : print)(std::cout, ps, reg ? &*reg : nullptr);
             } catch (const std::exception& e) {
               std::cerr << "lcmx: " << e.what() << "\n";
               return 1;
@@ -108,10 +136,10 @@ int main(int argc, char** argv) {
   // The verbs, one line each (see verb.hpp).
   std::vector<lcmx::cli::Verb> verbs;
   verbs.push_back(add_observer_verb(app, g, "nodes", "list participants (processes) and their nodes",
-                                    lcmx::cli::print_nodes));
+                                    lcmx::cli::print_nodes, lcmx::cli::print_nodes_json));
   verbs.push_back(add_observer_verb(app, g, "topics",
                                     "list topics: type, publishers, subscribers, path per pair, rate, drops",
-                                    lcmx::cli::print_topics));
+                                    lcmx::cli::print_topics, lcmx::cli::print_topics_json));
   verbs.push_back(lcmx::cli::add_bridge(app, g));
   verbs.push_back(lcmx::cli::add_record(app, g));
   verbs.push_back(lcmx::cli::add_play(app, g));

@@ -538,7 +538,8 @@ Verb add_monitor(CLI::App& app, const Globals& g) {
       "paths, Hz, jitter, bandwidth, drops, age; Enter shows the decoded latest message");
   c->add_option("--types", g_mon.types,
                 "'.lcm' files or directories (searched recursively) to decode with; default LCMX_TYPES_PATH")
-      ->type_name("PATH");
+      ->type_name("PATH")
+      ->allow_extra_args(false);  // one value per --types (repeatable), as the other verbs
   c->add_option("--filter", g_mon.filter, "show channels whose name contains a match of this regex (case-insensitive)");
   c->add_option("--sort", g_mon.sort, "sort by channel, type, publishers, path, hz, jitter, bandwidth, drops or age")
       ->capture_default_str();

@@ -1,22 +1,20 @@
 #include "topology.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <map>
 #include <set>
+#include <sstream>
 #include <string>
+
+#include "log_common.hpp"
 
 namespace lcmx::cli {
 namespace {
 
 using Endpoint = lcmx_msgs::endpoint_t;
 using Beacon = lcmx_msgs::beacon_t;
-
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
 
 std::string who(const Beacon& b, const Endpoint& e) {
   return b.process_name + "[" + std::to_string(b.pid) + "]/" + e.node;
@@ -28,9 +26,45 @@ std::string host_hex(std::int64_t h) {
   return buf;
 }
 
+std::string fp_hex(std::int64_t fp) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "0x%016llx", static_cast<unsigned long long>(fp));
+  return buf;
+}
+
+std::string num(double v) { return std::isfinite(v) ? fmt("%.3f", v) : "null"; }
+
+// The endpoint's type as JSON members: "type" (as type_label, null for raw), "type_name" (the
+// beacon's), "fingerprint" (hex string, null for raw).
+std::string json_type(const Endpoint& e, const types::TypeRegistry* types) {
+  if (e.fingerprint == 0) return "\"type\":null,\"type_name\":null,\"fingerprint\":null";
+  return "\"type\":" + json_str(type_label(e, types)) + ",\"type_name\":" + json_str(e.type_name) +
+         ",\"fingerprint\":" + json_str(fp_hex(e.fingerprint));
+}
+
+std::string json_strings(const std::vector<std::string>& v) {
+  std::string o = "[";
+  for (std::size_t i = 0; i < v.size(); ++i) o += (i ? "," : "") + json_str(v[i]);
+  return o + "]";
+}
+
 }  // namespace
 
-void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& ps) {
+std::string type_label(const Endpoint& e, const types::TypeRegistry* types) {
+  if (e.fingerprint == 0) return "raw";
+  const std::string own = e.type_name.empty() ? fp_hex(e.fingerprint) : e.type_name;
+  if (types == nullptr) return own;
+  const auto fp = static_cast<std::uint64_t>(e.fingerprint);
+  const types::StructType* first = nullptr;
+  for (const auto& t : types->types()) {
+    if (t->fingerprint != fp) continue;
+    if (t->name == e.type_name) return t->full_name();
+    if (first == nullptr) first = t.get();
+  }
+  return first ? first->full_name() : own;
+}
+
+void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& ps, const types::TypeRegistry* types) {
   if (ps.empty()) {
     out << "no participants found\n";
     return;
@@ -56,7 +90,7 @@ void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& p
         if (e.node != n) continue;
         const bool pub = e.kind == Endpoint::KIND_PUBLISHER;
         out << "    " << (pub ? "pub " : "sub ") << e.topic << "  ["
-            << (e.type_name.empty() ? "raw" : e.type_name) << "]  " << e.messages << " msgs  "
+            << type_label(e, types) << "]  " << e.messages << " msgs  "
             << fmt("%.1f Hz", e.rate_hz);
         if (!pub) out << "  drops " << e.drops;
         out << "\n";
@@ -66,7 +100,7 @@ void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& p
   }
 }
 
-void print_topics(std::ostream& out, const std::vector<discovery::Participant>& ps) {
+void print_topics(std::ostream& out, const std::vector<discovery::Participant>& ps, const types::TypeRegistry* types) {
   struct Ref {
     const Beacon* b;
     const Endpoint* e;
@@ -83,17 +117,17 @@ void print_topics(std::ostream& out, const std::vector<discovery::Participant>& 
     return;
   }
   for (const auto& [topic, refs] : by_topic) {
-    std::set<std::string> types;
+    std::set<std::string> names;
     int npub = 0, nsub = 0;
     for (const auto& r : refs) {
-      if (r.e->fingerprint != 0) types.insert(r.e->type_name);
+      if (r.e->fingerprint != 0) names.insert(type_label(*r.e, types));
       (r.e->kind == Endpoint::KIND_PUBLISHER ? npub : nsub)++;
     }
     std::string type;
-    for (const auto& t : types) type += (type.empty() ? "" : " | ") + t;
+    for (const auto& t : names) type += (type.empty() ? "" : " | ") + t;
     if (type.empty()) type = "raw";
     out << topic << "  [" << type << "]  " << npub << " publisher(s), " << nsub
-        << " subscriber(s)" << (types.size() > 1 ? "  CONFLICT: different types" : "") << "\n";
+        << " subscriber(s)" << (names.size() > 1 ? "  CONFLICT: different types" : "") << "\n";
     for (const auto& r : refs) {
       if (r.e->kind != Endpoint::KIND_PUBLISHER) continue;
       out << "  pub " << who(*r.b, *r.e) << "  host " << host_hex(r.b->host_id) << "  "
@@ -115,6 +149,98 @@ void print_topics(std::ostream& out, const std::vector<discovery::Participant>& 
       for (const auto& err : r.e->errors) out << "      ERROR: " << err << "\n";
     }
   }
+}
+
+void print_nodes_json(std::ostream& out, const std::vector<discovery::Participant>& ps,
+                      const types::TypeRegistry* types) {
+  std::ostringstream j;
+  j << "{\"participants\":[";
+  for (std::size_t i = 0; i < ps.size(); ++i) {
+    const auto& b = ps[i].beacon;
+    j << (i ? "," : "") << "{\"process\":" << json_str(b.process_name) << ",\"pid\":" << b.pid
+      << ",\"host\":" << json_str(host_hex(b.host_id)) << ",\"id\":" << b.participant_id << ",\"scope\":"
+      << (b.scope == Beacon::SCOPE_VEHICLE ? "\"vehicle\"" : "\"host\"")
+      << ",\"vehicle_source\":" << json_str(b.vehicle_source)
+      << ",\"bridge\":" << ((b.flags & Beacon::FLAG_BRIDGE) ? "true" : "false")
+      << ",\"carries\":" << json_strings(b.carried) << ",\"nodes\":[";
+    for (std::size_t n = 0; n < b.nodes.size(); ++n) {
+      j << (n ? "," : "") << "{\"name\":" << json_str(b.nodes[n]) << ",\"endpoints\":[";
+      bool first = true;
+      for (const auto& e : b.endpoints) {
+        if (e.node != b.nodes[n]) continue;
+        const bool pub = e.kind == Endpoint::KIND_PUBLISHER;
+        j << (first ? "" : ",") << "{\"kind\":" << (pub ? "\"pub\"" : "\"sub\"") << ",\"topic\":" << json_str(e.topic)
+          << "," << json_type(e, types) << ",\"messages\":" << e.messages << ",\"rate_hz\":" << num(e.rate_hz);
+        if (!pub) j << ",\"drops\":" << e.drops;
+        j << ",\"errors\":" << json_strings(e.errors) << "}";
+        first = false;
+      }
+      j << "]}";
+    }
+    j << "]}";
+  }
+  j << "]}";
+  out << j.str() << "\n";
+}
+
+void print_topics_json(std::ostream& out, const std::vector<discovery::Participant>& ps,
+                       const types::TypeRegistry* types) {
+  struct Ref {
+    const Beacon* b;
+    const Endpoint* e;
+  };
+  std::map<std::string, std::vector<Ref>> by_topic;
+  std::map<std::pair<std::int64_t, std::int64_t>, Ref> pub_index;
+  for (const auto& p : ps)
+    for (const auto& e : p.beacon.endpoints) {
+      by_topic[e.topic].push_back({&p.beacon, &e});
+      if (e.kind == Endpoint::KIND_PUBLISHER) pub_index[{p.beacon.participant_id, e.id}] = {&p.beacon, &e};
+    }
+  auto who_json = [](const Ref& r) {
+    return "\"process\":" + json_str(r.b->process_name) + ",\"pid\":" + std::to_string(r.b->pid) +
+           ",\"node\":" + json_str(r.e->node) + ",\"host\":" + json_str(host_hex(r.b->host_id)) +
+           ",\"participant\":" + std::to_string(r.b->participant_id) + ",\"endpoint\":" + std::to_string(r.e->id);
+  };
+  std::ostringstream j;
+  j << "{\"topics\":[";
+  bool first_topic = true;
+  for (const auto& [topic, refs] : by_topic) {
+    std::set<std::string> names;
+    for (const auto& r : refs)
+      if (r.e->fingerprint != 0) names.insert(type_label(*r.e, types));
+    j << (first_topic ? "" : ",") << "{\"topic\":" << json_str(topic) << ",\"types\":"
+      << json_strings({names.begin(), names.end()}) << ",\"conflict\":" << (names.size() > 1 ? "true" : "false")
+      << ",\"publishers\":[";
+    first_topic = false;
+    bool first = true;
+    for (const auto& r : refs) {
+      if (r.e->kind != Endpoint::KIND_PUBLISHER) continue;
+      j << (first ? "" : ",") << "{" << who_json(r) << "," << json_type(*r.e, types) << ",\"messages\":" << r.e->messages
+        << ",\"rate_hz\":" << num(r.e->rate_hz) << ",\"class\":" << (r.e->large ? "\"large\"" : "\"small\"") << "}";
+      first = false;
+    }
+    j << "],\"subscribers\":[";
+    first = true;
+    for (const auto& r : refs) {
+      if (r.e->kind != Endpoint::KIND_SUBSCRIBER) continue;
+      j << (first ? "" : ",") << "{" << who_json(r) << "," << json_type(*r.e, types) << ",\"messages\":" << r.e->messages
+        << ",\"rate_hz\":" << num(r.e->rate_hz) << ",\"drops\":" << r.e->drops << ",\"matches\":[";
+      first = false;
+      for (std::size_t m = 0; m < r.e->matches.size(); ++m) {
+        const auto& x = r.e->matches[m];
+        auto it = pub_index.find({x.publisher_participant, x.publisher_endpoint});
+        j << (m ? "," : "") << "{\"publisher\":"
+          << (it == pub_index.end() ? std::string("null") : json_str(who(*it->second.b, *it->second.e)))
+          << ",\"publisher_participant\":" << x.publisher_participant << ",\"publisher_endpoint\":"
+          << x.publisher_endpoint << ",\"path\":" << json_str(x.path) << ",\"received\":" << x.received
+          << ",\"drops\":" << x.drops << "}";
+      }
+      j << "],\"errors\":" << json_strings(r.e->errors) << "}";
+    }
+    j << "]}";
+  }
+  j << "]}";
+  out << j.str() << "\n";
 }
 
 }  // namespace lcmx::cli

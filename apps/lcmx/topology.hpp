@@ -2,16 +2,33 @@
 #pragma once
 
 #include <ostream>
+#include <string>
 #include <vector>
 
 #include "lcmx/discovery/discovery.hpp"
+#include "lcmx/types/schema.hpp"
 
 namespace lcmx::cli {
 
+// The type of an endpoint as the tool shows it: "raw" for a raw byte channel (fingerprint 0);
+// the package-qualified name ("pkg.type") when `types` (the type path) holds a type with the
+// endpoint's fingerprint — of those, the one whose short name is the beacon's type_name, as
+// several types may share a layout; else the beacon's type_name (lcm-gen 1.3.1's
+// getTypeName() has no package).
+std::string type_label(const lcmx_msgs::endpoint_t& e, const types::TypeRegistry* types);
+
 // Prints participants (host, pid, process) and their nodes with publishers/subscribers.
-void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& ps);
+// `types`: the type path for package-qualified names (may be null).
+void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& ps,
+                 const types::TypeRegistry* types = nullptr);
 // Prints topics: type, publishers, subscribers, and per subscriber the path, rate, received
 // and drops of each pair; type conflicts are flagged.
-void print_topics(std::ostream& out, const std::vector<discovery::Participant>& ps);
+void print_topics(std::ostream& out, const std::vector<discovery::Participant>& ps,
+                  const types::TypeRegistry* types = nullptr);
+// The same as one line of JSON each (shapes in README "Scripting: --json").
+void print_nodes_json(std::ostream& out, const std::vector<discovery::Participant>& ps,
+                      const types::TypeRegistry* types = nullptr);
+void print_topics_json(std::ostream& out, const std::vector<discovery::Participant>& ps,
+                       const types::TypeRegistry* types = nullptr);
 
 }  // namespace lcmx::cli

@@ -516,7 +516,17 @@ int orchestrate(const Settings& s, const std::string& self) {
     }
   }
   std::fprintf(stderr, "\n");
-  // Clean stop: SIGTERM, then the final reports.
+  // Clean stop: SIGTERM, then the final reports. A child restarted just now may not have
+  // blocked SIGTERM yet (its default action would kill it, not a fault of lcmx): wait for every
+  // child's "ready" first (bounded).
+  {
+    std::vector<LineReader*> rs;
+    for (auto& c : live) rs.push_back(&c.reader);
+    std::atomic<int> never{0};
+    pump_until(rs, now_ns() + 10'000'000'000LL, [&] {
+      return std::all_of(live.begin(), live.end(), [](const Child& c) { return c.reader.has("ready"); });
+    }, never);
+  }
   for (auto& c : live) ::kill(c.pid, SIGTERM);
   {
     std::vector<LineReader*> rs;
@@ -529,7 +539,9 @@ int orchestrate(const Settings& s, const std::string& self) {
     std::atomic<int> never{0};
     const int st = wait_or_dump(c, 10'000, &killed);
     if (killed || !WIFEXITED(st) || WEXITSTATUS(st) != 0) {
-      std::fprintf(stderr, "soak: %s did not exit cleanly on SIGTERM\n", c.role.c_str());
+      std::fprintf(stderr, "soak: %s (pid %d) did not exit cleanly on SIGTERM: %s %d\n", c.role.c_str(), c.pid,
+                   killed ? "hung, SIGKILLed" : WIFSIGNALED(st) ? "killed by signal" : "exit status",
+                   killed ? 0 : WIFSIGNALED(st) ? WTERMSIG(st) : WEXITSTATUS(st));
       ok = false;
     }
     finished.push_back(std::move(c));

@@ -1,6 +1,7 @@
 // core internals: runtime registry, node executors, per-subscriber state.
 // Lock order (never take them the other way round):
-//   RuntimeImpl::recv_mu -> RuntimeImpl::mu -> SubscriberState::mu -> NodeImpl::mu
+//   RuntimeImpl::recv_mu -> (discovery: Discovery::Impl::deliver_mutex, held while it calls
+//   on_participant) -> RuntimeImpl::mu -> SubscriberState::mu -> NodeImpl::mu
 //   PublisherImpl::publish_mu -> PublisherImpl::intra_mu -> SubscriberState::mu
 #pragma once
 

@@ -43,6 +43,14 @@ struct Discovery::Impl {
   std::int64_t sequence = 0;
   std::atomic<std::uint64_t> self_id{0};  // our participant id, to ignore our own echo
 
+  // Orders what on_change is told: taken around a change of the table *and* its callback, so
+  // the callbacks see the changes in the table's order. Without it a beacon's "updated",
+  // told by the receiving thread, could reach the owner after the discovery thread had told
+  // "left" (lease expired, process exited): the owner then kept a participant the table no
+  // longer had, for good (the runtime tried to open a dead publisher's segment forever).
+  // Lock order: deliver_mutex, then mutex; on_change may take the owner's locks, so the owner
+  // must never call into this Discovery's deliver() while holding a lock on_change takes.
+  std::mutex deliver_mutex;
   mutable std::mutex mutex;  // guards peers, peer_bytes, table_bytes, counters, exited
   std::map<std::int64_t, Participant> peers;
   std::map<std::int64_t, std::size_t> peer_bytes;  // encoded size of each peer's beacon
@@ -162,6 +170,7 @@ struct Discovery::Impl {
     Change change = Change::updated;
     Participant copy;
     std::string refused;  // why, when refused and to be logged
+    std::lock_guard order(deliver_mutex);  // until on_change has been told
     {
       std::lock_guard lock(mutex);
       ++counters.beacons_received;
@@ -281,6 +290,7 @@ struct Discovery::Impl {
       watches.erase(it);
     }
     Participant p;
+    std::lock_guard order(deliver_mutex);  // until on_change has been told
     {
       std::lock_guard lock(mutex);
       auto it = peers.find(id);
@@ -304,6 +314,7 @@ struct Discovery::Impl {
 
   void expire_leases() {
     std::vector<Participant> gone;
+    std::lock_guard order(deliver_mutex);  // until on_change has been told
     {
       std::lock_guard lock(mutex);
       const auto now = Clock::now();

@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <set>
 #include <span>
 #include <mutex>
 #include <random>
@@ -363,4 +364,57 @@ TEST_CASE("a peer's process that exits is gone at once (pidfd) - a reused pid or
   CHECK(present == std::vector<std::int64_t>{11, 13});  // other pid namespace: lease only
   CHECK(left(11) == 0);
   CHECK(left(13) == 0);
+}
+
+TEST_CASE("on_change is told in the table's order: an update never lands after the lease expiry of its participant",
+          "[discovery][lifecycle]") {
+  // The receiving thread tells "updated" outside the table's lock; the discovery thread
+  // expired the same participant meanwhile and told "left" first. The owner (the runtime)
+  // then kept the participant for good: seen in the soak as a subscriber retrying a dead
+  // publisher's segment forever. Here the owner's "updated" callback is slow (it runs until
+  // the participant's lease is over, so the discovery thread expires it meanwhile): what the
+  // owner knows must still end equal to the table.
+  lcmx::discovery::Options o;
+  o.group = test_group(6);
+  o.observer = true;  // only what deliver() hands it; expiry still runs on its thread
+  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(o.group));
+  std::mutex mu;
+  std::set<std::int64_t> known;  // the owner's view, as the runtime keeps it
+  int lefts = 0;
+  std::atomic<bool> slow{false};
+  const auto lease = 150ms;
+  lcmx::discovery::Discovery d(o, nullptr, [&](lcmx::discovery::Change c, const lcmx::discovery::Participant& p) {
+    if (c == lcmx::discovery::Change::updated && slow.exchange(false)) {
+      // Busy until the lease of what we were told is long over (a deadline on the clock, not
+      // a synchronisation: the discovery thread must have had its chance to expire it).
+      const auto until = p.last_seen + lease + 300ms;
+      while (std::chrono::steady_clock::now() < until) std::this_thread::sleep_for(1ms);
+    }
+    std::lock_guard lock(mu);
+    if (c == lcmx::discovery::Change::left) {
+      known.erase(p.beacon.participant_id);
+      ++lefts;
+    } else {
+      known.insert(p.beacon.participant_id);
+    }
+  });
+  auto b = sample_beacon(42);
+  b.lease_ms = static_cast<std::int32_t>(lease.count());
+  b.sequence = 1;
+  auto deliver = [&] {
+    const auto bytes = lcmx::discovery::encode_beacon(b);
+    d.deliver(lcmx::udpm::Message{lcmx::discovery::kBeaconChannel, bytes, {}, 0});
+  };
+  deliver();  // joined
+  slow = true;
+  b.sequence = 2;
+  b.revision = 1;
+  deliver();  // updated, told slowly while the lease runs out
+  // The table forgets it (lease); the owner must forget it too, once told everything.
+  REQUIRE(eventually([&] {
+    std::lock_guard lock(mu);
+    return d.participants().empty() && lefts == 1;
+  }));
+  std::lock_guard lock(mu);
+  CHECK(known.empty());
 }
