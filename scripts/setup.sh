@@ -16,6 +16,7 @@ packages=(
   iproute2 procps                  # network namespaces for multi-host tests, ps/pgrep
   tmux                             # tests of lcmx record/play on a terminal (status line, space bar)
   iperf3                           # bench/bridge: TCP reference on the emulated link
+  graphviz                         # lcmx graph: SVG/PNG through dot
 )
 
 missing=()

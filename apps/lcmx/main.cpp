@@ -17,6 +17,7 @@
 #include "lcmx/types/schema.hpp"
 #include "bridge_cmd.hpp"
 #include "log_cmds.hpp"
+#include "monitor_cmds.hpp"
 #include "topology.hpp"
 #include "verb.hpp"
 
@@ -143,6 +144,8 @@ int main(int argc, char** argv) {
   verbs.push_back(lcmx::cli::add_record(app, g));
   verbs.push_back(lcmx::cli::add_play(app, g));
   verbs.push_back(lcmx::cli::add_log(app, g));
+  verbs.push_back(lcmx::cli::add_monitor(app, g));
+  verbs.push_back(lcmx::cli::add_graph(app, g));
 
   // An unknown verb is named (also before --help, which would otherwise print the top-level help).
   if (const auto verb = verb_of(app, argc, argv)) {

@@ -1,0 +1,46 @@
+// Helpers of `lcmx monitor` and `lcmx graph`: a discovery observer over the host-local group
+// and, when given, the vehicle group (as `lcmx topics` uses), kept open while the tool runs.
+// Threads: participants() and query() from any thread. Errors: the constructor throws what
+// Discovery throws when a group cannot be opened.
+#pragma once
+
+#include <memory>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "lcmx/discovery/discovery.hpp"
+#include "lcmx/udpm/udpm.hpp"
+
+namespace lcmx::cli {
+
+class Observer {
+ public:
+  Observer(const std::string& url, const std::string& vehicle_url) {
+    for (const auto& u : {url, vehicle_url}) {
+      if (u.empty()) continue;
+      discovery::Options o;
+      o.group = udpm::parse_url(u);
+      o.observer = true;
+      d_.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
+    }
+  }
+  // Asks every participant to beacon now.
+  void query() {
+    for (auto& d : d_) d->query();
+  }
+  // Participants known now; one seen in both scopes once, from its host-local beacon.
+  std::vector<discovery::Participant> participants() const {
+    std::vector<discovery::Participant> all;
+    std::set<std::int64_t> seen;
+    for (const auto& d : d_)
+      for (auto& p : d->participants())
+        if (seen.insert(p.beacon.participant_id).second) all.push_back(std::move(p));
+    return all;
+  }
+
+ private:
+  std::vector<std::unique_ptr<discovery::Discovery>> d_;
+};
+
+}  // namespace lcmx::cli
