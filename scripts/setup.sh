@@ -11,6 +11,7 @@ packages=(
   libboost-dev                     # Boost.Interprocess
   catch2 clang libclang-rt-14-dev  # tests (Catch2 v2; clang + libFuzzer runtime for test/fuzz)
   libcli11-dev libspdlog-dev libtomlplusplus-dev libncurses-dev
+  nlohmann-json3-dev               # lcmx::types from_json (lcmx pub)
   iproute2 procps                  # network namespaces for multi-host tests, ps/pgrep
   tmux                             # tests of lcmx record/play on a terminal (status line, space bar)
   iperf3                           # bench/bridge: TCP reference on the emulated link
