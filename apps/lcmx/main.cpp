@@ -15,6 +15,7 @@
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/discovery.hpp"
 #include "bridge_cmd.hpp"
+#include "echo_cmds.hpp"
 #include "log_cmds.hpp"
 #include "topology.hpp"
 #include "verb.hpp"
@@ -115,6 +116,10 @@ int main(int argc, char** argv) {
   verbs.push_back(lcmx::cli::add_record(app, g));
   verbs.push_back(lcmx::cli::add_play(app, g));
   verbs.push_back(lcmx::cli::add_log(app, g));
+  verbs.push_back(lcmx::cli::add_echo(app, g));
+  verbs.push_back(lcmx::cli::add_hz(app, g));
+  verbs.push_back(lcmx::cli::add_bw(app, g));
+  verbs.push_back(lcmx::cli::add_pub(app, g));
 
   // An unknown verb is named (also before --help, which would otherwise print the top-level help).
   if (const auto verb = verb_of(app, argc, argv)) {
