@@ -211,7 +211,7 @@ int run_echo() {
             << ")" << std::endl;
   stop.wait(std::chrono::nanoseconds(-1));
   std::uint64_t drops = 0;
-  for (const auto& [ch, st] : tap->subscription().stats()) drops += st.drops;
+  for (const auto& [ch, st] : tap->stats()) drops += st.drops;
   tap.reset();  // no callback after this
   if (drops > 0 && !printer.write_failed())
     std::cerr << "lcmx echo: " << drops << " messages dropped (printing slower than they came)\n";

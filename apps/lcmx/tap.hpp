@@ -4,7 +4,7 @@
 //    main thread waits on, so commands end cleanly (goodbye in discovery) and never by a
 //    handler running in the middle of lcmx;
 //  - Tap: a participant with one node subscribed raw to every matching channel on every path
-//    (Node::subscribe_channels: shm, bridges, UDP of other hosts, stock LCM senders);
+//    (shm, bridges, UDP of other hosts, stock LCM senders);
 //  - load_types(): the type path of --types / LCMX_TYPES_PATH.
 #pragma once
 
@@ -38,24 +38,32 @@ namespace lcmx::cli {
 // A channel is taken when any pattern matches. Throws std::regex_error for a bad expression.
 class ChannelMatcher {
  public:
-  ChannelMatcher(std::vector<std::string> patterns, bool regex) : patterns_(std::move(patterns)), regex_(regex) {
-    if (regex_)
-      for (const auto& p : patterns_) compiled_.emplace_back(p, std::regex::ECMAScript | std::regex::optimize);
+  ChannelMatcher(std::vector<std::string> patterns, bool regex) : regex_(regex) {
+    for (auto& p : patterns) {
+      if (regex_) compiled_.emplace_back(p, std::regex::ECMAScript | std::regex::optimize);
+      else if (p.find_first_of("*?[") == std::string::npos) exact_.push_back(p);
+      else globs_.push_back(p);
+    }
   }
   bool operator()(const std::string& channel) const {
-    if (regex_) {
-      for (const auto& r : compiled_)
-        if (std::regex_match(channel, r)) return true;
-      return false;
-    }
-    for (const auto& p : patterns_)
-      if (p == channel || ::fnmatch(p.c_str(), channel.c_str(), 0) == 0) return true;
+    for (const auto& r : compiled_)
+      if (std::regex_match(channel, r)) return true;
+    for (const auto& e : exact_)
+      if (e == channel) return true;
+    return matches_glob(channel);
+  }
+  bool matches_glob(const std::string& channel) const {
+    for (const auto& p : globs_)
+      if (::fnmatch(p.c_str(), channel.c_str(), 0) == 0) return true;
     return false;
   }
+  // Patterns that are plain channel names (no glob characters, not --regex).
+  const std::vector<std::string>& exact() const { return exact_; }
+  bool has_patterns() const { return regex_ || !globs_.empty(); }
 
  private:
-  std::vector<std::string> patterns_;
   bool regex_;
+  std::vector<std::string> exact_, globs_;
   std::vector<std::regex> compiled_;
 };
 
@@ -128,7 +136,13 @@ class StopSignals {
   int signal_ = 0;
 };
 
-// A participant with one node whose channel subscription takes every channel `match` accepts.
+// A participant with one node that receives every channel `match` accepts, raw.
+// Channels named exactly get an ordinary raw subscriber each (Node::subscribe_raw): it is
+// announced in discovery at once, so a bridge of this host asks its peers for the channel
+// before anything of it was published here. Globs and regexes use one channel subscription
+// (Node::subscribe_channels), which takes channels as they show up on this host, on the UDP
+// groups or in beacons; a large topic of another host that only bridges carry shows up once
+// something here subscribes to it by name.
 // `on_message` runs on the node's executor thread (one at a time); RawMessage's view is valid
 // only during the call. Throws lcmx::Error (or what RuntimeOptions::from_env throws).
 class Tap {
@@ -140,22 +154,43 @@ class Tap {
     if (!g.vehicle_url.empty()) ro.vehicle_url = g.vehicle_url;
     rt_.emplace(Runtime::create(ro));
     node_.emplace(rt_->create_node(node_name));
-    sub_ = node_->subscribe_channels([match](const std::string& ch) { return (*match)(ch); }, std::move(on_message),
-                                     options);
+    for (const auto& ch : match->exact()) {
+      bool dup = false;
+      for (const auto& s : exact_subs_) dup = dup || s.channel() == ch;
+      if (!dup) exact_subs_.push_back(node_->subscribe_raw(ch, on_message, options));
+    }
+    if (match->has_patterns()) {
+      // Channels named exactly are left to their own subscribers.
+      auto filter = [match](const std::string& ch) {
+        for (const auto& e : match->exact())
+          if (e == ch) return false;
+        return (*match)(ch);
+      };
+      sub_ = node_->subscribe_channels(filter, std::move(on_message), options);
+    }
   }
   Tap(const Tap&) = delete;
   Tap& operator=(const Tap&) = delete;
   // Stops receiving first (no callback runs after), then leaves (goodbye).
   ~Tap() {
     sub_.reset();
+    exact_subs_.clear();
     node_.reset();
     rt_.reset();
   }
-  const ChannelSubscription& subscription() const { return sub_; }
+  // Per channel subscribed so far: its statistics.
+  std::vector<std::pair<std::string, SubscriberStats>> stats() const {
+    std::vector<std::pair<std::string, SubscriberStats>> out;
+    for (const auto& s : exact_subs_) out.emplace_back(s.channel(), s.stats());
+    if (sub_)
+      for (auto& x : sub_.stats()) out.push_back(std::move(x));
+    return out;
+  }
 
  private:
   std::optional<Runtime> rt_;
   std::optional<Node> node_;
+  std::vector<RawSubscriber> exact_subs_;
   ChannelSubscription sub_;
 };
 
