@@ -206,3 +206,16 @@ TEST_CASE("from_json bounds deep recursion and huge zero fills", "[unit]") {
   CHECK_THAT(from_json_error(examples().at("lcmx_examples.image_t"), R"({"size": 2000000000})"),
              Contains("more than 2^26 elements"));
 }
+
+TEST_CASE("from_json: float's extremes read back", "[unit]") {
+  const StructType& prims = corpus().at("corpus_a.primitives_t");
+  for (float f : {std::numeric_limits<float>::max(), -std::numeric_limits<float>::max(),
+                  std::numeric_limits<float>::denorm_min(), std::numeric_limits<float>::min()}) {
+    Value v = zero_value(prims);
+    *v.as<Struct>().find("f32") = f;
+    const std::string j = to_json(v);
+    INFO(j);
+    CHECK(from_json(prims, j).as<Struct>().find("f32")->as<float>() == f);
+  }
+  CHECK_THAT(from_json_error(prims, R"({"f32": 3.4028236e38})"), Contains("out of range for float"));
+}

@@ -270,8 +270,11 @@ class Converter {
   double floating(const Json& j, Primitive p) {
     if (j.is_number()) {
       const double d = j.get<double>();
-      if (p == Primitive::float32 && std::isfinite(d) &&
-          std::abs(d) > static_cast<double>(std::numeric_limits<float>::max()))
+      // Beyond float: what rounds to infinity (FLT_MAX + half its ulp and more; that tie rounds
+      // up), so the shortest text of FLT_MAX itself (3.4028235e+38, a bit above it) still reads.
+      static const double float_limit =
+          static_cast<double>(std::numeric_limits<float>::max()) + std::ldexp(1.0, 103);
+      if (p == Primitive::float32 && std::isfinite(d) && std::abs(d) >= float_limit)
         fail(short_text(j) + " is out of range for float");
       return d;
     }

@@ -40,7 +40,7 @@ using Bytes = std::vector<std::uint8_t>;  // the innermost dimension of a `byte`
 struct Value {
   std::variant<std::int64_t, double, float, bool, std::string, Bytes, Array, Struct> data;
 
-  Value() : data(std::int64_t{0}) {}
+  Value();  // the integer 0 (defined below, where Field is complete: clang needs it)
   template <class T>
   Value(T&& v) requires(!std::is_same_v<std::remove_cvref_t<T>, Value>)  // NOLINT
       : data(std::forward<T>(v)) {}
@@ -54,6 +54,8 @@ struct Field {
   std::string name;
   Value value;
 };
+
+inline Value::Value() : data(std::int64_t{0}) {}
 
 // Decodes a whole message: the 8-byte fingerprint must be `type`'s, and every byte is used.
 // Throws Error: fingerprint mismatch, truncated, trailing bytes, negative or absurd sizes.
