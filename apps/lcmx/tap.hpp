@@ -70,7 +70,8 @@ class ChannelMatcher {
 // Blocks SIGINT and SIGTERM in the calling thread (construct it on the main thread before the
 // Runtime: lcmx's threads inherit the mask, so the signals are only ever read here) and ignores
 // SIGPIPE (a closed stdout is a write error the command handles). request_stop() may be called
-// from any thread (e.g. an executor callback that reached -n). Restores the mask on destruction.
+// from any thread (e.g. an executor callback that reached -n). Restores the mask on destruction
+// (after consuming signals still pending).
 class StopSignals {
  public:
   StopSignals() {
@@ -87,6 +88,11 @@ class StopSignals {
   StopSignals(const StopSignals&) = delete;
   StopSignals& operator=(const StopSignals&) = delete;
   ~StopSignals() {
+    // Signals that came after the last wait (a second Ctrl-C) are consumed here: unblocked, they
+    // would kill the process on its way out.
+    signalfd_siginfo si{};
+    while (::read(sigfd_, &si, sizeof si) == static_cast<ssize_t>(sizeof si)) {
+    }
     ::close(sigfd_);
     ::close(evfd_);
     ::pthread_sigmask(SIG_SETMASK, &old_, nullptr);
