@@ -193,7 +193,7 @@ TEST_CASE("lcmx echo and pub: bad .lcm files and bad arguments are errors that s
   }
 }
 
-TEST_CASE("lcmx pub: typed shm subscribers receive JSON lines in order; --once without subscribers",
+TEST_CASE("lcmx pub: typed shm subscribers receive JSON lines in order - --once without subscribers",
           "[integration][tools]") {
   Session s(123);
   const std::string ch = unique_channel("PUB", 123);
