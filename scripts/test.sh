@@ -2,7 +2,8 @@
 # Runs the whole test suite, in three stages (CI: .ci/run calls exactly this script):
 #  1. the plain suite in build/ (unit, integration, multihost) with CTest, two at a time;
 #  2. every libFuzzer target (CTest label `fuzz`, test/fuzz/README.md) for LCMX_FUZZ_SECONDS
-#     seconds each (default 60), two at a time: a crash, leak or hang fails;
+#     seconds each (default 50: six targets, two at a time, 2.5 minutes), two at a time: a
+#     crash, leak or hang fails;
 #  3. the unit and integration tests again, built with ASan + UBSan in build-asan/
 #     (scripts/sanitizers.sh address); skipped with LCMX_TEST_SANITIZERS=0.
 # With arguments, only stage 1 runs, and the arguments go to ctest: scripts/test.sh -R shm
@@ -18,7 +19,7 @@ fi
 stage "plain suite (build/)"
 ctest --test-dir build --output-on-failure -j2 --timeout 300 -LE fuzz
 
-stage "fuzz targets, ${LCMX_FUZZ_SECONDS:=60} s each"
+stage "fuzz targets, ${LCMX_FUZZ_SECONDS:=50} s each"
 export LCMX_FUZZ_SECONDS
 ctest --test-dir build --output-on-failure -j2 -L fuzz
 

@@ -16,6 +16,7 @@
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/types/schema.hpp"
 #include "bridge_cmd.hpp"
+#include "echo_cmds.hpp"
 #include "log_cmds.hpp"
 #include "monitor_cmds.hpp"
 #include "topology.hpp"
@@ -146,6 +147,10 @@ int main(int argc, char** argv) {
   verbs.push_back(lcmx::cli::add_log(app, g));
   verbs.push_back(lcmx::cli::add_monitor(app, g));
   verbs.push_back(lcmx::cli::add_graph(app, g));
+  verbs.push_back(lcmx::cli::add_echo(app, g));
+  verbs.push_back(lcmx::cli::add_hz(app, g));
+  verbs.push_back(lcmx::cli::add_bw(app, g));
+  verbs.push_back(lcmx::cli::add_pub(app, g));
 
   // An unknown verb is named (also before --help, which would otherwise print the top-level help).
   if (const auto verb = verb_of(app, argc, argv)) {

@@ -1,7 +1,7 @@
 // `lcmx monitor` (--once --json, the same model as on a terminal) and `lcmx graph` on emulated
 // hosts: an ordinary computer (default route via a LAN, no multicast route to lo, default
 // options) with stock liblcm and lcmx shm publishers, and two hosts on a vehicle group (UDP).
-// The terminal itself is driven in test/integration/tools_test.cpp.
+// The terminal itself is driven in test/integration/monitor_graph_test.cpp.
 #include <regex>
 
 #include "lcmx/test/catch_netns.hpp"

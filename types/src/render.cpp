@@ -76,7 +76,8 @@ void json(std::string& out, const Value& v) {
         if constexpr (std::is_same_v<T, std::int64_t>) {
           out += std::to_string(x);
         } else if constexpr (std::is_same_v<T, double> || std::is_same_v<T, float>) {
-          if (std::isfinite(x)) append_float(out, x);
+          if (x == 0 && std::signbit(x)) out += "-0.0";  // "-0" would read back as the integer 0
+          else if (std::isfinite(x)) append_float(out, x);
           else out += "null";
         } else if constexpr (std::is_same_v<T, bool>) {
           out += x ? "true" : "false";

@@ -40,7 +40,7 @@ using Bytes = std::vector<std::uint8_t>;  // the innermost dimension of a `byte`
 struct Value {
   std::variant<std::int64_t, double, float, bool, std::string, Bytes, Array, Struct> data;
 
-  Value() : data(std::int64_t{0}) {}
+  Value();  // the integer 0 (defined below, where Field is complete: clang needs it)
   template <class T>
   Value(T&& v) requires(!std::is_same_v<std::remove_cvref_t<T>, Value>)  // NOLINT
       : data(std::forward<T>(v)) {}
@@ -54,6 +54,8 @@ struct Field {
   std::string name;
   Value value;
 };
+
+inline Value::Value() : data(std::int64_t{0}) {}
 
 // Decodes a whole message: the 8-byte fingerprint must be `type`'s, and every byte is used.
 // Throws Error: fingerprint mismatch, truncated, trailing bytes, negative or absurd sizes.
@@ -82,6 +84,26 @@ Value field(const Value& value, std::string_view path);
 // One line of JSON: structs are objects (fields in order), arrays and Bytes are arrays of
 // numbers, NaN/infinity are null, strings are escaped (invalid UTF-8 bytes become \u00XX).
 std::string to_json(const Value& value);
+
+// Parses one JSON object (as to_json writes it, or typed by hand) into a tree of `type`, ready
+// for encode(). Rules:
+//  - every key must be a field of its struct: an unknown one is an Error naming its path
+//    ("from_json: pose.positon: no such field in lcmx_examples.pose_t (its fields: ...)");
+//    a key given twice in one object is an Error;
+//  - fields not given are zero (as zero_value), in nested structs too;
+//  - integer fields (int8..int64, byte) take JSON integers in the type's range (a number with
+//    a zero fraction, 2.0 or 1e3, counts as an integer); float/double take any number, and
+//    null, "nan", "inf", "-inf" for non-finite values (to_json writes those as null); a float
+//    beyond float's range is an Error; boolean takes true/false; string a JSON string;
+//    a nested struct an object;
+//  - arrays (byte arrays too) are JSON arrays. A fixed dimension must have exactly its length.
+//    A variable dimension sets its size member from the array's length: the size member need
+//    not be given; if it is, or if another array shares it, the lengths must agree (an Error
+//    names both). An array not given takes its size member's value (0 if not known),
+//    zero-filled (at most 2^26 elements made so).
+// Throws Error "from_json: <path>: <what>" for all of the above, "from_json: invalid JSON: ..."
+// (with line and column) for a syntax error. Nesting deeper than 64 structs is an Error.
+Value from_json(const StructType& type, std::string_view json);
 
 struct TextOptions {
   std::size_t max_array = 10;  // elements shown per array before "... (N more)"; 0 = all
