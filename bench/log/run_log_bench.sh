@@ -56,7 +56,10 @@ wait_logged() {
   done
   echo "no $2 in $1" >&2; return 1
 }
-count_events() { "$LCMX" log info --json "$1" | sed -n 's/.*"events":\([0-9]*\).*/\1/p'; }
+# Events of the BENCH_* channels in a log (the traffic measured, not the warm-up).
+count_events() {
+  "$LCMX" log info --json "$1" | grep -o '"channel":"BENCH_[0-9]*","count":[0-9]*' | awk -F: '{ n += $NF } END { print n + 0 }'
+}
 
 echo "# lcmx log tools benchmark ($(date -u +%F' '%H:%M' UTC'), $(nproc) CPUs, $(uname -r))"
 echo
