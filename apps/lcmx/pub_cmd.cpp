@@ -35,6 +35,7 @@ struct PubOptions {
   bool no_wait = false;
   bool udp = false;
   bool quiet = false;
+  bool json_summary = false;  // --json: a summary line on stdout at the end
   const Globals* g = nullptr;
 };
 PubOptions g_pub;
@@ -227,6 +228,14 @@ int run_pub() {
     if (skipped > 0) std::cerr << " (" << skipped << " deadlines skipped: publishing was late)";
     std::cerr << "\n";
   }
+  if (o.json_summary) {
+    char fp[17];
+    std::snprintf(fp, sizeof fp, "%016llx", static_cast<unsigned long long>(type->fingerprint));
+    std::cout << "{\"channel\":" << json_str(o.channel) << ",\"type\":" << json_str(type->full_name())
+              << ",\"fingerprint\":\"" << fp << "\",\"published\":" << published
+              << ",\"deadlines_skipped\":" << skipped << ",\"subscribers\":" << pub.subscriber_count()
+              << ",\"ok\":" << (rc == 0 ? "true" : "false") << "}" << std::endl;
+  }
   return rc;
 }
 
@@ -264,6 +273,9 @@ Verb add_pub(CLI::App& app, const Globals& g) {
               "also send on the UDP groups, for stock LCM subscribers (host-local group; the vehicle group too "
               "when configured)");
   c->add_flag("-q,--quiet", g_pub.quiet, "no messages on stderr but errors");
+  c->add_flag("--json", g_pub.json_summary,
+              "at the end, one JSON line on stdout: {channel, type, fingerprint (hex), published, "
+              "deadlines_skipped, subscribers, ok}");
   c->footer(
       "JSON rules (lcmx::types::from_json): a field that does not exist is an error naming it; integers must "
       "fit their type; a fixed array needs exactly its length; null/\"nan\"/\"inf\" for non-finite floats. "

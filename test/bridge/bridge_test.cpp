@@ -700,3 +700,52 @@ TEST_CASE("lcmx echo on host B decodes a large topic of host A carried by the br
   }
   pub.send("quit");
 }
+
+TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host A carried by the bridges; lcmx pub on A reaches B",
+          "[bridge][multihost][tools]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 41, {{.name = "eth"}});
+  const auto ch = w.channel("TOOLS");
+  w.bridge(0, {1});
+  w.bridge(1, {0});
+  // hz on B, by exact name (a bridge asks its peer for the topic on demand).
+  auto& hz = w.spawn(1, {LCMX_TOOL, "hz", ch, "--json", "-w", "5", "--period", "0.2", "-n", "1"});
+  auto& pub = w.pub(0, ch, 200000, "A");  // large: above the 65000-byte UDP limit
+  std::optional<std::string> report;
+  const auto deadline = Clock::now() + 25000ms;
+  while (!report && Clock::now() < deadline) {
+    pub.send(pub_cmd(1, 0));
+    published_total(pub);
+    while (auto line = hz.read_line(20ms))
+      if (!line->empty() && (*line)[0] == '{' && line->find("\"window\":5") != std::string::npos) report = line;
+  }
+  INFO(hz.text());
+  REQUIRE(report);
+  CHECK(report->find("\"channel\":\"" + ch + "\"") != std::string::npos);
+  CHECK(hz.wait(5000ms) == 0);
+
+  // monitor --once and graph on B: the topic, its type and host A's publisher.
+  const auto mon = w.spawn(1, {LCMX_TOOL, "monitor", "--once", "--json", "--types", LCMX_LCMTYPES_DIR}).wait(15000ms);
+  CHECK(mon == 0);
+  auto& graph = w.spawn(1, {LCMX_TOOL, "graph", "--json"});
+  CHECK(graph.wait(15000ms) == 0);
+  CHECK(graph.text().find(ch) != std::string::npos);
+
+  // lcmx pub on A (a large image) -> lcmx echo on B, through the bridges.
+  const auto img = w.channel("TOOLS_IMG");
+  auto& echo = w.spawn(1, {LCMX_TOOL, "echo", img, "--types", LCMX_LCMTYPES_DIR, "--json", "-n", "1", "--field",
+                           "size"});
+  auto& p = w.spawn(0, {LCMX_TOOL, "pub", img, "lcmx_examples.image_t", R"({"size": 300000})", "--types",
+                        LCMX_LCMTYPES_DIR, "--rate", "20", "-n", "200", "--wait-timeout", "20", "--json"});
+  std::optional<std::string> got;
+  const auto deadline2 = Clock::now() + 25000ms;
+  while (!got && Clock::now() < deadline2)
+    if (auto line = echo.read_line(100ms); line && !line->empty() && (*line)[0] == '{') got = line;
+  INFO(echo.text());
+  REQUIRE(got);
+  CHECK(got->find("\"type\":\"lcmx_examples.image_t\"") != std::string::npos);
+  CHECK(got->find("\"data\":300000") != std::string::npos);
+  CHECK(echo.wait(5000ms) == 0);
+  p.kill9();
+  pub.send("quit");
+}

@@ -41,34 +41,7 @@ std::vector<std::string> lines_of(const std::string& text, const std::string& pr
   return out;
 }
 
-// A number "key":N of a flat JSON object (first occurrence).
-double json_num(const std::string& j, const std::string& key) {
-  const auto p = j.find("\"" + key + "\":");
-  if (p == std::string::npos) FAIL("no " << key << " in " << j);
-  return std::stod(j.substr(p + key.size() + 3));
-}
 bool has(const std::string& s, const std::string& needle) { return s.find(needle) != std::string::npos; }
-
-// Reads JSON lines of `c` until `pred` holds for one (returned) or the deadline passes.
-std::optional<std::string> json_until(Child& c, const std::function<bool(const std::string&)>& pred, ms timeout) {
-  const auto deadline = Clock::now() + timeout;
-  for (;;) {
-    const auto left = std::chrono::duration_cast<ms>(deadline - Clock::now());
-    if (left.count() <= 0) return std::nullopt;
-    auto line = c.read_line(left);
-    if (!line) return std::nullopt;
-    if (!line->empty() && (*line)[0] == '{' && pred(*line)) return line;
-  }
-}
-
-#define REQUIRE_NETNS_OR_SKIP(ns)                                                              \
-  if (!(ns).ok()) {                                                                            \
-    if (contains_any((ns).error(), {"Operation not permitted", "Permission denied"})) {        \
-      WARN("skipped: cannot create a network namespace here: " << (ns).error());              \
-      return;                                                                                  \
-    }                                                                                          \
-    FAIL("ip netns add failed: " << (ns).error());                                             \
-  }
 
 }  // namespace
 
@@ -220,10 +193,17 @@ TEST_CASE("lcmx pub: typed shm subscribers receive JSON lines in order - --once 
 
   // Nobody subscribed: it says so after --wait-timeout, publishes anyway, exits.
   const auto lonely = s.run({LCMX_TOOL, "pub", ch + "_NOBODY", "lcmx_examples.pose_t", "{}", "--types", kTypes,
-                             "--once", "--wait-timeout", "0.3"});
+                             "--once", "--wait-timeout", "0.3", "--json"});
   CHECK(lonely.rc == 0);
   CHECK(has(lonely.out, "0 of 1 subscribers after 0.3 s; publishing anyway"));
   CHECK(has(lonely.out, "published 1 messages"));
+  // --json: the summary line for scripts.
+  const auto j = json_line(lonely.out);
+  CHECK(has(j, "\"channel\":\"" + ch + "_NOBODY\""));
+  CHECK(has(j, "\"type\":\"lcmx_examples.pose_t\""));
+  CHECK(json_num(j, "published") == 1);
+  CHECK(json_num(j, "subscribers") == 0);
+  CHECK(has(j, "\"ok\":true"));
   // A bad stdin line stops it, naming the line.
   auto& bad = s.spawn({LCMX_TOOL, "pub", ch + "_BAD", "lcmx_examples.pose_t", "-", "--types", kTypes, "--no-wait"},
                       {}, true);

@@ -50,21 +50,6 @@ std::vector<std::byte> encode(const T& m) {
   return b;
 }
 
-// The last line of `text` that starts with '{' (a --json summary).
-std::string json_line(const std::string& text) {
-  std::string last;
-  std::istringstream in(text);
-  for (std::string l; std::getline(in, l);)
-    if (!l.empty() && l[0] == '{') last = l;
-  return last;
-}
-
-long long json_num(const std::string& j, const std::string& key) {
-  const auto p = j.find("\"" + key + "\":");
-  if (p == std::string::npos) FAIL("no " << key << " in " << j);
-  return std::stoll(j.substr(p + key.size() + 3));
-}
-
 // Python's json.dumps(s, ensure_ascii=False) of the strings used here.
 std::string py_str(const std::string& s) {
   std::string o = "\"";

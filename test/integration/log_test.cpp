@@ -55,22 +55,6 @@ std::uint64_t file_size(const std::string& p) {
   return ::stat(p.c_str(), &st) == 0 ? static_cast<std::uint64_t>(st.st_size) : 0;
 }
 
-// The last line of `text` that starts with '{' (the --json summary).
-std::string json_line(const std::string& text) {
-  std::string last;
-  std::istringstream in(text);
-  for (std::string l; std::getline(in, l);)
-    if (!l.empty() && l[0] == '{') last = l;
-  return last;
-}
-
-// A number field "key":N of a flat JSON line (first occurrence).
-long long json_num(const std::string& j, const std::string& key) {
-  const auto p = j.find("\"" + key + "\":");
-  if (p == std::string::npos) FAIL("no " << key << " in " << j);
-  return std::stoll(j.substr(p + key.size() + 3));
-}
-
 std::vector<std::byte> bench_bytes(std::int64_t seq, std::size_t size, const std::string& id) {
   lcmx_examples::bench_t m;
   m.seq = seq;
@@ -84,15 +68,6 @@ std::vector<std::byte> bench_bytes(std::int64_t seq, std::size_t size, const std
   m.encode(b.data(), 0, static_cast<int>(b.size()));
   return b;
 }
-
-#define REQUIRE_NETNS_OR_SKIP(ns)                                                              \
-  if (!(ns).ok()) {                                                                            \
-    if (contains_any((ns).error(), {"Operation not permitted", "Permission denied"})) {        \
-      WARN("skipped: cannot create a network namespace here: " << (ns).error());              \
-      return;                                                                                  \
-    }                                                                                          \
-    FAIL("ip netns add failed: " << (ns).error());                                             \
-  }
 
 }  // namespace
 

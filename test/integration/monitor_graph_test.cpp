@@ -80,15 +80,6 @@ std::vector<std::string> lines(const std::string& screen) {
   return out;
 }
 
-#define REQUIRE_NETNS_OR_SKIP(ns)                                                              \
-  if (!(ns).ok()) {                                                                            \
-    if (contains_any((ns).error(), {"Operation not permitted", "Permission denied"})) {        \
-      WARN("skipped: cannot create a network namespace here: " << (ns).error());              \
-      return;                                                                                  \
-    }                                                                                          \
-    FAIL("ip netns add failed: " << (ns).error());                                             \
-  }
-
 }  // namespace
 
 TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filter, open a channel, resize, quit",

@@ -103,6 +103,35 @@ inline bool contains_any(const std::string& s, std::initializer_list<const char*
   return false;
 }
 
+// ---- JSON lines of the lcmx tool (--json) ----
+
+// The last line of `text` that starts with '{' (a --json summary).
+inline std::string json_line(const std::string& text) {
+  std::string last;
+  std::istringstream in(text);
+  for (std::string l; std::getline(in, l);)
+    if (!l.empty() && l[0] == '{') last = l;
+  return last;
+}
+
+// A number field "key":N of a flat JSON line (its first occurrence); fails the test if absent.
+inline double json_num(const std::string& j, const std::string& key) {
+  const auto p = j.find("\"" + key + "\":");
+  if (p == std::string::npos) FAIL("no " << key << " in " << j);
+  return std::stod(j.substr(p + key.size() + 3));
+}
+
+// A test that needs a network namespace it could not create: skipped (with a warning) where
+// namespaces are not permitted, failed on any other error. `ns` has ok() and error().
+#define REQUIRE_NETNS_OR_SKIP(ns)                                                              \
+  if (!(ns).ok()) {                                                                            \
+    if (::lcmx::it::contains_any((ns).error(), {"Operation not permitted", "Permission denied"})) { \
+      WARN("skipped: cannot create a network namespace here: " << (ns).error());              \
+      return;                                                                                  \
+    }                                                                                          \
+    FAIL("ip netns add failed: " << (ns).error());                                             \
+  }
+
 // ---- key=value lines ----
 
 inline std::map<std::string, std::string> parse_kv(const std::string& line) {
@@ -318,6 +347,20 @@ class Child {
 };
 
 // The summary of `channel` in a list of summaries (FAIL if absent).
+// Reads lines of `c` until a JSON line ('{...') for which `pred` holds (returned), or the
+// deadline passes (nullopt).
+inline std::optional<std::string> json_until(Child& c, const std::function<bool(const std::string&)>& pred,
+                                             ms timeout) {
+  const auto deadline = Clock::now() + timeout;
+  for (;;) {
+    const auto left = std::chrono::duration_cast<ms>(deadline - Clock::now());
+    if (left.count() <= 0) return std::nullopt;
+    auto line = c.read_line(left);
+    if (!line) return std::nullopt;
+    if (!line->empty() && (*line)[0] == '{' && pred(*line)) return line;
+  }
+}
+
 inline Summary of(const std::vector<Summary>& all, const std::string& channel) {
   for (const auto& s : all)
     if (s.str("channel") == channel) return s;

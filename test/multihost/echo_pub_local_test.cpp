@@ -22,23 +22,6 @@ std::vector<std::string> json_lines(const std::string& text) {
   return out;
 }
 
-double json_num(const std::string& j, const std::string& key) {
-  const auto p = j.find("\"" + key + "\":");
-  if (p == std::string::npos) FAIL("no " << key << " in " << j);
-  return std::stod(j.substr(p + key.size() + 3));
-}
-
-std::optional<std::string> json_until(Child& c, const std::function<bool(const std::string&)>& pred, ms timeout) {
-  const auto deadline = Clock::now() + timeout;
-  for (;;) {
-    const auto left = std::chrono::duration_cast<ms>(deadline - Clock::now());
-    if (left.count() <= 0) return std::nullopt;
-    auto line = c.read_line(left);
-    if (!line) return std::nullopt;
-    if (!line->empty() && (*line)[0] == '{' && pred(*line)) return line;
-  }
-}
-
 }  // namespace
 
 TEST_CASE("lcmx echo, hz and pub across hosts over UDP (vehicle group)", "[multihost][tools]") {

@@ -29,6 +29,8 @@ using it::Summary;
 using it::of;
 using it::poll_sub;
 using it::published;
+using it::json_num;
+using it::json_until;
 
 // "udpm://239.<a>.<b>.<c>:<port>?ttl=1&iface=eth": unique per (test process, test index) and
 // in a range of its own (the host-local groups use 239.255.x.y).
