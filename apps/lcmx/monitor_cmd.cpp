@@ -448,10 +448,7 @@ int run_monitor() {
   ChannelSubscription sub;
   try {
     obs.emplace(o.g->url, o.g->vehicle_url);
-    auto ro = RuntimeOptions::from_env();
-    ro.discovery_url = o.g->url;
-    if (!o.g->vehicle_url.empty()) ro.vehicle_url = o.g->vehicle_url;
-    rt.emplace(Runtime::create(ro));
+    rt.emplace(Runtime::create(runtime_options(*o.g)));
     node.emplace(rt->create_node("lcmx_monitor"));
     SubscriberOptions so;
     so.queue_depth = o.queue_depth;

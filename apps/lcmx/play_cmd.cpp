@@ -303,14 +303,7 @@ int run_play() {
   std::map<std::string, RawPublisher> pubs;  // by original channel
   std::map<std::string, std::int64_t> announced;  // by published channel
   try {
-    auto ro = RuntimeOptions::from_env();
-    ro.discovery_url = o.g->url;
-    if (!o.g->vehicle_url.empty()) ro.vehicle_url = o.g->vehicle_url;
-    if (o.udp) {
-      ro.mirror = true;
-      ro.vehicle_publish = VehiclePublish::always;
-    }
-    rt.emplace(Runtime::create(ro));
+    rt.emplace(Runtime::create(runtime_options(*o.g, o.udp)));
     node.emplace(rt->create_node("lcmx_play"));
     std::map<std::string, RawPublisher> by_out;
     for (const auto& [ch, ci] : info) {

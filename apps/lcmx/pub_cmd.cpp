@@ -138,14 +138,7 @@ int run_pub() {
   std::optional<Node> node;
   RawPublisher pub;
   try {
-    auto ro = RuntimeOptions::from_env();
-    ro.discovery_url = o.g->url;
-    if (!o.g->vehicle_url.empty()) ro.vehicle_url = o.g->vehicle_url;
-    if (o.udp) {
-      ro.mirror = true;
-      ro.vehicle_publish = VehiclePublish::always;
-    }
-    rt.emplace(Runtime::create(ro));
+    rt.emplace(Runtime::create(runtime_options(*o.g, o.udp)));
     node.emplace(rt->create_node("lcmx_pub"));
     PublisherOptions po;
     po.max_message_size = std::max(po.max_message_size, fixed.size());

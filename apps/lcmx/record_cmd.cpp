@@ -415,10 +415,7 @@ int run_record() {
     }
   }
   try {
-    auto ro = RuntimeOptions::from_env();
-    ro.discovery_url = o.g->url;
-    if (!o.g->vehicle_url.empty()) ro.vehicle_url = o.g->vehicle_url;
-    rt.emplace(Runtime::create(ro));
+    rt.emplace(Runtime::create(runtime_options(*o.g)));
     node.emplace(rt->create_node("lcmx_record"));
     SubscriberOptions so;
     so.queue_depth = o.queue_depth;

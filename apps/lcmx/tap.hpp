@@ -155,10 +155,7 @@ class Tap {
  public:
   Tap(const Globals& g, const std::string& node_name, std::shared_ptr<const ChannelMatcher> match,
       std::function<void(const RawMessage&)> on_message, SubscriberOptions options = {}) {
-    auto ro = RuntimeOptions::from_env();
-    ro.discovery_url = g.url;
-    if (!g.vehicle_url.empty()) ro.vehicle_url = g.vehicle_url;
-    rt_.emplace(Runtime::create(ro));
+    rt_.emplace(Runtime::create(runtime_options(g)));
     node_.emplace(rt_->create_node(node_name));
     for (const auto& ch : match->exact()) {
       bool dup = false;

@@ -48,6 +48,24 @@ std::string json_strings(const std::vector<std::string>& v) {
   return o + "]";
 }
 
+// Every endpoint of the beacons, by topic, and the publishers by (participant, endpoint id):
+// what `topics` (text and JSON) prints from. Points into `ps`, which must outlive it.
+struct Ref {
+  const Beacon* b;
+  const Endpoint* e;
+};
+struct TopicIndex {
+  std::map<std::string, std::vector<Ref>> by_topic;
+  std::map<std::pair<std::int64_t, std::int64_t>, Ref> publishers;
+  explicit TopicIndex(const std::vector<discovery::Participant>& ps) {
+    for (const auto& p : ps)
+      for (const auto& e : p.beacon.endpoints) {
+        by_topic[e.topic].push_back({&p.beacon, &e});
+        if (e.kind == Endpoint::KIND_PUBLISHER) publishers[{p.beacon.participant_id, e.id}] = {&p.beacon, &e};
+      }
+  }
+};
+
 }  // namespace
 
 std::string type_label(const Endpoint& e, const types::TypeRegistry* types) {
@@ -101,17 +119,9 @@ void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& p
 }
 
 void print_topics(std::ostream& out, const std::vector<discovery::Participant>& ps, const types::TypeRegistry* types) {
-  struct Ref {
-    const Beacon* b;
-    const Endpoint* e;
-  };
-  std::map<std::string, std::vector<Ref>> by_topic;
-  std::map<std::pair<std::int64_t, std::int64_t>, Ref> pub_index;
-  for (const auto& p : ps)
-    for (const auto& e : p.beacon.endpoints) {
-      by_topic[e.topic].push_back({&p.beacon, &e});
-      if (e.kind == Endpoint::KIND_PUBLISHER) pub_index[{p.beacon.participant_id, e.id}] = {&p.beacon, &e};
-    }
+  const TopicIndex index(ps);
+  const auto& by_topic = index.by_topic;
+  const auto& pub_index = index.publishers;
   if (by_topic.empty()) {
     out << "no topics found\n";
     return;
@@ -185,17 +195,9 @@ void print_nodes_json(std::ostream& out, const std::vector<discovery::Participan
 
 void print_topics_json(std::ostream& out, const std::vector<discovery::Participant>& ps,
                        const types::TypeRegistry* types) {
-  struct Ref {
-    const Beacon* b;
-    const Endpoint* e;
-  };
-  std::map<std::string, std::vector<Ref>> by_topic;
-  std::map<std::pair<std::int64_t, std::int64_t>, Ref> pub_index;
-  for (const auto& p : ps)
-    for (const auto& e : p.beacon.endpoints) {
-      by_topic[e.topic].push_back({&p.beacon, &e});
-      if (e.kind == Endpoint::KIND_PUBLISHER) pub_index[{p.beacon.participant_id, e.id}] = {&p.beacon, &e};
-    }
+  const TopicIndex index(ps);
+  const auto& by_topic = index.by_topic;
+  const auto& pub_index = index.publishers;
   auto who_json = [](const Ref& r) {
     return "\"process\":" + json_str(r.b->process_name) + ",\"pid\":" + std::to_string(r.b->pid) +
            ",\"node\":" + json_str(r.e->node) + ",\"host\":" + json_str(host_hex(r.b->host_id)) +

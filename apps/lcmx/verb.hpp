@@ -9,6 +9,8 @@
 #include <functional>
 #include <string>
 
+#include "lcmx/core/options.hpp"
+
 namespace lcmx::cli {
 
 // Options of `lcmx` itself, which may come before or after the verb. Filled in by the parse,
@@ -18,6 +20,21 @@ struct Globals {
   std::string vehicle_url;  // --vehicle-url
   int wait_ms = 400;        // --wait: how long observers listen for beacons
 };
+
+// The runtime options of a verb that joins lcmx as a participant: the environment's (LCMX_*,
+// RuntimeOptions::from_env, which throws on bad values) with `lcmx --url / --vehicle-url`.
+// `reach_stock`: also publish on LCM's UDP groups for stock programs (the host-local mirror;
+// the vehicle group always), as `pub --udp` and `play --udp` do.
+inline RuntimeOptions runtime_options(const Globals& g, bool reach_stock = false) {
+  auto ro = RuntimeOptions::from_env();
+  ro.discovery_url = g.url;
+  if (!g.vehicle_url.empty()) ro.vehicle_url = g.vehicle_url;
+  if (reach_stock) {
+    ro.mirror = true;
+    ro.vehicle_publish = VehiclePublish::always;
+  }
+  return ro;
+}
 
 struct Verb {
   CLI::App* command = nullptr;  // owned by the app
