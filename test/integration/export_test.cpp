@@ -627,17 +627,9 @@ TEST_CASE("log export on a terminal (tmux) shows a progress line", "[integration
     for (int i = 0; i < 3000; ++i) w.write(kT0 + i * 100, ch, encode(pose(i % 3)));
     w.close();
   }
-  const std::string sock = "lcmxit_x" + std::to_string(::getpid());
-  struct KillServer {
-    std::string sock;
-    ~KillServer() { run_quiet({LCMX_TMUX, "-L", sock, "kill-server"}); }
-  } kill_server{sock};
-  auto tmux = [&](std::vector<std::string> args) {
-    args.insert(args.begin(), {LCMX_TMUX, "-L", sock});
-    return s.run(args, {}, 5000ms);
-  };
-  auto pane = [&] { return tmux({"capture-pane", "-p", "-t", "exp"}).out; };
-  REQUIRE(tmux({"new-session", "-d", "-s", "exp", "-x", "200", "-y", "20",
+  const Tmux tmux("lcmxit_x" + std::to_string(::getpid()));
+  auto pane = [&] { return tmux.pane("exp"); };
+  REQUIRE(tmux.run({"new-session", "-d", "-s", "exp", "-x", "200", "-y", "20",
                 std::string(LCMX_TOOL) + " log export " + log + " --types " + LCMX_LCMTYPES_DIR + " -o " +
                     d.file("tty.mcap") + "; echo EXPORT-EXIT=$?; sleep 30"})
               .rc == 0);

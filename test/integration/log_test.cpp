@@ -438,31 +438,23 @@ TEST_CASE("on a terminal (tmux): play shows a progress bar, starts paused, space
     for (int i = 0; i < 40; ++i) w.write(1'700'000'000'000'000 + i * 50'000, ch, bench_bytes(i, 100, "T"));
     w.close();
   }
-  const std::string sock = "lcmxit_" + std::to_string(::getpid());
-  struct KillServer {
-    std::string sock;
-    ~KillServer() { run_quiet({LCMX_TMUX, "-L", sock, "kill-server"}); }
-  } kill_server{sock};
-  auto tmux = [&](std::vector<std::string> args) {
-    args.insert(args.begin(), {LCMX_TMUX, "-L", sock});
-    return s.run(args, {}, 5000ms);
-  };
-  auto pane = [&](const std::string& session) { return tmux({"capture-pane", "-p", "-t", session}).out; };
+  const Tmux tmux("lcmxit_" + std::to_string(::getpid()));
+  auto pane = [&](const std::string& session) { return tmux.pane(session); };
   // The session's shell gets this test's environment (discovery group) through tmux's.
   const std::string env = "LCMX_DISCOVERY_URL='" + s.url + "' LCMX_BEACON_PERIOD_MS=100 LCMX_LEASE_MS=600 ";
-  REQUIRE(tmux({"new-session", "-d", "-s", "play", "-x", "160", "-y", "20",
+  REQUIRE(tmux.run({"new-session", "-d", "-s", "play", "-x", "160", "-y", "20",
                 env + LCMX_TOOL + " play " + log + " --paused --delay 0; echo PLAY-EXIT=$?; sleep 30"})
               .rc == 0);
   REQUIRE(wait_until([&] { return pane("play").find("PAUSED") != std::string::npos; }, 10000ms, 20ms));
   CHECK(pane("play").find("[") != std::string::npos);
   CHECK(pane("play").find("PLAY-EXIT") == std::string::npos);  // paused: it waits
-  REQUIRE(tmux({"send-keys", "-t", "play", " "}).rc == 0);
+  REQUIRE(tmux.run({"send-keys", "-t", "play", " "}).rc == 0);
   INFO(pane("play"));
   REQUIRE(wait_until([&] { return pane("play").find("PLAY-EXIT=0") != std::string::npos; }, 15000ms, 20ms));
   CHECK(pane("play").find("published 40 of 40 events") != std::string::npos);
 
   const std::string rec_log = d.file("tty-rec.lcmlog");
-  REQUIRE(tmux({"new-session", "-d", "-s", "rec", "-x", "200", "-y", "20",
+  REQUIRE(tmux.run({"new-session", "-d", "-s", "rec", "-x", "200", "-y", "20",
                 env + LCMX_TOOL + " record " + rec_log + " -c '" + ch + "'; echo REC-EXIT=$?; sleep 30"})
               .rc == 0);
   REQUIRE(wait_until([&] { return pane("rec").find("msgs") != std::string::npos; }, 10000ms, 20ms));
@@ -473,7 +465,7 @@ TEST_CASE("on a terminal (tmux): play shows a progress bar, starts paused, space
   const bool all = wait_until([&] { return pane("rec").find("40 msgs") != std::string::npos; }, 10000ms, 20ms);
   INFO(pane("rec"));
   REQUIRE(all);
-  REQUIRE(tmux({"send-keys", "-t", "rec", "C-c"}).rc == 0);
+  REQUIRE(tmux.run({"send-keys", "-t", "rec", "C-c"}).rc == 0);
   REQUIRE(wait_until([&] { return pane("rec").find("REC-EXIT=0") != std::string::npos; }, 10000ms, 20ms));
   INFO(pane("rec"));
   CHECK(pane("rec").find("40 messages") != std::string::npos);

@@ -32,36 +32,6 @@ std::string slurp(const std::string& p) {
   return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
 }
 
-// A tmux server of this test's own (-L socket), killed at the end whatever happens.
-class Tmux {
- public:
-  explicit Tmux(std::string sock) : sock_(std::move(sock)) {}
-  ~Tmux() { run({"kill-server"}); }
-  struct Result {
-    int rc;
-    std::string out;
-  };
-  Result run(std::vector<std::string> args) const {
-    args.insert(args.begin(), {LCMX_TMUX, "-L", sock_});
-    Child c(args, {}, true);
-    const int rc = c.wait(5000ms);
-    return {rc, c.text()};
-  }
-  std::string pane(const std::string& session) const { return run({"capture-pane", "-p", "-t", session}).out; }
-  bool keys(const std::string& session, std::vector<std::string> keys) const {
-    keys.insert(keys.begin(), {"send-keys", "-t", session});
-    return run(keys).rc == 0;
-  }
-  // Polls the screen until `pred` holds (deadline).
-  bool wait_screen(const std::string& session, const std::function<bool(const std::string&)>& pred,
-                   ms timeout = 10000ms) const {
-    return wait_until([&] { return pred(pane(session)); }, timeout, 50ms);
-  }
-
- private:
-  std::string sock_;
-};
-
 bool has(const std::string& s, const std::string& w) { return s.find(w) != std::string::npos; }
 
 // The screen line (0-based) that contains `w`, or -1.

@@ -347,6 +347,39 @@ class Child {
 };
 
 // The summary of `channel` in a list of summaries (FAIL if absent).
+#ifdef LCMX_TMUX
+// A tmux server of this test's own (-L socket), killed at the end whatever happens: terminal
+// programs are tested in it (send-keys, capture-pane).
+class Tmux {
+ public:
+  explicit Tmux(std::string sock) : sock_(std::move(sock)) {}
+  ~Tmux() { run({"kill-server"}); }
+  struct Result {
+    int rc;
+    std::string out;
+  };
+  Result run(std::vector<std::string> args) const {
+    args.insert(args.begin(), {LCMX_TMUX, "-L", sock_});
+    Child c(args, {}, true);
+    const int rc = c.wait(5000ms);
+    return {rc, c.text()};
+  }
+  std::string pane(const std::string& session) const { return run({"capture-pane", "-p", "-t", session}).out; }
+  bool keys(const std::string& session, std::vector<std::string> keys) const {
+    keys.insert(keys.begin(), {"send-keys", "-t", session});
+    return run(keys).rc == 0;
+  }
+  // Polls the screen until `pred` holds (deadline).
+  bool wait_screen(const std::string& session, const std::function<bool(const std::string&)>& pred,
+                   ms timeout = 10000ms) const {
+    return wait_until([&] { return pred(pane(session)); }, timeout, 50ms);
+  }
+
+ private:
+  std::string sock_;
+};
+#endif
+
 // Reads lines of `c` until a JSON line ('{...') for which `pred` holds (returned), or the
 // deadline passes (nullopt).
 inline std::optional<std::string> json_until(Child& c, const std::function<bool(const std::string&)>& pred,
