@@ -5,7 +5,6 @@
 // compare-exchange on a bare state word, the stalled process then "reclaims" the live
 // Reader's entry (ABA) and both share one entry: pins clobbered, torn reads. Own binary so
 // that no other test runs with kill interposed. Label: integration.
-#define CATCH_CONFIG_MAIN
 #include <catch2/catch.hpp>
 
 #include "lcmx/shm/detail/layout.hpp"

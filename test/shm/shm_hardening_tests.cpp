@@ -2,10 +2,11 @@
 // emulated with clone flags, as `unshare --pid --fork --mount-proc` does), a full tmpfs,
 // hostile files and a hostile truncating process. Label: integration.
 // Every wait has a deadline; a watchdog per test; children are killed and reaped.
-#define CATCH_CONFIG_MAIN
 #include <catch2/catch.hpp>
 
 #include <sys/stat.h>
+
+#include <deque>
 
 #include "lcmx/shm/detail/layout.hpp"
 #include "lcmx/shm/futex.hpp"

@@ -1,6 +1,5 @@
 // lcmx::shm multi-process tests (fork()ed writers/readers, kill -9). Label: integration.
 // Children communicate through pipes; every wait has a deadline; a watchdog per test.
-#define CATCH_CONFIG_MAIN
 #include <catch2/catch.hpp>
 
 #include <deque>

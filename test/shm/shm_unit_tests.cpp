@@ -1,5 +1,4 @@
 // lcmx::shm unit tests (single process). Label: unit.
-#define CATCH_CONFIG_MAIN
 #include <catch2/catch.hpp>
 
 #include <array>

@@ -1,6 +1,3 @@
-#define CATCH_CONFIG_MAIN
-#include <catch2/catch.hpp>
-
 // Under AddressSanitizer: let lcmx install its SIGBUS guard (ASan otherwise ignores a
 // program's sigaction for the signals it handles; shm_core_test.cpp truncates a segment under
 // a reader). Unused in other builds.
