@@ -79,6 +79,13 @@ class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
   void remove(const SubscriberCore* sub);
   // Something arrived or changed: wake an executor thread.
   void ring();
+  // Makes the current (or next) run_once() return 0 as soon as it has run what is ready.
+  // For a manual node run by lcmx's own thread (service clients), which has more to do.
+  void interrupt() {
+    interrupted.store(true, std::memory_order_seq_cst);
+    ring();
+  }
+  bool stopped() const { return stopping.load(std::memory_order_acquire); }
   // Runs ready callbacks, waiting up to `timeout` for some. Returns callbacks run.
   std::size_t run_once(std::chrono::nanoseconds timeout);
 
@@ -114,6 +121,7 @@ class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
   std::atomic<int> sleepers{0};      // threads blocked (futex or epoll) after reading doorbell
   std::atomic<int> fd_sleepers{0};   // of which in epoll: ring() must write wake_fd
   std::atomic<bool> stopping{false};
+  std::atomic<bool> interrupted{false};
   std::vector<std::thread> threads;
   // UDP waiting (one thread of the node at a time, `fd_waiter` held): an eventfd for ring()
   // and an epoll set with it and the runtime's group sockets. Created on first use.
@@ -183,6 +191,14 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
 
   std::mutex event_mu;
   std::function<void(const Event&)> on_event;
+  // lcmx's own listeners (service clients): called for every event before on_event, on the
+  // thread that emits it, with no lcmx lock held except possibly discovery's delivery lock.
+  // A tap must be quick and must not call into the runtime (set a flag, interrupt a node).
+  // It may still run once after remove_event_tap() returns: capture weak pointers.
+  std::uint64_t add_event_tap(std::function<void(const Event&)> tap);
+  void remove_event_tap(std::uint64_t id);
+  std::map<std::uint64_t, std::shared_ptr<const std::function<void(const Event&)>>> event_taps;  // event_mu
+  std::uint64_t last_tap = 0;  // event_mu
 
   // UDP receive, shared by the receive thread and idle node executors (see receive_loop).
   // Drains both groups and dispatches what arrived to the subscribers' queues. Beacons are

@@ -334,6 +334,9 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
     const std::uint32_t bell = doorbell.load(std::memory_order_seq_cst);
     refresh(local, local_version);
     if (const auto n = poll_all(local); n > 0) return n;
+    // After reading `bell`: an interrupt() after this check changes the doorbell, so the wait
+    // below returns at once and the next pass sees it.
+    if (interrupted.exchange(false, std::memory_order_seq_cst)) return 0;
     const auto now = Clock::now();
     if (now >= deadline || stopping.load(std::memory_order_acquire)) return 0;
     const auto& ex = options.executor;
@@ -504,8 +507,9 @@ bool wait_for_publishers(const SubscriberCore& core, std::size_t n,
 // ---------------------------------------------------------------- raw subscriber
 
 RawSubscriberCore::RawSubscriberCore(std::string channel, SubscriberOptions o,
-                                     std::function<void(const RawMessage&)> cb)
-    : SubscriberCore(std::move(channel), raw_type_info(), o), cb_(std::move(cb)) {
+                                     std::function<void(const RawMessage&)> cb,
+                                     const TypeInfo& type)
+    : SubscriberCore(std::move(channel), type, o), cb_(std::move(cb)) {
   if (!cb_) throw Error(Errc::invalid_argument, "subscribe_raw: empty callback");
 }
 

@@ -177,7 +177,13 @@ void RuntimeImpl::emit(std::vector<Event> events) {
     std::lock_guard lock(event_mu);
     cb = on_event;
   }
+  std::vector<std::shared_ptr<const std::function<void(const Event&)>>> taps;
+  {
+    std::lock_guard lock(event_mu);
+    for (const auto& [id, t] : event_taps) taps.push_back(t);
+  }
   for (const auto& e : events) {
+    for (const auto& t : taps) (*t)(e);
     if (e.kind == Event::Kind::type_mismatch || e.kind == Event::Kind::error)
       spdlog::error("lcmx: {}", e.message);
     else
@@ -191,6 +197,18 @@ void RuntimeImpl::emit(std::vector<Event> events) {
       spdlog::error("lcmx: the on_event callback threw");
     }
   }
+}
+
+std::uint64_t RuntimeImpl::add_event_tap(std::function<void(const Event&)> tap) {
+  std::lock_guard lock(event_mu);
+  const auto id = ++last_tap;
+  event_taps[id] = std::make_shared<const std::function<void(const Event&)>>(std::move(tap));
+  return id;
+}
+
+void RuntimeImpl::remove_event_tap(std::uint64_t id) {
+  std::lock_guard lock(event_mu);
+  event_taps.erase(id);
 }
 
 void RuntimeImpl::add_node(const std::shared_ptr<NodeImpl>& node) {
@@ -216,6 +234,7 @@ void RuntimeImpl::add_publisher(PublisherImpl* pub) {
 }
 
 void RuntimeImpl::remove_publisher(PublisherImpl* pub) {
+  std::vector<Event> events;
   {
     std::lock_guard lock(mu);
     pubs.erase(pub->id);
@@ -229,10 +248,13 @@ void RuntimeImpl::remove_publisher(PublisherImpl* pub) {
       if (n) {
         ++st.version;
         st.matched_cv.notify_all();
+        events.push_back({Event::Kind::publisher_unmatched, sub->channel(),
+                          fmt::format("'{}': in-process publisher {} is gone", sub->channel(), pub->id)});
       }
     }
   }
   changed();
+  emit(std::move(events));
 }
 
 void RuntimeImpl::add_subscriber(const std::shared_ptr<SubscriberCore>& sub) {

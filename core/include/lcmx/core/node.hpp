@@ -19,6 +19,7 @@
 
 #include "lcmx/core/options.hpp"
 #include "lcmx/core/publisher.hpp"
+#include "lcmx/core/service.hpp"
 #include "lcmx/core/subscriber.hpp"
 
 namespace lcmx {
@@ -77,6 +78,48 @@ class Node {
                                          std::function<void(const RawMessage&)> callback,
                                          SubscriberOptions options = {},
                                          std::size_t max_channels = 10000);
+
+  // Services (service.hpp). `handler`: Resp(const Req&) or void(const Req&, Resp&); it runs
+  // on this node's executor. What it throws reaches the client as CallErrc::handler_failed.
+  // Throws Error(invalid_argument / channel_too_long) for a bad name (at most 43 bytes).
+  template <class Req, class Resp, class F>
+  Service create_service(std::string name, F&& handler) {
+    detail::ServiceTypes types{Req::getTypeName(), Resp::getTypeName(), Req::getHash(),
+                               Resp::getHash()};
+    detail::ServerHandler h = [f = std::forward<F>(handler)](std::span<const std::byte> in,
+                                                             detail::ReplyWriter& out) mutable {
+      Req request;
+      if (in.size() > static_cast<std::size_t>(INT32_MAX) ||
+          request.decode(in.data(), 0, static_cast<int>(in.size())) < 0)
+        throw detail::BadRequest(std::string("the request did not decode as ") + Req::getTypeName());
+      Resp response;
+      if constexpr (std::is_invocable_v<F&, const Req&, Resp&>) {
+        f(request, response);
+      } else {
+        static_assert(std::is_invocable_r_v<Resp, F&, const Req&>,
+                      "create_service<Req, Resp>: handler must be Resp(const Req&) or "
+                      "void(const Req&, Resp&)");
+        response = f(request);
+      }
+      const auto size = static_cast<std::size_t>(response.getEncodedSize());
+      auto bytes = out.allocate(size);
+      response.encode(bytes.data(), 0, static_cast<int>(size));
+    };
+    return Service(detail::create_server(*impl_, std::move(name), std::move(types), std::move(h)));
+  }
+  // A server over raw bytes: the handler gets the request payload (valid during the call) and
+  // returns the response payload.
+  Service create_service_raw(std::string name,
+                             std::function<Bytes(std::span<const std::byte>)> handler);
+
+  template <class Req, class Resp>
+  Client<Req, Resp> create_client(std::string name) {
+    return Client<Req, Resp>(detail::create_client(
+        *impl_, std::move(name),
+        {Req::getTypeName(), Resp::getTypeName(), Req::getHash(), Resp::getHash()}));
+  }
+  // A client over raw bytes: matches servers of any type.
+  RawClient create_client_raw(std::string name);
 
   // Manual executor only: waits up to `timeout` for messages and runs the callbacks of what
   // arrived. Returns the number of callbacks run. Throws Error(invalid_argument) on a node

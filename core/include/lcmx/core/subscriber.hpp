@@ -121,8 +121,11 @@ using RawSubscriber = Subscriber<void>;
 namespace detail {
 class RawSubscriberCore final : public SubscriberCore {
  public:
+  // `type`: raw_type_info(), or an announced_type_info() for a raw subscriber that announces
+  // a type in discovery (service envelopes) and matches only publishers of that type.
   RawSubscriberCore(std::string channel, SubscriberOptions o,
-                    std::function<void(const RawMessage&)> cb);
+                    std::function<void(const RawMessage&)> cb,
+                    const TypeInfo& type = raw_type_info());
   bool deliver_intra(const IntraItem& item) override;
   bool deliver_bytes(std::span<const std::byte> bytes, const shm::ReadSample* sample = nullptr,
                      bool* torn = nullptr) override;

@@ -1,0 +1,326 @@
+// Services: request/response between nodes, on lcmx's own paths (docs/services.md).
+//
+//   auto server = node.create_service<Req, Resp>("plan", [](const Req& r) { return Resp{...}; });
+//   auto client = node.create_client<Req, Resp>("plan");
+//   if (auto r = client.call(req, 500ms)) use(r.value()); else log(r.message());
+//
+// A call finds its server by discovery and travels like a message: in-process, shared memory,
+// UDP or the Message Bridge, whichever the pair's path is. Requests go on "<name>/rq", replies
+// on "<name>/rp/<client id>" (envelopes lcmx_msgs.service_request_t / service_reply_t,
+// lcmtypes/service.lcm), so stock LCM tools see and record them.
+//
+// Servers: a client probes the service and uses the servers that answered, so both the
+// request and the reply path are known to work before its first call (wait_for_service).
+// Each call is executed by exactly one server: the nearest (in-process, then shared memory,
+// then UDP, then the bridge), then the lowest (participant, server id) - a stable choice. If
+// that server goes away before answering, the call is sent to the next one (fail-over); if
+// none is left it fails with server_gone. A server that answered but died before the reply
+// arrived may thus have executed the call once more than the client sees; the client takes
+// exactly one reply per call.
+//
+// Threads: a server's handler runs on its node's executor, under the node's threading rule.
+// A client receives replies on a thread of its own (so call() may block inside a callback of
+// any node); call_async()'s callback runs on that thread, or on it for a timeout or fail-over
+// too: keep it short. All members are thread-safe.
+// Errors: creating a service or client throws lcmx::Error (invalid_argument for a bad name);
+// calls never throw for call errors - they return them in CallResult.
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <future>
+#include <memory>
+#include <optional>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "lcmx/core/error.hpp"
+#include "lcmx/core/stats.hpp"
+
+namespace lcmx {
+
+enum class CallErrc {
+  timeout,         // no reply within the timeout (the call is forgotten: a late reply is dropped)
+  no_server,       // no server of the service answered a probe within the timeout
+  server_gone,     // the server went away before answering and no other server is left
+  type_mismatch,   // the servers' request/response types are not the client's
+  handler_failed,  // the server's handler threw (message: what it said)
+  bad_request,     // the server could not decode the request
+  shutdown,        // the client was destroyed or the runtime shut down
+};
+const char* to_string(CallErrc e);
+
+// Thrown by CallResult::value() on a failed call.
+class CallError : public std::runtime_error {
+ public:
+  CallError(CallErrc code, const std::string& what) : std::runtime_error(what), code_(code) {}
+  CallErrc code() const noexcept { return code_; }
+
+ private:
+  CallErrc code_;
+};
+
+// Which server answered a call (or was chosen for it).
+struct ServerInfo {
+  std::uint64_t participant = 0;
+  std::uint64_t id = 0;  // the server's id within its participant
+  Path path = Path::intra;
+};
+
+// The outcome of a call: a response, or an error with a message. Never both.
+template <class T>
+class CallResult {
+ public:
+  static CallResult success(T value, ServerInfo server) {
+    CallResult r;
+    r.value_.emplace(std::move(value));
+    r.server_ = server;
+    return r;
+  }
+  static CallResult failure(CallErrc error, std::string message, ServerInfo server = {}) {
+    CallResult r;
+    r.error_ = error;
+    r.message_ = std::move(message);
+    r.server_ = server;
+    return r;
+  }
+  bool ok() const noexcept { return value_.has_value(); }
+  explicit operator bool() const noexcept { return ok(); }
+  // The response; throws CallError if the call failed.
+  const T& value() const& { check(); return *value_; }
+  T& value() & { check(); return *value_; }
+  T&& value() && { check(); return std::move(*value_); }
+  // Only meaningful when !ok().
+  CallErrc error() const noexcept { return error_; }
+  const std::string& message() const noexcept { return message_; }
+  // The server that answered (ok, handler_failed, bad_request, type_mismatch) or was asked.
+  const ServerInfo& server() const noexcept { return server_; }
+
+ private:
+  void check() const {
+    if (!value_) throw CallError(error_, message_);
+  }
+  std::optional<T> value_;
+  CallErrc error_ = CallErrc::timeout;
+  std::string message_;
+  ServerInfo server_;
+};
+
+using Bytes = std::vector<std::byte>;
+
+struct ClientStats {
+  std::uint64_t calls = 0;         // call()/call_async() made
+  std::uint64_t replies = 0;       // calls answered (ok or with a server's error)
+  std::uint64_t timeouts = 0;
+  std::uint64_t failovers = 0;     // calls re-sent to another server
+  std::uint64_t late_replies = 0;  // replies to calls already finished (timed out, failed over)
+  std::size_t pending = 0;         // calls waiting for a reply now
+  std::size_t servers = 0;         // servers that answered a probe and are still matched
+};
+
+struct ServerStats {
+  std::uint64_t requests = 0;  // requests this server executed
+  std::uint64_t failed = 0;    // of which the handler threw or the request did not decode
+  std::uint64_t probes = 0;    // probes answered
+  std::size_t clients = 0;     // clients it has a reply channel for now
+};
+
+namespace detail {
+class NodeImpl;
+
+// What a service's request and response are: lcm-gen types, or raw bytes (fingerprint 0,
+// empty name). A client and a server match when each fingerprint is equal or either is 0.
+struct ServiceTypes {
+  std::string request_name, response_name;
+  std::int64_t request_fingerprint = 0, response_fingerprint = 0;
+};
+
+// Where a handler writes its response: allocate() once, then fill the span.
+class ReplyWriter {
+ public:
+  virtual ~ReplyWriter() = default;
+  virtual std::span<std::byte> allocate(std::size_t size) = 0;
+};
+
+// The server's request handler over bytes: `request` is the payload (valid during the call).
+// Throws what the user's handler throws; BadRequest if the request does not decode.
+using ServerHandler = std::function<void(std::span<const std::byte> request, ReplyWriter& out)>;
+struct BadRequest : std::runtime_error {
+  using std::runtime_error::runtime_error;
+};
+
+class ServerCore;
+class ClientCore;
+std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, ServiceTypes types,
+                                          ServerHandler handler);
+void close_server(const std::shared_ptr<ServerCore>& server);
+ServerStats server_stats(const ServerCore& server);
+const std::string& server_name(const ServerCore& server);
+
+std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types);
+void close_client(const std::shared_ptr<ClientCore>& client);
+// `encode` writes the request payload into a span of `size` bytes. `done` gets the response
+// payload (a view valid during the call) or an error; it is called exactly once, on the
+// client's thread (or on the caller's, for an error found at once).
+using ReplyHandler =
+    std::function<void(std::span<const std::byte> response, CallErrc error, bool ok,
+                       const std::string& message, const ServerInfo& server)>;
+void client_call(ClientCore& client, std::size_t size,
+                 const std::function<void(std::span<std::byte>)>& encode,
+                 std::chrono::milliseconds timeout, ReplyHandler done);
+bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout);
+ClientStats client_stats(const ClientCore& client);
+std::vector<ServerInfo> client_servers(const ClientCore& client);
+const std::string& client_name(const ClientCore& client);
+
+}  // namespace detail
+
+// A server of a service. Destroying it stops serving (a running handler finishes first);
+// clients see it go as they see a publisher go.
+class Service {
+ public:
+  Service() = default;
+  Service(Service&&) noexcept = default;
+  Service& operator=(Service&& o) noexcept {
+    reset();
+    core_ = std::move(o.core_);
+    return *this;
+  }
+  ~Service() { reset(); }
+  ServerStats stats() const { return detail::server_stats(*core_); }
+  const std::string& name() const { return detail::server_name(*core_); }
+  explicit operator bool() const { return core_ != nullptr; }
+  void reset() {
+    if (core_) detail::close_server(core_);
+    core_.reset();
+  }
+
+ private:
+  friend class Node;
+  explicit Service(std::shared_ptr<detail::ServerCore> c) : core_(std::move(c)) {}
+  std::shared_ptr<detail::ServerCore> core_;
+};
+
+namespace detail {
+// What Client<Req, Resp> and RawClient have in common.
+class ClientHandle {
+ public:
+  ClientHandle() = default;
+  ClientHandle(ClientHandle&&) noexcept = default;
+  ClientHandle& operator=(ClientHandle&& o) noexcept {
+    reset();
+    core_ = std::move(o.core_);
+    return *this;
+  }
+  ~ClientHandle() { reset(); }
+
+  // Returns once a server answered a probe (request and reply paths both work), false after
+  // `timeout` without one. Servers of other types do not count.
+  bool wait_for_service(std::chrono::milliseconds timeout) const {
+    return client_wait_for_service(*core_, timeout);
+  }
+  // Servers that answered a probe and are still there, best first (the one calls go to).
+  std::vector<ServerInfo> servers() const { return client_servers(*core_); }
+  ClientStats stats() const { return client_stats(*core_); }
+  const std::string& name() const { return client_name(*core_); }
+  explicit operator bool() const { return core_ != nullptr; }
+  // Pending calls end with CallErrc::shutdown.
+  void reset() {
+    if (core_) close_client(core_);
+    core_.reset();
+  }
+
+ protected:
+  explicit ClientHandle(std::shared_ptr<ClientCore> c) : core_(std::move(c)) {}
+  std::shared_ptr<ClientCore> core_;
+};
+}  // namespace detail
+
+// A client of a service with lcm-gen request type Req and response type Resp.
+template <class Req, class Resp>
+class Client : public detail::ClientHandle {
+ public:
+  using Result = CallResult<Resp>;
+  Client() = default;
+
+  // Blocks until the reply, an error or `timeout` (which also covers finding a server).
+  Result call(const Req& request, std::chrono::milliseconds timeout) {
+    return call_async(request, timeout).get();
+  }
+  // The result arrives in the future (never an exception in it).
+  std::future<Result> call_async(const Req& request, std::chrono::milliseconds timeout) {
+    auto promise = std::make_shared<std::promise<Result>>();
+    auto future = promise->get_future();
+    call_async(request, timeout, [promise](Result r) { promise->set_value(std::move(r)); });
+    return future;
+  }
+  // `done` runs once with the result, on the client's thread (see the file comment).
+  void call_async(const Req& request, std::chrono::milliseconds timeout,
+                  std::function<void(Result)> done) {
+    const auto size = static_cast<std::size_t>(request.getEncodedSize());
+    detail::client_call(
+        *core_, size,
+        [&request](std::span<std::byte> out) {
+          request.encode(out.data(), 0, static_cast<int>(out.size()));
+        },
+        timeout,
+        [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
+                                 const std::string& message, const ServerInfo& server) {
+          if (!ok) return done(Result::failure(error, message, server));
+          Resp response;
+          if (bytes.size() > static_cast<std::size_t>(INT32_MAX) ||
+              response.decode(bytes.data(), 0, static_cast<int>(bytes.size())) < 0)
+            return done(Result::failure(CallErrc::type_mismatch,
+                                        std::string("the response did not decode as ") +
+                                            Resp::getTypeName(),
+                                        server));
+          done(Result::success(std::move(response), server));
+        });
+  }
+
+ private:
+  friend class Node;
+  explicit Client(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
+};
+
+// A client over raw bytes: requests and responses are any payload (lcm-gen encodings or not).
+class RawClient : public detail::ClientHandle {
+ public:
+  using Result = CallResult<Bytes>;
+  RawClient() = default;
+
+  Result call(std::span<const std::byte> request, std::chrono::milliseconds timeout) {
+    return call_async(request, timeout).get();
+  }
+  std::future<Result> call_async(std::span<const std::byte> request,
+                                 std::chrono::milliseconds timeout) {
+    auto promise = std::make_shared<std::promise<Result>>();
+    auto future = promise->get_future();
+    call_async(request, timeout, [promise](Result r) { promise->set_value(std::move(r)); });
+    return future;
+  }
+  void call_async(std::span<const std::byte> request, std::chrono::milliseconds timeout,
+                  std::function<void(Result)> done) {
+    detail::client_call(
+        *core_, request.size(),
+        [request](std::span<std::byte> out) {
+          std::copy(request.begin(), request.end(), out.begin());
+        },
+        timeout,
+        [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
+                                 const std::string& message, const ServerInfo& server) {
+          if (!ok) return done(Result::failure(error, message, server));
+          done(Result::success(Bytes(bytes.begin(), bytes.end()), server));
+        });
+  }
+
+ private:
+  friend class Node;
+  explicit RawClient(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
+};
+
+}  // namespace lcmx

@@ -1,0 +1,917 @@
+// Services (lcmx/core/service.hpp, docs/services.md): servers and clients on ordinary lcmx
+// channels. A server is a subscriber of "<name>/rq" plus one publisher per client on
+// "<name>/rp/<client id>"; a client is a publisher of "<name>/rq", a subscriber of its reply
+// channel on a node of its own, and one thread that runs that node (replies), timeouts,
+// probes and fail-over.
+//
+// The envelopes (lcmtypes/service.lcm) are encoded and parsed here, field by field as lcm-gen
+// lays them out, so the payload is encoded in place and read where it lies (in shared memory)
+// instead of being copied into the generated struct's byte vector. test/core/service_test.cpp
+// checks the layout against lcm-gen's code.
+#include "lcmx/core/service.hpp"
+
+#include <algorithm>
+#include <condition_variable>
+#include <cstring>
+#include <map>
+#include <mutex>
+#include <random>
+#include <set>
+#include <thread>
+
+#include <spdlog/spdlog.h>
+
+#include "internal.hpp"
+#include "lcmx_msgs/service_reply_t.hpp"
+#include "lcmx_msgs/service_request_t.hpp"
+
+namespace lcmx {
+
+const char* to_string(CallErrc e) {
+  switch (e) {
+    case CallErrc::timeout: return "timeout";
+    case CallErrc::no_server: return "no server";
+    case CallErrc::server_gone: return "server gone";
+    case CallErrc::type_mismatch: return "type mismatch";
+    case CallErrc::handler_failed: return "handler failed";
+    case CallErrc::bad_request: return "bad request";
+    case CallErrc::shutdown: return "shutdown";
+  }
+  return "?";
+}
+
+namespace detail {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// --- Envelope encoding (big-endian, as LCM) -------------------------------------------------
+
+class Out {
+ public:
+  explicit Out(std::byte* p) : p_(p) {}
+  void i64(std::int64_t v) {
+    for (int i = 7; i >= 0; --i) *p_++ = static_cast<std::byte>((static_cast<std::uint64_t>(v) >> (8 * i)) & 0xff);
+  }
+  void i32(std::int32_t v) {
+    for (int i = 3; i >= 0; --i) *p_++ = static_cast<std::byte>((static_cast<std::uint32_t>(v) >> (8 * i)) & 0xff);
+  }
+  void i8(std::int8_t v) { *p_++ = static_cast<std::byte>(v); }
+  void str(const std::string& s) {  // length with the NUL, the bytes, the NUL
+    i32(static_cast<std::int32_t>(s.size() + 1));
+    std::memcpy(p_, s.data(), s.size());
+    p_ += s.size();
+    *p_++ = std::byte{0};
+  }
+
+ private:
+  std::byte* p_;
+};
+
+class In {
+ public:
+  explicit In(std::span<const std::byte> b) : b_(b) {}
+  bool ok() const { return ok_; }
+  std::int64_t i64() {
+    if (!need(8)) return 0;
+    std::uint64_t v = 0;
+    for (int i = 0; i < 8; ++i) v = (v << 8) | std::to_integer<std::uint64_t>(b_[pos_++]);
+    return static_cast<std::int64_t>(v);
+  }
+  std::int32_t i32() {
+    if (!need(4)) return 0;
+    std::uint32_t v = 0;
+    for (int i = 0; i < 4; ++i) v = (v << 8) | std::to_integer<std::uint32_t>(b_[pos_++]);
+    return static_cast<std::int32_t>(v);
+  }
+  std::int8_t i8() { return need(1) ? static_cast<std::int8_t>(b_[pos_++]) : 0; }
+  std::string str() {
+    const auto n = i32();
+    if (n < 1 || !need(static_cast<std::size_t>(n))) return ok_ = false, std::string();
+    std::string s(reinterpret_cast<const char*>(b_.data() + pos_), static_cast<std::size_t>(n) - 1);
+    pos_ += static_cast<std::size_t>(n);
+    return s;
+  }
+  std::span<const std::byte> bytes(std::int32_t n) {
+    if (n < 0 || !need(static_cast<std::size_t>(n))) return ok_ = false, std::span<const std::byte>();
+    auto s = b_.subspan(pos_, static_cast<std::size_t>(n));
+    pos_ += static_cast<std::size_t>(n);
+    return s;
+  }
+
+ private:
+  bool need(std::size_t n) {
+    if (!ok_ || b_.size() - pos_ < n) return ok_ = false;
+    return true;
+  }
+  std::span<const std::byte> b_;
+  std::size_t pos_ = 0;
+  bool ok_ = true;
+};
+
+struct RequestHeader {
+  std::int64_t client_id = 0, request_id = 0, server_participant = 0, server_id = 0,
+               client_participant = 0, request_fingerprint = 0, response_fingerprint = 0;
+  std::string reply_channel;
+};
+// Byte offsets of the target in an encoded request (after the fingerprint, client and request
+// ids), patched in place on fail-over.
+constexpr std::size_t kTargetOffset = 8 + 8 + 8;
+
+std::size_t request_header_size(const RequestHeader& h) {
+  return 8 + 7 * 8 + 4 + h.reply_channel.size() + 1 + 4;
+}
+void write_request_header(std::byte* p, const RequestHeader& h, std::size_t payload) {
+  Out o(p);
+  o.i64(lcmx_msgs::service_request_t::getHash());
+  o.i64(h.client_id);
+  o.i64(h.request_id);
+  o.i64(h.server_participant);
+  o.i64(h.server_id);
+  o.i64(h.client_participant);
+  o.i64(h.request_fingerprint);
+  o.i64(h.response_fingerprint);
+  o.str(h.reply_channel);
+  o.i32(static_cast<std::int32_t>(payload));
+}
+void patch_target(Bytes& message, std::uint64_t participant, std::uint64_t id) {
+  Out o(message.data() + kTargetOffset);
+  o.i64(static_cast<std::int64_t>(participant));
+  o.i64(static_cast<std::int64_t>(id));
+}
+bool parse_request(std::span<const std::byte> b, RequestHeader& h, std::span<const std::byte>& payload) {
+  In in(b);
+  if (in.i64() != lcmx_msgs::service_request_t::getHash()) return false;
+  h.client_id = in.i64();
+  h.request_id = in.i64();
+  h.server_participant = in.i64();
+  h.server_id = in.i64();
+  h.client_participant = in.i64();
+  h.request_fingerprint = in.i64();
+  h.response_fingerprint = in.i64();
+  h.reply_channel = in.str();
+  payload = in.bytes(in.i32());
+  return in.ok();
+}
+
+struct ReplyHeader {
+  std::int64_t client_id = 0, request_id = 0, server_participant = 0, server_id = 0,
+               reply_endpoint = 0, request_fingerprint = 0, response_fingerprint = 0;
+  std::string request_type, response_type;
+  std::int8_t status = lcmx_msgs::service_reply_t::OK;
+  std::string error;
+};
+std::size_t reply_header_size(const ReplyHeader& h) {
+  return 8 + 7 * 8 + 3 * 4 + h.request_type.size() + h.response_type.size() + h.error.size() +
+         3 + 1 + 4;
+}
+void write_reply_header(std::byte* p, const ReplyHeader& h, std::size_t payload) {
+  Out o(p);
+  o.i64(lcmx_msgs::service_reply_t::getHash());
+  o.i64(h.client_id);
+  o.i64(h.request_id);
+  o.i64(h.server_participant);
+  o.i64(h.server_id);
+  o.i64(h.reply_endpoint);
+  o.i64(h.request_fingerprint);
+  o.i64(h.response_fingerprint);
+  o.str(h.request_type);
+  o.str(h.response_type);
+  o.i8(h.status);
+  o.str(h.error);
+  o.i32(static_cast<std::int32_t>(payload));
+}
+bool parse_reply(std::span<const std::byte> b, ReplyHeader& h, std::span<const std::byte>& payload) {
+  In in(b);
+  if (in.i64() != lcmx_msgs::service_reply_t::getHash()) return false;
+  h.client_id = in.i64();
+  h.request_id = in.i64();
+  h.server_participant = in.i64();
+  h.server_id = in.i64();
+  h.reply_endpoint = in.i64();
+  h.request_fingerprint = in.i64();
+  h.response_fingerprint = in.i64();
+  h.request_type = in.str();
+  h.response_type = in.str();
+  h.status = in.i8();
+  h.error = in.str();
+  payload = in.bytes(in.i32());
+  return in.ok();
+}
+
+bool compatible(std::int64_t a, std::int64_t b) { return a == 0 || b == 0 || a == b; }
+
+std::string type_text(const std::string& name, std::int64_t fp) {
+  if (fp == 0) return "raw bytes";
+  return fmt::format("{} ({:#018x})", name.empty() ? std::string("?") : name,
+                     static_cast<std::uint64_t>(fp));
+}
+
+int path_rank(Path p) {
+  switch (p) {
+    case Path::intra: return 0;
+    case Path::shm: return 1;
+    case Path::udp: return 2;
+    case Path::bridge: return 3;
+  }
+  return 4;
+}
+
+std::string request_channel(const std::string& name) { return name + "/rq"; }
+std::string reply_prefix(const std::string& name) { return name + "/rp/"; }
+
+// "<name>/rq" and "<name>/rp/<16 hex>" must fit LCM's 63-byte channel names.
+constexpr std::size_t kMaxServiceName = kMaxChannelLength - 4 - 16;
+void check_name(const std::string& name, const char* what) {
+  if (name.empty())
+    throw Error(Errc::invalid_argument, std::string(what) + ": the service name is empty");
+  if (name.size() > kMaxServiceName)
+    throw Error(Errc::channel_too_long,
+                fmt::format("{}: service name '{}' is {} bytes; at most {} (its reply channel "
+                            "'<name>/rp/<16 hex digits>' must fit LCM's {}-byte channel names)",
+                            what, name, name.size(), kMaxServiceName, kMaxChannelLength));
+}
+
+const TypeInfo& request_type_info() {
+  return announced_type_info(lcmx_msgs::service_request_t::getTypeName(),
+                             lcmx_msgs::service_request_t::getHash());
+}
+const TypeInfo& reply_type_info() {
+  return announced_type_info(lcmx_msgs::service_reply_t::getTypeName(),
+                             lcmx_msgs::service_reply_t::getHash());
+}
+
+std::uint64_t random_nonzero() {
+  static std::mutex mu;
+  static std::mt19937_64 rng{std::random_device{}() ^
+                             static_cast<std::uint64_t>(Clock::now().time_since_epoch().count())};
+  std::lock_guard lock(mu);
+  std::uint64_t v = 0;
+  while (v == 0) v = rng();
+  return v;
+}
+
+}  // namespace
+
+// --- Server ------------------------------------------------------------------------------------
+
+class ServerCore {
+ public:
+  ServerCore(std::shared_ptr<NodeImpl> n, std::string nm, ServiceTypes t, ServerHandler h)
+      : node(std::move(n)), name(std::move(nm)), types(std::move(t)), handler(std::move(h)),
+        participant(node->runtime->participant_id) {}
+
+  // The request subscriber's callback: on the server node's executor, one at a time.
+  void on_request(std::span<const std::byte> bytes);
+  ServerStats stats() const {
+    std::lock_guard lock(mu);
+    return {requests, failed, probes, replies.size()};
+  }
+
+  const std::shared_ptr<NodeImpl> node;
+  const std::string name;
+  const ServiceTypes types;
+  const ServerHandler handler;
+  const std::uint64_t participant;
+  std::uint64_t id = 0;  // the request subscriber's endpoint id
+  std::shared_ptr<SubscriberCore> request_sub;
+
+ private:
+  struct ReplyChannel {
+    std::shared_ptr<PublisherCore> pub;
+    std::uint64_t client_participant = 0;
+  };
+  // The publisher of `h.reply_channel`, made on first use. Null for a malformed channel.
+  PublisherCore* reply_channel(const RequestHeader& h);
+  void reply(PublisherCore& pub, const ReplyHeader& rh, std::span<const std::byte> payload);
+
+  mutable std::mutex mu;  // guards the members below (stats() reads them from any thread)
+  std::map<std::string, ReplyChannel> replies;
+  std::uint64_t requests = 0, failed = 0, probes = 0;
+  Bytes buffer;  // executor only: the reply being built
+};
+
+PublisherCore* ServerCore::reply_channel(const RequestHeader& h) {
+  const auto prefix = reply_prefix(name);
+  if (h.reply_channel.size() != prefix.size() + 16 || h.reply_channel.compare(0, prefix.size(), prefix) != 0)
+    return nullptr;  // not a reply channel of this service: never publish on it
+  {
+    std::lock_guard lock(mu);
+    if (auto it = replies.find(h.reply_channel); it != replies.end()) return it->second.pub.get();
+  }
+  // A new client. Forget clients whose participant no longer publishes requests to us.
+  std::set<std::uint64_t> alive;
+  for (const auto& p : subscriber_stats(*request_sub).publishers) alive.insert(p.publisher_participant);
+  auto pub = create_publisher(*node, h.reply_channel, reply_type_info(), PublisherOptions{});
+  std::vector<std::shared_ptr<PublisherCore>> gone;  // destroyed with no lock held
+  std::lock_guard lock(mu);
+  for (auto it = replies.begin(); it != replies.end();) {
+    if (!alive.contains(it->second.client_participant)) {
+      gone.push_back(std::move(it->second.pub));
+      it = replies.erase(it);
+    } else {
+      ++it;
+    }
+  }
+  auto& r = replies[h.reply_channel];
+  r.pub = std::move(pub);
+  r.client_participant = static_cast<std::uint64_t>(h.client_participant);
+  return r.pub.get();
+}
+
+void ServerCore::reply(PublisherCore& pub, const ReplyHeader& rh, std::span<const std::byte> payload) {
+  const auto hs = reply_header_size(rh);
+  buffer.resize(hs + payload.size());
+  write_reply_header(buffer.data(), rh, payload.size());
+  if (!payload.empty()) std::memcpy(buffer.data() + hs, payload.data(), payload.size());
+  pub.publish_bytes(buffer);
+}
+
+void ServerCore::on_request(std::span<const std::byte> bytes) {
+  RequestHeader h;
+  std::span<const std::byte> payload;
+  if (!parse_request(bytes, h, payload)) {
+    spdlog::warn("lcmx: service '{}': a malformed request ({} bytes) was ignored", name, bytes.size());
+    return;
+  }
+  const bool any = h.server_participant == 0 && h.server_id == 0;
+  if (!any && (static_cast<std::uint64_t>(h.server_participant) != participant ||
+               static_cast<std::uint64_t>(h.server_id) != id))
+    return;  // for another server of the service
+  if (h.request_id == 0 && !any) return;  // probes are addressed to every server
+  auto* pub = reply_channel(h);
+  if (pub == nullptr) {
+    spdlog::warn("lcmx: service '{}': a request with reply channel '{}' was ignored", name,
+                 h.reply_channel);
+    return;
+  }
+  ReplyHeader rh;
+  rh.client_id = h.client_id;
+  rh.request_id = h.request_id;
+  rh.server_participant = static_cast<std::int64_t>(participant);
+  rh.server_id = static_cast<std::int64_t>(id);
+  rh.reply_endpoint = static_cast<std::int64_t>(static_cast<PublisherImpl*>(pub)->id);
+  rh.request_fingerprint = types.request_fingerprint;
+  rh.response_fingerprint = types.response_fingerprint;
+  rh.request_type = types.request_name;
+  rh.response_type = types.response_name;
+  const bool types_ok = compatible(h.request_fingerprint, types.request_fingerprint) &&
+                        compatible(h.response_fingerprint, types.response_fingerprint);
+  if (!types_ok) {
+    rh.status = lcmx_msgs::service_reply_t::TYPE_MISMATCH;
+    rh.error = fmt::format("service '{}' takes {} and answers {}; the client sends {} and expects {}",
+                           name, type_text(types.request_name, types.request_fingerprint),
+                           type_text(types.response_name, types.response_fingerprint),
+                           type_text("", h.request_fingerprint), type_text("", h.response_fingerprint));
+  }
+  if (h.request_id == 0) {  // a probe: the answer says who we are and what we take
+    {
+      std::lock_guard lock(mu);
+      ++probes;
+    }
+    return reply(*pub, rh, {});
+  }
+  {
+    std::lock_guard lock(mu);
+    ++requests;
+  }
+  if (!types_ok) {
+    {
+      std::lock_guard lock(mu);
+      ++failed;
+    }
+    return reply(*pub, rh, {});
+  }
+
+  // The handler writes the response straight after the header (allocate()).
+  struct Writer final : ReplyWriter {
+    Bytes& buffer;
+    const ReplyHeader& rh;
+    std::size_t header;
+    bool used = false;
+    Writer(Bytes& b, const ReplyHeader& r) : buffer(b), rh(r), header(reply_header_size(r)) {}
+    std::span<std::byte> allocate(std::size_t size) override {
+      if (used) throw Error(Errc::invalid_argument, "ReplyWriter::allocate called twice");
+      if (size > static_cast<std::size_t>(INT32_MAX))
+        throw Error(Errc::message_too_large, "a service response is limited to 2 GiB");
+      used = true;
+      buffer.resize(header + size);
+      write_reply_header(buffer.data(), rh, size);
+      return {buffer.data() + header, size};
+    }
+  } writer(buffer, rh);
+  try {
+    handler(payload, writer);
+    if (!writer.used) writer.allocate(0);
+  } catch (const BadRequest& e) {
+    rh.status = lcmx_msgs::service_reply_t::BAD_REQUEST;
+    rh.error = e.what();
+  } catch (const std::exception& e) {
+    rh.status = lcmx_msgs::service_reply_t::HANDLER_FAILED;
+    rh.error = e.what();
+  } catch (...) {
+    rh.status = lcmx_msgs::service_reply_t::HANDLER_FAILED;
+    rh.error = "the handler threw a non-std::exception";
+  }
+  if (rh.status != lcmx_msgs::service_reply_t::OK) {
+    {
+      std::lock_guard lock(mu);
+      ++failed;
+    }
+    spdlog::warn("lcmx: service '{}': {}", name, rh.error);
+    return reply(*pub, rh, {});
+  }
+  pub->publish_bytes(buffer);
+}
+
+std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, ServiceTypes types,
+                                          ServerHandler handler) {
+  check_name(name, "create_service");
+  if (!handler) throw Error(Errc::invalid_argument, "create_service '" + name + "': empty handler");
+  auto server = std::make_shared<ServerCore>(node.shared_from_this(), name, std::move(types),
+                                             std::move(handler));
+  // The subscriber announces the envelope type, so discovery (and `lcmx services`) tell a
+  // service's server from a plain subscriber. Its callback uses `server` by address: the
+  // subscriber is removed (and its callback waited for) before the server goes.
+  ServerCore* raw = server.get();
+  server->request_sub = std::make_shared<RawSubscriberCore>(
+      request_channel(name), SubscriberOptions{.queue_depth = 64},
+      [raw](const RawMessage& m) { raw->on_request(m.data); }, request_type_info());
+  add_subscriber(node, server->request_sub);
+  server->id = server->request_sub->id;
+  return server;
+}
+
+void close_server(const std::shared_ptr<ServerCore>& server) {
+  remove_subscriber(server->request_sub);
+}
+
+ServerStats server_stats(const ServerCore& server) { return server.stats(); }
+const std::string& server_name(const ServerCore& server) { return server.name; }
+
+// --- Client ------------------------------------------------------------------------------------
+
+class ClientCore : public std::enable_shared_from_this<ClientCore> {
+ public:
+  ClientCore(std::shared_ptr<RuntimeImpl> rt, std::string nm, ServiceTypes t)
+      : runtime(std::move(rt)), name(std::move(nm)), types(std::move(t)),
+        client_id(random_nonzero()),
+        reply_channel(fmt::format("{}{:016x}", reply_prefix(name), client_id)) {}
+
+  void start(const std::string& node_name);
+  void close();
+  void call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
+            std::chrono::milliseconds timeout, ReplyHandler done);
+  bool wait_for_service(std::chrono::milliseconds timeout);
+  ClientStats stats() const;
+  std::vector<ServerInfo> servers_now() const;
+
+  const std::shared_ptr<RuntimeImpl> runtime;
+  const std::string name;
+  const ServiceTypes types;
+  const std::uint64_t client_id;
+  const std::string reply_channel;
+
+ private:
+  struct Known {
+    ServerInfo info;
+    std::uint64_t reply_endpoint = 0;
+    bool types_ok = true;
+    std::string mismatch;  // !types_ok: the server's words
+  };
+  struct Pending {
+    Bytes message;                 // the encoded request (target patched on fail-over)
+    Clock::time_point deadline;
+    std::chrono::milliseconds timeout;
+    ReplyHandler done;
+    ServerInfo target;
+    bool sent = false;  // false: waiting for a server
+  };
+  struct Finished {  // a call ended by the client itself (not a reply): `done` runs unlocked
+    ReplyHandler done;
+    CallErrc error;
+    std::string message;
+    ServerInfo server;
+  };
+
+  void loop();
+  void on_reply(std::span<const std::byte> bytes);  // client thread
+  // Under mu: drop servers whose reply publisher is no longer matched, fail calls over.
+  void refresh_servers_locked(std::vector<Finished>& finished);
+  const Known* best_locked() const;
+  void send_locked(std::uint64_t request_id, Pending& p, const Known& server);
+  void dispatch_waiting_locked();
+  void expire_locked(Clock::time_point now, std::vector<Finished>& finished);
+  std::string mismatch_text_locked() const;
+  void probe_locked(Clock::time_point now);
+  static void finish(std::vector<Finished>& finished);
+
+  std::shared_ptr<NodeImpl> node;  // manual executor, run by `thread`
+  std::shared_ptr<PublisherCore> request_pub;
+  std::shared_ptr<SubscriberCore> reply_sub;
+  std::uint64_t tap = 0;
+  std::thread thread;
+
+  mutable std::mutex mu;           // guards everything below
+  std::condition_variable cv;      // servers changed (wait_for_service)
+  bool closed = false;        // no more calls (closed, or the runtime shut down)
+  bool close_called = false;  // close() ran
+  std::atomic<bool> matches_changed{true};
+  std::map<std::pair<std::uint64_t, std::uint64_t>, Known> servers;  // (participant, id)
+  std::map<std::uint64_t, Pending> pending;
+  std::uint64_t next_request = 1;
+  int waiters = 0;  // threads in wait_for_service()
+  Clock::time_point next_probe{};
+  Clock::time_point wake_at{};  // when the client thread wakes at the latest (its run_once deadline)
+  std::chrono::milliseconds probe_interval{2};
+  std::size_t last_server_count = 0;  // request subscribers matched when we last probed
+  Bytes probe_message;
+  ClientStats counters;
+};
+
+void ClientCore::start(const std::string& node_name) {
+  NodeOptions o;
+  o.executor.kind = ExecutorKind::manual;
+  node = std::make_shared<NodeImpl>(runtime, node_name + "/client:" + name, o);
+  node->start();
+  runtime->add_node(node);
+  request_pub = create_publisher(*node, request_channel(name), request_type_info(), PublisherOptions{});
+  std::weak_ptr<ClientCore> weak = weak_from_this();
+  reply_sub = std::make_shared<RawSubscriberCore>(
+      reply_channel, SubscriberOptions{.queue_depth = 64},
+      [this](const RawMessage& m) { on_reply(m.data); }, reply_type_info());
+  add_subscriber(*node, reply_sub);
+  // Our reply channel's publishers come and go (a server leaves): re-check at once.
+  tap = runtime->add_event_tap([weak, channel = reply_channel](const Event& e) {
+    if (e.channel != channel && e.kind != Event::Kind::participant_left) return;
+    if (auto self = weak.lock()) {
+      self->matches_changed.store(true);
+      self->node->interrupt();
+    }
+  });
+  RequestHeader h;
+  h.client_id = static_cast<std::int64_t>(client_id);
+  h.client_participant = static_cast<std::int64_t>(runtime->participant_id);
+  h.request_fingerprint = types.request_fingerprint;
+  h.response_fingerprint = types.response_fingerprint;
+  h.reply_channel = reply_channel;
+  probe_message.resize(request_header_size(h));
+  write_request_header(probe_message.data(), h, 0);
+  thread = std::thread([this] { loop(); });
+}
+
+void ClientCore::close() {
+  {
+    std::lock_guard lock(mu);
+    if (close_called) return;
+    close_called = true;
+    closed = true;
+  }
+  cv.notify_all();
+  node->interrupt();
+  if (thread.joinable()) {
+    if (thread.get_id() == std::this_thread::get_id()) thread.detach();  // from a done callback
+    else thread.join();
+  }
+  runtime->remove_event_tap(tap);
+  std::vector<Finished> finished;
+  {
+    std::lock_guard lock(mu);
+    for (auto& [id, p] : pending)
+      finished.push_back({std::move(p.done), CallErrc::shutdown,
+                          "service '" + name + "': the client was closed", p.target});
+    pending.clear();
+  }
+  finish(finished);
+  remove_subscriber(reply_sub);
+  request_pub.reset();
+  node->stop();
+}
+
+void ClientCore::finish(std::vector<Finished>& finished) {
+  for (auto& f : finished) {
+    try {
+      f.done({}, f.error, false, f.message, f.server);
+    } catch (const std::exception& e) {
+      spdlog::error("lcmx: a service call's completion threw: {}", e.what());
+    }
+  }
+  finished.clear();
+}
+
+void ClientCore::loop() {
+  std::vector<Finished> finished;
+  for (;;) {
+    std::chrono::nanoseconds wait{std::chrono::seconds(1)};
+    {
+      std::unique_lock lock(mu);
+      if (closed) return;
+      const auto now = Clock::now();
+      if (matches_changed.exchange(false)) refresh_servers_locked(finished);
+      expire_locked(now, finished);
+      // Probe while someone waits for a server, or a request subscriber appeared that has not
+      // answered yet (a new server: it may be nearer, or the one to fail over to).
+      const auto subscribers = request_pub->subscriber_count();
+      if (subscribers != last_server_count) {
+        last_server_count = subscribers;
+        probe_interval = std::chrono::milliseconds(2);
+        next_probe = now;
+      }
+      bool waiting = waiters > 0;
+      for (const auto& [id, p] : pending) waiting = waiting || !p.sent;
+      const bool unanswered = subscribers > servers.size();
+      if ((waiting || unanswered) && subscribers > 0) {
+        if (now >= next_probe) probe_locked(now);
+        wait = std::min<std::chrono::nanoseconds>(wait, next_probe - now);
+      }
+      for (const auto& [id, p] : pending)
+        wait = std::min<std::chrono::nanoseconds>(wait, p.deadline - now);
+      wait = std::max<std::chrono::nanoseconds>(wait, std::chrono::nanoseconds(0));
+      wake_at = now + wait;
+      if (node->stopped()) {  // the runtime shut down: nothing will answer any more
+        closed = true;
+        for (auto& [id, p] : pending)
+          finished.push_back({std::move(p.done), CallErrc::shutdown,
+                              "service '" + name + "': the runtime shut down", p.target});
+        pending.clear();
+      }
+    }
+    finish(finished);
+    if (node->stopped()) return;
+    node->run_once(wait);
+  }
+}
+
+void ClientCore::probe_locked(Clock::time_point now) {
+  request_pub->publish_bytes(probe_message);
+  next_probe = now + probe_interval;
+  // 2, 4, ... 512 ms, then every second while a server is still silent.
+  probe_interval = std::min<std::chrono::milliseconds>(probe_interval * 2, std::chrono::seconds(1));
+}
+
+void ClientCore::refresh_servers_locked(std::vector<Finished>& finished) {
+  std::map<std::pair<std::uint64_t, std::uint64_t>, Path> matched;  // (participant, endpoint)
+  for (const auto& p : subscriber_stats(*reply_sub).publishers)
+    matched[{p.publisher_participant, p.publisher_endpoint}] = p.path;
+  std::set<std::pair<std::uint64_t, std::uint64_t>> gone;
+  for (auto it = servers.begin(); it != servers.end();) {
+    auto m = matched.find({it->second.info.participant, it->second.reply_endpoint});
+    if (m == matched.end()) {
+      gone.insert(it->first);
+      it = servers.erase(it);
+    } else {
+      it->second.info.path = m->second;
+      ++it;
+    }
+  }
+  if (gone.empty()) return;
+  cv.notify_all();
+  const Known* next = best_locked();
+  for (auto it = pending.begin(); it != pending.end();) {
+    auto& p = it->second;
+    if (!p.sent || !gone.contains({p.target.participant, p.target.id})) {
+      ++it;
+      continue;
+    }
+    if (next != nullptr) {
+      ++counters.failovers;
+      spdlog::info("lcmx: service '{}': server {:x}/{} went away; call {} goes to {:x}/{}", name,
+                   p.target.participant, p.target.id, it->first, next->info.participant, next->info.id);
+      send_locked(it->first, p, *next);
+      ++it;
+    } else {
+      finished.push_back({std::move(p.done), CallErrc::server_gone,
+                          fmt::format("service '{}': the server went away before answering "
+                                      "and no other server is known",
+                                      name),
+                          p.target});
+      it = pending.erase(it);
+    }
+  }
+}
+
+const ClientCore::Known* ClientCore::best_locked() const {
+  const Known* best = nullptr;
+  for (const auto& [key, k] : servers) {
+    if (!k.types_ok) continue;
+    if (best == nullptr || path_rank(k.info.path) < path_rank(best->info.path)) best = &k;
+    // Equal rank: the map's order (participant, id) already makes the first one stable.
+  }
+  return best;
+}
+
+void ClientCore::send_locked(std::uint64_t request_id, Pending& p, const Known& server) {
+  (void)request_id;
+  p.target = server.info;
+  p.sent = true;
+  patch_target(p.message, server.info.participant, server.info.id);
+  request_pub->publish_bytes(p.message);
+}
+
+void ClientCore::dispatch_waiting_locked() {
+  const Known* best = best_locked();
+  if (best == nullptr) return;
+  for (auto& [id, p] : pending)
+    if (!p.sent) send_locked(id, p, *best);
+}
+
+std::string ClientCore::mismatch_text_locked() const {
+  for (const auto& [key, k] : servers)
+    if (!k.types_ok) return k.mismatch;
+  return {};
+}
+
+void ClientCore::expire_locked(Clock::time_point now, std::vector<Finished>& finished) {
+  for (auto it = pending.begin(); it != pending.end();) {
+    auto& p = it->second;
+    if (p.deadline > now) {
+      ++it;
+      continue;
+    }
+    if (p.sent) {
+      ++counters.timeouts;
+      finished.push_back({std::move(p.done), CallErrc::timeout,
+                          fmt::format("service '{}': no reply within {} ms", name, p.timeout.count()),
+                          p.target});
+    } else if (auto text = mismatch_text_locked(); !text.empty()) {
+      finished.push_back({std::move(p.done), CallErrc::type_mismatch, text, {}});
+    } else {
+      finished.push_back({std::move(p.done), CallErrc::no_server,
+                          fmt::format("service '{}': no server answered within {} ms", name,
+                                      p.timeout.count()),
+                          {}});
+    }
+    it = pending.erase(it);
+  }
+}
+
+void ClientCore::on_reply(std::span<const std::byte> bytes) {
+  ReplyHeader h;
+  std::span<const std::byte> payload;
+  if (!parse_reply(bytes, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id) return;
+  const ServerInfo from{static_cast<std::uint64_t>(h.server_participant),
+                        static_cast<std::uint64_t>(h.server_id), Path::intra};
+  std::unique_lock lock(mu);
+  if (h.request_id == 0) {  // a probe's answer: a server we can use (or one of other types)
+    Known k;
+    k.info = from;
+    k.reply_endpoint = static_cast<std::uint64_t>(h.reply_endpoint);
+    bool matched = false;
+    for (const auto& p : subscriber_stats(*reply_sub).publishers)
+      if (p.publisher_participant == k.info.participant && p.publisher_endpoint == k.reply_endpoint) {
+        k.info.path = p.path;
+        matched = true;
+      }
+    if (!matched) return;  // already gone again
+    k.types_ok = h.status != lcmx_msgs::service_reply_t::TYPE_MISMATCH;
+    if (!k.types_ok)
+      k.mismatch = fmt::format(
+          "service '{}': its server takes {} and answers {}; this client sends {} and expects {}",
+          name, type_text(h.request_type, h.request_fingerprint),
+          type_text(h.response_type, h.response_fingerprint),
+          type_text(types.request_name, types.request_fingerprint),
+          type_text(types.response_name, types.response_fingerprint));
+    const bool is_new = !servers.contains({from.participant, from.id});
+    servers[{from.participant, from.id}] = k;
+    if (is_new && !k.types_ok) spdlog::warn("lcmx: {}", k.mismatch);
+    dispatch_waiting_locked();
+    lock.unlock();
+    cv.notify_all();
+    return;
+  }
+  auto it = pending.find(static_cast<std::uint64_t>(h.request_id));
+  if (it == pending.end()) {
+    ++counters.late_replies;
+    return;
+  }
+  auto done = std::move(it->second.done);
+  ServerInfo server = from;
+  if (auto s = servers.find({from.participant, from.id}); s != servers.end()) server.path = s->second.info.path;
+  pending.erase(it);
+  ++counters.replies;
+  lock.unlock();
+  CallErrc error = CallErrc::handler_failed;
+  switch (h.status) {
+    case lcmx_msgs::service_reply_t::OK: break;
+    case lcmx_msgs::service_reply_t::TYPE_MISMATCH: error = CallErrc::type_mismatch; break;
+    case lcmx_msgs::service_reply_t::BAD_REQUEST: error = CallErrc::bad_request; break;
+    default: error = CallErrc::handler_failed; break;
+  }
+  const bool ok = h.status == lcmx_msgs::service_reply_t::OK;
+  try {
+    done(payload, error, ok, ok ? std::string() : "service '" + name + "': " + h.error, server);
+  } catch (const std::exception& e) {
+    spdlog::error("lcmx: service '{}': a call's completion threw: {}", name, e.what());
+  }
+}
+
+void ClientCore::call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
+                      std::chrono::milliseconds timeout, ReplyHandler done) {
+  if (size > static_cast<std::size_t>(INT32_MAX))
+    return done({}, CallErrc::bad_request, false, "a service request is limited to 2 GiB", {});
+  RequestHeader h;
+  h.client_id = static_cast<std::int64_t>(client_id);
+  h.client_participant = static_cast<std::int64_t>(runtime->participant_id);
+  h.request_fingerprint = types.request_fingerprint;
+  h.response_fingerprint = types.response_fingerprint;
+  h.reply_channel = reply_channel;
+  Pending p;
+  p.timeout = timeout;
+  p.deadline = Clock::now() + timeout;
+  p.done = std::move(done);
+  std::unique_lock lock(mu);
+  if (closed) {
+    lock.unlock();
+    return p.done({}, CallErrc::shutdown, false, "service '" + name + "': the client was closed", {});
+  }
+  h.request_id = static_cast<std::int64_t>(next_request++);
+  const auto hs = request_header_size(h);
+  p.message.resize(hs + size);
+  write_request_header(p.message.data(), h, size);
+  encode({p.message.data() + hs, size});
+  ++counters.calls;
+  auto& slot = pending[static_cast<std::uint64_t>(h.request_id)] = std::move(p);
+  bool wake = true;  // no server yet: probe now
+  if (const Known* best = best_locked()) {
+    send_locked(static_cast<std::uint64_t>(h.request_id), slot, *best);
+    wake = slot.deadline < wake_at;  // the client thread must time it out earlier than planned
+  }
+  lock.unlock();
+  if (wake) node->interrupt();
+}
+
+bool ClientCore::wait_for_service(std::chrono::milliseconds timeout) {
+  const auto deadline = Clock::now() + timeout;
+  std::unique_lock lock(mu);
+  ++waiters;
+  lock.unlock();
+  node->interrupt();
+  lock.lock();
+  const bool ok = cv.wait_until(lock, deadline, [&] { return closed || best_locked() != nullptr; }) &&
+                  !closed;
+  --waiters;
+  return ok;
+}
+
+ClientStats ClientCore::stats() const {
+  std::lock_guard lock(mu);
+  ClientStats s = counters;
+  s.pending = pending.size();
+  for (const auto& [key, k] : servers) s.servers += k.types_ok ? 1 : 0;
+  return s;
+}
+
+std::vector<ServerInfo> ClientCore::servers_now() const {
+  std::lock_guard lock(mu);
+  std::vector<ServerInfo> out;
+  for (const auto& [key, k] : servers)
+    if (k.types_ok) out.push_back(k.info);
+  std::stable_sort(out.begin(), out.end(), [](const ServerInfo& a, const ServerInfo& b) {
+    return path_rank(a.path) < path_rank(b.path);
+  });
+  return out;
+}
+
+std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types) {
+  check_name(name, "create_client");
+  auto client = std::make_shared<ClientCore>(node.runtime, std::move(name), std::move(types));
+  client->start(node.name);
+  return client;
+}
+
+void close_client(const std::shared_ptr<ClientCore>& client) { client->close(); }
+
+void client_call(ClientCore& client, std::size_t size,
+                 const std::function<void(std::span<std::byte>)>& encode,
+                 std::chrono::milliseconds timeout, ReplyHandler done) {
+  client.call(size, encode, timeout, std::move(done));
+}
+bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout) {
+  return client.wait_for_service(timeout);
+}
+ClientStats client_stats(const ClientCore& client) { return client.stats(); }
+std::vector<ServerInfo> client_servers(const ClientCore& client) { return client.servers_now(); }
+const std::string& client_name(const ClientCore& client) { return client.name; }
+
+}  // namespace detail
+}  // namespace lcmx
+
+namespace lcmx {
+
+Service Node::create_service_raw(std::string name,
+                                 std::function<Bytes(std::span<const std::byte>)> handler) {
+  if (!handler) throw Error(Errc::invalid_argument, "create_service_raw '" + name + "': empty handler");
+  detail::ServerHandler h = [f = std::move(handler)](std::span<const std::byte> in,
+                                                     detail::ReplyWriter& out) {
+    const Bytes response = f(in);
+    auto bytes = out.allocate(response.size());
+    std::copy(response.begin(), response.end(), bytes.begin());
+  };
+  return Service(detail::create_server(*impl_, std::move(name), {}, std::move(h)));
+}
+
+RawClient Node::create_client_raw(std::string name) {
+  return RawClient(detail::create_client(*impl_, std::move(name), {}));
+}
+
+}  // namespace lcmx
