@@ -26,7 +26,8 @@ esac
 cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=RelWithDebInfo -D"$option"=ON \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g -DNDEBUG" -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O1 -g -DNDEBUG" \
   -DLCMX_BUILD_BENCH=OFF -DLCMX_BUILD_FUZZERS=OFF >/dev/null
-cmake --build "$dir" -j"$(nproc)"
+# Only the unit and integration test programs (and what they start): see test/CMakeLists.txt.
+cmake --build "$dir" -j"$(nproc)" --target lcmx_unit_integration_tests
 
 # detect_leaks=1: a leak fails the test. abort_on_error=0 keeps ASan's exit code (1) so
 # CTest reports a failure rather than a signal. halt_on_error for TSan: the first race fails.

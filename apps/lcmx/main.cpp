@@ -19,37 +19,12 @@
 #include "echo_cmds.hpp"
 #include "log_cmds.hpp"
 #include "monitor_cmds.hpp"
+#include "service_cmds.hpp"
 #include "topology.hpp"
 #include "verb.hpp"
 
 namespace {
 
-// Listens on the host-local group, and on the vehicle group when given, for `wait_ms`.
-// A participant seen in both scopes is listed once, from its host-local beacon (complete).
-std::vector<lcmx::discovery::Participant> observe(const std::string& url, const std::string& vehicle_url,
-                                                  int wait_ms) {
-  std::vector<std::unique_ptr<lcmx::discovery::Discovery>> observers;
-  for (const auto& u : {url, vehicle_url}) {
-    if (u.empty()) continue;
-    lcmx::discovery::Options o;
-    o.group = lcmx::udpm::parse_url(u);
-    o.observer = true;
-    observers.push_back(std::make_unique<lcmx::discovery::Discovery>(o, nullptr, nullptr));
-  }
-  // Participants answer the query at once; a second query covers a lost datagram.
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(wait_ms);
-  std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms / 2));  // a listening window
-  for (auto& d : observers) d->query();
-  std::this_thread::sleep_until(deadline);
-  std::vector<lcmx::discovery::Participant> all;
-  std::set<std::int64_t> seen;
-  for (auto& d : observers) {
-    for (auto& p : d->participants())
-      if (seen.insert(p.beacon.participant_id).second) all.push_back(std::move(p));
-    d->stop();
-  }
-  return all;
-}
 
 // The verb of the command line: the first argument that is neither an option of `lcmx` nor
 // such an option's value; nullopt if there is none.
@@ -101,7 +76,7 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
                         << " (type names without package)\n";
             }
             try {
-              const auto ps = observe(g.url, g.vehicle_url, g.wait_ms);
+              const auto ps = lcmx::cli::observe(g.url, g.vehicle_url, g.wait_ms);
               (st->json ? print_json : print)(std::cout, ps, reg ? &*reg : nullptr);
             } catch (const std::exception& e) {
               std::cerr << "lcmx: " << e.what() << "\n";
@@ -151,6 +126,8 @@ int main(int argc, char** argv) {
   verbs.push_back(lcmx::cli::add_hz(app, g));
   verbs.push_back(lcmx::cli::add_bw(app, g));
   verbs.push_back(lcmx::cli::add_pub(app, g));
+  verbs.push_back(lcmx::cli::add_services(app, g));
+  verbs.push_back(lcmx::cli::add_call(app, g));
 
   // An unknown verb is named (also before --help, which would otherwise print the top-level help).
   if (const auto verb = verb_of(app, argc, argv)) {

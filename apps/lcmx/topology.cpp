@@ -1,14 +1,17 @@
 #include "topology.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <map>
 #include <set>
 #include <sstream>
 #include <string>
+#include <thread>
 
 #include "log_common.hpp"
+#include "lcmx/udpm/udpm.hpp"
 
 namespace lcmx::cli {
 namespace {
@@ -243,6 +246,33 @@ void print_topics_json(std::ostream& out, const std::vector<discovery::Participa
   }
   j << "]}";
   out << j.str() << "\n";
+}
+
+// Listens on the host-local group, and on the vehicle group when given, for `wait_ms`.
+// A participant seen in both scopes is listed once, from its host-local beacon (complete).
+std::vector<discovery::Participant> observe(const std::string& url, const std::string& vehicle_url,
+                                                  int wait_ms) {
+  std::vector<std::unique_ptr<discovery::Discovery>> observers;
+  for (const auto& u : {url, vehicle_url}) {
+    if (u.empty()) continue;
+    discovery::Options o;
+    o.group = udpm::parse_url(u);
+    o.observer = true;
+    observers.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
+  }
+  // Participants answer the query at once; a second query covers a lost datagram.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(wait_ms);
+  std::this_thread::sleep_for(std::chrono::milliseconds(wait_ms / 2));  // a listening window
+  for (auto& d : observers) d->query();
+  std::this_thread::sleep_until(deadline);
+  std::vector<discovery::Participant> all;
+  std::set<std::int64_t> seen;
+  for (auto& d : observers) {
+    for (auto& p : d->participants())
+      if (seen.insert(p.beacon.participant_id).second) all.push_back(std::move(p));
+    d->stop();
+  }
+  return all;
 }
 
 }  // namespace lcmx::cli

@@ -17,6 +17,12 @@ namespace lcmx::cli {
 // getTypeName() has no package).
 std::string type_label(const lcmx_msgs::endpoint_t& e, const types::TypeRegistry* types);
 
+// Listens on the host-local group `url`, and on the vehicle group when given, for `wait_ms`
+// (asking everyone to beacon at once midway), and returns the participants seen. A participant
+// seen in both scopes is listed once, from its host-local beacon (complete).
+std::vector<discovery::Participant> observe(const std::string& url, const std::string& vehicle_url,
+                                            int wait_ms);
+
 // Prints participants (host, pid, process) and their nodes with publishers/subscribers.
 // `types`: the type path for package-qualified names (may be null).
 void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& ps,

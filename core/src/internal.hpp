@@ -335,6 +335,9 @@ class PublisherImpl final : public PublisherCore {
 
   const std::shared_ptr<NodeImpl> node;
   const std::uint64_t id;
+  // Service clients: the count of matched subscribers changed -> node->interrupt(), so the
+  // client's thread (which runs `node`) probes a new server at once.
+  std::atomic<bool> interrupt_on_match{false};
   const TypeInfo& type;
   const PublisherOptions options;
   std::string segment_name() const;

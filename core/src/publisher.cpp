@@ -266,6 +266,7 @@ void PublisherImpl::add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_p
   std::lock_guard lock(intra_mu);
   auto next = std::make_shared<Targets>(*intra_);
   next->push_back({std::move(sub), std::move(stats)});
+  if (interrupt_on_match.load()) node->interrupt();
   intra_ = std::move(next);
   subs_cv.notify_all();
 }
@@ -274,12 +275,14 @@ void PublisherImpl::remove_intra(const SubscriberCore* sub) {
   std::lock_guard lock(intra_mu);
   auto next = std::make_shared<Targets>(*intra_);
   std::erase_if(*next, [&](const IntraTarget& t) { return t.sub.get() == sub; });
+  if (interrupt_on_match.load()) node->interrupt();
   intra_ = std::move(next);
   subs_cv.notify_all();
 }
 
 void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp) {
   std::lock_guard lock(intra_mu);
+  if (remote_subscribers_ != shm + udp + local_udp && interrupt_on_match.load()) node->interrupt();
   remote_subscribers_ = shm + udp + local_udp;
   udp_subscribers_.store(udp);
   local_udp_subscribers_.store(local_udp);

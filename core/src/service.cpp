@@ -522,7 +522,9 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   std::uint64_t next_request = 1;
   int waiters = 0;  // threads in wait_for_service()
   Clock::time_point next_probe{};
-  Clock::time_point wake_at{};  // when the client thread wakes at the latest (its run_once deadline)
+  Clock::time_point wake_at{};
+  Clock::time_point first_server_at{};  // when the first usable server answered (wait_for_service)
+  static constexpr std::chrono::milliseconds kServerGrace{100};  // when the client thread wakes at the latest (its run_once deadline)
   std::chrono::milliseconds probe_interval{2};
   std::size_t last_server_count = 0;  // request subscribers matched when we last probed
   Bytes probe_message;
@@ -536,6 +538,9 @@ void ClientCore::start(const std::string& node_name) {
   node->start();
   runtime->add_node(node);
   request_pub = create_publisher(*node, request_channel(name), request_type_info(), PublisherOptions{});
+  // A new server's subscriber wakes our thread to probe it (matched before this line: the
+  // thread's first pass sees the count).
+  static_cast<PublisherImpl&>(*request_pub).interrupt_on_match.store(true);
   std::weak_ptr<ClientCore> weak = weak_from_this();
   reply_sub = std::make_shared<RawSubscriberCore>(
       reply_channel, SubscriberOptions{.queue_depth = 64},
@@ -607,7 +612,13 @@ void ClientCore::loop() {
       std::unique_lock lock(mu);
       if (closed) return;
       const auto now = Clock::now();
-      if (matches_changed.exchange(false)) refresh_servers_locked(finished);
+      if (matches_changed.exchange(false)) {
+        refresh_servers_locked(finished);
+        // A server's reply publisher may have just matched: its answer to the next probe now
+        // arrives, so probe at once rather than at the back-off's next turn.
+        next_probe = now;
+        probe_interval = std::chrono::milliseconds(2);
+      }
       expire_locked(now, finished);
       // Probe while someone waits for a server, or a request subscriber appeared that has not
       // answered yet (a new server: it may be nearer, or the one to fail over to).
@@ -755,6 +766,10 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
   if (h.request_id == 0) {  // a probe's answer: a server we can use (or one of other types)
     Known k;
     k.info = from;
+    k.info.request_type = h.request_type;
+    k.info.response_type = h.response_type;
+    k.info.request_fingerprint = h.request_fingerprint;
+    k.info.response_fingerprint = h.response_fingerprint;
     k.reply_endpoint = static_cast<std::uint64_t>(h.reply_endpoint);
     bool matched = false;
     for (const auto& p : subscriber_stats(*reply_sub).publishers)
@@ -772,6 +787,7 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
           type_text(types.request_name, types.request_fingerprint),
           type_text(types.response_name, types.response_fingerprint));
     const bool is_new = !servers.contains({from.participant, from.id});
+    if (k.types_ok && best_locked() == nullptr) first_server_at = Clock::now();
     servers[{from.participant, from.id}] = k;
     if (is_new && !k.types_ok) spdlog::warn("lcmx: {}", k.mismatch);
     dispatch_waiting_locked();
@@ -786,7 +802,7 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
   }
   auto done = std::move(it->second.done);
   ServerInfo server = from;
-  if (auto s = servers.find({from.participant, from.id}); s != servers.end()) server.path = s->second.info.path;
+  if (auto s = servers.find({from.participant, from.id}); s != servers.end()) server = s->second.info;
   pending.erase(it);
   ++counters.replies;
   lock.unlock();
@@ -847,8 +863,25 @@ bool ClientCore::wait_for_service(std::chrono::milliseconds timeout) {
   lock.unlock();
   node->interrupt();
   lock.lock();
-  const bool ok = cv.wait_until(lock, deadline, [&] { return closed || best_locked() != nullptr; }) &&
-                  !closed;
+  // Ready once a server answered and either every request subscriber has answered or
+  // kServerGrace passed since the first answer: servers that start together are all known
+  // (and the stable choice among them made) before the first call. A subscriber that never
+  // answers (a recorder of the channel) delays it by kServerGrace only.
+  bool ok = false;
+  for (;;) {
+    if (closed) break;
+    const auto now = Clock::now();
+    auto wake = deadline;
+    if (best_locked() != nullptr) {
+      if (servers.size() >= request_pub->subscriber_count() || now >= first_server_at + kServerGrace) {
+        ok = true;
+        break;
+      }
+      wake = std::min(deadline, first_server_at + kServerGrace);
+    }
+    if (now >= deadline) break;
+    cv.wait_until(lock, wake);
+  }
   --waiters;
   return ok;
 }

@@ -69,6 +69,10 @@ struct ServerInfo {
   std::uint64_t participant = 0;
   std::uint64_t id = 0;  // the server's id within its participant
   Path path = Path::intra;
+  // What the server takes and answers, from its probe answer (lcm-gen names, fingerprints;
+  // "" and 0 for raw bytes). `lcmx call` encodes JSON with them.
+  std::string request_type, response_type;
+  std::int64_t request_fingerprint = 0, response_fingerprint = 0;
 };
 
 // The outcome of a call: a response, or an error with a message. Never both.
@@ -219,7 +223,9 @@ class ClientHandle {
   ~ClientHandle() { reset(); }
 
   // Returns once a server answered a probe (request and reply paths both work), false after
-  // `timeout` without one. Servers of other types do not count.
+  // `timeout` without one. Servers of other types do not count. Servers that start together
+  // are all known when it returns (it waits up to 100 ms after the first answer for the other
+  // subscribers of the request channel), so the stable choice among them is made.
   bool wait_for_service(std::chrono::milliseconds timeout) const {
     return client_wait_for_service(*core_, timeout);
   }

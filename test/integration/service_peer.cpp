@@ -1,0 +1,147 @@
+// lcmx_service_peer: the other processes of the service tests (test/integration/service_test.cpp,
+// test/multihost). Request lcmx_examples.pose_t, response lcmx_examples.bench_t: the response's
+// seq is the request's position[0], its data has position[1] bytes of pattern(i, seq).
+//
+//   server --name N
+//     Serves N, prints "READY participant=<id>", then reads commands on stdin:
+//       "block"  from now on a request with x < 0 prints "CALLED <x>" and never returns
+//       "quit"   (or EOF) prints "SERVED <requests>" and exits 0
+//   client --name N --calls K [--size BYTES] [--call-timeout-ms T] [--servers S]
+//     Waits for a server (for S servers with --servers), makes K calls (x = 0..K-1), checks every response's seq and bytes,
+//     prints "CALLS ok=<n> failed=<f> wrong=<w> path=<path of the last answer>
+//     server=<participant> error=<first error or ->" and exits 0.
+// Every run ends by itself after --timeout-ms (exit 3).
+#include <CLI/CLI.hpp>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <iostream>
+#include <string>
+#include <thread>
+
+#include "lcmx/core.hpp"
+#include "lcmx_examples/bench_t.hpp"
+#include "lcmx_examples/pose_t.hpp"
+
+namespace {
+
+using namespace std::chrono_literals;
+
+void say(const std::string& line) {
+  std::printf("%s\n", line.c_str());
+  std::fflush(stdout);
+}
+
+std::uint8_t pattern(std::size_t i, std::int64_t seq) {
+  return static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(seq) * 7u) & 0xffu);
+}
+
+lcmx_examples::bench_t answer(const lcmx_examples::pose_t& p) {
+  lcmx_examples::bench_t b;
+  b.seq = static_cast<std::int64_t>(p.position[0]);
+  b.size = static_cast<std::int32_t>(p.position[1]);
+  b.data.resize(static_cast<std::size_t>(b.size));
+  for (std::size_t i = 0; i < b.data.size(); ++i) b.data[i] = pattern(i, b.seq);
+  return b;
+}
+
+int run_server(const std::string& name) {
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("service_peer");
+  std::atomic<bool> block{false};
+  std::atomic<long long> served{0};
+  auto server = node.create_service<lcmx_examples::pose_t, lcmx_examples::bench_t>(
+      name, [&](const lcmx_examples::pose_t& p) {
+        ++served;
+        if (p.position[0] < 0 && block.load()) {
+          say("CALLED " + std::to_string(static_cast<long long>(p.position[0])));
+          for (;;) std::this_thread::sleep_for(1h);  // until killed: "a server dies mid-call"
+        }
+        return answer(p);
+      });
+  say("READY participant=" + std::to_string(rt.participant_id()));
+  std::string line;
+  while (std::getline(std::cin, line)) {
+    if (line == "block") {
+      block = true;
+      say("BLOCKING");
+    } else if (line == "quit") {
+      break;
+    }
+  }
+  say("SERVED " + std::to_string(served.load()));
+  return 0;
+}
+
+int run_client(const std::string& name, int calls, int size, int call_timeout_ms,
+               std::size_t servers_wanted) {
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("service_peer_client");
+  auto client = node.create_client<lcmx_examples::pose_t, lcmx_examples::bench_t>(name);
+  if (!client.wait_for_service(20s)) {
+    say("CALLS ok=0 failed=" + std::to_string(calls) + " wrong=0 path=- server=0 error=no-server");
+    return 0;
+  }
+  const auto deadline = std::chrono::steady_clock::now() + 20s;
+  while (client.servers().size() < servers_wanted && std::chrono::steady_clock::now() < deadline)
+    std::this_thread::sleep_for(5ms);  // condition polling with a deadline
+  int ok = 0, failed = 0, wrong = 0;
+  std::string first_error = "-", path = "-";
+  std::uint64_t server = 0;
+  for (int i = 0; i < calls; ++i) {
+    lcmx_examples::pose_t p;
+    p.position[0] = i;
+    p.position[1] = size;
+    auto r = client.call(p, std::chrono::milliseconds(call_timeout_ms));
+    if (!r.ok()) {
+      ++failed;
+      if (first_error == "-") first_error = std::string(lcmx::to_string(r.error())) + ": " + r.message();
+      continue;
+    }
+    const auto& b = r.value();
+    bool good = b.seq == i && b.data.size() == static_cast<std::size_t>(size);
+    for (std::size_t k = 0; good && k < b.data.size(); ++k) good = b.data[k] == pattern(k, b.seq);
+    good ? ++ok : ++wrong;
+    path = lcmx::to_string(r.server().path);
+    server = r.server().participant;
+  }
+  say("CALLS ok=" + std::to_string(ok) + " failed=" + std::to_string(failed) +
+      " wrong=" + std::to_string(wrong) + " path=" + path + " server=" + std::to_string(server) +
+      " error=" + first_error);
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"lcmx_service_peer: a service server or client for the tests"};
+  std::string name;
+  int calls = 10, size = 16, call_timeout_ms = 5000, timeout_ms = 60000;
+  std::size_t servers_wanted = 1;
+  app.require_subcommand(1);
+  auto* server = app.add_subcommand("server", "serve NAME");
+  auto* client = app.add_subcommand("client", "call NAME");
+  for (auto* sc : {server, client}) {
+    sc->add_option("--name", name, "service name")->required();
+    sc->add_option("--timeout-ms", timeout_ms, "exit with 3 after this");
+  }
+  client->add_option("--calls", calls);
+  client->add_option("--size", size, "response data bytes");
+  client->add_option("--call-timeout-ms", call_timeout_ms);
+  client->add_option("--servers", servers_wanted, "wait until this many servers are known");
+  CLI11_PARSE(app, argc, argv);
+  std::thread([timeout_ms] {
+    std::this_thread::sleep_for(std::chrono::milliseconds(timeout_ms));
+    say("TIMEOUT");
+    std::_Exit(3);
+  }).detach();
+  try {
+    if (*server) return run_server(name);
+    return run_client(name, calls, size, call_timeout_ms, servers_wanted);
+  } catch (const std::exception& e) {
+    say(std::string("FATAL ") + e.what());
+    return 1;
+  }
+}

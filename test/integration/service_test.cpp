@@ -1,0 +1,235 @@
+// Services across processes on one host (shared memory): calls both ways, a 1 MB response,
+// a server SIGKILLed mid-call (fail-over to the other server, or server_gone), many client
+// processes and two servers. The peers are lcmx_service_peer (service_peer.cpp).
+#include <future>
+
+#include "lcmx/core.hpp"
+#include "lcmx_examples/bench_t.hpp"
+#include "lcmx_examples/pose_t.hpp"
+#include "support.hpp"
+
+using namespace lcmx::it;
+using Pose = lcmx_examples::pose_t;
+using Bench = lcmx_examples::bench_t;
+
+namespace {
+
+Child& server_peer(Session& s, const std::string& name) {
+  return s.spawn({LCMX_SERVICE_PEER, "server", "--name", name, "--timeout-ms", "60000"});
+}
+
+std::uint64_t participant_of(const std::string& ready_line) {
+  return std::stoull(parse_kv(ready_line).at("participant"));
+}
+
+Pose request(double x, double size) {
+  Pose p;
+  p.position[0] = x;
+  p.position[1] = size;
+  return p;
+}
+
+bool content_ok(const Bench& b) {
+  for (std::size_t i = 0; i < b.data.size(); ++i)
+    if (b.data[i] != static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(b.seq) * 7u) & 0xffu))
+      return false;
+  return true;
+}
+
+}  // namespace
+
+TEST_CASE("service across processes: a client here, a server there, over shared memory",
+          "[integration][service]") {
+  Session s(130);
+  const auto name = unique_channel("SVC", 130);
+  auto& server = server_peer(s, name);
+  auto ready = server.expect("READY");
+  REQUIRE(ready);
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("client");
+  auto client = node.create_client<Pose, Bench>(name);
+  REQUIRE(client.wait_for_service(10000ms));
+  REQUIRE(client.servers().size() == 1);
+  CHECK(client.servers()[0].participant == participant_of(*ready));
+  CHECK(client.servers()[0].path == lcmx::Path::shm);
+  for (int i = 0; i < 100; ++i) {
+    auto r = client.call(request(i, 32), 5000ms);
+    REQUIRE(r.ok());
+    CHECK(r.value().seq == i);
+    CHECK(content_ok(r.value()));
+  }
+  auto big = client.call(request(7, 1 << 20), 10000ms);  // a 1 MB response
+  REQUIRE(big.ok());
+  CHECK(big.value().data.size() == (1u << 20));
+  CHECK(content_ok(big.value()));
+  server.send("quit");
+  REQUIRE(server.expect("SERVED"));
+  CHECK(server.wait() == 0);
+}
+
+TEST_CASE("service across processes: a server here, clients in other processes",
+          "[integration][service]") {
+  Session s(131);
+  const auto name = unique_channel("SVC", 131);
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("server");
+  std::atomic<int> served{0};
+  auto server = node.create_service<Pose, Bench>(name, [&](const Pose& p) {
+    ++served;
+    Bench b;
+    b.seq = static_cast<std::int64_t>(p.position[0]);
+    b.size = static_cast<std::int32_t>(p.position[1]);
+    b.data.resize(static_cast<std::size_t>(b.size));
+    for (std::size_t i = 0; i < b.data.size(); ++i)
+      b.data[i] = static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(b.seq) * 7u) & 0xffu);
+    return b;
+  });
+  std::vector<Child*> clients;
+  for (int i = 0; i < 3; ++i)
+    clients.push_back(&s.spawn({LCMX_SERVICE_PEER, "client", "--name", name, "--calls", "200",
+                                "--size", "100", "--timeout-ms", "60000"}));
+  for (auto* c : clients) {
+    auto line = c->expect("CALLS", 30000ms);
+    REQUIRE(line);
+    const auto kv = parse_kv(*line);
+    INFO(*line);
+    CHECK(kv.at("ok") == "200");
+    CHECK(kv.at("wrong") == "0");
+    CHECK(kv.at("path") == "shm");
+    CHECK(c->wait() == 0);
+  }
+  CHECK(served == 600);
+  CHECK(server.stats().requests == 600);
+}
+
+TEST_CASE("service across processes: the server is SIGKILLed mid-call: the call fails over",
+          "[integration][service]") {
+  Session s(132);
+  const auto name = unique_channel("SVC", 132);
+  auto& a = server_peer(s, name);
+  auto& b = server_peer(s, name);
+  auto ra = a.expect("READY"), rb = b.expect("READY");
+  REQUIRE(ra);
+  REQUIRE(rb);
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("client");
+  auto client = node.create_client<Pose, Bench>(name);
+  REQUIRE(wait_until([&] { return client.servers().size() == 2; }, 10000ms));
+  // The server calls go to (same path: the lower participant id) is told to hang on x < 0.
+  const auto chosen = client.servers()[0].participant;
+  Child& victim = chosen == participant_of(*ra) ? a : b;
+  Child& other = &victim == &a ? b : a;
+  const auto other_participant = participant_of(&other == &a ? *ra : *rb);
+  victim.send("block");
+  REQUIRE(victim.expect("BLOCKING"));
+
+  auto f = client.call_async(request(-5, 10), 10000ms);
+  REQUIRE(victim.expect("CALLED -5"));
+  const auto killed = Clock::now();
+  victim.kill9();
+  REQUIRE(f.wait_for(8000ms) == std::future_status::ready);
+  const auto took = std::chrono::duration_cast<ms>(Clock::now() - killed);
+  auto r = f.get();
+  INFO("answered " << took.count() << " ms after the SIGKILL");
+  REQUIRE(r.ok());
+  CHECK(r.value().seq == -5);
+  CHECK(r.server().participant == other_participant);
+  CHECK(client.stats().failovers == 1);
+  CHECK(took < 1000ms);  // a local death is noticed at once (pidfd), not after the lease
+
+  SECTION("and with no server left, a call in flight ends with server_gone") {
+    other.send("block");
+    REQUIRE(other.expect("BLOCKING"));
+    auto f2 = client.call_async(request(-6, 10), 10000ms);
+    REQUIRE(other.expect("CALLED -6"));
+    other.kill9();
+    REQUIRE(f2.wait_for(8000ms) == std::future_status::ready);
+    auto r2 = f2.get();
+    REQUIRE_FALSE(r2.ok());
+    CHECK(r2.error() == lcmx::CallErrc::server_gone);
+  }
+}
+
+TEST_CASE("service across processes: many client processes, two servers, each call once",
+          "[integration][service]") {
+  Session s(133, 60000ms);
+  const auto name = unique_channel("SVC", 133);
+  auto& a = server_peer(s, name);
+  auto& b = server_peer(s, name);
+  REQUIRE(a.expect("READY"));
+  REQUIRE(b.expect("READY"));
+  constexpr int kClients = 4, kCalls = 150;
+  std::vector<Child*> clients;
+  for (int i = 0; i < kClients; ++i)
+    clients.push_back(&s.spawn({LCMX_SERVICE_PEER, "client", "--name", name, "--calls",
+                                std::to_string(kCalls), "--size", "64", "--servers", "2",
+                                "--timeout-ms", "60000"}));
+  std::set<std::string> servers_used;
+  for (auto* c : clients) {
+    auto line = c->expect("CALLS", 40000ms);
+    REQUIRE(line);
+    INFO(*line);
+    const auto kv = parse_kv(*line);
+    CHECK(kv.at("ok") == std::to_string(kCalls));
+    CHECK(kv.at("wrong") == "0");
+    servers_used.insert(kv.at("server"));
+  }
+  CHECK(servers_used.size() == 1);  // every client chose the same server (stable choice)
+  a.send("quit");
+  b.send("quit");
+  auto sa = a.expect("SERVED"), sb = b.expect("SERVED");
+  REQUIRE(sa);
+  REQUIRE(sb);
+  // Every call executed exactly once, by one server (probes are not counted as requests).
+  const long long na = std::stoll(sa->substr(7)), nb = std::stoll(sb->substr(7));
+  CHECK(na + nb == kClients * kCalls);
+  CHECK((na == 0 || nb == 0));
+}
+
+#ifdef LCMX_TOOL
+TEST_CASE("lcmx services and lcmx call against a server process", "[integration][service]") {
+  Session s(134);
+  const auto name = unique_channel("SVC", 134);
+  auto& server = server_peer(s, name);
+  REQUIRE(server.expect("READY"));
+  const std::string types = LCMX_LCMTYPES_DIR;
+
+  auto list = s.run({LCMX_TOOL, "services", "--json", "--types", types});
+  REQUIRE(list.rc == 0);
+  const auto j = json_line(list.out);
+  INFO(list.out);
+  CHECK(j.find("\"name\":\"" + name + "\"") != std::string::npos);
+  CHECK(j.find("\"request_type\":\"lcmx_examples.pose_t\"") != std::string::npos);
+  CHECK(j.find("\"response_type\":\"lcmx_examples.bench_t\"") != std::string::npos);
+  CHECK(j.find("\"process\":\"lcmx_service_pe\"") != std::string::npos);
+
+  auto text = s.run({LCMX_TOOL, "services", "--types", types});
+  REQUIRE(text.rc == 0);
+  CHECK(text.out.find(name + "  lcmx_examples.pose_t -> lcmx_examples.bench_t") != std::string::npos);
+
+  auto call = s.run({LCMX_TOOL, "call", name, "{\"position\": [12, 4, 0]}", "--types", types, "--json"});
+  INFO(call.out);
+  REQUIRE(call.rc == 0);
+  CHECK(call.out.find("\"seq\":12") != std::string::npos);
+  CHECK(call.out.find("\"size\":4") != std::string::npos);
+
+  auto human = s.run({LCMX_TOOL, "call", name, "{\"position\": [13, 2, 0]}", "--types", types});
+  REQUIRE(human.rc == 0);
+  CHECK(human.out.find("seq: 13") != std::string::npos);
+
+  // Clear errors: a field that does not exist, no type path, no server, bad hex.
+  auto bad = s.run({LCMX_TOOL, "call", name, "{\"positon\": [1]}", "--types", types});
+  CHECK(bad.rc == 1);
+  CHECK(bad.out.find("positon: no such field") != std::string::npos);
+  auto no_types = s.run({LCMX_TOOL, "call", name, "{}"}, {"LCMX_TYPES_PATH"});
+  CHECK(no_types.rc == 1);
+  CHECK(no_types.out.find("not in the type path") != std::string::npos);
+  auto none = s.run({LCMX_TOOL, "call", name + "_nobody", "{}", "--timeout", "0.3"});
+  CHECK(none.rc == 1);
+  CHECK(none.out.find("no server of") != std::string::npos);
+  auto hex = s.run({LCMX_TOOL, "call", name, "--hex", "abc"});
+  CHECK(hex.rc == 2);
+  server.send("quit");
+  CHECK(server.wait() == 0);
+}
+#endif
