@@ -383,26 +383,40 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     return reply(*pub, rh, {});
   }
 
-  // The handler writes the response straight after the header (allocate()).
-  struct Writer final : ReplyWriter {
-    Bytes& buffer;
+  // The handler writes the response straight after the header, in a slot loaned from the
+  // reply publisher's shared memory: a client on this host reads it where it lies (no copy);
+  // in-process and UDP clients get it from there as from any publish.
+  struct Writer final : ResponseWriter {
+    PublisherCore& pub;
     const ReplyHeader& rh;
     std::size_t header;
-    bool used = false;
-    Writer(Bytes& b, const ReplyHeader& r) : buffer(b), rh(r), header(reply_header_size(r)) {}
+    std::optional<shm::WriteLoan> loan;
+    std::size_t total = 0;
+    Writer(PublisherCore& p, const ReplyHeader& r) : pub(p), rh(r), header(reply_header_size(r)) {}
+    ~Writer() {
+      if (loan) pub.drop_loan(std::move(*loan));
+    }
     std::span<std::byte> allocate(std::size_t size) override {
-      if (used) throw Error(Errc::invalid_argument, "ReplyWriter::allocate called twice");
+      if (loan) throw Error(Errc::invalid_argument, "ResponseWriter::allocate called twice");
       if (size > static_cast<std::size_t>(INT32_MAX))
         throw Error(Errc::message_too_large, "a service response is limited to 2 GiB");
-      used = true;
-      buffer.resize(header + size);
-      write_reply_header(buffer.data(), rh, size);
-      return {buffer.data() + header, size};
+      total = header + size;
+      loan.emplace(pub.loan(total));
+      write_reply_header(loan->data(), rh, size);
+      return {loan->data() + header, size};
     }
-  } writer(buffer, rh);
+    void publish() {
+      if (!loan) allocate(0);
+      auto l = std::move(*loan);
+      loan.reset();
+      pub.publish_loan(std::move(l), total);
+    }
+  };
   try {
+    Writer writer(*pub, rh);
     handler(payload, writer);
-    if (!writer.used) writer.allocate(0);
+    writer.publish();
+    return;
   } catch (const BadRequest& e) {
     rh.status = lcmx_msgs::service_reply_t::BAD_REQUEST;
     rh.error = e.what();
@@ -413,15 +427,12 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     rh.status = lcmx_msgs::service_reply_t::HANDLER_FAILED;
     rh.error = "the handler threw a non-std::exception";
   }
-  if (rh.status != lcmx_msgs::service_reply_t::OK) {
-    {
-      std::lock_guard lock(mu);
-      ++failed;
-    }
-    spdlog::warn("lcmx: service '{}': {}", name, rh.error);
-    return reply(*pub, rh, {});
+  {
+    std::lock_guard lock(mu);
+    ++failed;
   }
-  pub->publish_bytes(buffer);
+  spdlog::warn("lcmx: service '{}': {}", name, rh.error);
+  reply(*pub, rh, {});
 }
 
 std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, ServiceTypes types,
@@ -930,18 +941,6 @@ const std::string& client_name(const ClientCore& client) { return client.name; }
 }  // namespace lcmx
 
 namespace lcmx {
-
-Service Node::create_service_raw(std::string name,
-                                 std::function<Bytes(std::span<const std::byte>)> handler) {
-  if (!handler) throw Error(Errc::invalid_argument, "create_service_raw '" + name + "': empty handler");
-  detail::ServerHandler h = [f = std::move(handler)](std::span<const std::byte> in,
-                                                     detail::ReplyWriter& out) {
-    const Bytes response = f(in);
-    auto bytes = out.allocate(response.size());
-    std::copy(response.begin(), response.end(), bytes.begin());
-  };
-  return Service(detail::create_server(*impl_, std::move(name), {}, std::move(h)));
-}
 
 RawClient Node::create_client_raw(std::string name) {
   return RawClient(detail::create_client(*impl_, std::move(name), {}));

@@ -213,6 +213,21 @@ TEST_CASE("service: a raw server and client", "[service]") {
   auto empty = client.call({}, 5s);
   REQUIRE(empty.ok());
   CHECK(empty.value().empty());
+
+  // A handler that writes its response in place; one that writes nothing answers empty.
+  auto in_place = sn.create_service_raw("svc_raw2", [](std::span<const std::byte> in, lcmx::ResponseWriter& out) {
+    if (in.empty()) return;
+    auto b = out.allocate(in.size() * 2);
+    std::copy(in.begin(), in.end(), b.begin());
+    std::copy(in.begin(), in.end(), b.begin() + static_cast<std::ptrdiff_t>(in.size()));
+  });
+  auto c2 = sn.create_client_raw("svc_raw2");
+  auto r2 = c2.call(req, 5s);
+  REQUIRE(r2.ok());
+  CHECK(r2.value() == lcmx::Bytes{std::byte{1}, std::byte{2}, std::byte{3}, std::byte{1}, std::byte{2}, std::byte{3}});
+  auto r3 = c2.call({}, 5s);
+  REQUIRE(r3.ok());
+  CHECK(r3.value().empty());
 }
 
 TEST_CASE("service: a blocking call from inside a callback of the client's node", "[service]") {
@@ -335,7 +350,8 @@ TEST_CASE("service: bad names are errors, and closing a client ends its calls", 
   CHECK_THROWS_AS(n.create_client_raw(""), lcmx::Error);
   CHECK_THROWS_AS(n.create_client_raw(std::string(44, 'x')), lcmx::Error);
   CHECK_NOTHROW(n.create_client_raw(std::string(43, 'x')));
-  CHECK_THROWS_AS(n.create_service_raw("ok", nullptr), lcmx::Error);
+  CHECK_THROWS_AS(n.create_service_raw("ok", std::function<lcmx::Bytes(std::span<const std::byte>)>{}), lcmx::Error);
+  CHECK_THROWS_AS((n.create_service<Pose, Bench>("ok", std::function<Bench(const Pose&)>{})), lcmx::Error);
 
   auto client = n.create_client<Pose, Bench>("svc_closed");
   auto f = client.call_async(pose(1), 10s);

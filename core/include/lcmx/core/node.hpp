@@ -84,10 +84,13 @@ class Node {
   // Throws Error(invalid_argument / channel_too_long) for a bad name (at most 43 bytes).
   template <class Req, class Resp, class F>
   Service create_service(std::string name, F&& handler) {
+    if constexpr (std::is_constructible_v<bool, const std::remove_reference_t<F>&>)
+      if (!static_cast<bool>(handler))
+        throw Error(Errc::invalid_argument, "create_service '" + name + "': empty handler");
     detail::ServiceTypes types{Req::getTypeName(), Resp::getTypeName(), Req::getHash(),
                                Resp::getHash()};
     detail::ServerHandler h = [f = std::forward<F>(handler)](std::span<const std::byte> in,
-                                                             detail::ReplyWriter& out) mutable {
+                                                             ResponseWriter& out) mutable {
       Req request;
       if (in.size() > static_cast<std::size_t>(INT32_MAX) ||
           request.decode(in.data(), 0, static_cast<int>(in.size())) < 0)
@@ -107,10 +110,29 @@ class Node {
     };
     return Service(detail::create_server(*impl_, std::move(name), std::move(types), std::move(h)));
   }
-  // A server over raw bytes: the handler gets the request payload (valid during the call) and
-  // returns the response payload.
-  Service create_service_raw(std::string name,
-                             std::function<Bytes(std::span<const std::byte>)> handler);
+  // A server over raw bytes. `handler` gets the request payload (valid during the call) and
+  // either returns the response, Bytes(std::span<const std::byte>), or writes it in place,
+  // void(std::span<const std::byte>, ResponseWriter&) (no copy: see ResponseWriter).
+  template <class F>
+  Service create_service_raw(std::string name, F&& handler) {
+    if constexpr (std::is_constructible_v<bool, const std::remove_reference_t<F>&>)
+      if (!static_cast<bool>(handler))  // an empty std::function or a null function pointer
+        throw Error(Errc::invalid_argument, "create_service_raw '" + name + "': empty handler");
+    detail::ServerHandler h;
+    if constexpr (std::is_invocable_v<F&, std::span<const std::byte>, ResponseWriter&>) {
+      h = std::forward<F>(handler);
+    } else {
+      static_assert(std::is_invocable_r_v<Bytes, F&, std::span<const std::byte>>,
+                    "create_service_raw: handler must be Bytes(std::span<const std::byte>) or "
+                    "void(std::span<const std::byte>, ResponseWriter&)");
+      h = [f = std::forward<F>(handler)](std::span<const std::byte> in, ResponseWriter& out) mutable {
+        const Bytes response = f(in);
+        auto bytes = out.allocate(response.size());
+        std::copy(response.begin(), response.end(), bytes.begin());
+      };
+    }
+    return Service(detail::create_server(*impl_, std::move(name), {}, std::move(h)));
+  }
 
   template <class Req, class Resp>
   Client<Req, Resp> create_client(std::string name) {

@@ -133,6 +133,15 @@ struct ServerStats {
   std::size_t clients = 0;     // clients it has a reply channel for now
 };
 
+// Where a raw service's handler writes its response: allocate(size) once, then fill the span
+// (for a caller on this host, it lies in the shared memory the client reads: no copy). Valid
+// during the handler only. allocate() throws Error(invalid_argument) if called twice.
+class ResponseWriter {
+ public:
+  virtual ~ResponseWriter() = default;
+  virtual std::span<std::byte> allocate(std::size_t size) = 0;
+};
+
 namespace detail {
 class NodeImpl;
 
@@ -143,16 +152,9 @@ struct ServiceTypes {
   std::int64_t request_fingerprint = 0, response_fingerprint = 0;
 };
 
-// Where a handler writes its response: allocate() once, then fill the span.
-class ReplyWriter {
- public:
-  virtual ~ReplyWriter() = default;
-  virtual std::span<std::byte> allocate(std::size_t size) = 0;
-};
-
 // The server's request handler over bytes: `request` is the payload (valid during the call).
 // Throws what the user's handler throws; BadRequest if the request does not decode.
-using ServerHandler = std::function<void(std::span<const std::byte> request, ReplyWriter& out)>;
+using ServerHandler = std::function<void(std::span<const std::byte> request, ResponseWriter& out)>;
 struct BadRequest : std::runtime_error {
   using std::runtime_error::runtime_error;
 };

@@ -1,0 +1,528 @@
+// lcmx_bench_service (issue 12): round-trip time of a service call, lcmx vs ZeroMQ REQ/REP,
+// on one host and between two emulated hosts, plus calls per second with concurrent clients.
+//
+//   one host   lcmx service (shm)  |  two lcmx one-way shm messages (ping -> pong)  |
+//              ZeroMQ REQ/REP over ipc://  and  tcp://127.0.0.1
+//   two hosts  lcmx service (UDP, the vehicle group)  |  ZeroMQ REQ/REP over TCP on the same link
+//
+// Every method runs a server process and a client process (this binary with a hidden --role);
+// the client measures each call's round trip with CLOCK_MONOTONIC and prints "rtt <case>
+// <p50_us> <p99_us> <n>" and "tput <clients> <calls/s>" lines, which the orchestrator turns into
+// one Markdown table with ratios against the peers measured in the same run. A request's first
+// 8 bytes say how large the response must be (every server honours it), the rest is filler.
+#include <CLI/CLI.hpp>
+#include <signal.h>
+#include <spdlog/spdlog.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <sched.h>
+
+#include <algorithm>
+#include <cmath>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstring>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <mutex>
+#include <sstream>
+#include <thread>
+#include <zmq.hpp>
+
+#include "common.hpp"
+#include "lcmx/core.hpp"
+#ifdef LCMX_BENCH_WITH_NETNS
+#include "lcmx/test/netns.hpp"
+#endif
+
+namespace {
+
+using namespace std::chrono_literals;
+using Clock = std::chrono::steady_clock;
+using lcmx::Bytes;
+
+struct Case {
+  std::size_t request = 0, response = 0;
+  int calls = 0;
+};
+
+std::string case_label(const Case& c) {
+  return lcmxbench::size_label(c.request) + " / " + lcmxbench::size_label(c.response);
+}
+
+Bytes make_request(std::size_t size, std::size_t response) {
+  Bytes b(std::max<std::size_t>(size, 8), std::byte{0x5a});
+  const std::uint64_t r = response;
+  std::memcpy(b.data(), &r, 8);
+  return b;
+}
+
+std::size_t response_size(std::span<const std::byte> req) {
+  std::uint64_t r = 0;
+  if (req.size() >= 8) std::memcpy(&r, req.data(), 8);
+  return static_cast<std::size_t>(std::min<std::uint64_t>(r, 64u << 20));
+}
+
+void say(const std::string& line) {
+  std::cout << line << std::endl;
+}
+
+// ---- servers ----
+
+std::atomic<bool> g_stop{false};
+void on_signal(int) { g_stop = true; }
+
+// Waits until stdin closes (the orchestrator ends the role) or a signal.
+void wait_for_end() {
+  char c;
+  while (!g_stop.load() && ::read(STDIN_FILENO, &c, 1) > 0) {
+  }
+}
+
+lcmx::RuntimeOptions runtime_options(const std::string& url, const std::string& vehicle) {
+  lcmx::RuntimeOptions o;
+  o.discovery_url = url;
+  o.vehicle_url = vehicle;
+  return o;
+}
+
+int server_lcmx(const std::string& url, const std::string& vehicle, const std::string& name) {
+  auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
+  auto node = rt.create_node("bench_server");
+  auto s = node.create_service_raw(name, [](std::span<const std::byte> req, lcmx::ResponseWriter& out) {
+    auto b = out.allocate(response_size(req));  // written in place (shared memory for shm clients)
+    std::memset(b.data(), 0xa5, b.size());
+  });
+  say("ready");
+  wait_for_end();
+  return 0;
+}
+
+// Two one-way messages: PING -> (this process) -> PONG of the asked size.
+int server_echo(const std::string& url, const std::string& name) {
+  auto rt = lcmx::Runtime::create(runtime_options(url, ""));
+  auto node = rt.create_node("bench_echo");
+  lcmx::PublisherOptions po;
+  auto pong = node.advertise_raw(name + "_PONG", po);
+  Bytes out;
+  auto sub = node.subscribe_raw(name + "_PING", [&](const lcmx::RawMessage& m) {
+    out.assign(response_size(m.data), std::byte{0xa5});
+    std::memcpy(out.data(), m.data.data(), std::min<std::size_t>(8, out.size()));  // echo the tag
+    pong.publish(out);
+  });
+  say("ready");
+  wait_for_end();
+  return 0;
+}
+
+int server_zmq(const std::string& endpoint) {
+  zmq::context_t ctx(1);
+  zmq::socket_t rep(ctx, zmq::socket_type::rep);
+  rep.bind(endpoint);
+  say("ready");
+  std::thread([] {
+    wait_for_end();
+    std::_Exit(0);
+  }).detach();
+  for (;;) {
+    zmq::message_t req;
+    if (!rep.recv(req, zmq::recv_flags::none)) continue;
+    zmq::message_t resp(response_size({static_cast<const std::byte*>(req.data()), req.size()}));
+    std::memset(resp.data(), 0xa5, resp.size());
+    rep.send(resp, zmq::send_flags::none);
+  }
+}
+
+// ---- clients ----
+
+struct Rtts {
+  std::vector<double> us;
+  double pct(double p) const {
+    if (us.empty()) return 0;
+    auto v = us;
+    std::sort(v.begin(), v.end());
+    const auto k = static_cast<std::size_t>(std::ceil(p * static_cast<double>(v.size()))) ;
+    return v[std::min(v.size() - 1, k == 0 ? 0 : k - 1)];
+  }
+};
+
+void report_rtt(const Case& c, const Rtts& r) {
+  std::ostringstream o;
+  o << "rtt " << c.request << ":" << c.response << " " << r.pct(0.5) << " " << r.pct(0.99) << " " << r.us.size();
+  say(o.str());
+}
+
+// Calls `call(request, response)` once per iteration; returns false to stop on an error.
+using CallFn = std::function<bool(const Bytes& request)>;
+
+void measure(const std::vector<Case>& cases, const CallFn& call) {
+  for (const auto& c : cases) {
+    const auto req = make_request(c.request, c.response);
+    for (int i = 0; i < std::max(10, c.calls / 10); ++i)  // warm-up (segments grow, caches)
+      if (!call(req)) return say("error warm-up call failed for " + case_label(c));
+    Rtts r;
+    r.us.reserve(static_cast<std::size_t>(c.calls));
+    for (int i = 0; i < c.calls; ++i) {
+      const auto t0 = Clock::now();
+      if (!call(req)) return say("error call failed for " + case_label(c));
+      r.us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - t0).count());
+    }
+    report_rtt(c, r);
+  }
+}
+
+// `clients` threads call back to back for `seconds`; prints "tput <clients> <calls/s>".
+void throughput(int clients, double seconds, const std::function<CallFn(int)>& make) {
+  std::atomic<long long> total{0};
+  std::atomic<bool> failed{false};
+  std::vector<std::thread> threads;
+  const auto end = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(seconds));
+  const auto t0 = Clock::now();
+  for (int i = 0; i < clients; ++i)
+    threads.emplace_back([&, i] {
+      auto call = make(i);
+      const auto req = make_request(1024, 1024);
+      long long n = 0;
+      while (Clock::now() < end && !failed.load()) {
+        if (!call(req)) {
+          failed = true;
+          break;
+        }
+        ++n;
+      }
+      total += n;
+    });
+  for (auto& t : threads) t.join();
+  const double s = std::chrono::duration<double>(Clock::now() - t0).count();
+  if (failed) return say("error a throughput call failed");
+  say("tput " + std::to_string(clients) + " " + std::to_string(static_cast<double>(total.load()) / s));
+}
+
+int client_lcmx(const std::string& url, const std::string& vehicle, const std::string& name,
+                const std::vector<Case>& cases, int clients, double seconds) {
+  auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
+  auto node = rt.create_node("bench_client");
+  auto client = node.create_client_raw(name);
+  if (!client.wait_for_service(20s)) return say("error no server"), 1;
+  std::string path = lcmx::to_string(client.servers().front().path);
+  say("note path " + path);
+  measure(cases, [&](const Bytes& req) {
+    auto r = client.call(req, 10s);
+    if (!r.ok()) say("error " + r.message());
+    return r.ok();
+  });
+  if (clients > 0) {
+    std::vector<lcmx::RawClient> cs;
+    for (int i = 0; i < clients; ++i) {
+      cs.push_back(node.create_client_raw(name));
+      if (!cs.back().wait_for_service(20s)) return say("error no server"), 1;
+    }
+    throughput(clients, seconds, [&](int i) -> CallFn {
+      return [&, i](const Bytes& req) { return cs[static_cast<std::size_t>(i)].call(req, 10s).ok(); };
+    });
+  }
+  return 0;
+}
+
+int client_echo(const std::string& url, const std::string& name, const std::vector<Case>& cases) {
+  auto rt = lcmx::Runtime::create(runtime_options(url, ""));
+  auto node = rt.create_node("bench_echo_client");
+  auto ping = node.advertise_raw(name + "_PING");
+  std::mutex mu;
+  std::condition_variable cv;
+  // A call waits for a pong newer than its ping, counting them (one at a time: no overlap).
+  std::uint64_t pongs = 0, seen = 0;
+  auto sub = node.subscribe_raw(name + "_PONG", [&](const lcmx::RawMessage&) {
+    std::lock_guard lock(mu);
+    ++pongs;
+    cv.notify_all();
+  });
+  if (!ping.wait_for_subscribers(1, 20s) || !sub.wait_for_publishers(1, 20s)) return say("error no echo"), 1;
+  say("note path shm");
+  measure(cases, [&](const Bytes& req) {
+    ping.publish(req);
+    std::unique_lock lock(mu);
+    const bool ok = cv.wait_for(lock, 10s, [&] { return pongs > seen; });
+    seen = pongs;
+    return ok;
+  });
+  return 0;
+}
+
+int client_zmq(const std::string& endpoint, const std::vector<Case>& cases, int clients, double seconds) {
+  zmq::context_t ctx(1);
+  auto connect = [&] {
+    zmq::socket_t s(ctx, zmq::socket_type::req);
+    s.set(zmq::sockopt::linger, 0);
+    s.set(zmq::sockopt::rcvtimeo, 10000);
+    s.connect(endpoint);
+    return s;
+  };
+  auto sock = connect();
+  auto call_on = [](zmq::socket_t& s, const Bytes& req) {
+    s.send(zmq::buffer(req.data(), req.size()), zmq::send_flags::none);
+    zmq::message_t resp;
+    return s.recv(resp, zmq::recv_flags::none).has_value();
+  };
+  say("note path " + endpoint.substr(0, endpoint.find(':')));
+  measure(cases, [&](const Bytes& req) { return call_on(sock, req); });
+  if (clients > 0) {
+    std::vector<zmq::socket_t> socks;
+    for (int i = 0; i < clients; ++i) socks.push_back(connect());
+    throughput(clients, seconds, [&](int i) -> CallFn {
+      return [&, i](const Bytes& req) { return call_on(socks[static_cast<std::size_t>(i)], req); };
+    });
+  }
+  return 0;
+}
+
+// ---- orchestrator ----
+
+struct Result {
+  std::string method, path;
+  std::map<std::string, std::pair<double, double>> rtt;  // "req:resp" -> p50, p99
+  double tput = 0;
+  std::string error;
+};
+
+// Runs the server role, then the client role; collects the client's lines.
+Result run_method(const std::string& method, const std::vector<std::string>& server_args,
+                  const std::vector<std::string>& client_args, int server_ns = -1, int client_ns = -1) {
+  Result res;
+  res.method = method;
+  const auto exe = lcmxbench::self_exe();
+  lcmxbench::Pipe s_out, s_in, c_out;
+  // fork + exec of a role with its stdout on `out_w` and stdin on `in_r` (-1: inherited), in
+  // network namespace `ns` (-1: ours).
+  auto fork_role = [&](std::vector<std::string> args, int out_w, int in_r, int ns) -> pid_t {
+    std::vector<std::string> argv{exe};
+    argv.insert(argv.end(), args.begin(), args.end());
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+#ifdef LCMX_BENCH_WITH_NETNS
+      if (ns >= 0 && ::setns(ns, CLONE_NEWNET) != 0) std::_Exit(125);
+#else
+      (void)ns;
+#endif
+      if (in_r >= 0) ::dup2(in_r, STDIN_FILENO);
+      ::dup2(out_w, STDOUT_FILENO);
+      std::vector<char*> a;
+      for (auto& s : argv) a.push_back(s.data());
+      a.push_back(nullptr);
+      ::execv(a[0], a.data());
+      std::_Exit(127);
+    }
+    return pid;
+  };
+  const pid_t server = fork_role(server_args, s_out.w, s_in.r, server_ns);
+  s_out.close_w();
+  s_in.close_r();
+  lcmxbench::LineReader sr{s_out.r};
+  std::atomic<int> stop{0};
+  const auto deadline = lcmxbench::now_ns() + 20'000'000'000LL;
+  if (!lcmxbench::pump_until({&sr}, deadline, [&] { return sr.has("ready"); }, stop)) {
+    res.error = "the server did not start";
+  } else {
+    const pid_t client = fork_role(client_args, c_out.w, -1, client_ns);
+    c_out.close_w();
+    lcmxbench::LineReader cr{c_out.r};
+    lcmxbench::pump_until({&cr}, lcmxbench::now_ns() + 180'000'000'000LL, [] { return false; }, stop);
+    lcmxbench::reap_child(client, 5000, stop);
+    for (const auto& l : cr.lines) {
+      std::istringstream in(l);
+      std::string kind;
+      in >> kind;
+      if (kind == "rtt") {
+        std::string c;
+        double p50 = 0, p99 = 0;
+        in >> c >> p50 >> p99;
+        res.rtt[c] = {p50, p99};
+      } else if (kind == "tput") {
+        int n = 0;
+        in >> n >> res.tput;
+      } else if (kind == "note") {
+        std::string what;
+        in >> what >> res.path;
+      } else if (kind == "error" && res.error.empty()) {
+        res.error = l.substr(6);
+      }
+    }
+    if (cr.lines.empty() && res.error.empty()) res.error = "the client printed nothing";
+  }
+  s_in.close_w();  // the server's stdin closes: it exits
+  lcmxbench::reap_child(server, 5000, stop);
+  return res;
+}
+
+std::string fmt(double v) {
+  char b[32];
+  std::snprintf(b, sizeof b, v < 10 ? "%.1f" : "%.0f", v);
+  return b;
+}
+
+std::string ratio(double a, double b) {
+  if (a <= 0 || b <= 0) return "-";
+  char s[32];
+  std::snprintf(s, sizeof s, "%.2fx", a / b);
+  return s;
+}
+
+std::string table(const std::string& title, const std::vector<Result>& rs, const std::vector<Case>& cases,
+                  const Result& reference, const std::string& ref_name) {
+  std::ostringstream o;
+  o << "### " << title << "\n\n| method | path |";
+  for (const auto& c : cases) o << " " << case_label(c) << " p50 µs | p99 µs | p50 vs " << ref_name << " |";
+  o << " calls/s (8 clients, 1 KB) |\n|---|---|";
+  for (std::size_t i = 0; i < cases.size(); ++i) o << "---:|---:|---:|";
+  o << "---:|\n";
+  for (const auto& r : rs) {
+    o << "| " << r.method << " | " << (r.path.empty() ? "-" : r.path) << " |";
+    for (const auto& c : cases) {
+      const auto key = std::to_string(c.request) + ":" + std::to_string(c.response);
+      auto it = r.rtt.find(key);
+      auto ref = reference.rtt.find(key);
+      if (it == r.rtt.end()) {
+        o << " - | - | - |";
+        continue;
+      }
+      o << " " << fmt(it->second.first) << " | " << fmt(it->second.second) << " | "
+        << (ref == reference.rtt.end() ? "-" : ratio(it->second.first, ref->second.first)) << " |";
+    }
+    o << " " << (r.tput > 0 ? fmt(r.tput) : "-") << " |";
+    if (!r.error.empty()) o << " FAILED: " << r.error;
+    o << "\n";
+  }
+  return o.str();
+}
+
+std::string cases_arg(const std::vector<Case>& cases) {
+  std::string s;
+  for (const auto& c : cases)
+    s += (s.empty() ? "" : ",") + std::to_string(c.request) + ":" + std::to_string(c.response) + ":" +
+         std::to_string(c.calls);
+  return s;
+}
+
+std::vector<Case> parse_cases(const std::string& text) {
+  std::vector<Case> out;
+  std::istringstream in(text);
+  std::string item;
+  while (std::getline(in, item, ',')) {
+    Case c;
+    if (std::sscanf(item.c_str(), "%zu:%zu:%d", &c.request, &c.response, &c.calls) != 3)
+      throw std::invalid_argument("bad case '" + item + "'");
+    out.push_back(c);
+  }
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "lcmx_bench_service: service round trip (p50/p99) and calls/s, lcmx vs ZeroMQ REQ/REP and two lcmx\n"
+      "one-way shm messages, on one host and (root) between two emulated hosts. Markdown on stdout."};
+  std::string role, url, vehicle, name, endpoint, cases_text, markdown;
+  int calls = 2000, big_calls = 200, clients = 8;
+  double seconds = 3;
+  bool no_hosts = false;
+  app.add_option("--calls", calls, "measured calls of 1 KB / 1 KB")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--big-calls", big_calls, "measured calls of 1 KB / 1 MB")->check(CLI::PositiveNumber)->capture_default_str();
+  app.add_option("--clients", clients, "concurrent clients for calls/s (0: skip)")->check(CLI::Range(0, 64))->capture_default_str();
+  app.add_option("--seconds", seconds, "duration of the calls/s run")->check(CLI::Range(0.5, 60.0))->capture_default_str();
+  app.add_flag("--no-hosts", no_hosts, "skip the two-host part (it needs root for network namespaces)");
+  app.add_option("--markdown", markdown, "also write the tables to this file");
+  app.add_option("--role", role)->group("");  // hidden: the children
+  app.add_option("--url", url)->group("");
+  app.add_option("--vehicle", vehicle)->group("");
+  app.add_option("--name", name)->group("");
+  app.add_option("--endpoint", endpoint)->group("");
+  app.add_option("--cases", cases_text)->group("");
+  CLI11_PARSE(app, argc, argv);
+  spdlog::set_level(spdlog::level::warn);
+  struct sigaction sa {};
+  sa.sa_handler = on_signal;
+  for (int s : {SIGINT, SIGTERM}) ::sigaction(s, &sa, nullptr);
+  ::signal(SIGPIPE, SIG_IGN);
+
+  try {
+    if (!role.empty()) {
+      const auto cs = cases_text.empty() ? std::vector<Case>{} : parse_cases(cases_text);
+      if (role == "server-lcmx") return server_lcmx(url, vehicle, name);
+      if (role == "server-echo") return server_echo(url, name);
+      if (role == "server-zmq") return server_zmq(endpoint);
+      if (role == "client-lcmx") return client_lcmx(url, vehicle, name, cs, clients, seconds);
+      if (role == "client-echo") return client_echo(url, name, cs);
+      if (role == "client-zmq") return client_zmq(endpoint, cs, clients, seconds);
+      std::cerr << "unknown role " << role << "\n";
+      return 2;
+    }
+  } catch (const std::exception& e) {
+    say(std::string("error ") + e.what());
+    return 1;
+  }
+
+  const std::vector<Case> cases{{1024, 1024, calls}, {1024, 1u << 20, big_calls}};
+  const std::string tag = std::to_string(::getpid());
+  const std::string url1 = "udpm://239.255.79." + std::to_string(1 + ::getpid() % 250) + ":" +
+                           std::to_string(21000 + ::getpid() % 20000) + "?ttl=0&iface=lo";
+  const std::string cs = cases_arg(cases);
+  const std::string n_clients = std::to_string(clients), secs = std::to_string(seconds);
+  std::ostringstream md;
+  md << "## lcmx_bench_service\n\n";
+
+  std::cerr << "one host: lcmx service\n";
+  auto lx = run_method("lcmx service", {"--role", "server-lcmx", "--url", url1, "--name", "svcb_" + tag},
+                       {"--role", "client-lcmx", "--url", url1, "--name", "svcb_" + tag, "--cases", cs,
+                        "--clients", n_clients, "--seconds", secs});
+  std::cerr << "one host: two one-way lcmx shm messages\n";
+  auto echo = run_method("2 x lcmx one-way", {"--role", "server-echo", "--url", url1, "--name", "SVCB_" + tag},
+                         {"--role", "client-echo", "--url", url1, "--name", "SVCB_" + tag, "--cases", cs});
+  const std::string ipc = "ipc:///tmp/lcmx_bench_service_" + tag;
+  std::cerr << "one host: ZeroMQ REQ/REP ipc\n";
+  auto zi = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", ipc},
+                       {"--role", "client-zmq", "--endpoint", ipc, "--cases", cs, "--clients", n_clients, "--seconds", secs});
+  ::unlink(("/tmp/lcmx_bench_service_" + tag).c_str());
+  const std::string tcp = "tcp://127.0.0.1:" + std::to_string(41000 + ::getpid() % 20000);
+  std::cerr << "one host: ZeroMQ REQ/REP tcp\n";
+  auto zt = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp},
+                       {"--role", "client-zmq", "--endpoint", tcp, "--cases", cs, "--clients", n_clients, "--seconds", secs});
+  md << table("One host (ratios against ZeroMQ ipc)", {lx, echo, zi, zt}, cases, zi, "ZeroMQ ipc") << "\n";
+  md << table("One host (ratios against two one-way shm messages)", {lx, echo}, cases, echo, "2 x one-way") << "\n";
+
+#ifdef LCMX_BENCH_WITH_NETNS
+  if (!no_hosts && !g_stop.load()) {
+    std::string why;
+    if (!lcmx::test::netns_available(&why)) {
+      md << "Two hosts: skipped (" << why << ")\n";
+    } else {
+      auto emu = lcmx::test::Emulation::create({.hosts = 2, .links = {lcmx::test::LinkSpec{.name = "eth"}}});
+      const std::string local = "udpm://239.255.78.1:7667?ttl=0";
+      const std::string veh = "udpm://239.255.78.2:7668?ttl=1&iface=eth";
+      std::cerr << "two hosts: lcmx service\n";
+      auto lx2 = run_method("lcmx service", {"--role", "server-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb"},
+                            {"--role", "client-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb", "--cases", cs,
+                             "--clients", n_clients, "--seconds", secs},
+                            emu.ns_fd(1), emu.ns_fd(0));
+      const std::string tcp2 = "tcp://" + emu.address(1, "eth") + ":5599";
+      std::cerr << "two hosts: ZeroMQ REQ/REP tcp\n";
+      auto zt2 = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp2},
+                            {"--role", "client-zmq", "--endpoint", tcp2, "--cases", cs, "--clients", n_clients,
+                             "--seconds", secs},
+                            emu.ns_fd(1), emu.ns_fd(0));
+      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)", {lx2, zt2}, cases, zt2,
+                  "ZeroMQ tcp")
+         << "\n";
+    }
+  }
+#else
+  (void)no_hosts;
+  md << "Two hosts: not built (needs lcmx::test_netns, LCMX_BUILD_TESTS=ON)\n";
+#endif
+  std::cout << md.str() << std::flush;
+  if (!markdown.empty()) std::ofstream(markdown) << md.str();
+  return 0;
+}
