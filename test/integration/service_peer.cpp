@@ -6,8 +6,10 @@
 //     Serves N, prints "READY participant=<id>", then reads commands on stdin:
 //       "block"  from now on a request with x < 0 prints "CALLED <x>" and never returns
 //       "quit"   (or EOF) prints "SERVED <requests>" and exits 0
-//   client --name N --calls K [--size BYTES] [--call-timeout-ms T] [--servers S]
-//     Waits for a server (for S servers with --servers), makes K calls (x = 0..K-1), checks every response's seq and bytes,
+//   client --name N --calls K [--size BYTES] [--call-timeout-ms T] [--servers S] [--first X] [--go]
+//     Waits for a server (for S servers with --servers), prints "CHOSEN participant=<id>" (the
+//     server calls go to), with --go waits for "go" on stdin, makes K calls (x = X..X+K-1,
+//     default X = 0), checks every response's seq and bytes,
 //     prints "CALLS ok=<n> failed=<f> wrong=<w> path=<path of the last answer>
 //     server=<participant> error=<first error or ->" and exits 0.
 // Every run ends by itself after --timeout-ms (exit 3).
@@ -76,7 +78,7 @@ int run_server(const std::string& name) {
 }
 
 int run_client(const std::string& name, int calls, int size, int call_timeout_ms,
-               std::size_t servers_wanted) {
+               std::size_t servers_wanted, int first, bool go) {
   auto rt = lcmx::Runtime::create();
   auto node = rt.create_node("service_peer_client");
   auto client = node.create_client<lcmx_examples::pose_t, lcmx_examples::bench_t>(name);
@@ -87,10 +89,16 @@ int run_client(const std::string& name, int calls, int size, int call_timeout_ms
   const auto deadline = std::chrono::steady_clock::now() + 20s;
   while (client.servers().size() < servers_wanted && std::chrono::steady_clock::now() < deadline)
     std::this_thread::sleep_for(5ms);  // condition polling with a deadline
+  say("CHOSEN participant=" + std::to_string(client.servers().front().participant));
+  if (go) {
+    std::string line;
+    while (std::getline(std::cin, line) && line != "go") {
+    }
+  }
   int ok = 0, failed = 0, wrong = 0;
   std::string first_error = "-", path = "-";
   std::uint64_t server = 0;
-  for (int i = 0; i < calls; ++i) {
+  for (int i = first; i < first + calls; ++i) {
     lcmx_examples::pose_t p;
     p.position[0] = i;
     p.position[1] = size;
@@ -120,6 +128,8 @@ int main(int argc, char** argv) {
   std::string name;
   int calls = 10, size = 16, call_timeout_ms = 5000, timeout_ms = 60000;
   std::size_t servers_wanted = 1;
+  int first = 0;
+  bool go = false;
   app.require_subcommand(1);
   auto* server = app.add_subcommand("server", "serve NAME");
   auto* client = app.add_subcommand("client", "call NAME");
@@ -131,6 +141,8 @@ int main(int argc, char** argv) {
   client->add_option("--size", size, "response data bytes");
   client->add_option("--call-timeout-ms", call_timeout_ms);
   client->add_option("--servers", servers_wanted, "wait until this many servers are known");
+  client->add_option("--first", first, "x of the first call");
+  client->add_flag("--go", go, "wait for \"go\" on stdin before calling");
   CLI11_PARSE(app, argc, argv);
   std::thread([timeout_ms] {
     std::this_thread::sleep_for(std::chrono::milliseconds(timeout_ms));
@@ -139,7 +151,7 @@ int main(int argc, char** argv) {
   }).detach();
   try {
     if (*server) return run_server(name);
-    return run_client(name, calls, size, call_timeout_ms, servers_wanted);
+    return run_client(name, calls, size, call_timeout_ms, servers_wanted, first, go);
   } catch (const std::exception& e) {
     say(std::string("FATAL ") + e.what());
     return 1;
