@@ -280,7 +280,9 @@ class ServerCore {
   struct ReplyChannel {
     std::shared_ptr<PublisherCore> pub;
     std::uint64_t client_participant = 0;
+    Clock::time_point last_subscribed;  // last seen with a subscriber (or made)
   };
+  static constexpr std::chrono::seconds kClientGone{10};
   // The publisher of `h.reply_channel`, made on first use. Null for a malformed channel.
   PublisherCore* reply_channel(const RequestHeader& h);
   void reply(PublisherCore& pub, const ReplyHeader& rh, std::span<const std::byte> payload);
@@ -299,15 +301,18 @@ PublisherCore* ServerCore::reply_channel(const RequestHeader& h) {
     std::lock_guard lock(mu);
     if (auto it = replies.find(h.reply_channel); it != replies.end()) return it->second.pub.get();
   }
-  // A new client. Forget clients whose participant no longer publishes requests to us.
-  std::set<std::uint64_t> alive;
-  for (const auto& p : subscriber_stats(*request_sub).publishers) alive.insert(p.publisher_participant);
+  // A new client. Forget clients that went away: their reply channel has had no subscriber
+  // for kClientGone (a client's reply subscriber lives as long as the client; across the
+  // bridges, the bridge's subscription lives as long as the client's demand).
   auto pub = create_publisher(*node, h.reply_channel, reply_type_info(), PublisherOptions{});
   std::vector<std::shared_ptr<PublisherCore>> gone;  // destroyed with no lock held
+  const auto now = Clock::now();
   std::lock_guard lock(mu);
   for (auto it = replies.begin(); it != replies.end();) {
-    if (!alive.contains(it->second.client_participant)) {
-      gone.push_back(std::move(it->second.pub));
+    auto& rc = it->second;
+    if (rc.pub->subscriber_count() > 0) rc.last_subscribed = now;
+    if (now - rc.last_subscribed > kClientGone) {
+      gone.push_back(std::move(rc.pub));
       it = replies.erase(it);
     } else {
       ++it;
@@ -316,6 +321,7 @@ PublisherCore* ServerCore::reply_channel(const RequestHeader& h) {
   auto& r = replies[h.reply_channel];
   r.pub = std::move(pub);
   r.client_participant = static_cast<std::uint64_t>(h.client_participant);
+  r.last_subscribed = now;
   return r.pub.get();
 }
 
@@ -486,7 +492,8 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
  private:
   struct Known {
     ServerInfo info;
-    std::uint64_t reply_endpoint = 0;
+    // The publisher of our reply channel we hear this server through (see on_reply).
+    std::uint64_t reply_participant = 0, reply_endpoint = 0;
     bool types_ok = true;
     std::string mismatch;  // !types_ok: the server's words
   };
@@ -677,7 +684,7 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished) {
     matched[{p.publisher_participant, p.publisher_endpoint}] = p.path;
   std::set<std::pair<std::uint64_t, std::uint64_t>> gone;
   for (auto it = servers.begin(); it != servers.end();) {
-    auto m = matched.find({it->second.info.participant, it->second.reply_endpoint});
+    auto m = matched.find({it->second.reply_participant, it->second.reply_endpoint});
     if (m == matched.end()) {
       gone.insert(it->first);
       it = servers.erase(it);
@@ -782,10 +789,22 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
     k.info.request_fingerprint = h.request_fingerprint;
     k.info.response_fingerprint = h.response_fingerprint;
     k.reply_endpoint = static_cast<std::uint64_t>(h.reply_endpoint);
+    // The publisher we hear the server through: its own reply publisher, or (a server on
+    // another host behind the Message Bridges) this host's bridge republishing the channel.
+    // When that publisher is no longer matched, the server is gone for us.
+    k.reply_participant = k.info.participant;
     bool matched = false;
-    for (const auto& p : subscriber_stats(*reply_sub).publishers)
+    const auto pairs = subscriber_stats(*reply_sub).publishers;
+    for (const auto& p : pairs)
       if (p.publisher_participant == k.info.participant && p.publisher_endpoint == k.reply_endpoint) {
         k.info.path = p.path;
+        matched = true;
+      }
+    for (const auto& p : pairs)
+      if (!matched && p.path == Path::bridge) {
+        k.reply_participant = p.publisher_participant;
+        k.reply_endpoint = p.publisher_endpoint;
+        k.info.path = Path::bridge;
         matched = true;
       }
     if (!matched) return;  // already gone again

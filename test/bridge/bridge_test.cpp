@@ -749,3 +749,34 @@ TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host
   p.kill9();
   pub.send("quit");
 }
+
+// Issue 12: a service whose 6 MB responses cross hosts through the Message Bridges. These
+// hosts have no vehicle group: the bridges carry the service's small requests too (`carry`),
+// and its replies as large topics.
+TEST_CASE("service across hosts through the bridges: 6 MB responses, each checked by content",
+          "[bridge][multihost][service]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 42, {{.name = "eth"}}, 60000ms);
+  const auto name = w.channel("SVC");
+  const BridgeOpts o{.extra = "carry = [\"" + name + "/*\"]\n"};
+  auto& ba = w.bridge(0, {1}, o);
+  auto& bb = w.bridge(1, {0}, o);
+  auto& server = w.spawn(1, {LCMX_SERVICE_PEER, "server", "--name", name, "--timeout-ms", "55000"});
+  REQUIRE(server.expect("READY", 10000ms));
+  auto& client = w.spawn(0, {LCMX_SERVICE_PEER, "client", "--name", name, "--calls", "5", "--size",
+                             std::to_string(6 * 1024 * 1024), "--call-timeout-ms", "15000", "--timeout-ms", "55000"});
+  auto line = client.expect("CALLS", 50000ms);
+  INFO(client.output());
+  for (auto* c : {&ba, &bb, &server})
+    while (c->read_line(0ms)) {
+    }
+  INFO("bridge A:\n" << ba.output() << "bridge B:\n" << bb.output() << "server:\n" << server.output());
+  REQUIRE(line);
+  const auto kv = lcmx::it::parse_kv(*line);
+  CHECK(kv.at("ok") == "5");
+  CHECK(kv.at("failed") == "0");
+  CHECK(kv.at("wrong") == "0");
+  CHECK(kv.at("path") == "bridge");
+  server.send("quit");
+  REQUIRE(server.expect("SERVED"));
+}
