@@ -701,7 +701,7 @@ TEST_CASE("lcmx echo on host B decodes a large topic of host A carried by the br
   pub.send("quit");
 }
 
-TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host A carried by the bridges; lcmx pub on A reaches B",
+TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host A carried by the bridges, and lcmx pub on A reaches B",
           "[bridge][multihost][tools]") {
   LCMX_REQUIRE_NETNS();
   World w(2, 41, {{.name = "eth"}});
@@ -724,12 +724,44 @@ TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host
   CHECK(report->find("\"channel\":\"" + ch + "\"") != std::string::npos);
   CHECK(hz.wait(5000ms) == 0);
 
-  // monitor --once and graph on B: the topic, its type and host A's publisher.
-  const auto mon = w.spawn(1, {LCMX_TOOL, "monitor", "--once", "--json", "--types", LCMX_LCMTYPES_DIR}).wait(15000ms);
-  CHECK(mon == 0);
-  auto& graph = w.spawn(1, {LCMX_TOOL, "graph", "--json"});
-  CHECK(graph.wait(15000ms) == 0);
-  CHECK(graph.text().find(ch) != std::string::npos);
+  // monitor --once and graph on B see the topic while B has a subscriber of it (another hz:
+  // the bridges carry a topic only on demand) and A keeps publishing.
+  auto& keep = w.spawn(1, {LCMX_TOOL, "hz", ch, "--json", "--period", "0.2"});
+  // Runs a tool on B to its end while A publishes every 20 ms; its output.
+  auto run_publishing = [&](std::vector<std::string> argv) {
+    auto& tool = w.spawn(1, std::move(argv));
+    const auto end = Clock::now() + 15000ms;
+    bool eof = false;
+    while (!eof && Clock::now() < end) {
+      pub.send(pub_cmd(1, 0));
+      published_total(pub);
+      const auto until = Clock::now() + 20ms;
+      while (!eof && Clock::now() < until) {
+        if (!tool.read_line(std::chrono::duration_cast<ms>(until - Clock::now()))) eof = Clock::now() < until;
+      }
+    }
+    CHECK(tool.wait(5000ms) == 0);
+    return tool.text();
+  };
+  std::string mon_text, graph_text;
+  bool in_monitor = false, in_graph = false;
+  const auto deadline_tools = Clock::now() + 20000ms;
+  while (!(in_monitor && in_graph) && Clock::now() < deadline_tools) {
+    if (!in_monitor) {
+      mon_text = run_publishing({LCMX_TOOL, "monitor", "--once", "--json", "--types", LCMX_LCMTYPES_DIR});
+      in_monitor = mon_text.find("\"" + ch + "\",\"type\":\"lcmx_examples.bench_t\"") != std::string::npos;
+    }
+    if (!in_graph) {
+      graph_text = run_publishing({LCMX_TOOL, "graph", "--json"});
+      in_graph = graph_text.find(ch) != std::string::npos;
+    }
+  }
+  while (keep.read_line(0ms)) {
+  }
+  INFO("monitor: " << mon_text << "\ngraph: " << graph_text << "\nhz: " << keep.text());
+  CHECK(in_monitor);
+  CHECK(in_graph);
+  keep.kill9();
 
   // lcmx pub on A (a large image) -> lcmx echo on B, through the bridges.
   const auto img = w.channel("TOOLS_IMG");

@@ -329,7 +329,7 @@ TEST_CASE("service: a call fails over when its server goes before answering", "[
   }
 }
 
-TEST_CASE("service: bad names are errors; closing a client ends its calls", "[service]") {
+TEST_CASE("service: bad names are errors, and closing a client ends its calls", "[service]") {
   auto rt = lcmx::Runtime::create(test_options());
   auto n = rt.create_node("n");
   CHECK_THROWS_AS(n.create_client_raw(""), lcmx::Error);
