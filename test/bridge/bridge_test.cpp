@@ -727,40 +727,64 @@ TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host
   // monitor --once and graph on B see the topic while B has a subscriber of it (another hz:
   // the bridges carry a topic only on demand) and A keeps publishing.
   auto& keep = w.spawn(1, {LCMX_TOOL, "hz", ch, "--json", "--period", "0.2"});
-  // Runs a tool on B to its end while A publishes every 20 ms; its output.
+  // The messages `keep` has received (its latest report's "total"; 0 before any).
+  auto keep_total = [&] {
+    while (keep.read_line(0ms)) {
+    }
+    long long total = 0;
+    const std::string text = keep.text();
+    if (const auto at = text.rfind("\"total\":"); at != std::string::npos) total = std::stoll(text.substr(at + 8));
+    return total;
+  };
+  // Runs a tool on B to its end (EOF on its stdout) while A publishes at 50 Hz; its output.
   auto run_publishing = [&](std::vector<std::string> argv) {
     auto& tool = w.spawn(1, std::move(argv));
     const auto end = Clock::now() + 15000ms;
-    bool eof = false;
-    while (!eof && Clock::now() < end) {
-      pub.send(pub_cmd(1, 0));
+    while (!tool.eof() && Clock::now() < end) {
+      pub.send(pub_cmd(5, 50));  // 100 ms of messages, then look at the tool again
       published_total(pub);
-      const auto until = Clock::now() + 20ms;
-      while (!eof && Clock::now() < until) {
-        if (!tool.read_line(std::chrono::duration_cast<ms>(until - Clock::now()))) eof = Clock::now() < until;
+      while (tool.read_line(0ms)) {
       }
     }
+    CHECK(tool.eof());
     CHECK(tool.wait(5000ms) == 0);
     return tool.text();
   };
-  std::string mon_text, graph_text;
+  // The monitor's JSON object of channel `ch` ("" if absent).
+  auto monitor_entry = [&](const std::string& text) {
+    const auto at = text.find("{\"channel\":\"" + ch + "\"");
+    return at == std::string::npos ? std::string() : text.substr(at, text.find('}', at) - at + 1);
+  };
+  auto monitor_messages = [](const std::string& entry) {
+    const auto at = entry.find("\"messages\":");
+    return at == std::string::npos ? 0ll : std::stoll(entry.substr(at + 11));
+  };
+  const long long keep_before = keep_total();
+  std::string mon_text, mon_entry, graph_text;
   bool in_monitor = false, in_graph = false;
-  const auto deadline_tools = Clock::now() + 20000ms;
+  const auto deadline_tools = Clock::now() + 20000ms;  // the first runs may start before keep matched
   while (!(in_monitor && in_graph) && Clock::now() < deadline_tools) {
     if (!in_monitor) {
       mon_text = run_publishing({LCMX_TOOL, "monitor", "--once", "--json", "--types", LCMX_LCMTYPES_DIR});
-      in_monitor = mon_text.find("\"" + ch + "\",\"type\":\"lcmx_examples.bench_t\"") != std::string::npos;
+      mon_entry = monitor_entry(mon_text);
+      in_monitor = mon_entry.find("\"type\":\"lcmx_examples.bench_t\"") != std::string::npos &&
+                   monitor_messages(mon_entry) > 0;
     }
     if (!in_graph) {
       graph_text = run_publishing({LCMX_TOOL, "graph", "--json"});
-      in_graph = graph_text.find(ch) != std::string::npos;
+      // keep's pair with B's bridge republisher, and the topic in the topic list.
+      in_graph = graph_text.find("\"topic\":\"" + ch + "\",\"type\":\"\",\"pairs\":[{\"publisher\":") !=
+                     std::string::npos &&
+                 graph_text.find("\"path\":\"bridge\"") != std::string::npos &&
+                 graph_text.find("{\"topic\":\"" + ch + "\",") != std::string::npos;
     }
   }
-  while (keep.read_line(0ms)) {
-  }
+  // The new subscriber kept receiving while A published (about 2 s of 50 Hz per tool run).
+  const long long keep_after = keep_total();
   INFO("monitor: " << mon_text << "\ngraph: " << graph_text << "\nhz: " << keep.text());
   CHECK(in_monitor);
   CHECK(in_graph);
+  CHECK(keep_after - keep_before >= 50);
   keep.kill9();
 
   // lcmx pub on A (a large image) -> lcmx echo on B, through the bridges.
