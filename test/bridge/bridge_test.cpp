@@ -317,6 +317,54 @@ std::string bridge_status(World& w, int host) {
 
 }  // namespace
 
+TEST_CASE("the only subscriber on host B leaves, the bridges stop carrying the topic, a new subscriber on B gets it again",
+          "[bridge][multihost]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 9, {{.name = "eth"}});
+  const auto ch = w.channel("REDEMAND");
+  w.bridge(0, {1});
+  w.bridge(1, {0});
+  auto* first = &w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 200000, "A");  // large: above the 65000-byte UDP limit
+  warm_up(pub, {first}, ch);
+  const auto fin = status_of(*first, ch);
+  check_clean(fin);
+  CHECK(first->summaries("quit").size() > 0);
+  CHECK(first->wait(5000ms) == 0);
+
+  // B's demand no longer has the topic: A's bridge stops serving it (and B's drops its
+  // republisher). Published meanwhile, so nothing arrives on B for nobody.
+  const auto deadline = Clock::now() + 15000ms;
+  std::string st;
+  bool stopped = false;
+  while (!stopped && Clock::now() < deadline) {
+    pub.send(pub_cmd(1, 0));
+    published_total(pub);
+    st = bridge_status(w, 0);
+    stopped = st.find("serves: -") != std::string::npos && st.find(ch) == std::string::npos;
+  }
+  INFO("bridge status on A:\n" << st);
+  REQUIRE(stopped);
+
+  // A new subscriber on B: demand again, A serves again, B republishes again; every message
+  // published from then on arrives, once and in order.
+  auto& second = w.sub(1, {ch});
+  const long long warm = warm_up(pub, {&second}, ch);
+  auto [before, drained] = wait_sub(second, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms);
+  REQUIRE(drained);
+  constexpr long kN = 50;
+  pub.send(pub_cmd(kN, 100));
+  REQUIRE(published_total(pub) == warm + kN);
+  auto [after, ok] = wait_sub(second, ch, [&](const Summary& x) { return x.num("received") == before.num("received") + kN; },
+                              10000ms);
+  INFO("subscriber:\n" << second.output() << "\nbridge status on B:\n" << bridge_status(w, 1));
+  REQUIRE(ok);
+  check_clean(after);
+  CHECK(after.num("last") == warm + kN - 1);
+  CHECK(after.str("paths") == "bridge");
+  pub.send("quit");
+}
+
 TEST_CASE("three hosts, publishers on A and C, subscribers on B and C: no loops, no duplicates, in order",
           "[bridge][multihost]") {
   LCMX_REQUIRE_NETNS();
