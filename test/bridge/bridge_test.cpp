@@ -820,11 +820,11 @@ TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host
     }
     if (!in_graph) {
       graph_text = run_publishing({LCMX_TOOL, "graph", "--json"});
-      // keep's pair with B's bridge republisher, and the topic in the topic list.
-      in_graph = graph_text.find("\"topic\":\"" + ch + "\",\"type\":\"\",\"pairs\":[{\"publisher\":") !=
-                     std::string::npos &&
-                 graph_text.find("\"path\":\"bridge\"") != std::string::npos &&
-                 graph_text.find("{\"topic\":\"" + ch + "\",") != std::string::npos;
+      // keep's subscription paired with B's bridge republisher, and the topic in the topic list.
+      const auto sub_at = graph_text.find("\"subscribes\":[{\"topic\":\"" + ch + "\"");
+      in_graph = sub_at != std::string::npos &&
+                 graph_text.find("/bridge_republish\",\"path\":\"bridge\"", sub_at) != std::string::npos &&
+                 graph_text.find("{\"topic\":\"" + ch + "\",\"types\":") != std::string::npos;
     }
   }
   // The new subscriber kept receiving while A published (about 2 s of 50 Hz per tool run).
