@@ -319,6 +319,9 @@ class Child {
     pid_ = -1;
     return WIFEXITED(st) ? WEXITSTATUS(st) : -WTERMSIG(st);
   }
+  // Whether read_line() has seen the end of stdout (the child closed it, normally by exiting).
+  // A read_line() that returned nullopt may also have timed out: ask this, not the clock.
+  bool eof() const { return eof_; }
   bool running() const { return pid_ > 0; }
   pid_t pid() const { return pid_; }
   pid_t started_pid() const { return started_pid_; }
