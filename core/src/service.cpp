@@ -279,7 +279,6 @@ class ServerCore {
  private:
   struct ReplyChannel {
     std::shared_ptr<PublisherCore> pub;
-    std::uint64_t client_participant = 0;
     Clock::time_point last_subscribed;  // last seen with a subscriber (or made)
   };
   static constexpr std::chrono::seconds kClientGone{10};
@@ -320,7 +319,6 @@ PublisherCore* ServerCore::reply_channel(const RequestHeader& h) {
   }
   auto& r = replies[h.reply_channel];
   r.pub = std::move(pub);
-  r.client_participant = static_cast<std::uint64_t>(h.client_participant);
   r.last_subscribed = now;
   return r.pub.get();
 }
@@ -517,7 +515,7 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   // Under mu: drop servers whose reply publisher is no longer matched, fail calls over.
   void refresh_servers_locked(std::vector<Finished>& finished);
   const Known* best_locked() const;
-  void send_locked(std::uint64_t request_id, Pending& p, const Known& server);
+  void send_locked(Pending& p, const Known& server);
   void dispatch_waiting_locked();
   void expire_locked(Clock::time_point now, std::vector<Finished>& finished);
   std::string mismatch_text_locked() const;
@@ -706,7 +704,7 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished) {
       ++counters.failovers;
       spdlog::info("lcmx: service '{}': server {:x}/{} went away; call {} goes to {:x}/{}", name,
                    p.target.participant, p.target.id, it->first, next->info.participant, next->info.id);
-      send_locked(it->first, p, *next);
+      send_locked(p, *next);
       ++it;
     } else {
       finished.push_back({std::move(p.done), CallErrc::server_gone,
@@ -729,8 +727,7 @@ const ClientCore::Known* ClientCore::best_locked() const {
   return best;
 }
 
-void ClientCore::send_locked(std::uint64_t request_id, Pending& p, const Known& server) {
-  (void)request_id;
+void ClientCore::send_locked(Pending& p, const Known& server) {
   p.target = server.info;
   p.sent = true;
   patch_target(p.message, server.info.participant, server.info.id);
@@ -741,7 +738,7 @@ void ClientCore::dispatch_waiting_locked() {
   const Known* best = best_locked();
   if (best == nullptr) return;
   for (auto& [id, p] : pending)
-    if (!p.sent) send_locked(id, p, *best);
+    if (!p.sent) send_locked(p, *best);
 }
 
 std::string ClientCore::mismatch_text_locked() const {
@@ -879,7 +876,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
   auto& slot = pending[static_cast<std::uint64_t>(h.request_id)] = std::move(p);
   bool wake = true;  // no server yet: probe now
   if (const Known* best = best_locked()) {
-    send_locked(static_cast<std::uint64_t>(h.request_id), slot, *best);
+    send_locked(slot, *best);
     wake = slot.deadline < wake_at;  // the client thread must time it out earlier than planned
   }
   lock.unlock();
