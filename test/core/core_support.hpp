@@ -29,6 +29,13 @@ inline lcmx::RuntimeOptions test_options() {
   return o;
 }
 
+// Node options of a manual executor (the test calls spin_once()).
+inline lcmx::NodeOptions manual() {
+  lcmx::NodeOptions o;
+  o.executor.kind = lcmx::ExecutorKind::manual;
+  return o;
+}
+
 // Waits for pred() with a deadline (condition polling, not a sleep to synchronise).
 template <class Pred>
 bool eventually(Pred pred, std::chrono::milliseconds deadline = 5000ms) {

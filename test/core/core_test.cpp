@@ -22,6 +22,7 @@ namespace {
 
 using namespace std::chrono_literals;
 using lcmx::core_test::eventually;
+using lcmx::core_test::manual;
 using lcmx::core_test::test_options;
 
 // A message type that records every construction and destruction.
@@ -32,12 +33,6 @@ struct Counted : lcmx_examples::pose_t {
   ~Counted() { ++destroyed; }
   static void reset() { constructed = copied = destroyed = 0; }
 };
-
-lcmx::NodeOptions manual() {
-  lcmx::NodeOptions o;
-  o.executor.kind = lcmx::ExecutorKind::manual;
-  return o;
-}
 
 }  // namespace
 

@@ -20,6 +20,7 @@ namespace {
 
 using namespace std::chrono_literals;
 using lcmx::core_test::eventually;
+using lcmx::core_test::manual;
 using lcmx::core_test::test_options;
 using Pose = lcmx_examples::pose_t;
 using Bench = lcmx_examples::bench_t;
@@ -61,12 +62,6 @@ struct Gate {
     return cv.wait_for(lock, 10s, [&] { return arrived >= n; });
   }
 };
-
-lcmx::NodeOptions manual() {
-  lcmx::NodeOptions o;
-  o.executor.kind = lcmx::ExecutorKind::manual;
-  return o;
-}
 
 }  // namespace
 
