@@ -1,7 +1,9 @@
 // Services across processes on one host (shared memory): calls both ways, a 1 MB response,
 // a server SIGKILLed mid-call (fail-over to the other server, or server_gone), many client
 // processes and two servers. The peers are lcmx_service_peer (service_peer.cpp).
+#include <fstream>
 #include <future>
+#include <iterator>
 
 #include "lcmx/core.hpp"
 #include "lcmx_examples/bench_t.hpp"
@@ -27,6 +29,14 @@ Pose request(double x, double size) {
   p.position[0] = x;
   p.position[1] = size;
   return p;
+}
+
+// The state letter of /proc/<pid>/stat ('R', 'S', 'T' for stopped, ...), '?' if unreadable.
+char process_state(pid_t pid) {
+  std::ifstream f("/proc/" + std::to_string(pid) + "/stat");
+  std::string stat((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+  const auto close = stat.rfind(')');
+  return close == std::string::npos || close + 2 >= stat.size() ? '?' : stat[close + 2];
 }
 
 bool content_ok(const Bench& b) {
@@ -233,3 +243,39 @@ TEST_CASE("lcmx services and lcmx call against a server process", "[integration]
   CHECK(server.wait() == 0);
 }
 #endif
+
+TEST_CASE("service across processes: a SIGSTOPped server: a call times out, past the lease the call in flight ends server_gone, after SIGCONT it answers again",
+          "[integration][service]") {
+  Session s(135);
+  const auto name = unique_channel("SVC", 135);
+  auto& server = server_peer(s, name);
+  REQUIRE(server.expect("READY"));
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("client");
+  auto client = node.create_client<Pose, Bench>(name);
+  REQUIRE(client.wait_for_service(10000ms));
+  REQUIRE(client.call(request(1, 8), 5000ms).ok());
+  server.signal(SIGSTOP);  // a debugger's breakpoint: alive, silent, beyond its lease
+  // Every thread of it stopped (state T), not just signalled: a running thread finishes its
+  // time slice first.
+  REQUIRE(wait_until([&] { return process_state(server.pid()) == 'T'; }, 5000ms));
+  auto r = client.call(request(2, 8), 300ms);
+  REQUIRE_FALSE(r.ok());
+  CHECK(r.error() == lcmx::CallErrc::timeout);
+  CHECK(client.stats().pending == 0);  // the timed-out call is forgotten, not leaked
+  // Stopped past its lease (600 ms here): the server is gone for the client, so a call in
+  // flight ends with server_gone (no other server), before its own 3 s timeout.
+  auto f = client.call_async(request(3, 8), 3000ms);
+  REQUIRE(f.wait_for(5000ms) == std::future_status::ready);
+  auto gone = f.get();
+  CHECK(gone.error() == lcmx::CallErrc::server_gone);
+  CHECK(client.servers().empty());
+  server.signal(SIGCONT);
+  // Back: it beacons again, answers a probe, and a new call (which waits for a server within
+  // its timeout) is answered as before.
+  auto again = client.call(request(4, 8), 5000ms);
+  INFO(lcmx::to_string(again.error()) << ": " << again.message());
+  REQUIRE(again.ok());
+  CHECK(again.value().seq == 4);
+  CHECK(client.stats().pending == 0);
+}
