@@ -3,8 +3,9 @@
 //
 //   one host   lcmx service (shm)  |  two lcmx one-way shm messages (ping -> pong)  |
 //              ZeroMQ REQ/REP over ipc://  and  tcp://127.0.0.1
-//   two hosts  lcmx service (UDP, the vehicle group; and through a Message Bridge on each host)  |
-//              ZeroMQ REQ/REP over TCP on the same link
+//   two hosts  lcmx service (UDP, the vehicle group; a 1 MB response as UDP fragments)  |
+//              ZeroMQ REQ/REP over TCP on the same link. Not yet: the row through the Message
+//              Bridges (docs/services.md "Known limits").
 //
 // Every method runs a server process and a client process (this binary with a hidden --role);
 // the client measures each call's round trip with CLOCK_MONOTONIC and prints "rtt <case>
@@ -25,7 +26,6 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstring>
-#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -38,9 +38,6 @@
 #include "lcmx/core.hpp"
 #ifdef LCMX_BENCH_WITH_NETNS
 #include "lcmx/test/netns.hpp"
-#endif
-#ifndef LCMX_BENCH_LCMX_TOOL
-#define LCMX_BENCH_LCMX_TOOL "lcmx"
 #endif
 
 namespace {
@@ -226,7 +223,11 @@ int client_lcmx(const std::string& url, const std::string& vehicle, const std::s
       if (!cs.back().wait_for_service(20s)) return say("error no server"), 1;
     }
     throughput(clients, seconds, [&](int i) -> CallFn {
-      return [&, i](const Bytes& req) { return cs[static_cast<std::size_t>(i)].call(req, 10s).ok(); };
+      return [&, i](const Bytes& req) {
+        auto r = cs[static_cast<std::size_t>(i)].call(req, 10s);
+        if (!r.ok()) say(std::string("error ") + lcmx::to_string(r.error()) + ": " + r.message());
+        return r.ok();
+      };
     });
   }
   return 0;
@@ -518,41 +519,7 @@ int main(int argc, char** argv) {
                             {"--role", "client-zmq", "--endpoint", tcp2, "--cases", cs, "--clients", n_clients,
                              "--seconds", secs},
                             emu.ns_fd(1), emu.ns_fd(0));
-      // The same service with a Message Bridge on each host carrying its channels (`carry`):
-      // the path lcmx takes for large messages between hosts.
-      Result lxb;
-      lxb.method = "lcmx service, bridges";
-      try {
-        const std::string dir = "/tmp/lcmx_bench_service_" + tag;
-        std::filesystem::create_directories(dir);
-        const char* names[] = {"svcA", "svcB"};
-        std::vector<lcmx::test::Child> bridges;
-        for (int i = 0; i < 2; ++i) {
-          const std::string path = dir + "/bridge" + std::to_string(i) + ".toml";
-          std::ofstream f(path);
-          f << "name = \"" << names[i] << "\"\nlisten = [\"" << emu.address(i, "eth") << "\"]\n"
-            << "control_port = 7700\nheartbeat_ms = 100\nlink_timeout_ms = 500\ncarry = [\"svcbb/*\"]\n\n"
-            << "[[peer]]\nname = \"" << names[1 - i] << "\"\n"
-            << "endpoints = [ { link = \"eth\", address = \"" << emu.address(1 - i, "eth") << "\" } ]\n";
-          f.close();
-          bridges.push_back(emu.spawn(i, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", path},
-                                      {{"LCMX_DISCOVERY_URL", local}, {"LCMX_VEHICLE_URL", veh}}));
-          if (!bridges.back().expect(std::string("bridge ") + names[i] + ": ready", 10000ms))
-            throw std::runtime_error(std::string("bridge ") + names[i] + " did not start");
-        }
-        std::cerr << "two hosts: lcmx service through the bridges\n";
-        lxb = run_method("lcmx service, bridges",
-                         {"--role", "server-lcmx", "--url", local, "--vehicle", veh, "--name", "svcbb"},
-                         {"--role", "client-lcmx", "--url", local, "--vehicle", veh, "--name", "svcbb", "--cases", cs,
-                          "--clients", n_clients, "--seconds", secs},
-                         emu.ns_fd(1), emu.ns_fd(0));
-        for (auto& b : bridges) b.kill(SIGTERM);
-        for (auto& b : bridges) b.wait(5000ms);
-        std::filesystem::remove_all(dir);
-      } catch (const std::exception& e) {
-        lxb.error = e.what();
-      }
-      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)", {lx2, lxb, zt2}, cases, zt2,
+      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)", {lx2, zt2}, cases, zt2,
                   "ZeroMQ tcp")
          << "\n";
     }

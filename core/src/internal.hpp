@@ -195,6 +195,10 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   // thread that emits it, with no lcmx lock held except possibly discovery's delivery lock.
   // A tap must be quick and must not call into the runtime (set a flag, interrupt a node).
   // It may still run once after remove_event_tap() returns: capture weak pointers.
+  // Whether a participant of another process is known (its beacon not expired) and announces
+  // endpoint `endpoint`. Takes mu. For service clients: a remote server whose pair changed
+  // path (UDP -> bridge) is still there.
+  bool endpoint_announced(std::uint64_t participant, std::uint64_t endpoint);
   std::uint64_t add_event_tap(std::function<void(const Event&)> tap);
   void remove_event_tap(std::uint64_t id);
   std::map<std::uint64_t, std::shared_ptr<const std::function<void(const Event&)>>> event_taps;  // event_mu

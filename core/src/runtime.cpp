@@ -199,6 +199,18 @@ void RuntimeImpl::emit(std::vector<Event> events) {
   }
 }
 
+bool RuntimeImpl::endpoint_announced(std::uint64_t participant, std::uint64_t endpoint) {
+  std::lock_guard lock(mu);
+  const auto id = static_cast<std::int64_t>(participant);
+  for (const auto* table : {&remotes, &vehicle_remotes, &neighbour_remotes}) {
+    auto it = table->find(id);
+    if (it == table->end()) continue;
+    for (const auto& e : it->second.endpoints)
+      if (static_cast<std::uint64_t>(e.id) == endpoint) return true;
+  }
+  return false;
+}
+
 std::uint64_t RuntimeImpl::add_event_tap(std::function<void(const Event&)> tap) {
   std::lock_guard lock(event_mu);
   const auto id = ++last_tap;

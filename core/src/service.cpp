@@ -490,8 +490,10 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
  private:
   struct Known {
     ServerInfo info;
-    // The publisher of our reply channel we hear this server through (see on_reply).
+    // The publisher of our reply channel we hear this server through (see on_reply), and the
+    // server's own publisher of it (the same, unless the bridges carry the channel).
     std::uint64_t reply_participant = 0, reply_endpoint = 0;
+    std::uint64_t server_reply_endpoint = 0;
     bool types_ok = true;
     std::string mismatch;  // !types_ok: the server's words
   };
@@ -678,16 +680,32 @@ void ClientCore::probe_locked(Clock::time_point now) {
 
 void ClientCore::refresh_servers_locked(std::vector<Finished>& finished) {
   std::map<std::pair<std::uint64_t, std::uint64_t>, Path> matched;  // (participant, endpoint)
+  const std::pair<std::uint64_t, std::uint64_t>* bridge = nullptr;   // a bridge republisher
   for (const auto& p : subscriber_stats(*reply_sub).publishers)
     matched[{p.publisher_participant, p.publisher_endpoint}] = p.path;
+  for (const auto& [key, path] : matched)
+    if (path == Path::bridge && bridge == nullptr) bridge = &key;
   std::set<std::pair<std::uint64_t, std::uint64_t>> gone;
   for (auto it = servers.begin(); it != servers.end();) {
-    auto m = matched.find({it->second.reply_participant, it->second.reply_endpoint});
+    Known& k = it->second;
+    // Heard through the publisher we watch; or, the pair's path changed (a topic that turns
+    // large goes from UDP to the bridges, and back when they stop), through the server's own
+    // publisher or this host's bridge. Gone only when neither is matched.
+    auto m = matched.find({k.reply_participant, k.reply_endpoint});
+    if (m == matched.end()) m = matched.find({k.info.participant, k.server_reply_endpoint});
+    const bool remote = k.info.path != Path::intra && k.info.path != Path::shm;
+    if (m == matched.end() && bridge != nullptr && remote) m = matched.find(*bridge);
+    if (m == matched.end() && remote && runtime->endpoint_announced(k.info.participant, k.info.id)) {
+      ++it;  // between two paths (its reply channel turned large; the bridges take over)
+      continue;
+    }
     if (m == matched.end()) {
       gone.insert(it->first);
       it = servers.erase(it);
     } else {
-      it->second.info.path = m->second;
+      k.reply_participant = m->first.first;
+      k.reply_endpoint = m->first.second;
+      k.info.path = m->second;
       ++it;
     }
   }
@@ -786,6 +804,7 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
     k.info.request_fingerprint = h.request_fingerprint;
     k.info.response_fingerprint = h.response_fingerprint;
     k.reply_endpoint = static_cast<std::uint64_t>(h.reply_endpoint);
+    k.server_reply_endpoint = k.reply_endpoint;
     // The publisher we hear the server through: its own reply publisher, or (a server on
     // another host behind the Message Bridges) this host's bridge republishing the channel.
     // When that publisher is no longer matched, the server is gone for us.
