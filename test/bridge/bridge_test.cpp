@@ -749,7 +749,7 @@ TEST_CASE("lcmx echo on host B decodes a large topic of host A carried by the br
   pub.send("quit");
 }
 
-TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host A carried by the bridges, and lcmx pub on A reaches B",
+TEST_CASE("lcmx hz, bw, monitor --once and graph on host B see a large topic of host A carried by the bridges, and lcmx pub on A reaches B",
           "[bridge][multihost][tools]") {
   LCMX_REQUIRE_NETNS();
   World w(2, 41, {{.name = "eth"}});
@@ -758,19 +758,30 @@ TEST_CASE("lcmx hz, monitor --once and graph on host B see a large topic of host
   w.bridge(1, {0});
   // hz on B, by exact name (a bridge asks its peer for the topic on demand).
   auto& hz = w.spawn(1, {LCMX_TOOL, "hz", ch, "--json", "-w", "5", "--period", "0.2", "-n", "1"});
+  auto& bw = w.spawn(1, {LCMX_TOOL, "bw", ch, "--json", "-w", "5", "--period", "0.2", "-n", "1"});
   auto& pub = w.pub(0, ch, 200000, "A");  // large: above the 65000-byte UDP limit
-  std::optional<std::string> report;
+  std::optional<std::string> report, bw_report;
   const auto deadline = Clock::now() + 25000ms;
-  while (!report && Clock::now() < deadline) {
+  while (!(report && bw_report) && Clock::now() < deadline) {
     pub.send(pub_cmd(1, 0));
     published_total(pub);
-    while (auto line = hz.read_line(20ms))
+    while (auto line = hz.read_line(10ms))
       if (!line->empty() && (*line)[0] == '{' && line->find("\"window\":5") != std::string::npos) report = line;
+    while (auto line = bw.read_line(10ms))
+      if (!line->empty() && (*line)[0] == '{' && line->find("\"window\":5") != std::string::npos) bw_report = line;
   }
-  INFO(hz.text());
+  INFO(hz.text() << bw.text());
   REQUIRE(report);
   CHECK(report->find("\"channel\":\"" + ch + "\"") != std::string::npos);
   CHECK(hz.wait(5000ms) == 0);
+  // bw: the sizes of what crossed (a 200000-byte payload plus bench_t's header and the
+  // fingerprint) and a rate of bytes.
+  REQUIRE(bw_report);
+  CHECK(bw_report->find("\"channel\":\"" + ch + "\"") != std::string::npos);
+  CHECK(lcmx::it::json_num(*bw_report, "size_min") >= 200000);
+  CHECK(lcmx::it::json_num(*bw_report, "size_max") < 200100);
+  CHECK(lcmx::it::json_num(*bw_report, "bytes_per_s") > 0);
+  CHECK(bw.wait(5000ms) == 0);
 
   // monitor --once and graph on B see the topic while B has a subscriber of it (another hz:
   // the bridges carry a topic only on demand) and A keeps publishing.
