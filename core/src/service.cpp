@@ -273,7 +273,6 @@ class ServerCore {
   const ServiceTypes types;
   const ServerHandler handler;
   const std::uint64_t participant;
-  std::uint64_t id = 0;  // the request subscriber's endpoint id
   std::shared_ptr<SubscriberCore> request_sub;
 
  private:
@@ -338,6 +337,9 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     spdlog::warn("lcmx: service '{}': a malformed request ({} bytes) was ignored", name, bytes.size());
     return;
   }
+  // Our server id: the request subscriber's endpoint id (set before it was registered, so
+  // before any callback).
+  const std::uint64_t id = request_sub->id;
   const bool any = h.server_participant == 0 && h.server_id == 0;
   if (!any && (static_cast<std::uint64_t>(h.server_participant) != participant ||
                static_cast<std::uint64_t>(h.server_id) != id))
@@ -453,7 +455,6 @@ std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, Serv
       request_channel(name), SubscriberOptions{.queue_depth = 64},
       [raw](const RawMessage& m) { raw->on_request(m.data); }, request_type_info());
   add_subscriber(node, server->request_sub);
-  server->id = server->request_sub->id;
   return server;
 }
 
