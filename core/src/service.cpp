@@ -283,7 +283,8 @@ class ServerCore {
   static constexpr std::chrono::seconds kClientGone{10};
   // The publisher of `h.reply_channel`, made on first use. Null for a malformed channel.
   PublisherCore* reply_channel(const RequestHeader& h);
-  void reply(PublisherCore& pub, const ReplyHeader& rh, std::span<const std::byte> payload);
+  // A reply without payload: a probe's answer or an error (responses go through Writer).
+  void reply(PublisherCore& pub, const ReplyHeader& rh);
 
   mutable std::mutex mu;  // guards the members below (stats() reads them from any thread)
   std::map<std::string, ReplyChannel> replies;
@@ -322,11 +323,9 @@ PublisherCore* ServerCore::reply_channel(const RequestHeader& h) {
   return r.pub.get();
 }
 
-void ServerCore::reply(PublisherCore& pub, const ReplyHeader& rh, std::span<const std::byte> payload) {
-  const auto hs = reply_header_size(rh);
-  buffer.resize(hs + payload.size());
-  write_reply_header(buffer.data(), rh, payload.size());
-  if (!payload.empty()) std::memcpy(buffer.data() + hs, payload.data(), payload.size());
+void ServerCore::reply(PublisherCore& pub, const ReplyHeader& rh) {
+  buffer.resize(reply_header_size(rh));
+  write_reply_header(buffer.data(), rh, 0);
   pub.publish_bytes(buffer);
 }
 
@@ -375,7 +374,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
       std::lock_guard lock(mu);
       ++probes;
     }
-    return reply(*pub, rh, {});
+    return reply(*pub, rh);
   }
   {
     std::lock_guard lock(mu);
@@ -386,7 +385,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
       std::lock_guard lock(mu);
       ++failed;
     }
-    return reply(*pub, rh, {});
+    return reply(*pub, rh);
   }
 
   // The handler writes the response straight after the header, in a slot loaned from the
@@ -438,7 +437,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     ++failed;
   }
   spdlog::warn("lcmx: service '{}': {}", name, rh.error);
-  reply(*pub, rh, {});
+  reply(*pub, rh);
 }
 
 std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, ServiceTypes types,
@@ -513,6 +512,16 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
     ServerInfo server;
   };
 
+  // The envelope fields every request of this client has (request id 0, no target: a probe).
+  RequestHeader request_header() const {
+    RequestHeader h;
+    h.client_id = static_cast<std::int64_t>(client_id);
+    h.client_participant = static_cast<std::int64_t>(runtime->participant_id);
+    h.request_fingerprint = types.request_fingerprint;
+    h.response_fingerprint = types.response_fingerprint;
+    h.reply_channel = reply_channel;
+    return h;
+  }
   void loop();
   void on_reply(std::span<const std::byte> bytes);  // client thread
   // Under mu: drop servers whose reply publisher is no longer matched, fail calls over.
@@ -573,12 +582,7 @@ void ClientCore::start(const std::string& node_name) {
       self->node->interrupt();
     }
   });
-  RequestHeader h;
-  h.client_id = static_cast<std::int64_t>(client_id);
-  h.client_participant = static_cast<std::int64_t>(runtime->participant_id);
-  h.request_fingerprint = types.request_fingerprint;
-  h.response_fingerprint = types.response_fingerprint;
-  h.reply_channel = reply_channel;
+  RequestHeader h = request_header();
   probe_message.resize(request_header_size(h));
   write_request_header(probe_message.data(), h, 0);
   thread = std::thread([this] { loop(); });
@@ -794,8 +798,9 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
   ReplyHeader h;
   std::span<const std::byte> payload;
   if (!parse_reply(bytes, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id) return;
-  const ServerInfo from{static_cast<std::uint64_t>(h.server_participant),
-                        static_cast<std::uint64_t>(h.server_id), Path::intra};
+  ServerInfo from;
+  from.participant = static_cast<std::uint64_t>(h.server_participant);
+  from.id = static_cast<std::uint64_t>(h.server_id);
   std::unique_lock lock(mu);
   if (h.request_id == 0) {  // a probe's answer: a server we can use (or one of other types)
     Known k;
@@ -872,12 +877,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
                       std::chrono::milliseconds timeout, ReplyHandler done) {
   if (size > static_cast<std::size_t>(INT32_MAX))
     return done({}, CallErrc::bad_request, false, "a service request is limited to 2 GiB", {});
-  RequestHeader h;
-  h.client_id = static_cast<std::int64_t>(client_id);
-  h.client_participant = static_cast<std::int64_t>(runtime->participant_id);
-  h.request_fingerprint = types.request_fingerprint;
-  h.response_fingerprint = types.response_fingerprint;
-  h.reply_channel = reply_channel;
+  RequestHeader h = request_header();
   Pending p;
   p.timeout = timeout;
   p.deadline = Clock::now() + timeout;
