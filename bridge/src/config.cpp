@@ -154,19 +154,26 @@ bool glob_match(const std::vector<std::string>& globs, std::string_view topic) {
 
 // toml++ 3.3.0 (Debian 12) reaches __builtin_unreachable() (undefined behaviour) when it asks
 // whether a non-ASCII character is whitespace (its is_non_ascii_horizontal_whitespace has no
-// case for most code points), which it does wherever it scans a bare token, a key or the
-// whitespace after a line-ending backslash: `name = "a"é`, `x = 3.o[".ƹ` (found by
-// fuzz_bridge_config, twice). Telling those places apart means lexing exactly as toml++ does,
-// so the rule is simple instead: non-ASCII characters only in comment lines (first non-blank
-// character '#'), which toml++ reads as comments in every state; lcmx's keys and values (names,
-// addresses, channel globs, key paths) are ASCII. Returns the 1-based line of the first
-// non-ASCII byte elsewhere, or 0.
-std::size_t non_ascii_outside_comment_lines(std::string_view t) {
+// case for most code points; upstream marzer/tomlplusplus#190 and #295, fixed after 3.3.0),
+// which it does wherever it scans a bare token, a key or the whitespace after a line-ending
+// backslash: `name = "a"é`, `x = 3.o[".ƹ`, `s = """` + newline + `# """é` (found by
+// fuzz_bridge_config, three times). Telling those places apart means lexing exactly as toml++
+// does, so the rule is simple instead: non-ASCII characters only in comment lines (first
+// non-blank character '#'). Such a line is a comment in every state in which toml++ goes on
+// reading, except inside a multi-line string (a single-line string or an inline table cannot
+// span lines: toml++ stops at the newline with an error). So a file with a multi-line string
+// delimiter (""" or ''', anywhere) must be ASCII throughout. With ASCII input toml++ never
+// reaches that code: escapes decode into string values, never into a whitespace test. lcmx's
+// keys and values (names, addresses, channel globs, key paths) are ASCII. Returns the 1-based
+// line of the first refused non-ASCII byte, or 0.
+std::size_t refused_non_ascii_line(std::string_view t) {
+  const bool multi_line_strings =
+      t.find(R"(""")") != std::string_view::npos || t.find("'''") != std::string_view::npos;
   std::size_t line = 1;
   for (std::size_t i = 0; i < t.size(); ++line) {
     const std::size_t end = std::min(t.find('\n', i), t.size());
     const std::size_t first = t.find_first_not_of(" \t", i);
-    const bool comment = first < end && t[first] == '#';
+    const bool comment = !multi_line_strings && first < end && t[first] == '#';
     if (!comment)
       for (std::size_t k = i; k < end; ++k)
         if (static_cast<unsigned char>(t[k]) >= 0x80) return line;
@@ -187,9 +194,10 @@ bool Config::carried(std::string_view topic) const { return glob_match(carry, to
 
 Config parse_config(std::string_view text, const std::filesystem::path& file) {
   Checker c(file);
-  if (const auto line = non_ascii_outside_comment_lines(text))
+  if (const auto line = refused_non_ascii_line(text))
     throw ConfigError(file.string() + ": line " + std::to_string(line) +
-                      ": a non-ASCII character (allowed only in comment lines)");
+                      ": a non-ASCII character (allowed only in comment lines, and nowhere in a file with a "
+                      "multi-line string)");
   toml::table root;
   try {
     root = toml::parse(text, file.string());

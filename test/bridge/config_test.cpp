@@ -356,12 +356,20 @@ TEST_CASE("config values at their limits: clear errors, never a hang or undefine
   // toml++ 3.3.0 reaches __builtin_unreachable() on a non-ASCII character where it scans a
   // bare token, a key or whitespace (found by fuzz_bridge_config): refused before toml++ sees
   // it, anywhere but in comment lines...
-  CHECK(message(b + "carry = [\"A\"]\xc3\xa9\n") == "limits.toml: line 5: a non-ASCII character (allowed only in comment lines)");
+  CHECK(message(b + "carry = [\"A\"]\xc3\xa9\n") ==
+        "limits.toml: line 5: a non-ASCII character (allowed only in comment lines, and nowhere in a file with a "
+        "multi-line string)");
   CHECK(message(b + "\xc2\xa0heartbeat_ms = 100\n").find("line 5: a non-ASCII") != std::string::npos);
   CHECK(message(b + "x = \"\"\"\n\n\"\"\"\nl\xef\xbb\xb7n = 1\n").find("line 8: a non-ASCII") != std::string::npos);
   CHECK(message(b + std::string("nam = 3.o[\".\xc6\xb9\0\0009\n", 18)).find("line 5: a non-ASCII") != std::string::npos);
   CHECK(message(b + "carry = [\"CAF\xc3\x89_*\"]\n").find("line 5: a non-ASCII") != std::string::npos);
   CHECK(message(b + "heartbeat_ms = 100 # \xc2\xb5s\n").find("line 5: a non-ASCII") != std::string::npos);
+  // A line starting with '#' inside a multi-line string is not a comment: toml++ reads on after
+  // the closing delimiter (found by fuzz_bridge_config in CI). Any multi-line string delimiter
+  // makes the whole file ASCII-only.
+  CHECK(message(b + "s = \"\"\"\n# \"\"\"\xc3\xa9\n").find("line 6: a non-ASCII") != std::string::npos);
+  CHECK(message(b + "s = \'\'\'\n# \'\'\'\xcc\xaa\n").find("line 6: a non-ASCII") != std::string::npos);
+  CHECK(message(b + "# caf\xc3\xa9\ns = \'\'\'\n\'\'\'\n").find("line 5: a non-ASCII") != std::string::npos);
   // ...where any UTF-8 is fine.
   const auto utf8 = parse_config(b + "# caf\xc3\xa9 \xe2\x89\xa5 2\n  # \xc2\xb5s\ncarry = [\"CAF_*\"]\n", "limits.toml");
   CHECK(utf8.carry == std::vector<std::string>{"CAF_*"});
