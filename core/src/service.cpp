@@ -267,6 +267,13 @@ class ServerCore {
     std::lock_guard lock(mu);
     return {requests, failed, probes, replies.size()};
   }
+  // Whether the client `reply_channel` belongs to has been answered by this server and its
+  // reply channel has a subscriber now (the client is alive; across hosts, its demand).
+  bool client_connected(const std::string& reply_channel) const {
+    std::lock_guard lock(mu);
+    auto it = replies.find(reply_channel);
+    return it != replies.end() && it->second.pub->subscriber_count() > 0;
+  }
 
   const std::shared_ptr<NodeImpl> node;
   const std::string name;
@@ -463,20 +470,25 @@ void close_server(const std::shared_ptr<ServerCore>& server) {
 
 ServerStats server_stats(const ServerCore& server) { return server.stats(); }
 const std::string& server_name(const ServerCore& server) { return server.name; }
+std::uint64_t server_id(const ServerCore& server) { return server.request_sub->id; }
+bool server_client_connected(const ServerCore& server, std::uint64_t client_id) {
+  return server.client_connected(fmt::format("{}{:016x}", reply_prefix(server.name), client_id));
+}
 
 // --- Client ------------------------------------------------------------------------------------
 
 class ClientCore : public std::enable_shared_from_this<ClientCore> {
  public:
-  ClientCore(std::shared_ptr<RuntimeImpl> rt, std::string nm, ServiceTypes t)
+  ClientCore(std::shared_ptr<RuntimeImpl> rt, std::string nm, ServiceTypes t, ServersGone gone)
       : runtime(std::move(rt)), name(std::move(nm)), types(std::move(t)),
         client_id(random_nonzero()),
-        reply_channel(fmt::format("{}{:016x}", reply_prefix(name), client_id)) {}
+        reply_channel(fmt::format("{}{:016x}", reply_prefix(name), client_id)),
+        on_servers_gone(std::move(gone)) {}
 
   void start(const std::string& node_name);
   void close();
   void call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
-            std::chrono::milliseconds timeout, ReplyHandler done);
+            std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin);
   bool wait_for_service(std::chrono::milliseconds timeout);
   ClientStats stats() const;
   std::vector<ServerInfo> servers_now() const;
@@ -486,6 +498,7 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   const ServiceTypes types;
   const std::uint64_t client_id;
   const std::string reply_channel;
+  const ServersGone on_servers_gone;  // may be empty
 
  private:
   struct Known {
@@ -504,6 +517,8 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
     ReplyHandler done;
     ServerInfo target;
     bool sent = false;  // false: waiting for a server
+    // Only this server (participant, id) may execute the call: no fail-over.
+    std::optional<std::pair<std::uint64_t, std::uint64_t>> pin;
   };
   struct Finished {  // a call ended by the client itself (not a reply): `done` runs unlocked
     ReplyHandler done;
@@ -525,8 +540,10 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   void loop();
   void on_reply(std::span<const std::byte> bytes);  // client thread
   // Under mu: drop servers whose reply publisher is no longer matched, fail calls over.
-  void refresh_servers_locked(std::vector<Finished>& finished);
+  void refresh_servers_locked(std::vector<Finished>& finished, std::vector<ServerInfo>& gone_servers);
   const Known* best_locked() const;
+  // The server a call goes to now: its pinned server if known, else the best; null if none.
+  const Known* target_locked(const Pending& p) const;
   void send_locked(Pending& p, const Known& server);
   void dispatch_waiting_locked();
   void expire_locked(Clock::time_point now, std::vector<Finished>& finished);
@@ -629,6 +646,7 @@ void ClientCore::finish(std::vector<Finished>& finished) {
 
 void ClientCore::loop() {
   std::vector<Finished> finished;
+  std::vector<ServerInfo> gone_servers;
   for (;;) {
     std::chrono::nanoseconds wait{std::chrono::seconds(1)};
     {
@@ -636,7 +654,7 @@ void ClientCore::loop() {
       if (closed) return;
       const auto now = Clock::now();
       if (matches_changed.exchange(false)) {
-        refresh_servers_locked(finished);
+        refresh_servers_locked(finished, gone_servers);
         // A server's reply publisher may have just matched: its answer to the next probe now
         // arrives, so probe at once rather than at the back-off's next turn.
         next_probe = now;
@@ -671,6 +689,14 @@ void ClientCore::loop() {
       }
     }
     finish(finished);
+    if (!gone_servers.empty() && on_servers_gone) {
+      try {
+        on_servers_gone(gone_servers);
+      } catch (const std::exception& e) {
+        spdlog::error("lcmx: service '{}': a servers-gone listener threw: {}", name, e.what());
+      }
+    }
+    gone_servers.clear();
     if (node->stopped()) return;
     node->run_once(wait);
   }
@@ -683,7 +709,8 @@ void ClientCore::probe_locked(Clock::time_point now) {
   probe_interval = std::min<std::chrono::milliseconds>(probe_interval * 2, std::chrono::seconds(1));
 }
 
-void ClientCore::refresh_servers_locked(std::vector<Finished>& finished) {
+void ClientCore::refresh_servers_locked(std::vector<Finished>& finished,
+                                        std::vector<ServerInfo>& gone_servers) {
   std::map<std::pair<std::uint64_t, std::uint64_t>, Path> matched;  // (participant, endpoint)
   const std::pair<std::uint64_t, std::uint64_t>* bridge = nullptr;   // a bridge republisher
   for (const auto& p : subscriber_stats(*reply_sub).publishers)
@@ -706,6 +733,7 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished) {
     }
     if (m == matched.end()) {
       gone.insert(it->first);
+      gone_servers.push_back(k.info);
       it = servers.erase(it);
     } else {
       k.reply_participant = m->first.first;
@@ -723,7 +751,7 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished) {
       ++it;
       continue;
     }
-    if (next != nullptr) {
+    if (next != nullptr && !p.pin) {
       ++counters.failovers;
       spdlog::info("lcmx: service '{}': server {:x}/{} went away; call {} goes to {:x}/{}", name,
                    p.target.participant, p.target.id, it->first, next->info.participant, next->info.id);
@@ -750,6 +778,12 @@ const ClientCore::Known* ClientCore::best_locked() const {
   return best;
 }
 
+const ClientCore::Known* ClientCore::target_locked(const Pending& p) const {
+  if (!p.pin) return best_locked();
+  auto it = servers.find(*p.pin);
+  return it != servers.end() && it->second.types_ok ? &it->second : nullptr;
+}
+
 void ClientCore::send_locked(Pending& p, const Known& server) {
   p.target = server.info;
   p.sent = true;
@@ -758,10 +792,9 @@ void ClientCore::send_locked(Pending& p, const Known& server) {
 }
 
 void ClientCore::dispatch_waiting_locked() {
-  const Known* best = best_locked();
-  if (best == nullptr) return;
   for (auto& [id, p] : pending)
-    if (!p.sent) send_locked(p, *best);
+    if (!p.sent)
+      if (const Known* target = target_locked(p)) send_locked(p, *target);
 }
 
 std::string ClientCore::mismatch_text_locked() const {
@@ -874,7 +907,7 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
 }
 
 void ClientCore::call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
-                      std::chrono::milliseconds timeout, ReplyHandler done) {
+                      std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin) {
   if (size > static_cast<std::size_t>(INT32_MAX))
     return done({}, CallErrc::bad_request, false, "a service request is limited to 2 GiB", {});
   RequestHeader h = request_header();
@@ -882,6 +915,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
   p.timeout = timeout;
   p.deadline = Clock::now() + timeout;
   p.done = std::move(done);
+  if (pin != nullptr) p.pin.emplace(pin->participant, pin->id);
   std::unique_lock lock(mu);
   if (closed) {
     lock.unlock();
@@ -895,8 +929,8 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
   ++counters.calls;
   auto& slot = pending[static_cast<std::uint64_t>(h.request_id)] = std::move(p);
   bool wake = true;  // no server yet: probe now
-  if (const Known* best = best_locked()) {
-    send_locked(slot, *best);
+  if (const Known* target = target_locked(slot)) {
+    send_locked(slot, *target);
     wake = slot.deadline < wake_at;  // the client thread must time it out earlier than planned
   }
   lock.unlock();
@@ -952,9 +986,11 @@ std::vector<ServerInfo> ClientCore::servers_now() const {
   return out;
 }
 
-std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types) {
+std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types,
+                                          ServersGone on_servers_gone) {
   check_name(name, "create_client");
-  auto client = std::make_shared<ClientCore>(node.runtime, std::move(name), std::move(types));
+  auto client = std::make_shared<ClientCore>(node.runtime, std::move(name), std::move(types),
+                                             std::move(on_servers_gone));
   client->start(node.name);
   return client;
 }
@@ -963,8 +999,8 @@ void close_client(const std::shared_ptr<ClientCore>& client) { client->close(); 
 
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
-                 std::chrono::milliseconds timeout, ReplyHandler done) {
-  client.call(size, encode, timeout, std::move(done));
+                 std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin) {
+  client.call(size, encode, timeout, std::move(done), pin);
 }
 bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout) {
   return client.wait_for_service(timeout);
@@ -972,6 +1008,7 @@ bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeo
 ClientStats client_stats(const ClientCore& client) { return client.stats(); }
 std::vector<ServerInfo> client_servers(const ClientCore& client) { return client.servers_now(); }
 const std::string& client_name(const ClientCore& client) { return client.name; }
+std::uint64_t client_id(const ClientCore& client) { return client.client_id; }
 
 }  // namespace detail
 }  // namespace lcmx

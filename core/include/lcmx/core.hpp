@@ -1,6 +1,7 @@
 // lcmx public API: include this one header.
 #pragma once
 
+#include "lcmx/core/action.hpp"
 #include "lcmx/core/error.hpp"
 #include "lcmx/core/node.hpp"
 #include "lcmx/core/options.hpp"

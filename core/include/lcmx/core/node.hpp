@@ -17,6 +17,7 @@
 #include <string>
 #include <type_traits>
 
+#include "lcmx/core/action.hpp"
 #include "lcmx/core/options.hpp"
 #include "lcmx/core/publisher.hpp"
 #include "lcmx/core/service.hpp"
@@ -142,6 +143,56 @@ class Node {
   }
   // A client over raw bytes: matches servers of any type.
   RawClient create_client_raw(std::string name);
+
+  // Actions (action.hpp). `execute`: void(ActionGoal<G, F, R>&), on a thread of its own per
+  // goal. `accept` (optional): bool(const G&), or std::string(const G&) ("" accepts, anything
+  // else rejects with that reason), on this node's executor; without it every goal is
+  // accepted (up to ActionServerOptions::max_goals at once). Throws Error(invalid_argument /
+  // channel_too_long) for a bad name (at most 36 bytes).
+  template <class G, class F, class R, class E>
+  ActionServer create_action_server(std::string name, E&& execute, ActionServerOptions options = {}) {
+    return create_action_server<G, F, R>(std::move(name), std::forward<E>(execute),
+                                         [](const G&) { return true; }, options);
+  }
+  template <class G, class F, class R, class E, class A>
+  ActionServer create_action_server(std::string name, E&& execute, A&& accept, ActionServerOptions options = {}) {
+    static_assert(std::is_invocable_v<E&, ActionGoal<G, F, R>&>,
+                  "create_action_server<G, F, R>: execute must be void(ActionGoal<G, F, R>&)");
+    detail::ActionTypes types{G::getTypeName(), F::getTypeName(), R::getTypeName(),
+                              G::getHash(),     F::getHash(),     R::getHash()};
+    auto decode = [](std::span<const std::byte> in) {
+      G goal;
+      if (in.size() > static_cast<std::size_t>(INT32_MAX) || goal.decode(in.data(), 0, static_cast<int>(in.size())) < 0)
+        throw detail::BadRequest(std::string("the goal did not decode as ") + G::getTypeName());
+      return goal;
+    };
+    detail::GoalAcceptor a = [decode, f = std::forward<A>(accept)](std::span<const std::byte> in) mutable {
+      static_assert(std::is_invocable_v<A&, const G&>,
+                    "create_action_server: accept must be bool(const G&) or std::string(const G&)");
+      const G goal = decode(in);
+      if constexpr (std::is_same_v<std::invoke_result_t<A&, const G&>, bool>)
+        return f(goal) ? std::string() : std::string("rejected by the server");
+      else
+        return std::string(f(goal));
+    };
+    detail::GoalExecutor e = [decode, f = std::forward<E>(execute)](RawActionGoal& raw) mutable {
+      ActionGoal<G, F, R> goal(raw, decode(raw.goal()));
+      f(goal);
+    };
+    return ActionServer(detail::create_action_server(*impl_, std::move(name), std::move(types), std::move(a),
+                                                     std::move(e), options));
+  }
+  // Over raw bytes: `execute` void(RawActionGoal&); `accept` as GoalAcceptor (may be empty).
+  ActionServer create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute,
+                                        std::function<std::string(std::span<const std::byte>)> accept = {},
+                                        ActionServerOptions options = {});
+  template <class G, class F, class R>
+  ActionClient<G, F, R> create_action_client(std::string name) {
+    return ActionClient<G, F, R>(detail::create_action_client(
+        *impl_, std::move(name),
+        {G::getTypeName(), F::getTypeName(), R::getTypeName(), G::getHash(), F::getHash(), R::getHash()}));
+  }
+  RawActionClient create_action_client_raw(std::string name);
 
   // Manual executor only: waits up to `timeout` for messages and runs the callbacks of what
   // arrived. Returns the number of callbacks run. Throws Error(invalid_argument) on a node

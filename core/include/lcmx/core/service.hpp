@@ -166,22 +166,35 @@ std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, Serv
 void close_server(const std::shared_ptr<ServerCore>& server);
 ServerStats server_stats(const ServerCore& server);
 const std::string& server_name(const ServerCore& server);
+// The server's id within its participant (ServerInfo::id at its clients).
+std::uint64_t server_id(const ServerCore& server);
+// Whether the client with this client id was answered by the server and still subscribes to
+// its reply channel (for actions: a goal's client is alive). Any thread.
+bool server_client_connected(const ServerCore& server, std::uint64_t client_id);
 
-std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types);
+// Called on the client's thread, with no lock held, with the servers that went away (their
+// reply publisher is no longer matched): for actions, whose goals live on one server.
+using ServersGone = std::function<void(const std::vector<ServerInfo>& gone)>;
+std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types,
+                                          ServersGone on_servers_gone = {});
 void close_client(const std::shared_ptr<ClientCore>& client);
 // `encode` writes the request payload into a span of `size` bytes. `done` gets the response
 // payload (a view valid during the call) or an error; it is called exactly once, on the
-// client's thread (or on the caller's, for an error found at once).
+// client's thread (or on the caller's, for an error found at once). With `pin`, only that
+// server (participant, id) executes the call: it waits for that server's probe answer, and
+// fails with server_gone, never over, if the server goes away.
 using ReplyHandler =
     std::function<void(std::span<const std::byte> response, CallErrc error, bool ok,
                        const std::string& message, const ServerInfo& server)>;
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
-                 std::chrono::milliseconds timeout, ReplyHandler done);
+                 std::chrono::milliseconds timeout, ReplyHandler done,
+                 const ServerInfo* pin = nullptr);
 bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout);
 ClientStats client_stats(const ClientCore& client);
 std::vector<ServerInfo> client_servers(const ClientCore& client);
 const std::string& client_name(const ClientCore& client);
+std::uint64_t client_id(const ClientCore& client);  // the id in its reply channel's name
 
 }  // namespace detail
 
