@@ -421,8 +421,8 @@ void ActionServerCore::finish(Goal& g, GoalState state, std::span<const std::byt
     if (is_terminal(g.status.state))
       throw Error(Errc::invalid_argument,
                   fmt::format("action '{}': goal {} already ended {}", name, g.id(), to_string(g.status.state)));
+    if (!(state == GoalState::canceled && message.empty() && g.cancel.load())) g.status.message = message;
     g.status.state = state;
-    g.status.message = message;
     g.result.assign(result.begin(), result.end());
     g.ended_at = Clock::now();
     switch (state) {

@@ -12,6 +12,15 @@
 //     default X = 0), checks every response's seq and bytes,
 //     prints "CALLS ok=<n> failed=<f> wrong=<w> path=<path of the last answer>
 //     server=<participant> error=<first error or ->" and exits 0.
+//   action-server --name N [--client-timeout-ms T]
+//     Serves action N (goal pose_t, feedback pose_t, result bench_t), prints "READY
+//     participant=<id>". A goal with x = position[0] >= 0 publishes feedback 1..x, 5 ms apart,
+//     and succeeds with seq x; a goal with x < 0 prints "EXECUTING <goal id>" and runs until
+//     canceled, then prints "CANCELED <goal id>" and ends canceled (seq x).
+//     "quit" (or EOF) prints "ACTIONS accepted=<a> succeeded=<s> canceled=<c> client_gone=<g>".
+//   action-client --name N --x X
+//     Sends one goal x = X, prints "ACCEPTED <goal id>", waits for its end and prints
+//     "OUTCOME state=<state> seq=<result seq or -> feedback=<feedback received>".
 // Every run ends by itself after --timeout-ms (exit 3).
 #include <CLI/CLI.hpp>
 #include <unistd.h>
@@ -121,6 +130,71 @@ int run_client(const std::string& name, int calls, int size, int call_timeout_ms
   return 0;
 }
 
+using ActionGoal = lcmx::ActionGoal<lcmx_examples::pose_t, lcmx_examples::pose_t, lcmx_examples::bench_t>;
+
+int run_action_server(const std::string& name, int client_timeout_ms) {
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("action_peer");
+  lcmx::ActionServerOptions o;
+  o.client_timeout = std::chrono::milliseconds(client_timeout_ms);
+  auto server = node.create_action_server<lcmx_examples::pose_t, lcmx_examples::pose_t, lcmx_examples::bench_t>(
+      name,
+      [](ActionGoal& g) {
+        const auto x = static_cast<std::int64_t>(g.goal().position[0]);
+        lcmx_examples::bench_t result;
+        result.seq = x;
+        result.size = 0;
+        if (x < 0) {
+          say("EXECUTING " + g.id());
+          g.wait_for_cancel(std::chrono::hours(1));
+          say("CANCELED " + g.id());
+          g.canceled(result);
+          return;
+        }
+        for (std::int64_t i = 1; i <= x && !g.cancel_requested(); ++i) {
+          lcmx_examples::pose_t f;
+          f.position[0] = static_cast<double>(i);
+          g.publish_feedback(f);
+          g.wait_for_cancel(5ms);
+        }
+        g.succeed(result);
+      },
+      o);
+  say("READY participant=" + std::to_string(rt.participant_id()));
+  std::string line;
+  while (std::getline(std::cin, line) && line != "quit") {
+  }
+  const auto st = server.stats();
+  say("ACTIONS accepted=" + std::to_string(st.accepted) + " succeeded=" + std::to_string(st.succeeded) +
+      " canceled=" + std::to_string(st.canceled) + " client_gone=" + std::to_string(st.client_gone_cancels));
+  return 0;
+}
+
+int run_action_client(const std::string& name, int x) {
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("action_peer_client");
+  auto client = node.create_action_client<lcmx_examples::pose_t, lcmx_examples::pose_t, lcmx_examples::bench_t>(name);
+  std::atomic<int> feedback{0};
+  lcmx_examples::pose_t goal;
+  goal.position[0] = x;
+  auto sent = client.send_goal(goal, 20s, [&](const lcmx_examples::pose_t&) { ++feedback; });
+  if (!sent.ok()) {
+    say(std::string("OUTCOME state=error seq=- feedback=0 error=") + lcmx::to_string(sent.error()));
+    return 0;
+  }
+  say("ACCEPTED " + sent.value().id());
+  auto outcome = sent.value().wait(50s);
+  if (!outcome.ok()) {
+    say(std::string("OUTCOME state=error seq=- feedback=0 error=") + lcmx::to_string(outcome.error()));
+    return 0;
+  }
+  const auto& o = outcome.value();
+  say(std::string("OUTCOME state=") + lcmx::to_string(o.status.state) +
+      " seq=" + (o.result ? std::to_string(o.result->seq) : std::string("-")) +
+      " feedback=" + std::to_string(feedback.load()));
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -133,7 +207,12 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   auto* server = app.add_subcommand("server", "serve NAME");
   auto* client = app.add_subcommand("client", "call NAME");
-  for (auto* sc : {server, client}) {
+  auto* action_server = app.add_subcommand("action-server", "serve action NAME");
+  auto* action_client = app.add_subcommand("action-client", "send one goal to action NAME");
+  int client_timeout_ms = 5000, x = 0;
+  action_server->add_option("--client-timeout-ms", client_timeout_ms);
+  action_client->add_option("--x", x, "the goal's position[0]");
+  for (auto* sc : {server, client, action_server, action_client}) {
     sc->add_option("--name", name, "service name")->required();
     sc->add_option("--timeout-ms", timeout_ms, "exit with 3 after this");
   }
@@ -151,6 +230,8 @@ int main(int argc, char** argv) {
   }).detach();
   try {
     if (*server) return run_server(name);
+    if (*action_server) return run_action_server(name, client_timeout_ms);
+    if (*action_client) return run_action_client(name, x);
     return run_client(name, calls, size, call_timeout_ms, servers_wanted, first, go);
   } catch (const std::exception& e) {
     say(std::string("FATAL ") + e.what());

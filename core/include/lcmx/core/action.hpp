@@ -108,8 +108,8 @@ class RawActionGoal {
   virtual bool wait_for_cancel(std::chrono::nanoseconds timeout) const = 0;
   virtual void publish_feedback(std::span<const std::byte> feedback) = 0;
   // Ends the goal: state succeeded, aborted or canceled (anything else throws
-  // Error(invalid_argument)), with a result and a message. A second end throws
-  // Error(invalid_argument).
+  // Error(invalid_argument)), with a result and a message (canceled with "": the cancel
+  // request's reason). A second end throws Error(invalid_argument).
   virtual void finish(GoalState state, std::span<const std::byte> result, const std::string& message) = 0;
   virtual bool finished() const = 0;
 };
@@ -171,8 +171,8 @@ class ActionGoal {
   void publish_feedback(const F& feedback) { raw_.publish_feedback(encode(feedback)); }
   void succeed(const R& result) { raw_.finish(GoalState::succeeded, encode(result), ""); }
   void abort(const R& result, const std::string& why) { raw_.finish(GoalState::aborted, encode(result), why); }
-  // Acknowledges a cancel request: the goal ends canceled.
-  void canceled(const R& result) { raw_.finish(GoalState::canceled, encode(result), "canceled"); }
+  // Acknowledges a cancel request: the goal ends canceled (its message says who canceled it).
+  void canceled(const R& result) { raw_.finish(GoalState::canceled, encode(result), ""); }
   RawActionGoal& raw() { return raw_; }
 
  private:
