@@ -128,6 +128,8 @@ int main(int argc, char** argv) {
   verbs.push_back(lcmx::cli::add_pub(app, g));
   verbs.push_back(lcmx::cli::add_services(app, g));
   verbs.push_back(lcmx::cli::add_call(app, g));
+  verbs.push_back(lcmx::cli::add_actions(app, g));
+  verbs.push_back(lcmx::cli::add_action(app, g));
 
   // An unknown verb is named (also before --help, which would otherwise print the top-level help).
   if (const auto verb = verb_of(app, argc, argv)) {

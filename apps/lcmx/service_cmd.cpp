@@ -25,37 +25,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// The name a tool shows for a service's type: package-qualified from the type path when it has
-// the fingerprint, else lcm-gen's name; "raw" for bytes.
-std::string type_name(const types::TypeRegistry& reg, const std::string& name, std::int64_t fp) {
-  if (fp == 0) return "raw";
-  if (const auto* t = reg.find(static_cast<std::uint64_t>(fp))) return t->full_name();
-  return name.empty() ? hex_fingerprint(static_cast<std::uint64_t>(fp)) : name;
-}
-
-std::string to_hex(std::span<const std::byte> b) {
-  std::string s;
-  char two[3];
-  for (auto x : b) {
-    std::snprintf(two, sizeof two, "%02x", std::to_integer<unsigned>(x));
-    s += two;
-  }
-  return s;
-}
-
-std::optional<Bytes> from_hex(const std::string& h) {
-  if (h.size() % 2 != 0) return std::nullopt;
-  Bytes out;
-  for (std::size_t i = 0; i < h.size(); i += 2) {
-    unsigned v = 0;
-    if (std::sscanf(h.substr(i, 2).c_str(), "%2x", &v) != 1 || !std::isxdigit(static_cast<unsigned char>(h[i])) ||
-        !std::isxdigit(static_cast<unsigned char>(h[i + 1])))
-      return std::nullopt;
-    out.push_back(static_cast<std::byte>(v));
-  }
-  return out;
-}
-
 // ---- lcmx services ----
 
 struct ServicesOptions {

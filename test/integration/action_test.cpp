@@ -133,3 +133,68 @@ TEST_CASE("action across processes: the client is SIGKILLed mid-goal: the server
   CHECK(goals[0].state == GoalState::canceled);
   CHECK(goals[0].message == "canceled: the client went away");
 }
+
+#ifdef LCMX_TOOL
+TEST_CASE("lcmx actions and lcmx action send against a server process, Ctrl-C cancels", "[integration][action]") {
+  Session s(139);
+  const auto name = unique_channel("ACT", 139);
+  auto& server = s.spawn({LCMX_SERVICE_PEER, "action-server", "--name", name, "--timeout-ms", "60000"});
+  REQUIRE(server.expect("READY"));
+  const std::string types = LCMX_LCMTYPES_DIR;
+
+  auto list = s.run({LCMX_TOOL, "actions", "--json", "--types", types});
+  INFO(list.out);
+  REQUIRE(list.rc == 0);
+  const auto j = json_line(list.out);
+  CHECK(j.find("\"name\":\"" + name + "\"") != std::string::npos);
+  CHECK(j.find("\"goal_type\":\"lcmx_examples.pose_t\"") != std::string::npos);
+  CHECK(j.find("\"feedback_type\":\"lcmx_examples.pose_t\"") != std::string::npos);
+  CHECK(j.find("\"result_type\":\"lcmx_examples.bench_t\"") != std::string::npos);
+  CHECK(j.find("\"process\":\"lcmx_service_pe\"") != std::string::npos);
+
+  // A goal that succeeds: feedback lines, the result, the end; exit 0.
+  auto send = s.run({LCMX_TOOL, "action", "send", name, "{\"position\": [3, 0, 0]}", "--types", types, "--json"},
+                    {}, 20000ms);
+  INFO(send.out);
+  REQUIRE(send.rc == 0);
+  std::size_t feedback = 0;
+  for (auto at = send.out.find("{\"feedback\":"); at != std::string::npos; at = send.out.find("{\"feedback\":", at + 1))
+    ++feedback;
+  CHECK(feedback == 3);
+  CHECK(send.out.find("\"seq\":3") != std::string::npos);
+  CHECK(send.out.find("\"state\":\"succeeded\"") != std::string::npos);
+
+  // A goal that runs until canceled: Ctrl-C cancels it, the tool waits for the end, exit 130.
+  auto& tool = s.spawn({LCMX_TOOL, "action", "send", name, "{\"position\": [-1, 0, 0]}", "--types", types});
+  const auto accepted = tool.expect("goal ");
+  REQUIRE(accepted);
+  CHECK(accepted->find("accepted") != std::string::npos);
+  REQUIRE(server.expect("EXECUTING"));
+  tool.signal(SIGINT);
+  REQUIRE(server.expect("CANCELED"));
+  CHECK(tool.wait(10000ms) == 130);
+  CHECK(tool.output().find("canceled: canceled by a client") != std::string::npos);
+
+  auto text = s.run({LCMX_TOOL, "actions", "--types", types});
+  INFO(text.out);
+  REQUIRE(text.rc == 0);
+  CHECK(text.out.find(name + "  goal lcmx_examples.pose_t, feedback lcmx_examples.pose_t, result lcmx_examples.bench_t") !=
+        std::string::npos);
+  CHECK(text.out.find("  succeeded") != std::string::npos);
+  CHECK(text.out.find("  canceled  (canceled by a client)") != std::string::npos);
+
+  // Clear errors: a field that does not exist, no server, bad hex.
+  auto bad = s.run({LCMX_TOOL, "action", "send", name, "{\"positon\": [1]}", "--types", types});
+  CHECK(bad.rc == 1);
+  CHECK(bad.out.find("positon: no such field") != std::string::npos);
+  auto none = s.run({LCMX_TOOL, "action", "send", name + "_nobody", "{}", "--find-timeout", "0.3"});
+  CHECK(none.rc == 1);
+  CHECK(none.out.find("no server of action") != std::string::npos);
+  auto hex = s.run({LCMX_TOOL, "action", "send", name, "--hex", "abc"});
+  CHECK(hex.rc == 2);
+  auto usage = s.run({LCMX_TOOL, "action"});
+  CHECK(usage.rc != 0);
+  server.send("quit");
+  CHECK(server.wait() == 0);
+}
+#endif
