@@ -83,3 +83,33 @@ TEST_CASE("service across hosts: the server on another host is SIGKILLed mid-cal
   REQUIRE(served);
   CHECK(*served == "SERVED 3");
 }
+
+TEST_CASE("action across hosts: goal, feedback and result over UDP, a server SIGKILLed mid-goal is reported lost within the lease",
+          "[multihost][action]") {
+  LCMX_REQUIRE_NETNS();
+  Hosts h(2, 72);
+  const auto name = h.channel("ACT");
+  auto& server = service_peer(h, 1, {"action-server", "--name", name});
+  REQUIRE(server.expect("READY"));
+  auto& done = service_peer(h, 0, {"action-client", "--name", name, "--x", "20"});
+  auto outcome = done.expect("OUTCOME", 30000ms);
+  INFO(done.output());
+  REQUIRE(outcome);
+  auto kv = parse_kv(*outcome);
+  CHECK(kv.at("state") == "succeeded");
+  CHECK(kv.at("seq") == "20");
+  CHECK(kv.at("feedback") == "20");  // every feedback, before the end
+
+  auto& live = service_peer(h, 0, {"action-client", "--name", name, "--x", "-1"});
+  REQUIRE(live.expect("ACCEPTED", 20000ms));
+  REQUIRE(server.expect("EXECUTING", 20000ms));
+  const auto killed = Clock::now();
+  server.kill9();
+  outcome = live.expect("OUTCOME", 20000ms);
+  const auto took = std::chrono::duration_cast<ms>(Clock::now() - killed);
+  INFO(live.output() << "\nreported " << took.count() << " ms after the SIGKILL");
+  REQUIRE(outcome);
+  kv = parse_kv(*outcome);
+  CHECK(kv.at("state") == "lost");
+  CHECK(took < 5000ms);  // the lease (800 ms here), not the goal's 50 s wait
+}
