@@ -490,6 +490,12 @@ void ActionServerCore::publish_status() {
   m.goal_server_id = static_cast<std::int64_t>(server_id(*goal_server));
   m.cancel_server_id = static_cast<std::int64_t>(server_id(*cancel_server));
   m.result_server_id = static_cast<std::int64_t>(server_id(*result_server));
+  m.goal_type = types.goal_name;
+  m.feedback_type = types.feedback_name;
+  m.result_type = types.result_name;
+  m.goal_fingerprint = types.goal_fingerprint;
+  m.feedback_fingerprint = types.feedback_fingerprint;
+  m.result_fingerprint = types.result_fingerprint;
   std::lock_guard publish_lock(publish_mu);
   m.goals = announced();
   if (m.goals.size() > kMaxListed) m.goals.resize(kMaxListed);
@@ -498,12 +504,19 @@ void ActionServerCore::publish_status() {
 }
 
 void ActionServerCore::loop() {
-  const auto tick = std::max<ms>(ms(10), std::min<ms>(options.status_period, options.client_timeout / 5));
+  // At most 100 ms between turns: a new status subscriber (a client, a tool) hears the status
+  // within that, and a gone client is noticed within a fifth of client_timeout.
+  const auto tick = std::clamp<ms>(std::min<ms>(options.status_period, options.client_timeout / 5), ms(10), ms(100));
   auto next_status = Clock::now();
   auto next_check = Clock::now();
+  std::size_t status_subscribers = 0;
   std::unique_lock lock(mu);
   while (!stopping) {
     const auto now = Clock::now();
+    if (const auto n = status_pub->subscriber_count(); n != status_subscribers) {
+      if (n > status_subscribers) status_due = true;
+      status_subscribers = n;
+    }
     // Goals whose client went away: canceled after client_timeout.
     if (check_clients || now >= next_check) {
       check_clients = false;
@@ -538,7 +551,7 @@ void ActionServerCore::loop() {
     for (std::size_t i = 0; i < ended.size(); ++i)
       if (now - ended[i].first > options.result_retention || ended.size() - i > options.max_retained)
         goals.erase(ended[i].second);
-    if (status_due || (now >= next_status && !goals.empty())) {
+    if (status_due || now >= next_status) {
       status_due = false;
       next_status = now + options.status_period;
       lock.unlock();
@@ -546,8 +559,7 @@ void ActionServerCore::loop() {
       lock.lock();
       continue;
     }
-    auto wake = next_check;
-    if (!goals.empty()) wake = std::min(wake, next_status);
+    const auto wake = std::min(next_check, next_status);
     loop_cv.wait_until(lock, wake, [this] { return stopping || status_due || check_clients; });
   }
 }

@@ -9,6 +9,8 @@
 #include <mutex>
 #include <thread>
 
+#include <iostream>
+
 #include "core_support.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx_examples/bench_t.hpp"
@@ -343,4 +345,33 @@ TEST_CASE("action: ending a goal twice or with a live state throws, destroying t
   const auto outcome = live.wait(5s);
   REQUIRE(outcome.ok());
   CHECK((outcome.value().status.state == GoalState::canceled || outcome.value().status.state == GoalState::lost));
+}
+
+TEST_CASE("action: the tutorial of README.md and docs/actions.md runs as written", "[action]") {
+  auto rt = lcmx::Runtime::create(test_options());
+  auto node = rt.create_node("driver");
+  // Copied from README.md ("Actions in a dozen lines"); keep the three in step.
+  using Pose = lcmx_examples::pose_t;
+  using Result = lcmx_examples::bench_t;
+  auto server = node.create_action_server<Pose, Pose, Result>(  // goal, feedback, result types
+      "drive", [](lcmx::ActionGoal<Pose, Pose, Result>& g) {    // a thread of its own per goal
+        for (int i = 1; i <= 10; ++i) {
+          if (g.wait_for_cancel(std::chrono::milliseconds(10))) return g.canceled(Result{});
+          Pose progress{};
+          progress.position[0] = i;
+          g.publish_feedback(progress);
+        }
+        Result done{};
+        done.seq = 10;
+        g.succeed(done);  // or g.abort(result, "why")
+      });
+  auto client = node.create_action_client<Pose, Pose, Result>("drive");
+  auto goal = client.send_goal(Pose{}, std::chrono::seconds(2),
+                               [](const Pose& f) { std::cout << "at " << f.position[0] << "\n"; }).value();
+  auto outcome = goal.wait(std::chrono::seconds(30));  // the end, after all feedback
+  if (outcome) std::cout << lcmx::to_string(outcome.value().status.state) << " " << outcome.value().result->seq << "\n";
+  REQUIRE(outcome.ok());
+  CHECK(outcome.value().status.state == GoalState::succeeded);
+  CHECK(outcome.value().result->seq == 10);
+  CHECK(server.stats().succeeded == 1);
 }

@@ -83,7 +83,7 @@ struct GoalOutcome {
 
 struct ActionServerOptions {
   std::size_t max_goals = 16;                      // goals executing at once; more are rejected
-  std::chrono::milliseconds status_period{1000};   // status re-announce while goals exist
+  std::chrono::milliseconds status_period{1000};   // status re-announced this often (and on change)
   std::chrono::milliseconds client_timeout{5000};  // a gone client's goals are canceled after
   std::chrono::milliseconds result_retention{60000};  // ended goals are kept this long...
   std::size_t max_retained = 256;                     // ...at most this many
