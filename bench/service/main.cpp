@@ -26,6 +26,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -513,14 +514,61 @@ int main(int argc, char** argv) {
                             {"--role", "client-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb", "--cases", cs,
                              "--clients", n_clients, "--seconds", secs},
                             emu.ns_fd(1), emu.ns_fd(0));
+#ifdef LCMX_BENCH_LCMX_TOOL
+      // Through the Message Bridges: no vehicle group, a bridge on each host carrying the
+      // service's channels from the start (`carry`, docs/services.md "Known limits").
+      Result lxb;
+      lxb.method = "lcmx service (bridges)";
+      try {
+        const std::string local_b = "udpm://239.255.78.3:7669?ttl=0";
+        const std::string dir = "/tmp/lcmx_bench_service_" + tag;
+        std::filesystem::create_directories(dir);
+        const auto a = emu.address(0, "eth"), b = emu.address(1, "eth");
+        auto config = [&](const std::string& path, const std::string& me, const std::string& listen,
+                          const std::string& peer, const std::string& peer_addr) {
+          std::ofstream f(path);
+          f << "name = \"" << me << "\"\nlisten = [\"" << listen << "\"]\ncontrol_port = 7700\n"
+            << "carry = [\"svcbb/*\"]\n\n[[channel]]\nname = \"all\"\nport = 7702\ntopics = [\"*\"]\n\n"
+            << "[[peer]]\nname = \"" << peer << "\"\nendpoints = [ { link = \"eth\", address = \"" << peer_addr
+            << "\" } ]\n";
+          if (!f) throw std::runtime_error("cannot write " + path);
+        };
+        config(dir + "/a.toml", "svcA", a, "svcB", b);
+        config(dir + "/b.toml", "svcB", b, "svcA", a);
+        const lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "warn"}};
+        std::vector<lcmx::test::Child> bridges;
+        bridges.push_back(emu.spawn(0, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}, env));
+        bridges.push_back(emu.spawn(1, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}, env));
+        for (const char* n : {"A", "B"})
+          if (!bridges[n[0] == 'A' ? 0 : 1].expect(std::string("bridge svc") + n + ": ready", std::chrono::milliseconds(10000)))
+            throw std::runtime_error(std::string("bridge svc") + n + " did not start");
+        std::cerr << "two hosts: lcmx service through the bridges\n";
+        lxb = run_method("lcmx service (bridges)",
+                         {"--role", "server-lcmx", "--url", local_b, "--name", "svcbb"},
+                         {"--role", "client-lcmx", "--url", local_b, "--name", "svcbb", "--cases", cs, "--clients",
+                          n_clients, "--seconds", secs},
+                         emu.ns_fd(1), emu.ns_fd(0));
+        for (auto& br : bridges) {
+          br.kill(SIGTERM);
+          br.wait(std::chrono::milliseconds(5000));
+        }
+        std::filesystem::remove_all(dir);
+      } catch (const std::exception& e) {
+        lxb.error = e.what();
+      }
+#endif
       const std::string tcp2 = "tcp://" + emu.address(1, "eth") + ":5599";
       std::cerr << "two hosts: ZeroMQ REQ/REP tcp\n";
       auto zt2 = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp2},
                             {"--role", "client-zmq", "--endpoint", tcp2, "--cases", cs, "--clients", n_clients,
                              "--seconds", secs},
                             emu.ns_fd(1), emu.ns_fd(0));
-      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)", {lx2, zt2}, cases, zt2,
-                  "ZeroMQ tcp")
+      std::vector<Result> rows{lx2};
+#ifdef LCMX_BENCH_LCMX_TOOL
+      rows.push_back(lxb);
+#endif
+      rows.push_back(zt2);
+      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)", rows, cases, zt2, "ZeroMQ tcp")
          << "\n";
     }
   }
