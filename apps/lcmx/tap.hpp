@@ -147,8 +147,9 @@ class StopSignals {
 // announced in discovery at once, so a bridge of this host asks its peers for the channel
 // before anything of it was published here. Globs and regexes use one channel subscription
 // (Node::subscribe_channels), which takes channels as they show up on this host, on the UDP
-// groups or in beacons; a large topic of another host that only bridges carry shows up once
-// something here subscribes to it by name.
+// groups or in beacons; a large topic of another host that only bridges carry shows up as a
+// republisher of this host's bridge, which announces its peers' catalogues while a participant
+// here has a channel subscription (docs/bridge.md "Pattern subscribers").
 // `on_message` runs on the node's executor thread (one at a time); RawMessage's view is valid
 // only during the call. Throws lcmx::Error (or what RuntimeOptions::from_env throws).
 class Tap {

@@ -67,17 +67,18 @@ void Bridge::Impl::control_loop() {
 
 // Every heartbeat, on every link of every peer: a ping. On the active link it is marked
 // active (the peer keeps our demand alive) and carries the full state — channels, what this
-// host wants, what we will send it — only when that changed, the link or the peer's
+// host wants, what we will send it, our catalogue — only when that changed, the link or the peer's
 // instance changed, or a second passed: the idle link carries a few dozen bytes per ping.
 void Bridge::Impl::send_pings() {
   wire::Control c;
   c.kind = wire::Control::Kind::ping;
   c.from = cfg.name;
   c.instance = instance;
-  std::set<std::string> want;
+  std::set<std::string> want, have;
   {
     std::lock_guard lock(view_mu);
     want = demand;
+    have = catalogue_locked();
   }
   const auto now = Clock::now();
   for (auto& p : peers) {
@@ -88,7 +89,7 @@ void Bridge::Impl::send_pings() {
       for (const auto& t : p->served)
         if (is_large_locked(t)) offer.insert(t);
     }
-    const bool full = active >= 0 && (want != p->sent_want || offer != p->sent_offer ||
+    const bool full = active >= 0 && (want != p->sent_want || offer != p->sent_offer || have != p->sent_have ||
                                       active != p->full_sent_link || p->instance != p->full_sent_instance ||
                                       now - p->full_sent_at >= kDemandRefresh);
     for (std::size_t i = 0; i < p->links.size(); ++i) {
@@ -99,14 +100,17 @@ void Bridge::Impl::send_pings() {
       c.has_demand = c.active && full;
       c.want.clear();
       c.offer.clear();
+      c.have.clear();
       c.channels.clear();
       if (c.has_demand) {
         c.control_port = cfg.control_port;
         for (const auto& ch : cfg.channels) c.channels.emplace_back(ch.name, ch.port);
         c.want = want;
         c.offer = offer;
+        c.have = have;
         p->sent_want = want;
         p->sent_offer = offer;
+        p->sent_have = have;
         p->full_sent_at = now;
         p->full_sent_link = active;
         p->full_sent_instance = p->instance;
@@ -171,6 +175,7 @@ void Bridge::Impl::receive_control() {
       std::lock_guard lock(view_mu);
       p.wants.clear();
       p.offers.clear();
+      p.has.clear();
     }
     if (c->has_demand && p.hello_checked_instance != c->instance) {
       p.hello_checked_instance = c->instance;
@@ -180,6 +185,7 @@ void Bridge::Impl::receive_control() {
       std::lock_guard lock(view_mu);
       p.wants = std::move(c->want);
       p.offers = std::move(c->offer);
+      p.has = std::move(c->have);
       p.demand_at = Clock::now();
     } else if (c->active) {
       std::lock_guard lock(view_mu);

@@ -1,6 +1,7 @@
 // Peers and demand: the local view (which topics this host's non-bridge participants publish
-// and subscribe to, from discovery), what each peer is served (one shm subscription per topic a
-// peer wants and this host publishes) and the republishers' lifetime.
+// and subscribe to, whether one has channel subscriptions, from discovery), our catalogue, what
+// each peer is served (one shm subscription per topic a peer wants and this host publishes) and
+// the republishers' lifetime (also announcing peers' catalogues to pattern subscribers).
 #include "engine.hpp"
 
 #include <spdlog/spdlog.h>
@@ -12,10 +13,12 @@ using namespace std::chrono_literals;
 void Bridge::Impl::refresh_view() {
   std::set<std::string> d;
   std::map<std::string, bool> pubs;
+  bool patterns = false;
   for (const auto& part : observer->participants()) {
     const auto& b = part.beacon;
     if (b.scope != lcmx_msgs::beacon_t::SCOPE_HOST) continue;
     if (b.flags & (lcmx_msgs::beacon_t::FLAG_BRIDGE | lcmx_msgs::beacon_t::FLAG_OBSERVER)) continue;
+    if (b.flags & lcmx_msgs::beacon_t::FLAG_CHANNELS) patterns = true;
     for (const auto& e : b.endpoints) {
       if (!wire::valid_topic(e.topic)) continue;
       if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER) d.insert(e.topic);
@@ -25,11 +28,29 @@ void Bridge::Impl::refresh_view() {
   std::lock_guard lock(view_mu);
   demand = std::move(d);
   published = std::move(pubs);
+  channel_subscribers = patterns;
 }
 
 bool Bridge::Impl::is_large_locked(const std::string& topic) const {
   auto it = published.find(topic);
   return (it != published.end() && it->second) || sticky_large.count(topic) || cfg.carried(topic);
+}
+
+std::set<std::string> Bridge::Impl::catalogue_locked() {
+  std::set<std::string> out;
+  for (const auto& [t, large] : published) {
+    if (!is_large_locked(t) || !cfg.channel_of(t)) continue;
+    if (out.size() >= wire::kMaxCatalogue) {
+      if (!catalogue_cut_logged)
+        spdlog::warn("bridge {}: this host publishes more than {} large topics: peers' pattern subscribers "
+                     "see only the first {} by name ({} and later are left out)",
+                     cfg.name, wire::kMaxCatalogue, wire::kMaxCatalogue, t);
+      catalogue_cut_logged = true;
+      break;
+    }
+    out.insert(t);
+  }
+  return out;
 }
 
 // Subscriptions (what peers want and this host publishes) and republishers.
@@ -38,6 +59,8 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
   std::map<std::string, std::vector<std::size_t>> want;  // topic -> peers
   std::map<std::string, bool> large;
   std::set<std::string> offered, local_demand;
+  std::set<std::string> announce;  // peers' catalogues, while a local participant has patterns
+  bool announce_cut = false;
   {
     std::lock_guard lock(view_mu);
     for (std::size_t i = 0; i < peers.size(); ++i) {
@@ -54,6 +77,14 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
           p.served.insert(t);
         }
       if (p.active.load() >= 0) offered.insert(p.offers.begin(), p.offers.end());
+      if (channel_subscribers && p.active.load() >= 0)
+        for (const auto& t : p.has) {
+          if (announce.size() >= wire::kMaxCatalogue && !announce.count(t)) {
+            announce_cut = true;
+            break;
+          }
+          announce.insert(t);
+        }
     }
     for (const auto& [t, v] : want) large[t] = is_large_locked(t);
     local_demand = demand;
@@ -101,22 +132,33 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
     }
   }
   // Republishers: for what an up peer offers and this host wants; gone when unwanted, or
-  // neither offered nor used for a while.
-  for (const auto& t : offered)
-    if (local_demand.count(t)) {
-      bool have;
-      {
-        std::lock_guard lock(repub_mu);
-        have = repubs.count(t) > 0;
-      }
-      if (!have) ensure_republisher(t);
+  // neither offered nor used for a while. While a participant of this host has channel
+  // subscriptions, also one for every topic of an up peer's catalogue: its publisher endpoint in
+  // our beacon is how those subscriptions learn the name (they subscribe by name to what they
+  // accept, which is demand as usual); it is republished only once demanded and offered.
+  if (announce_cut && !announce_cut_logged)
+    spdlog::warn("bridge {}: peers' catalogues hold more than {} topics: only {} are announced on this host "
+                 "to pattern subscribers",
+                 cfg.name, wire::kMaxCatalogue, wire::kMaxCatalogue);
+  announce_cut_logged = announce_cut_logged || announce_cut;
+  auto ensure = [this](const std::string& t) {
+    bool have;
+    {
+      std::lock_guard lock(repub_mu);
+      have = repubs.count(t) > 0;
     }
+    if (!have) ensure_republisher(t);
+  };
+  for (const auto& t : offered)
+    if (local_demand.count(t)) ensure(t);
+  for (const auto& t : announce) ensure(t);
   std::vector<std::shared_ptr<Republisher>> dead;  // destroyed outside the lock
   {
     std::lock_guard lock(repub_mu);
     for (auto it = repubs.begin(); it != repubs.end();) {
-      const bool keep = local_demand.count(it->first) &&
-                        (offered.count(it->first) || now - it->second->last_message < 3 * cfg.link_timeout + 1s);
+      const bool keep = (local_demand.count(it->first) &&
+                         (offered.count(it->first) || now - it->second->last_message < 3 * cfg.link_timeout + 1s)) ||
+                        announce.count(it->first);
       if (keep) {
         ++it;
       } else {

@@ -165,12 +165,13 @@ struct Bridge::Impl {
     std::uint64_t hello_checked_instance = 0;
     bool was_up = false;
     // What our last full ping (demand) to it said, and when/where/to which instance of it.
-    std::set<std::string> sent_want, sent_offer;
+    std::set<std::string> sent_want, sent_offer, sent_have;
     Clock::time_point full_sent_at{};
     int full_sent_link = -1;
     std::uint64_t full_sent_instance = 0;
     // guarded by view_mu:
     std::set<std::string> wants, offers;
+    std::set<std::string> has;     // its catalogue: the large topics its host publishes
     Clock::time_point demand_at{};
     std::set<std::string> served;  // what we forward to it now
   };
@@ -231,10 +232,12 @@ struct Bridge::Impl {
   std::set<std::string> demand;                 // topics local non-bridge participants subscribe to
   std::map<std::string, bool> published;        // topic -> some local non-bridge publisher is large
   std::set<std::string> sticky_large;           // topics once seen large (never go back)
+  bool channel_subscribers = false;             // a local participant has FLAG_CHANNELS
 
   // Control thread only.
   std::map<std::string, std::unique_ptr<Served>> served;
   std::set<std::string> no_channel_logged;
+  bool catalogue_cut_logged = false, announce_cut_logged = false;
 
   std::mutex repub_mu;
   std::map<std::string, std::shared_ptr<Republisher>> repubs;
@@ -271,9 +274,12 @@ struct Bridge::Impl {
   void control_loop();
   void refresh_view();
   bool is_large_locked(const std::string& topic) const;
+  // Our catalogue (sent to every peer): the large topics local non-bridge participants publish
+  // that some channel carries; the first wire::kMaxCatalogue by name. view_mu held.
+  std::set<std::string> catalogue_locked();
   // Every heartbeat, on every link of every peer: a ping. On the active link it is marked
   // active (the peer keeps our demand alive) and carries the full state — channels, what this
-  // host wants, what we will send it — only when that changed, the link or the peer's
+  // host wants, what we will send it, our catalogue — only when that changed, the link or the peer's
   // instance changed, or a second passed: the idle link carries a few dozen bytes per ping.
   void send_pings();
   // Pings from peers (on our control ROUTER): remember their demand/offers, answer.

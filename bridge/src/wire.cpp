@@ -39,6 +39,7 @@ std::string encode(const Control& c) {
       s += "demand\n";
       for (const auto& t : c.want) s += "want " + t + "\n";
       for (const auto& t : c.offer) s += "offer " + t + "\n";
+      for (const auto& t : c.have) s += "have " + t + "\n";
     }
   }
   return s;
@@ -97,6 +98,9 @@ std::optional<Control> decode(std::string_view f) {
     } else if ((key == "want" || key == "offer") && c.has_demand) {
       if (!valid_topic(val)) return std::nullopt;
       (key == "want" ? c.want : c.offer).emplace(val);
+    } else if (key == "have" && c.has_demand) {
+      if (!valid_topic(val) || c.have.size() >= kMaxCatalogue) return std::nullopt;
+      c.have.emplace(val);
     } else {
       return std::nullopt;
     }

@@ -3,6 +3,9 @@
 // the channel shows up — a publisher here (add_publisher), a publisher endpoint in a beacon of
 // either scope (on_participant), or a stock LCM sender's datagram (on_udp expands before it
 // dispatches, so that first datagram is delivered too). RuntimeImpl::mu guards everything here.
+// While any exists, the host-scope beacon carries FLAG_CHANNELS (build_beacon): a Message Bridge
+// of this host then announces its peers' large topics as its republishers, so they show up here
+// too (docs/bridge.md "Pattern subscribers").
 #include <spdlog/spdlog.h>
 
 #include <set>

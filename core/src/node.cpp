@@ -555,6 +555,7 @@ const TypeInfo& announced_type_info(const std::string& name, std::int64_t finger
 void remove_channel_subscription(const std::shared_ptr<ChannelSubscriptionCore>& core) {
   for (auto& sub : core->node->runtime->remove_channel_subscription(core.get()))
     remove_subscriber(sub);
+  core->node->runtime->changed();  // the beacon's FLAG_CHANNELS may go
 }
 
 std::vector<std::pair<std::string, SubscriberStats>> channel_subscription_stats(

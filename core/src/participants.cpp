@@ -174,6 +174,10 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
   };
   std::lock_guard lock(mu);
   b.revision = revision.load();
+  // A bridge of this host announces its peers' large topics while someone here takes channels
+  // by pattern (docs/bridge.md "Pattern subscribers").
+  if (!vehicle && !channel_subs.empty())
+    b.flags = static_cast<std::int8_t>(b.flags | lcmx_msgs::beacon_t::FLAG_CHANNELS);
   for (auto& w : nodes)
     if (auto n = w.lock()) b.nodes.push_back(n->name);
   b.num_nodes = static_cast<std::int32_t>(b.nodes.size());

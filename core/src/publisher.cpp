@@ -155,7 +155,14 @@ void PublisherImpl::publish_ref(const void* object,
   auto lock = lock_no_loan("publish");
   const bool shm = writer_->registered_readers() > 0;
   const bool udp = wants_udp();
-  if (!shm && !udp) check_size(type.encoded_size(object));  // also with only in-process subscribers
+  // Not encoded when nobody reads through shm or UDP (in-process subscribers only, or none), but
+  // checked and classified all the same: a Message Bridge lists the large topics of its host
+  // for its peers' pattern subscribers (docs/bridge.md "Pattern subscribers").
+  if (!shm && !udp) {
+    const std::size_t size = type.encoded_size(object);
+    check_size(size);
+    note_size(size);
+  }
   // In-process subscribers first: handing over a pointer is cheaper than encoding.
   if (!t->empty()) deliver_intra(*t, copy(object));
   if (shm || udp) write_encoded(object, shm, udp);
@@ -168,7 +175,11 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   auto lock = lock_no_loan("publish");
   const bool shm = writer_->registered_readers() > 0;
   const bool udp = wants_udp();
-  if (!shm && !udp) check_size(type.encoded_size(object.get()));
+  if (!shm && !udp) {  // as publish_ref
+    const std::size_t size = type.encoded_size(object.get());
+    check_size(size);
+    note_size(size);
+  }
   if (!t->empty()) deliver_intra(*t, object);
   if (shm || udp) write_encoded(object.get(), shm, udp);
   published_.fetch_add(1);

@@ -10,9 +10,11 @@
 #include <fstream>
 #include <sstream>
 
+#include "lcmx/log/eventlog.hpp"
 #include "lcmx/test/catch_netns.hpp"
 #include "lcmx/test/netns.hpp"
 #include "lcmx/test/watchdog.hpp"
+#include "lcmx_examples/bench_t.hpp"
 #include "support.hpp"
 
 namespace {
@@ -747,6 +749,135 @@ TEST_CASE("lcmx echo on host B decodes a large topic of host A carried by the br
     CHECK(j.find("\"field\":\"seq\",\"data\":") != std::string::npos);
   }
   pub.send("quit");
+}
+
+// Issue 11: tools that take channels by pattern (a glob, a regular expression) on host B get a
+// large topic of host A that only the bridges carry. A's bridge announces its catalogue (the
+// large topics A publishes); B's bridge, while a participant of B has a pattern subscription,
+// announces them on B as its republishers, the pattern subscriptions take the matching names,
+// and their subscribers are ordinary demand. A non-matching topic of A never crosses; when the
+// tools leave, the bridges stop carrying the topic.
+TEST_CASE("lcmx echo GLOB and lcmx record -c REGEX on host B get a 6 MB topic of host A carried only by the bridges",
+          "[bridge][multihost][tools]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 43, {{.name = "eth"}}, 90000ms);
+  const auto ch = w.channel("PAT_IMG");
+  const auto other = w.channel("OTHER_IMG");  // large too, matched by neither tool
+  const std::string suffix = "_" + std::to_string(::getpid()) + "_" + std::to_string(w.index_);
+  const std::string glob = "BR_PAT_*" + suffix, regex = "BR_PAT_[A-Z]+" + suffix;
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  constexpr std::size_t kSize = 6 * 1024 * 1024;
+  auto& pub = w.pub(0, ch, kSize, "A");
+  auto& pub_other = w.pub(0, other, 300000, "O");
+  const std::string log = (w.dir / "pattern.lcmlog").string();
+  auto& echo = w.spawn(1, {LCMX_TOOL, "echo", glob, "--types", LCMX_LCMTYPES_DIR, "--json", "-n", "3", "--field", "seq"});
+  auto& rec = w.spawn(1, {LCMX_TOOL, "record", log, "-c", regex, "--flush-interval", "20", "--json"}, true);
+  REQUIRE(rec.expect("lcmx record: recording to", 10000ms));
+
+  // The events of `ch` in the log so far (a partly written last event is not read).
+  auto logged = [&] {
+    std::vector<lcmx::eventlog::Event> out;
+    try {
+      auto r = lcmx::eventlog::Reader::open(log);
+      lcmx::eventlog::Event e;
+      while (r.next(e))
+        if (e.channel == ch) out.push_back(e);
+    } catch (const lcmx::eventlog::Error&) {
+    }
+    return out;
+  };
+  // Single messages (and one of `other`) until echo printed three and the log holds three:
+  // discovery, the catalogue, the pattern's subscriber, demand and the republisher come up first.
+  std::vector<std::string> got;
+  std::size_t in_log = 0;
+  const auto deadline = Clock::now() + 30000ms;
+  while ((got.size() < 3 || in_log < 3) && Clock::now() < deadline) {
+    pub.send(pub_cmd(1, 0));
+    published_total(pub);
+    pub_other.send(pub_cmd(1, 0));
+    published_total(pub_other);
+    while (auto line = echo.read_line(50ms))
+      if (!line->empty() && (*line)[0] == '{') got.push_back(*line);
+    in_log = logged().size();
+  }
+  for (auto* c : {&ba, &bb})
+    while (c->read_line(0ms)) {
+    }
+  INFO("echo:\n" << echo.text() << "\nrecord:\n" << rec.text() << "\nbridge status on B:\n" << bridge_status(w, 1)
+                  << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  REQUIRE(got.size() >= 3);
+  REQUIRE(in_log >= 3);
+  CHECK(echo.wait(5000ms) == 0);
+  for (const auto& j : got) {
+    CHECK(j.find("\"channel\":\"" + ch + "\"") != std::string::npos);
+    CHECK(j.find("\"type\":\"lcmx_examples.bench_t\"") != std::string::npos);
+    CHECK(j.find("\"size\":" + std::to_string(kSize + 28)) != std::string::npos);
+    CHECK(j.find("\"field\":\"seq\",\"data\":") != std::string::npos);
+  }
+  // What was recorded decodes to A's messages, byte for byte.
+  for (const auto& e : logged()) {
+    lcmx_examples::bench_t m;
+    REQUIRE(m.decode(e.data.data(), 0, static_cast<int>(e.data.size())) == static_cast<int>(e.data.size()));
+    REQUIRE(m.data.size() == kSize);
+    CHECK(m.data[0] == 'A');
+    bool content = true;
+    for (std::size_t i = 8; i < m.data.size(); i += 4099)
+      content = content && m.data[i] == static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(m.seq) * 7u) & 0xffu);
+    CHECK(content);
+  }
+  // A's other large topic matched no pattern: B never asked for it.
+  const std::string st_a = bridge_status(w, 0);
+  INFO("bridge status on A:\n" << st_a);
+  CHECK(st_a.find(ch) != std::string::npos);
+  CHECK(st_a.find(other) == std::string::npos);
+
+  // While record runs, B's bridge announces A's catalogue on B: both topics have its
+  // republisher; only the matching one has a subscriber (record's).
+  {
+    auto& t = w.spawn(1, {LCMX_TOOL, "topics", "--json"}, true);
+    CHECK(t.wait(10000ms) == 0);
+    INFO("lcmx topics on B:\n" << t.text());
+    CHECK(t.text().find("{\"topic\":\"" + ch + "\"") != std::string::npos);
+    CHECK(t.text().find("{\"topic\":\"" + other + "\"") != std::string::npos);
+  }
+
+  // The tools leave: B's demand loses the topic, A's bridge stops serving it, and what A
+  // publishes from then on no longer crosses the link.
+  rec.signal(SIGINT);
+  CHECK(rec.wait(10000ms) == 0);
+  const auto stop_deadline = Clock::now() + 15000ms;
+  std::string st;
+  bool stopped = false;
+  while (!stopped && Clock::now() < stop_deadline) {
+    pub.send(pub_cmd(1, 0));
+    published_total(pub);
+    st = bridge_status(w, 0);
+    stopped = st.find(ch) == std::string::npos;
+  }
+  INFO("bridge status on A:\n" << st << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  REQUIRE(stopped);
+  const auto tx0 = w.emu().tx_bytes(0, "eth");
+  pub.send(pub_cmd(3, 20));
+  published_total(pub);
+  const auto tx = w.emu().tx_bytes(0, "eth") - tx0;
+  CHECK(tx < kSize / 4);  // heartbeats only, not a 6 MB message
+  // Nobody on B takes channels by pattern any more: B's bridge stops announcing A's catalogue
+  // (its republishers of both topics are gone from B's topology).
+  const auto gone_deadline = Clock::now() + 10000ms;
+  std::string topics;
+  bool gone = false;
+  while (!gone && Clock::now() < gone_deadline) {
+    auto& t = w.spawn(1, {LCMX_TOOL, "topics", "--json"}, true);
+    CHECK(t.wait(10000ms) == 0);
+    topics = t.text();
+    gone = topics.find("\"topics\":") != std::string::npos && topics.find(ch) == std::string::npos &&
+           topics.find(other) == std::string::npos;
+  }
+  INFO("lcmx topics on B:\n" << topics);
+  CHECK(gone);
+  pub.send("quit");
+  pub_other.send("quit");
 }
 
 TEST_CASE("lcmx hz, bw, monitor --once and graph on host B see a large topic of host A carried by the bridges, and lcmx pub on A reaches B",

@@ -269,6 +269,7 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   c.has_demand = true;
   c.want = {"CAMERA", "POSE"};
   c.offer = {"MAP_1"};
+  c.have = {"CAMERA_FRONT", "MAP_1"};
   const auto text = wire::encode(c);
   auto d = wire::decode(text);
   REQUIRE(d);
@@ -277,6 +278,7 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   CHECK(d->channels == c.channels);
   CHECK(d->want == c.want);
   CHECK(d->offer == c.offer);
+  CHECK(d->have == c.have);
   CHECK(d->has_demand);
 
   CHECK_FALSE(wire::decode(""));
@@ -404,4 +406,25 @@ TEST_CASE("control wire format: the demand state is whole or absent", "[bridge][
   REQUIRE(ok);
   CHECK(ok->control_port == 7700);
   CHECK(wire::decode(wire::encode(*ok)));
+}
+
+TEST_CASE("control wire format: the catalogue (have) belongs to the demand state and is bounded", "[bridge][wire]") {
+  const std::string head = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nactive\n";
+  const std::string demand = head + "control 7700\ndemand\n";
+  CHECK_FALSE(wire::decode(head + "have X\n"));                        // have without demand
+  CHECK_FALSE(wire::decode(demand + "have " + std::string(64, 'T') + "\n"));  // topic too long
+  CHECK_FALSE(wire::decode(demand + "have\n"));                        // no topic
+  CHECK_FALSE(wire::decode("LCMXB1 PONG\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nhave X\n"));
+  std::string full = demand;
+  for (std::size_t i = 0; i < wire::kMaxCatalogue; ++i) full += "have T" + std::to_string(i) + "\n";
+  const std::string over = full + "have T_ONE_MORE\n";
+  const auto ok = wire::decode(full);
+  REQUIRE(ok);
+  CHECK(ok->have.size() == wire::kMaxCatalogue);
+  CHECK(wire::encode(*ok).size() < 16 * 1024);  // a full catalogue of short names: a small frame
+  CHECK_FALSE(wire::decode(over));  // more than kMaxCatalogue topics: malformed
+  // A repeated topic is one topic (a set), not a way around the bound.
+  const auto dup = wire::decode(demand + "have X\nhave X\n");
+  REQUIRE(dup);
+  CHECK(dup->have == std::set<std::string>{"X"});
 }

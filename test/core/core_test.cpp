@@ -6,6 +6,7 @@
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <condition_variable>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <thread>
@@ -362,6 +363,47 @@ TEST_CASE("a bridge participant: flag, carried topics, no self-delivery", "[core
     }
     return false;
   }));
+}
+
+// docs/bridge.md "Pattern subscribers": a bridge announces its peers' large topics on this host
+// while a participant here beacons FLAG_CHANNELS, and lists in its catalogue the topics whose
+// publishers beacon `large` (known from the first message, even with nobody reading).
+TEST_CASE("FLAG_CHANNELS while a channel subscription exists, and a topic is large from its first message even unread",
+          "[core][bridge][channels]") {
+  auto opts = test_options();
+  auto rt = lcmx::Runtime::create(opts);
+  lcmx::discovery::Options d;
+  d.group = lcmx::udpm::parse_url(opts.discovery_url);
+  d.observer = true;
+  lcmx::discovery::Discovery observer(d, {}, [](auto, const auto&) {});
+  observer.query();  // and periodic beacons every 100 ms; a change is announced at once
+  // Our latest beacon seen by the observer satisfies `pred`.
+  auto beacon_says = [&](const std::function<bool(const lcmx_msgs::beacon_t&)>& pred) {
+    return eventually([&] {
+      for (const auto& p : observer.participants())
+        if (static_cast<std::uint64_t>(p.beacon.participant_id) == rt.participant_id()) return pred(p.beacon);
+      return false;
+    });
+  };
+  auto node = rt.create_node("n");
+  auto img = node.advertise<lcmx_examples::image_t>("UNREAD_IMAGE");
+  lcmx_examples::image_t m{};
+  m.size = 100000;  // above the default udp_limit (65000)
+  m.data.resize(static_cast<std::size_t>(m.size));
+  img.publish(m);  // no subscriber anywhere: sized, not encoded
+  CHECK(beacon_says([](const lcmx_msgs::beacon_t& b) {
+    for (const auto& e : b.endpoints)
+      if (e.topic == "UNREAD_IMAGE" && e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) return e.large == 1;
+    return false;
+  }));
+  CHECK(beacon_says([](const lcmx_msgs::beacon_t& b) { return !(b.flags & lcmx_msgs::beacon_t::FLAG_CHANNELS); }));
+  {
+    auto sub = node.subscribe_channels([](const std::string& c) { return c == "NOTHING_HERE"; },
+                                       [](const lcmx::RawMessage&) {});
+    CHECK(beacon_says([](const lcmx_msgs::beacon_t& b) { return (b.flags & lcmx_msgs::beacon_t::FLAG_CHANNELS) != 0; }));
+  }
+  // Gone with its last channel subscription (which had no subscriber to remove).
+  CHECK(beacon_says([](const lcmx_msgs::beacon_t& b) { return !(b.flags & lcmx_msgs::beacon_t::FLAG_CHANNELS); }));
 }
 
 TEST_CASE("subscribe_channels: every channel the filter accepts, with its name, announced types match",

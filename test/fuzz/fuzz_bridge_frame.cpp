@@ -48,7 +48,8 @@ void check_control(std::string_view frame) {
   FUZZ_CHECK(valid_name(c->from));
   FUZZ_CHECK(valid_name(c->link));
   if (c->kind == wire::Control::Kind::pong) {
-    FUZZ_CHECK(!c->active && !c->has_demand && c->channels.empty() && c->want.empty() && c->offer.empty());
+    FUZZ_CHECK(!c->active && !c->has_demand && c->channels.empty() && c->want.empty() && c->offer.empty() &&
+               c->have.empty());
   }
   FUZZ_CHECK(c->channels.size() <= 256);
   for (const auto& [name, port] : c->channels) {
@@ -58,7 +59,9 @@ void check_control(std::string_view frame) {
   FUZZ_CHECK(c->control_port >= 0 && c->control_port <= 65535);
   for (const auto& t : c->want) FUZZ_CHECK(wire::valid_topic(t));
   for (const auto& t : c->offer) FUZZ_CHECK(wire::valid_topic(t));
-  if (!c->has_demand) FUZZ_CHECK(c->want.empty() && c->offer.empty());
+  for (const auto& t : c->have) FUZZ_CHECK(wire::valid_topic(t));
+  FUZZ_CHECK(c->have.size() <= wire::kMaxCatalogue);
+  if (!c->has_demand) FUZZ_CHECK(c->want.empty() && c->offer.empty() && c->have.empty());
 
   const std::string text = wire::encode(*c);
   const auto again = wire::decode(text);
@@ -80,6 +83,7 @@ void check_control(std::string_view frame) {
       FUZZ_CHECK(again->channels == c->channels);
       FUZZ_CHECK(again->want == c->want);
       FUZZ_CHECK(again->offer == c->offer);
+      FUZZ_CHECK(again->have == c->have);
     }
   }
 }

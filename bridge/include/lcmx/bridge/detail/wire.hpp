@@ -4,7 +4,8 @@
 //   LCMXB1 PING | LCMXB1 PONG
 //   from <bridge name>            instance <16 hex>   link <link name>   t <sender ns>
 //   PING only: control <port>, channel <name> <port> (repeated), and on the active link
-//   "demand" followed by "want <topic>" and "offer <topic>" lines (the full sets).
+//   "demand" followed by "want <topic>", "offer <topic>" and "have <topic>" lines (the full
+//   sets; "have": the sender's catalogue, at most kMaxCatalogue topics).
 // Data (channel ports, DEALER -> ROUTER): [topic][header: instance u64 LE, seq u64 LE][payload].
 #pragma once
 
@@ -21,6 +22,9 @@ namespace lcmx::bridge::wire {
 inline constexpr std::size_t kMaxControlFrame = 4u << 20;  // bytes
 inline constexpr std::size_t kMaxTopic = 63;                // LCM's channel limit
 inline constexpr std::size_t kDataHeader = 16;
+// The catalogue ("have" lines): the large topics a bridge's host publishes, which peers with
+// pattern subscribers announce on their hosts. More in a frame is malformed.
+inline constexpr std::size_t kMaxCatalogue = 1024;
 
 struct Control {
   enum class Kind { ping, pong } kind = Kind::ping;
@@ -36,6 +40,9 @@ struct Control {
   std::vector<std::pair<std::string, int>> channels;
   bool has_demand = false;
   std::set<std::string> want, offer;
+  // Part of the demand state: the topics the sender could serve (docs/bridge.md "Pattern
+  // subscribers"), at most kMaxCatalogue.
+  std::set<std::string> have;
 };
 
 // A topic that the text format can carry: 1..63 bytes, no whitespace or control characters.
