@@ -80,14 +80,7 @@ struct ActionsOptions {
 };
 ActionsOptions g_actions;
 
-struct SeenEndpoint {
-  std::int64_t participant = 0, host = 0;
-  std::int32_t pid = 0;
-  std::string process, node;
-};
-struct SeenAction {
-  std::vector<SeenEndpoint> servers, clients;
-};
+using SeenAction = SeenServersClients;
 
 int run_actions() {
   const auto& o = g_actions;
@@ -108,7 +101,7 @@ int run_actions() {
             e.topic.compare(e.topic.size() - kStatusSuffix.size(), kStatusSuffix.size(), kStatusSuffix) != 0)
           continue;
         auto& a = actions[e.topic.substr(0, e.topic.size() - kStatusSuffix.size())];
-        SeenEndpoint se{p.beacon.participant_id, p.beacon.host_id, p.beacon.pid, p.beacon.process_name, e.node};
+        const SeenEndpoint se = seen_endpoint(p, e);
         (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER ? a.servers : a.clients).push_back(se);
       }
     }
@@ -143,18 +136,7 @@ int run_actions() {
                     << ",\"message\":" << json_str(s.goals[i].message) << "}";
         std::cout << "]";
       }
-      for (const auto* list : {&a.servers, &a.clients}) {
-        std::cout << (list == &a.servers ? ",\"servers\":[" : ",\"clients\":[");
-        bool f2 = true;
-        for (const auto& e : *list) {
-          std::cout << (f2 ? "" : ",") << "{\"participant\":\""
-                    << hex_fingerprint(static_cast<std::uint64_t>(e.participant)) << "\",\"host\":\""
-                    << hex_fingerprint(static_cast<std::uint64_t>(e.host)) << "\",\"pid\":" << e.pid
-                    << ",\"process\":" << json_str(e.process) << ",\"node\":" << json_str(e.node) << "}";
-          f2 = false;
-        }
-        std::cout << "]";
-      }
+      print_endpoints_json(std::cout, a);
       std::cout << "}";
     }
     std::cout << "]}" << std::endl;
@@ -176,10 +158,7 @@ int run_actions() {
       std::cout << "  (types unknown: no status heard)";
     }
     std::cout << "\n";
-    for (const auto& e : a.servers)
-      std::cout << "  server  pid " << e.pid << " " << e.process << ", node " << e.node << " (host "
-                << hex_fingerprint(static_cast<std::uint64_t>(e.host)) << ")\n";
-    std::cout << "  clients " << a.clients.size() << "\n";
+    print_endpoints_text(std::cout, a);
     if (it != status.end())
       for (const auto& gs : it->second.goals)
         std::cout << "  goal " << gs.goal_id << "  " << state_name(gs.state)

@@ -35,13 +35,7 @@ struct ServicesOptions {
 };
 ServicesOptions g_services;
 
-struct SeenEndpoint {
-  std::int64_t participant = 0, host = 0;
-  std::int32_t pid = 0;
-  std::string process, node;
-};
-struct SeenService {
-  std::vector<SeenEndpoint> servers, clients;
+struct SeenService : SeenServersClients {
   std::optional<ServerInfo> probed;  // the best server's answer
 };
 
@@ -64,7 +58,7 @@ int run_services() {
             e.topic.compare(e.topic.size() - suffix.size(), suffix.size(), suffix) != 0)
           continue;
         auto& s = services[e.topic.substr(0, e.topic.size() - suffix.size())];
-        SeenEndpoint se{p.beacon.participant_id, p.beacon.host_id, p.beacon.pid, p.beacon.process_name, e.node};
+        const SeenEndpoint se = seen_endpoint(p, e);
         (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER ? s.servers : s.clients).push_back(se);
       }
     }
@@ -101,17 +95,7 @@ int run_services() {
                   << ",\"response_fingerprint\":\""
                   << hex_fingerprint(static_cast<std::uint64_t>(i.response_fingerprint)) << "\"";
       }
-      for (const auto* list : {&s.servers, &s.clients}) {
-        std::cout << (list == &s.servers ? ",\"servers\":[" : ",\"clients\":[");
-        bool f2 = true;
-        for (const auto& e : *list) {
-          std::cout << (f2 ? "" : ",") << "{\"participant\":\"" << hex_fingerprint(static_cast<std::uint64_t>(e.participant))
-                    << "\",\"host\":\"" << hex_fingerprint(static_cast<std::uint64_t>(e.host)) << "\",\"pid\":" << e.pid
-                    << ",\"process\":" << json_str(e.process) << ",\"node\":" << json_str(e.node) << "}";
-          f2 = false;
-        }
-        std::cout << "]";
-      }
+      print_endpoints_json(std::cout, s);
       std::cout << "}";
     }
     std::cout << "]}" << std::endl;
@@ -129,10 +113,7 @@ int run_services() {
     else if (!o.no_probe)
       std::cout << "  (types unknown: no server answered a probe)";
     std::cout << "\n";
-    for (const auto& e : s.servers)
-      std::cout << "  server  pid " << e.pid << " " << e.process << ", node " << e.node << " (host "
-                << hex_fingerprint(static_cast<std::uint64_t>(e.host)) << ")\n";
-    std::cout << "  clients " << s.clients.size() << "\n";
+    print_endpoints_text(std::cout, s);
   }
   return 0;
 }

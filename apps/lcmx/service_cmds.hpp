@@ -9,6 +9,11 @@
 #include <span>
 #include <string>
 
+#include <ostream>
+#include <vector>
+
+#include "lcmx/discovery/discovery.hpp"
+#include "log_common.hpp"
 #include "tap.hpp"
 #include "verb.hpp"
 
@@ -49,6 +54,42 @@ inline std::optional<Bytes> from_hex(const std::string& h) {
     out.push_back(static_cast<std::byte>(v));
   }
   return out;
+}
+
+// A server or client of a service or action, from its participant's beacon.
+struct SeenEndpoint {
+  std::int64_t participant = 0, host = 0;
+  std::int32_t pid = 0;
+  std::string process, node;
+};
+inline SeenEndpoint seen_endpoint(const discovery::Participant& p, const lcmx_msgs::endpoint_t& e) {
+  return {p.beacon.participant_id, p.beacon.host_id, p.beacon.pid, p.beacon.process_name, e.node};
+}
+struct SeenServersClients {
+  std::vector<SeenEndpoint> servers, clients;
+};
+
+// `,"servers":[{participant, host, pid, process, node}],"clients":[...]` (--json output).
+inline void print_endpoints_json(std::ostream& out, const SeenServersClients& s) {
+  for (const auto* list : {&s.servers, &s.clients}) {
+    out << (list == &s.servers ? ",\"servers\":[" : ",\"clients\":[");
+    bool first = true;
+    for (const auto& e : *list) {
+      out << (first ? "" : ",") << "{\"participant\":\"" << hex_fingerprint(static_cast<std::uint64_t>(e.participant))
+          << "\",\"host\":\"" << hex_fingerprint(static_cast<std::uint64_t>(e.host)) << "\",\"pid\":" << e.pid
+          << ",\"process\":" << json_str(e.process) << ",\"node\":" << json_str(e.node) << "}";
+      first = false;
+    }
+    out << "]";
+  }
+}
+
+// One line per server, then the number of clients (text output).
+inline void print_endpoints_text(std::ostream& out, const SeenServersClients& s) {
+  for (const auto& e : s.servers)
+    out << "  server  pid " << e.pid << " " << e.process << ", node " << e.node << " (host "
+        << hex_fingerprint(static_cast<std::uint64_t>(e.host)) << ")\n";
+  out << "  clients " << s.clients.size() << "\n";
 }
 
 }  // namespace lcmx::cli

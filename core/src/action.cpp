@@ -90,6 +90,12 @@ bool decode(std::span<const std::byte> b, T& m) {
 std::span<const std::byte> as_bytes(const std::vector<std::uint8_t>& v) {
   return {reinterpret_cast<const std::byte*>(v.data()), v.size()};
 }
+// The three services' envelope types (request, reply), the same at servers and clients.
+template <class Req, class Rep>
+ServiceTypes service_types() {
+  return {Req::getTypeName(), Rep::getTypeName(), Req::getHash(), Rep::getHash()};
+}
+
 // The envelopes travel as bytes (encoded here), announcing their type: tools decode them.
 template <class T>
 const TypeInfo& envelope_type() {
@@ -234,24 +240,16 @@ class ActionServerCore : public std::enable_shared_from_this<ActionServerCore> {
 void ActionServerCore::start() {
   auto self = shared_from_this();
   ActionServerCore* raw = this;
-  const ServiceTypes goal_types{lcmx_msgs::action_goal_t::getTypeName(), lcmx_msgs::action_goal_reply_t::getTypeName(),
-                                lcmx_msgs::action_goal_t::getHash(), lcmx_msgs::action_goal_reply_t::getHash()};
-  const ServiceTypes cancel_types{lcmx_msgs::action_goal_ref_t::getTypeName(),
-                                  lcmx_msgs::action_goal_status_t::getTypeName(),
-                                  lcmx_msgs::action_goal_ref_t::getHash(), lcmx_msgs::action_goal_status_t::getHash()};
-  const ServiceTypes result_types{lcmx_msgs::action_goal_ref_t::getTypeName(),
-                                  lcmx_msgs::action_result_t::getTypeName(), lcmx_msgs::action_goal_ref_t::getHash(),
-                                  lcmx_msgs::action_result_t::getHash()};
   feedback_pub = create_publisher(*node, feedback_channel(name), envelope_type<lcmx_msgs::action_feedback_t>(),
                                   PublisherOptions{});
   status_pub = create_publisher(*node, status_channel(name), envelope_type<lcmx_msgs::action_status_t>(),
                                 PublisherOptions{});
   // The services' handlers use `raw`: close() removes the services before the core goes.
-  cancel_server = create_server(*node, cancel_channel(name), cancel_types,
+  cancel_server = create_server(*node, cancel_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_goal_status_t>(),
                                 [raw](std::span<const std::byte> in, ResponseWriter& out) { raw->on_cancel(in, out); });
-  result_server = create_server(*node, result_channel(name), result_types,
+  result_server = create_server(*node, result_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_result_t>(),
                                 [raw](std::span<const std::byte> in, ResponseWriter& out) { raw->on_result(in, out); });
-  goal_server = create_server(*node, goal_channel(name), goal_types,
+  goal_server = create_server(*node, goal_channel(name), service_types<lcmx_msgs::action_goal_t, lcmx_msgs::action_goal_reply_t>(),
                               [raw](std::span<const std::byte> in, ResponseWriter& out) { raw->on_goal(in, out); });
   std::weak_ptr<ActionServerCore> weak = self;
   tap = node->runtime->add_event_tap([weak](const Event& e) {
@@ -639,19 +637,11 @@ class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
 
 void ActionClientCore::start(NodeImpl& user_node) {
   std::weak_ptr<ActionClientCore> weak = weak_from_this();
-  const ServiceTypes goal_types{lcmx_msgs::action_goal_t::getTypeName(), lcmx_msgs::action_goal_reply_t::getTypeName(),
-                                lcmx_msgs::action_goal_t::getHash(), lcmx_msgs::action_goal_reply_t::getHash()};
-  const ServiceTypes cancel_types{lcmx_msgs::action_goal_ref_t::getTypeName(),
-                                  lcmx_msgs::action_goal_status_t::getTypeName(),
-                                  lcmx_msgs::action_goal_ref_t::getHash(), lcmx_msgs::action_goal_status_t::getHash()};
-  const ServiceTypes result_types{lcmx_msgs::action_goal_ref_t::getTypeName(),
-                                  lcmx_msgs::action_result_t::getTypeName(), lcmx_msgs::action_goal_ref_t::getHash(),
-                                  lcmx_msgs::action_result_t::getHash()};
-  goal_client = create_client(user_node, goal_channel(name), goal_types, [weak](const std::vector<ServerInfo>& gone) {
+  goal_client = create_client(user_node, goal_channel(name), service_types<lcmx_msgs::action_goal_t, lcmx_msgs::action_goal_reply_t>(), [weak](const std::vector<ServerInfo>& gone) {
     if (auto self = weak.lock()) self->on_servers_gone(gone);
   });
-  cancel_client = create_client(user_node, cancel_channel(name), cancel_types);
-  result_client = create_client(user_node, result_channel(name), result_types);
+  cancel_client = create_client(user_node, cancel_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_goal_status_t>());
+  result_client = create_client(user_node, result_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_result_t>());
   NodeOptions o;
   o.executor.kind = ExecutorKind::manual;
   node = std::make_shared<NodeImpl>(runtime, user_node.name + "/action_client:" + name, o);

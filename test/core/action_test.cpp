@@ -21,6 +21,7 @@ namespace {
 using namespace std::chrono_literals;
 using lcmx::GoalState;
 using lcmx::core_test::eventually;
+using lcmx::core_test::Gate;
 using lcmx::core_test::test_options;
 using Pose = lcmx_examples::pose_t;
 using Bench = lcmx_examples::bench_t;
@@ -38,28 +39,6 @@ Bench bench(std::int64_t seq) {
   return b;
 }
 
-// A gate execute waits at until the test opens it (with a deadline, so nothing hangs).
-struct Gate {
-  std::mutex mu;
-  std::condition_variable cv;
-  bool open = false;
-  int arrived = 0;
-  void wait() {
-    std::unique_lock lock(mu);
-    ++arrived;
-    cv.notify_all();
-    cv.wait_for(lock, 10s, [&] { return open; });
-  }
-  void release() {
-    std::lock_guard lock(mu);
-    open = true;
-    cv.notify_all();
-  }
-  bool wait_arrived(int n) {
-    std::unique_lock lock(mu);
-    return cv.wait_for(lock, 10s, [&] { return arrived >= n; });
-  }
-};
 
 }  // namespace
 

@@ -1,11 +1,13 @@
-// Shared pieces of the core unit tests (lcmx_core_tests): a discovery group per call and a
-// condition wait with a deadline.
+// Shared pieces of the core unit tests (lcmx_core_tests): a discovery group per call, a
+// condition wait with a deadline, a gate for handlers.
 #pragma once
 
 #include <unistd.h>
 
 #include <atomic>
 #include <chrono>
+#include <condition_variable>
+#include <mutex>
 #include <string>
 #include <thread>
 
@@ -46,5 +48,28 @@ bool eventually(Pred pred, std::chrono::milliseconds deadline = 5000ms) {
   }
   return true;
 }
+
+// A gate a handler waits at until the test opens it (with a deadline, so nothing hangs).
+struct Gate {
+  std::mutex mu;
+  std::condition_variable cv;
+  bool open = false;
+  int arrived = 0;
+  void wait() {
+    std::unique_lock lock(mu);
+    ++arrived;
+    cv.notify_all();
+    cv.wait_for(lock, 10s, [&] { return open; });
+  }
+  void release() {
+    std::lock_guard lock(mu);
+    open = true;
+    cv.notify_all();
+  }
+  bool wait_arrived(int n) {
+    std::unique_lock lock(mu);
+    return cv.wait_for(lock, 10s, [&] { return arrived >= n; });
+  }
+};
 
 }  // namespace lcmx::core_test

@@ -20,6 +20,7 @@ namespace {
 
 using namespace std::chrono_literals;
 using lcmx::core_test::eventually;
+using lcmx::core_test::Gate;
 using lcmx::core_test::manual;
 using lcmx::core_test::test_options;
 using Pose = lcmx_examples::pose_t;
@@ -40,28 +41,6 @@ Bench answer(const Pose& p, std::int32_t size = 3) {
   return b;
 }
 
-// A gate a handler waits at until the test opens it (with a deadline, so nothing hangs).
-struct Gate {
-  std::mutex mu;
-  std::condition_variable cv;
-  bool open = false;
-  int arrived = 0;
-  void wait() {
-    std::unique_lock lock(mu);
-    ++arrived;
-    cv.notify_all();
-    cv.wait_for(lock, 10s, [&] { return open; });
-  }
-  void release() {
-    std::lock_guard lock(mu);
-    open = true;
-    cv.notify_all();
-  }
-  bool wait_arrived(int n) {
-    std::unique_lock lock(mu);
-    return cv.wait_for(lock, 10s, [&] { return arrived >= n; });
-  }
-};
 
 }  // namespace
 
