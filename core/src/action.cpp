@@ -863,6 +863,8 @@ CallResult<std::pair<GoalStatus, Bytes>> ActionClientCore::result(const std::str
   const auto deadline = Clock::now() + timeout;
   ServerInfo server;
   GoalStatus st;
+  bool mine = false;
+  std::uint64_t goal_server = 0;
   {
     std::unique_lock lock(mu);
     // The end of the goal, from the status topic (or `lost`).
@@ -878,6 +880,8 @@ CallResult<std::pair<GoalStatus, Bytes>> ActionClientCore::result(const std::str
     st = it->second.status;
     server.participant = it->second.participant;
     server.id = it->second.result_server;
+    mine = it->second.mine;
+    goal_server = it->second.goal_server;
     if (!is_terminal(st.state)) {
       // The status may have been dropped (a slow client): ask the server once before giving up.
       lock.unlock();
@@ -895,6 +899,16 @@ CallResult<std::pair<GoalStatus, Bytes>> ActionClientCore::result(const std::str
   }
   close_feedback(id, deadline);
   if (st.state == GoalState::lost || st.state == GoalState::rejected) return Result::success({st, {}}, server);
+  // Our goal's server may be gone already (destroyed right after its final status): then the
+  // end is all there is; asking would wait for a server that never answers.
+  bool alive = !mine;
+  for (const auto& s : client_servers(*goal_client))
+    alive = alive || (s.participant == server.participant && s.id == goal_server);
+  if (!alive) {
+    st.message += st.message.empty() ? "" : "; ";
+    st.message += "the action server went away before its result was fetched";
+    return Result::success({st, {}}, server);
+  }
   lcmx_msgs::action_goal_ref_t ref;
   ref.goal_id = id;
   const auto left = std::max<ms>(ms(100), std::chrono::duration_cast<ms>(deadline - Clock::now()));
