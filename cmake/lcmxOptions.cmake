@@ -58,6 +58,12 @@ endfunction()
 if(NOT DEFINED Python3_EXECUTABLE AND EXISTS /usr/bin/python3)
   set(Python3_EXECUTABLE /usr/bin/python3 CACHE FILEPATH "Python interpreter of the lcmx module")
 endif()
+# Sanitized builds leave it out by default: the interpreter is not sanitized (the ASan runtime
+# must come first) and it would report Python's own allocations as leaks.
+if(NOT DEFINED LCMX_WITH_PYTHON AND (LCMX_SANITIZE_ADDRESS OR LCMX_SANITIZE_THREAD))
+  set(LCMX_WITH_PYTHON OFF CACHE BOOL "Build the Python module (pybind11)")
+  message(STATUS "lcmx: sanitized build, LCMX_WITH_PYTHON=OFF")
+endif()
 if(NOT DEFINED LCMX_WITH_PYTHON OR LCMX_WITH_PYTHON)
   find_package(Python3 COMPONENTS Interpreter Development.Module QUIET)
 endif()

@@ -91,14 +91,17 @@ class Node:
     def name(self):
         return self._node.name
 
-    def advertise(self, channel, msg_type, max_message_size=64 << 20):
-        """A Publisher of lcm-gen type msg_type on channel."""
+    def advertise(self, channel, msg_type, max_message_size=64 << 20, shm_slots=8):
+        """A Publisher of lcm-gen type msg_type on channel. shm_slots: messages a subscriber
+        of another process may lag by before it loses the oldest."""
         name, fingerprint = _type_info(msg_type)
-        return Publisher(self._node.advertise_raw(channel, name, fingerprint, max_message_size), msg_type)
+        return Publisher(self._node.advertise_raw(channel, name, fingerprint, max_message_size,
+                                                  shm_slots), msg_type)
 
-    def advertise_raw(self, channel, max_message_size=64 << 20):
+    def advertise_raw(self, channel, max_message_size=64 << 20, shm_slots=8):
         """A Publisher of bytes (any bytes-like object) on channel."""
-        return Publisher(self._node.advertise_raw(channel, None, 0, max_message_size), None)
+        return Publisher(self._node.advertise_raw(channel, None, 0, max_message_size, shm_slots),
+                         None)
 
     def subscribe(self, channel, msg_type, callback, queue_depth=16):
         """callback(msg) with each message decoded as msg_type (msg_type.decode)."""

@@ -47,6 +47,7 @@ struct Closable {
   virtual ~Closable() = default;
   // Called with the GIL held; releases it while waiting for lcmx threads.
   virtual void close() = 0;
+  virtual bool closed() const = 0;
 };
 
 std::mutex g_registry_mu;
@@ -182,11 +183,25 @@ const char* kind_name(lcmx::Event::Kind k) {
 struct PyRuntime final : Closable {
   std::optional<lcmx::Runtime> rt;
   std::shared_ptr<CallbackBox> events = std::make_shared<CallbackBox>();
+  // Nodes and endpoints made from it, creation order (GIL): the runtime keeps them alive until
+  // they or it are closed, as rclpy's nodes keep their subscriptions (no handle to hold).
+  std::vector<std::shared_ptr<Closable>> children;
+  bool closed() const override { return !rt; }
   lcmx::Runtime& get() {
     if (!rt) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx.Runtime is closed");
     return *rt;
   }
+  void adopt(const std::shared_ptr<Closable>& c) {
+    std::erase_if(children, [](const auto& c) { return c->closed(); });
+    children.push_back(c);
+    register_closable(c);
+  }
+  // Closes every node and endpoint made from it (newest first), then the runtime: nothing of
+  // it (shared memory, threads) outlives close(), whatever Python still references.
   void close() override {
+    std::vector<std::shared_ptr<Closable>> kids;
+    kids.swap(children);
+    for (auto it = kids.rbegin(); it != kids.rend(); ++it) (*it)->close();
     events->clear();
     std::optional<lcmx::Runtime> old;
     old.swap(rt);
@@ -206,6 +221,7 @@ std::weak_ptr<PyRuntime> g_runtime;  // the process's runtime (there is at most 
 struct PyNode final : Closable {
   std::shared_ptr<PyRuntime> runtime;  // keeps the Python runtime (and its events box) alive
   std::optional<lcmx::Node> node;
+  bool closed() const override { return !node; }
   lcmx::Node& get() {
     if (!node) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx.Node is closed");
     return *node;
@@ -227,6 +243,7 @@ struct PyNode final : Closable {
 struct PyPublisher final : Closable {
   std::shared_ptr<PyNode> node;
   std::optional<lcmx::RawPublisher> pub;
+  bool closed() const override { return !pub; }
   lcmx::RawPublisher& get() {
     if (!pub) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx publisher is closed");
     return *pub;
@@ -259,6 +276,7 @@ struct PySubscriber final : Closable {
   std::shared_ptr<PyNode> node;
   std::optional<lcmx::RawSubscriber> sub;
   std::shared_ptr<CallbackBox> box;
+  bool closed() const override { return !sub; }
   lcmx::RawSubscriber& get() {
     if (!sub) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx subscriber is closed");
     return *sub;
@@ -334,6 +352,7 @@ struct PyLcm final : Closable {
     pubs.clear();
     node.reset();
   }
+  bool closed() const override { return !node; }
   lcmx::Node& get() {
     if (!node) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx.LCM is closed");
     return *node;
@@ -481,7 +500,7 @@ PYBIND11_MODULE(_lcmx, m) {
         auto n = std::make_shared<PyNode>();
         n->runtime = r;
         n->node.emplace(r->get().create_node(std::move(name), o));
-        register_closable(n);
+        r->adopt(n);
         return n;
       }, py::arg("name"), py::arg("manual") = false, py::arg("threads") = 1);
 
@@ -490,18 +509,19 @@ PYBIND11_MODULE(_lcmx, m) {
       .def_property_readonly("name", [](PyNode& n) { return n.get().name(); })
       .def("advertise_raw",
            [](const std::shared_ptr<PyNode>& n, std::string channel, std::optional<std::string> type_name,
-              std::int64_t fingerprint, std::size_t max_message_size) {
+              std::int64_t fingerprint, std::size_t max_message_size, std::uint32_t shm_slots) {
              lcmx::PublisherOptions o;
              o.max_message_size = max_message_size;
+             o.shm_slots = shm_slots;
              auto p = std::make_shared<PyPublisher>();
              p->node = n;
              p->pub.emplace(type_name ? n->get().advertise_raw(std::move(channel), *type_name, fingerprint, o)
                                       : n->get().advertise_raw(std::move(channel), o));
-             register_closable(p);
+             n->runtime->adopt(p);
              return p;
            },
            py::arg("channel"), py::arg("type_name") = py::none(), py::arg("fingerprint") = 0,
-           py::arg("max_message_size") = std::size_t{64} << 20)
+           py::arg("max_message_size") = std::size_t{64} << 20, py::arg("shm_slots") = 8)
       .def("subscribe_raw",
            [](const std::shared_ptr<PyNode>& n, std::string channel, py::object callback,
               std::optional<std::string> type_name, std::int64_t fingerprint, py::object decode,
@@ -536,7 +556,7 @@ PYBIND11_MODULE(_lcmx, m) {
              s->box = box;
              s->sub.emplace(type_name ? n->get().subscribe_raw(std::move(channel), *type_name, fingerprint, cb, o)
                                       : n->get().subscribe_raw(std::move(channel), cb, o));
-             register_closable(s);
+             n->runtime->adopt(s);
              return s;
            },
            py::arg("channel"), py::arg("callback"), py::arg("type_name") = py::none(),
@@ -605,7 +625,7 @@ PYBIND11_MODULE(_lcmx, m) {
         auto l = std::make_shared<PyLcm>();
         l->runtime = std::move(runtime);
         l->node.emplace(l->runtime->get().create_node("lcm"));
-        register_closable(l);
+        l->runtime->adopt(l);
         return l;
       }))
       .def("close", &PyLcm::close)
