@@ -179,6 +179,15 @@ const char* kind_name(lcmx::Event::Kind k) {
 }
 
 // ---- handles ----
+// Handles are held by shared_ptr: a call that releases the GIL works on its own reference, so
+// close() from another thread meanwhile cannot free what it uses; the last reference is then
+// dropped without the GIL (drop()).
+template <class H>
+void drop(std::shared_ptr<H>& h) {
+  if (!h) return;
+  py::gil_scoped_release nogil;
+  h.reset();
+}
 
 struct PyRuntime final : Closable {
   std::optional<lcmx::Runtime> rt;
@@ -220,17 +229,15 @@ std::weak_ptr<PyRuntime> g_runtime;  // the process's runtime (there is at most 
 
 struct PyNode final : Closable {
   std::shared_ptr<PyRuntime> runtime;  // keeps the Python runtime (and its events box) alive
-  std::optional<lcmx::Node> node;
+  std::shared_ptr<lcmx::Node> node;
   bool closed() const override { return !node; }
-  lcmx::Node& get() {
+  std::shared_ptr<lcmx::Node> get() {
     if (!node) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx.Node is closed");
-    return *node;
+    return node;
   }
   void close() override {
-    std::optional<lcmx::Node> old;
-    old.swap(node);
-    py::gil_scoped_release nogil;
-    old.reset();
+    auto old = std::move(node);
+    drop(old);
   }
   ~PyNode() override {
     if (node && !g_exiting.load()) {
@@ -242,14 +249,14 @@ struct PyNode final : Closable {
 
 struct PyPublisher final : Closable {
   std::shared_ptr<PyNode> node;
-  std::optional<lcmx::RawPublisher> pub;
+  std::shared_ptr<lcmx::RawPublisher> pub;
   bool closed() const override { return !pub; }
-  lcmx::RawPublisher& get() {
+  std::shared_ptr<lcmx::RawPublisher> get() {
     if (!pub) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx publisher is closed");
-    return *pub;
+    return pub;
   }
   void publish(const py::buffer& data) {
-    auto& p = get();
+    lcmx::RawPublisher p = *get();  // a handle of our own (shares the publisher)
     py::buffer_info info = data.request();  // holds the buffer while the GIL is released
     if (!PyBuffer_IsContiguous(info.view(), 'C'))
       throw lcmx::Error(lcmx::Errc::invalid_argument, "publish: the buffer is not contiguous");
@@ -259,10 +266,8 @@ struct PyPublisher final : Closable {
     p.publish(bytes);
   }
   void close() override {
-    std::optional<lcmx::RawPublisher> old;
-    old.swap(pub);
-    py::gil_scoped_release nogil;
-    old.reset();
+    auto old = std::move(pub);
+    drop(old);
   }
   ~PyPublisher() override {
     if (pub && !g_exiting.load()) {
@@ -274,19 +279,17 @@ struct PyPublisher final : Closable {
 
 struct PySubscriber final : Closable {
   std::shared_ptr<PyNode> node;
-  std::optional<lcmx::RawSubscriber> sub;
+  std::shared_ptr<lcmx::RawSubscriber> sub;
   std::shared_ptr<CallbackBox> box;
   bool closed() const override { return !sub; }
-  lcmx::RawSubscriber& get() {
+  std::shared_ptr<lcmx::RawSubscriber> get() {
     if (!sub) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx subscriber is closed");
-    return *sub;
+    return sub;
   }
   void close() override {
     if (box) box->clear();  // a callback waiting for the GIL then returns at once
-    std::optional<lcmx::RawSubscriber> old;
-    old.swap(sub);
-    py::gil_scoped_release nogil;
-    old.reset();  // waits for a running callback (unless called from inside it)
+    auto old = std::move(sub);
+    drop(old);  // waits for a running callback (unless called from inside it)
   }
   ~PySubscriber() override {
     if (sub && !g_exiting.load()) {
@@ -365,7 +368,7 @@ struct PyLcm final : Closable {
     py::buffer_info info = data.request();
     std::span<const std::byte> bytes(static_cast<const std::byte*>(info.ptr),
                                      static_cast<std::size_t>(info.size * info.itemsize));
-    auto& pub = it->second;
+    lcmx::RawPublisher pub = it->second;  // our own handle: close() may clear pubs meanwhile
     py::gil_scoped_release nogil;
     pub.publish(bytes);
   }
@@ -499,14 +502,14 @@ PYBIND11_MODULE(_lcmx, m) {
         o.executor.threads = threads;
         auto n = std::make_shared<PyNode>();
         n->runtime = r;
-        n->node.emplace(r->get().create_node(std::move(name), o));
+        n->node = std::make_shared<lcmx::Node>(r->get().create_node(std::move(name), o));
         r->adopt(n);
         return n;
       }, py::arg("name"), py::arg("manual") = false, py::arg("threads") = 1);
 
   py::class_<PyNode, std::shared_ptr<PyNode>>(m, "_Node")
       .def("close", &PyNode::close)
-      .def_property_readonly("name", [](PyNode& n) { return n.get().name(); })
+      .def_property_readonly("name", [](PyNode& n) { return n.get()->name(); })
       .def("advertise_raw",
            [](const std::shared_ptr<PyNode>& n, std::string channel, std::optional<std::string> type_name,
               std::int64_t fingerprint, std::size_t max_message_size, std::uint32_t shm_slots) {
@@ -515,8 +518,10 @@ PYBIND11_MODULE(_lcmx, m) {
              o.shm_slots = shm_slots;
              auto p = std::make_shared<PyPublisher>();
              p->node = n;
-             p->pub.emplace(type_name ? n->get().advertise_raw(std::move(channel), *type_name, fingerprint, o)
-                                      : n->get().advertise_raw(std::move(channel), o));
+             auto node = n->get();
+             p->pub = std::make_shared<lcmx::RawPublisher>(
+                 type_name ? node->advertise_raw(std::move(channel), *type_name, fingerprint, o)
+                           : node->advertise_raw(std::move(channel), o));
              n->runtime->adopt(p);
              return p;
            },
@@ -554,8 +559,10 @@ PYBIND11_MODULE(_lcmx, m) {
              auto s = std::make_shared<PySubscriber>();
              s->node = n;
              s->box = box;
-             s->sub.emplace(type_name ? n->get().subscribe_raw(std::move(channel), *type_name, fingerprint, cb, o)
-                                      : n->get().subscribe_raw(std::move(channel), cb, o));
+             auto node = n->get();
+             s->sub = std::make_shared<lcmx::RawSubscriber>(
+                 type_name ? node->subscribe_raw(std::move(channel), *type_name, fingerprint, cb, o)
+                           : node->subscribe_raw(std::move(channel), cb, o));
              n->runtime->adopt(s);
              return s;
            },
@@ -563,12 +570,18 @@ PYBIND11_MODULE(_lcmx, m) {
            py::arg("fingerprint") = 0, py::arg("decode") = py::none(), py::arg("queue_depth") = 16)
       .def("spin_once",
            [](PyNode& n, std::optional<double> timeout) {
-             auto& node = n.get();
+             auto node = n.get();
              std::size_t ran = 0;
-             wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
-               ran = node.spin_once(slice);
-               return ran > 0;
-             });
+             try {
+               wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
+                 ran = node->spin_once(slice);
+                 return ran > 0;
+               });
+             } catch (...) {
+               drop(node);
+               throw;
+             }
+             drop(node);
              return ran;
            },
            py::arg("timeout") = py::none());
@@ -576,18 +589,18 @@ PYBIND11_MODULE(_lcmx, m) {
   py::class_<PyPublisher, std::shared_ptr<PyPublisher>>(m, "_Publisher")
       .def("close", &PyPublisher::close)
       .def("publish", &PyPublisher::publish, py::arg("data"))
-      .def_property_readonly("channel", [](PyPublisher& p) { return p.get().channel(); })
-      .def("subscriber_count", [](PyPublisher& p) { return p.get().subscriber_count(); })
+      .def_property_readonly("channel", [](PyPublisher& p) { return p.get()->channel(); })
+      .def("subscriber_count", [](PyPublisher& p) { return p.get()->subscriber_count(); })
       .def("wait_for_subscribers",
            [](PyPublisher& p, std::size_t n, double timeout) {
-             auto& pub = p.get();
+             lcmx::RawPublisher pub = *p.get();  // publisher handles copy (shared)
              return wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
                return pub.wait_for_subscribers(n, std::chrono::duration_cast<std::chrono::milliseconds>(slice));
              });
            },
            py::arg("n") = 1, py::arg("timeout") = 10.0)
       .def("stats", [](PyPublisher& p) {
-        const auto s = p.get().stats();
+        const auto s = p.get()->stats();
         py::dict d;
         d["published"] = s.published;
         d["shm_dropped"] = s.shm_dropped;
@@ -596,22 +609,31 @@ PYBIND11_MODULE(_lcmx, m) {
 
   py::class_<PySubscriber, std::shared_ptr<PySubscriber>>(m, "_Subscriber")
       .def("close", &PySubscriber::close)
-      .def_property_readonly("channel", [](PySubscriber& s) { return s.get().channel(); })
-      .def("publisher_count", [](PySubscriber& s) { return s.get().publisher_count(); })
+      .def_property_readonly("channel", [](PySubscriber& s) { return s.get()->channel(); })
+      .def("publisher_count", [](PySubscriber& s) { return s.get()->publisher_count(); })
       .def("wait_for_publishers",
            [](PySubscriber& s, std::size_t n, double timeout) {
-             auto& sub = s.get();
-             return wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
-               return sub.wait_for_publishers(n, std::chrono::duration_cast<std::chrono::milliseconds>(slice));
-             });
+             auto sub = s.get();
+             bool ok = false;
+             try {
+               ok = wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
+                 return sub->wait_for_publishers(n, std::chrono::duration_cast<std::chrono::milliseconds>(slice));
+               });
+             } catch (...) {
+               drop(sub);
+               throw;
+             }
+             drop(sub);
+             return ok;
            },
            py::arg("n") = 1, py::arg("timeout") = 10.0)
       .def("stats", [](PySubscriber& s) {
         lcmx::SubscriberStats st;
         {
-          auto& sub = s.get();
+          auto sub = s.get();
           py::gil_scoped_release nogil;
-          st = sub.stats();
+          st = sub->stats();
+          sub.reset();
         }
         return to_dict(st, s.box ? s.box->errors.load() : 0);
       });
