@@ -29,7 +29,8 @@ import struct as _struct
 from . import _lcmx
 from ._lcmx import Error, LCMSubscription
 
-__all__ = ["Runtime", "Node", "Publisher", "Subscriber", "LCM", "LCMSubscription", "Error"]
+__all__ = ["Runtime", "Node", "Publisher", "Subscriber", "Service", "Client", "CallError", "LCM",
+           "LCMSubscription", "Error"]
 
 
 def _type_info(msg_type):
@@ -113,6 +114,30 @@ class Node:
         """callback(view): a read-only memoryview of the message, valid during the call."""
         return Subscriber(self._node.subscribe_raw(channel, callback, None, 0, None, queue_depth))
 
+    def create_service(self, name, req_type, resp_type, handler):
+        """A server of service `name`: handler(request) -> response (lcm-gen objects), on this
+        node's executor. What it raises reaches the client as CallError("handler_failed").
+        Over raw bytes on the wire: clients of any type find it (see Limits in README)."""
+        def raw(view):
+            response = handler(req_type.decode(view))
+            if not isinstance(response, resp_type):
+                raise TypeError("service '%s': the handler returned %s, not %s"
+                                % (name, type(response).__name__, resp_type.__name__))
+            return response.encode()
+        return Service(self._node.create_service_raw(name, raw))
+
+    def create_service_raw(self, name, handler):
+        """handler(view: memoryview, valid during the call) -> bytes-like response."""
+        return Service(self._node.create_service_raw(name, handler))
+
+    def create_client(self, name, req_type, resp_type):
+        """A Client of service `name`: call(request, timeout) -> response."""
+        return Client(self._node.create_client_raw(name), req_type, resp_type)
+
+    def create_client_raw(self, name):
+        """A Client over bytes: call(bytes, timeout) -> bytes. Matches servers of any type."""
+        return Client(self._node.create_client_raw(name), None, None)
+
     def spin_once(self, timeout=None):
         """Manual nodes: waits up to timeout seconds (None: until a message) and runs the
         callbacks of what arrived; returns how many ran. Ctrl-C raises KeyboardInterrupt."""
@@ -190,6 +215,54 @@ class Subscriber:
     def close(self):
         """Unsubscribes; waits for a running callback of it (unless called from inside it)."""
         self._sub.close()
+
+
+class CallError(Error):
+    """A failed service call: .code is one of timeout, no_server, server_gone, type_mismatch,
+    handler_failed, bad_request, shutdown (C++ lcmx::CallErrc); str() is the message."""
+
+    def __init__(self, code, message):
+        super().__init__("%s: %s" % (code, message))
+        self.code = code
+
+
+class Service:
+    def __init__(self, impl):
+        self._srv = impl
+
+    @property
+    def handler_errors(self):
+        """Calls whose handler raised (each logged)."""
+        return self._srv.handler_errors
+
+    def close(self):
+        self._srv.close()
+
+
+class Client:
+    def __init__(self, impl, req_type, resp_type):
+        self._cli = impl
+        self._req = req_type
+        self._resp = resp_type
+
+    def wait_for_service(self, timeout=10.0):
+        """True once a server answered a probe (both paths work), False after timeout s."""
+        return self._cli.wait_for_service(timeout)
+
+    def call(self, request, timeout=1.0):
+        """The response, or raises CallError. Blocks up to timeout seconds (Ctrl-C raises)."""
+        if self._req is not None:
+            if not isinstance(request, self._req):
+                raise TypeError("call: expected %s, got %s"
+                                % (self._req.__name__, type(request).__name__))
+            request = request.encode()
+        ok, data, code, message, _path = self._cli.call(request, timeout)
+        if not ok:
+            raise CallError(code.replace(" ", "_"), message)  # C++'s to_string has spaces
+        return data if self._resp is None else self._resp.decode(data)
+
+    def close(self):
+        self._cli.close()
 
 
 class LCM:

@@ -22,6 +22,7 @@
 #include <chrono>
 #include <cstring>
 #include <deque>
+#include <future>
 #include <list>
 #include <map>
 #include <memory>
@@ -300,6 +301,41 @@ struct PySubscriber final : Closable {
   }
 };
 
+// ---- services over raw bytes (typed in python/lcmx/__init__.py) ----
+
+struct PyService final : Closable {
+  std::shared_ptr<lcmx::Service> svc;
+  std::shared_ptr<CallbackBox> box;
+  bool closed() const override { return !svc; }
+  void close() override {
+    if (box) box->clear();
+    auto old = std::move(svc);
+    drop(old);
+  }
+  ~PyService() override {
+    if (svc && !g_exiting.load()) {
+      if (box) box->clear();
+      drop(svc);
+    }
+  }
+};
+
+struct PyClient final : Closable {
+  std::shared_ptr<lcmx::RawClient> cli;
+  bool closed() const override { return !cli; }
+  std::shared_ptr<lcmx::RawClient> get() {
+    if (!cli) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx client is closed");
+    return cli;
+  }
+  void close() override {
+    auto old = std::move(cli);
+    drop(old);
+  }
+  ~PyClient() override {
+    if (cli && !g_exiting.load()) drop(cli);
+  }
+};
+
 // ---- the LCM drop-in's C++ half: messages queued by lcmx threads, handled by the caller ----
 
 struct PyLcm final : Closable {
@@ -568,6 +604,48 @@ PYBIND11_MODULE(_lcmx, m) {
            },
            py::arg("channel"), py::arg("callback"), py::arg("type_name") = py::none(),
            py::arg("fingerprint") = 0, py::arg("decode") = py::none(), py::arg("queue_depth") = 16)
+      .def("create_service_raw",
+           [](const std::shared_ptr<PyNode>& n, std::string name, py::object handler) {
+             if (!PyCallable_Check(handler.ptr()))
+               throw lcmx::Error(lcmx::Errc::invalid_argument, "create_service: the handler is not callable");
+             auto box = std::make_shared<CallbackBox>();
+             box->fn = std::move(handler);
+             std::string where = name;
+             // On the node's executor. What the handler raises reaches the client as
+             // handler_failed with its text.
+             auto h = [box, where](std::span<const std::byte> in, lcmx::ResponseWriter& out) {
+               if (g_exiting.load()) throw std::runtime_error("the Python interpreter is exiting");
+               py::gil_scoped_acquire gil;
+               if (!box->fn) throw std::runtime_error("the service is closed");
+               try {
+                 py::object r;
+                 with_view(in, [&](py::object& view) { r = box->fn(view); });
+                 if (!PyObject_CheckBuffer(r.ptr()))
+                   throw std::runtime_error("the handler did not return a bytes-like object");
+                 py::buffer_info info = py::reinterpret_borrow<py::buffer>(r).request();
+                 const auto size = static_cast<std::size_t>(info.size * info.itemsize);
+                 auto dst = out.allocate(size);
+                 std::memcpy(dst.data(), info.ptr, size);
+               } catch (py::error_already_set& e) {
+                 report_callback_error(*box, where, e);
+                 throw std::runtime_error(e.what());
+               }
+             };
+             auto s = std::make_shared<PyService>();
+             s->box = box;
+             s->svc = std::make_shared<lcmx::Service>(n->get()->create_service_raw(std::move(name), std::move(h)));
+             n->runtime->adopt(s);
+             return s;
+           },
+           py::arg("name"), py::arg("handler"))
+      .def("create_client_raw",
+           [](const std::shared_ptr<PyNode>& n, std::string name) {
+             auto c = std::make_shared<PyClient>();
+             c->cli = std::make_shared<lcmx::RawClient>(n->get()->create_client_raw(std::move(name)));
+             n->runtime->adopt(c);
+             return c;
+           },
+           py::arg("name"))
       .def("spin_once",
            [](PyNode& n, std::optional<double> timeout) {
              auto node = n.get();
@@ -585,6 +663,59 @@ PYBIND11_MODULE(_lcmx, m) {
              return ran;
            },
            py::arg("timeout") = py::none());
+
+  py::class_<PyService, std::shared_ptr<PyService>>(m, "_Service")
+      .def("close", &PyService::close)
+      .def_property_readonly("handler_errors", [](PyService& s) { return s.box->errors.load(); });
+
+  py::class_<PyClient, std::shared_ptr<PyClient>>(m, "_Client")
+      .def("close", &PyClient::close)
+      .def("wait_for_service",
+           [](PyClient& c, double timeout) {
+             auto cli = c.get();
+             bool ok = false;
+             try {
+               ok = wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
+                 return cli->wait_for_service(std::chrono::duration_cast<std::chrono::milliseconds>(slice));
+               });
+             } catch (...) {
+               drop(cli);
+               throw;
+             }
+             drop(cli);
+             return ok;
+           },
+           py::arg("timeout") = 10.0)
+      // Returns (True, response bytes, "", "", path) or (False, None, error code, message, path).
+      .def("call",
+           [](PyClient& c, const py::buffer& request, double timeout) {
+             auto cli = c.get();
+             py::buffer_info info = request.request();
+             std::span<const std::byte> bytes(static_cast<const std::byte*>(info.ptr),
+                                              static_cast<std::size_t>(info.size * info.itemsize));
+             std::future<lcmx::RawClient::Result> fut;
+             {
+               py::gil_scoped_release nogil;
+               fut = cli->call_async(bytes, std::chrono::duration_cast<std::chrono::milliseconds>(
+                                                std::chrono::duration<double>(std::max(0.0, timeout))));
+             }
+             try {
+               // The call ends by itself at its timeout; slices let Ctrl-C through meanwhile.
+               wait_interruptible(std::nullopt, [&](std::chrono::nanoseconds slice) {
+                 return fut.wait_for(slice) == std::future_status::ready;
+               });
+             } catch (...) {
+               drop(cli);
+               throw;
+             }
+             drop(cli);
+             auto r = fut.get();
+             const char* path = lcmx::to_string(r.server().path);
+             if (!r.ok()) return py::make_tuple(false, py::none(), lcmx::to_string(r.error()), r.message(), path);
+             const auto& v = r.value();
+             return py::make_tuple(true, py::bytes(reinterpret_cast<const char*>(v.data()), v.size()), "", "", path);
+           },
+           py::arg("request"), py::arg("timeout") = 1.0);
 
   py::class_<PyPublisher, std::shared_ptr<PyPublisher>>(m, "_Publisher")
       .def("close", &PyPublisher::close)
