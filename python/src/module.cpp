@@ -9,8 +9,10 @@
 //  - Python objects held by C++ callbacks (CallbackBox) are released under the GIL by
 //    close(); at interpreter exit an atexit hook closes every live handle before Python
 //    finalises, and executor threads never touch Python after that (g_exiting).
-// Ownership: each Python handle owns its C++ handle; close() (or the context manager, or
-// garbage collection) drops it. A node keeps its runtime alive, an endpoint its node.
+// Ownership: each Python handle owns its C++ handle (a shared_ptr: a call that releases the
+// GIL holds its own reference). The runtime keeps every node, endpoint, service, client and
+// LCM made from it until they or it are closed (close(), the context manager, or the atexit
+// hook), so dropping a Python handle does not unsubscribe. A node keeps its runtime alive.
 #include <pybind11/functional.h>
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
