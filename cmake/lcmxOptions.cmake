@@ -51,3 +51,24 @@ function(lcmx_target_warnings target)
     target_compile_options(${target} PRIVATE -Werror)
   endif()
 endfunction()
+
+# The Python module (python/): ON when pybind11 and Python's headers are found. The interpreter
+# is Debian's /usr/bin/python3 unless Python3_EXECUTABLE says otherwise (not a pyenv shim on
+# PATH: the module must match the interpreter that runs it).
+if(NOT DEFINED Python3_EXECUTABLE AND EXISTS /usr/bin/python3)
+  set(Python3_EXECUTABLE /usr/bin/python3 CACHE FILEPATH "Python interpreter of the lcmx module")
+endif()
+# Sanitized builds leave it out by default: the interpreter is not sanitized (the ASan runtime
+# must come first) and it would report Python's own allocations as leaks.
+if(NOT DEFINED LCMX_WITH_PYTHON AND (LCMX_SANITIZE_ADDRESS OR LCMX_SANITIZE_THREAD))
+  set(LCMX_WITH_PYTHON OFF CACHE BOOL "Build the Python module (pybind11)")
+  message(STATUS "lcmx: sanitized build, LCMX_WITH_PYTHON=OFF")
+endif()
+if(NOT DEFINED LCMX_WITH_PYTHON OR LCMX_WITH_PYTHON)
+  find_package(Python3 COMPONENTS Interpreter Development.Module QUIET)
+endif()
+if(NOT DEFINED LCMX_WITH_PYTHON AND NOT Python3_FOUND)
+  set(LCMX_WITH_PYTHON OFF CACHE BOOL "Build the Python module (pybind11)")
+  message(STATUS "lcmx: Python 3 headers not found, LCMX_WITH_PYTHON=OFF")
+endif()
+lcmx_optional_dependency(LCMX_WITH_PYTHON "Build the Python module (pybind11)" pybind11)

@@ -13,6 +13,7 @@ packages=(
   libcli11-dev libspdlog-dev libtomlplusplus-dev libncurses-dev
   zlib1g-dev                       # lcmx log export: MCAP CRC32
   python3 python3-jsonschema       # tests: the independent MCAP reader (test/integration/mcap_check.py)
+  python3-dev pybind11-dev python3-pytest  # the Python module (python/) and its tests
   nlohmann-json3-dev               # lcmx::types from_json (lcmx pub)
   iproute2 procps                  # network namespaces for multi-host tests, ps/pgrep
   tmux                             # tests of lcmx record/play on a terminal (status line, space bar)

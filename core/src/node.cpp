@@ -590,6 +590,17 @@ RawSubscriber Node::subscribe_raw(std::string channel,
   return RawSubscriber(std::move(core));
 }
 
+RawSubscriber Node::subscribe_raw(std::string channel, const std::string& type_name,
+                                  std::int64_t fingerprint,
+                                  std::function<void(const RawMessage&)> callback,
+                                  SubscriberOptions options) {
+  auto core = std::make_shared<detail::RawSubscriberCore>(
+      std::move(channel), options, std::move(callback),
+      detail::announced_type_info(type_name, fingerprint));
+  detail::add_subscriber(*impl_, core);
+  return RawSubscriber(std::move(core));
+}
+
 RawPublisher Node::advertise_raw(std::string channel, const std::string& type_name,
                                  std::int64_t fingerprint, PublisherOptions options) {
   return RawPublisher(detail::create_publisher(

@@ -59,6 +59,13 @@ class Node {
   RawPublisher advertise_raw(std::string channel, PublisherOptions options = {});
   RawSubscriber subscribe_raw(std::string channel, std::function<void(const RawMessage&)> callback,
                               SubscriberOptions options = {});
+  // A raw subscriber that announces a type (name and lcm-gen fingerprint) in discovery: it
+  // matches publishers of that type only (others get a type-mismatch error) and gets their
+  // encodings as bytes. Used by the Python binding (lcm-gen's Python types).
+  RawSubscriber subscribe_raw(std::string channel, const std::string& type_name,
+                              std::int64_t fingerprint,
+                              std::function<void(const RawMessage&)> callback,
+                              SubscriberOptions options = {});
   // A raw publisher that announces a type (name and lcm-gen fingerprint) in discovery, so
   // typed subscribers of that type match it and others get a type-mismatch error; it
   // publishes encodings (bytes starting with that fingerprint). Used by `lcmx play`.

@@ -1,0 +1,799 @@
+// lcmx._lcmx: the pybind11 layer under the `lcmx` Python package (python/lcmx/__init__.py).
+//
+// Threads and the GIL:
+//  - Callbacks run on the node's executor thread (or inside spin_once() for a manual node);
+//    the GIL is taken only around the call into Python.
+//  - Every call that may wait for an executor (closing a subscriber, node or runtime,
+//    spin_once, publish, waits) releases the GIL first, so a callback waiting for the GIL
+//    never deadlocks with the thread that waits for it.
+//  - Python objects held by C++ callbacks (CallbackBox) are released under the GIL by
+//    close(); at interpreter exit an atexit hook closes every live handle before Python
+//    finalises, and executor threads never touch Python after that (g_exiting).
+// Ownership: each Python handle owns its C++ handle (a shared_ptr: a call that releases the
+// GIL holds its own reference). The runtime keeps every node, endpoint, service, client and
+// LCM made from it until they or it are closed (close(), the context manager, or the atexit
+// hook), so dropping a Python handle does not unsubscribe. A node keeps its runtime alive.
+#include <pybind11/functional.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <sys/eventfd.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <chrono>
+#include <cstring>
+#include <deque>
+#include <future>
+#include <list>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <regex>
+#include <string>
+#include <vector>
+
+#include <spdlog/spdlog.h>
+
+#include "lcmx/core/runtime.hpp"
+
+namespace py = pybind11;
+using namespace std::chrono_literals;
+
+namespace {
+
+std::atomic<bool> g_exiting{false};
+
+// Anything a Python handle owns in C++ that must be dropped before the interpreter ends.
+struct Closable {
+  virtual ~Closable() = default;
+  // Called with the GIL held; releases it while waiting for lcmx threads.
+  virtual void close() = 0;
+  virtual bool closed() const = 0;
+};
+
+std::mutex g_registry_mu;
+std::list<std::weak_ptr<Closable>> g_registry;  // creation order
+
+void register_closable(const std::shared_ptr<Closable>& c) {
+  std::lock_guard lock(g_registry_mu);
+  for (auto it = g_registry.begin(); it != g_registry.end();)
+    it = it->expired() ? g_registry.erase(it) : std::next(it);
+  g_registry.push_back(c);
+}
+
+// atexit: newest first (subscribers before nodes before runtimes).
+void close_all() {
+  g_exiting.store(true);
+  std::vector<std::shared_ptr<Closable>> live;
+  {
+    std::lock_guard lock(g_registry_mu);
+    for (auto it = g_registry.rbegin(); it != g_registry.rend(); ++it)
+      if (auto c = it->lock()) live.push_back(std::move(c));
+    g_registry.clear();
+  }
+  for (auto& c : live) c->close();
+}
+
+// A Python callable used from lcmx threads. `fn` is read and cleared under the GIL only.
+struct CallbackBox {
+  py::object fn;
+  py::object decode;  // typed subscribers: the lcm-gen class's decode (or None)
+  std::atomic<std::uint64_t> errors{0};
+  ~CallbackBox() {
+    // Normally cleared by close() under the GIL; otherwise never touch Python without it.
+    if ((fn || decode) && Py_IsInitialized() && !g_exiting.load()) {
+      py::gil_scoped_acquire gil;
+      fn = py::object();
+      decode = py::object();
+    } else {
+      fn.release();
+      decode.release();
+    }
+  }
+  void clear() {  // GIL held
+    fn = py::object();
+    decode = py::object();
+  }
+};
+
+void report_callback_error(CallbackBox& box, const std::string& where, py::error_already_set& e) {
+  const auto n = box.errors.fetch_add(1) + 1;
+  spdlog::error("lcmx: python callback on '{}' raised ({} so far): {}", where, n, e.what());
+}
+
+// Runs `fn` with a read-only memoryview over `data`, released after the call (so a view kept
+// past the callback raises instead of reading reused memory). GIL held.
+template <class F>
+void with_view(std::span<const std::byte> data, F&& fn) {
+  py::object view = py::reinterpret_steal<py::object>(PyMemoryView_FromMemory(
+      reinterpret_cast<char*>(const_cast<std::byte*>(data.data())),
+      static_cast<Py_ssize_t>(data.size()), PyBUF_READ));
+  if (!view) throw py::error_already_set();
+  try {
+    fn(view);
+  } catch (...) {
+    try { view.attr("release")(); } catch (py::error_already_set&) {}
+    throw;
+  }
+  try {
+    view.attr("release")();
+  } catch (py::error_already_set& e) {
+    // Still exported (e.g. a numpy array over it kept past the callback): cannot revoke.
+    spdlog::warn("lcmx: a memoryview of a received message was kept past its callback: {}", e.what());
+  }
+}
+
+// Waits in slices so Ctrl-C (SIGINT) raises KeyboardInterrupt promptly. `step` is called
+// without the GIL with the slice's timeout and returns true when done.
+template <class Step>
+bool wait_interruptible(std::optional<double> timeout_s, Step&& step) {
+  const auto deadline = timeout_s ? std::chrono::steady_clock::now() +
+                                        std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                            std::chrono::duration<double>(std::max(0.0, *timeout_s)))
+                                  : std::chrono::steady_clock::time_point::max();
+  for (;;) {
+    auto slice = std::chrono::nanoseconds(100ms);
+    const auto now = std::chrono::steady_clock::now();
+    if (timeout_s) slice = std::min(slice, std::chrono::nanoseconds(std::max(deadline - now, 0ns)));
+    bool done;
+    {
+      py::gil_scoped_release nogil;
+      done = step(slice);
+    }
+    if (done) return true;
+    if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+    if (std::chrono::steady_clock::now() >= deadline) return false;
+  }
+}
+
+py::dict to_dict(const lcmx::SubscriberStats& s, std::uint64_t callback_errors) {
+  py::dict d;
+  d["delivered"] = s.delivered;
+  d["drops"] = s.drops;
+  d["decode_errors"] = s.decode_errors;
+  d["callback_errors"] = callback_errors;
+  d["errors"] = s.errors;
+  py::list pubs;
+  for (const auto& p : s.publishers) {
+    py::dict e;
+    e["participant"] = p.publisher_participant;
+    e["endpoint"] = p.publisher_endpoint;
+    e["path"] = lcmx::to_string(p.path);
+    e["received"] = p.received;
+    e["drops"] = p.drops;
+    pubs.append(e);
+  }
+  d["publishers"] = pubs;
+  return d;
+}
+
+const char* kind_name(lcmx::Event::Kind k) {
+  switch (k) {
+    case lcmx::Event::Kind::type_mismatch: return "type_mismatch";
+    case lcmx::Event::Kind::publisher_matched: return "publisher_matched";
+    case lcmx::Event::Kind::publisher_unmatched: return "publisher_unmatched";
+    case lcmx::Event::Kind::participant_joined: return "participant_joined";
+    case lcmx::Event::Kind::participant_left: return "participant_left";
+    case lcmx::Event::Kind::error: return "error";
+  }
+  return "?";
+}
+
+// ---- handles ----
+// Handles are held by shared_ptr: a call that releases the GIL works on its own reference, so
+// close() from another thread meanwhile cannot free what it uses; the last reference is then
+// dropped without the GIL (drop()).
+template <class H>
+void drop(std::shared_ptr<H>& h) {
+  if (!h) return;
+  py::gil_scoped_release nogil;
+  h.reset();
+}
+
+struct PyRuntime final : Closable {
+  std::optional<lcmx::Runtime> rt;
+  std::shared_ptr<CallbackBox> events = std::make_shared<CallbackBox>();
+  // Nodes and endpoints made from it, creation order (GIL): the runtime keeps them alive until
+  // they or it are closed, as rclpy's nodes keep their subscriptions (no handle to hold).
+  std::vector<std::shared_ptr<Closable>> children;
+  bool closed() const override { return !rt; }
+  lcmx::Runtime& get() {
+    if (!rt) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx.Runtime is closed");
+    return *rt;
+  }
+  void adopt(const std::shared_ptr<Closable>& c) {
+    std::erase_if(children, [](const auto& c) { return c->closed(); });
+    children.push_back(c);
+    register_closable(c);
+  }
+  // Closes every node and endpoint made from it (newest first), then the runtime: nothing of
+  // it (shared memory, threads) outlives close(), whatever Python still references.
+  void close() override {
+    std::vector<std::shared_ptr<Closable>> kids;
+    kids.swap(children);
+    for (auto it = kids.rbegin(); it != kids.rend(); ++it) (*it)->close();
+    events->clear();
+    std::optional<lcmx::Runtime> old;
+    old.swap(rt);
+    py::gil_scoped_release nogil;
+    old.reset();
+  }
+  ~PyRuntime() override {
+    if (rt && !g_exiting.load()) {
+      py::gil_scoped_release nogil;
+      rt.reset();
+    }
+  }
+};
+
+std::weak_ptr<PyRuntime> g_runtime;  // the process's runtime (there is at most one)
+
+struct PyNode final : Closable {
+  std::shared_ptr<PyRuntime> runtime;  // keeps the Python runtime (and its events box) alive
+  std::shared_ptr<lcmx::Node> node;
+  bool closed() const override { return !node; }
+  std::shared_ptr<lcmx::Node> get() {
+    if (!node) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx.Node is closed");
+    return node;
+  }
+  void close() override {
+    auto old = std::move(node);
+    drop(old);
+  }
+  ~PyNode() override {
+    if (node && !g_exiting.load()) {
+      py::gil_scoped_release nogil;
+      node.reset();
+    }
+  }
+};
+
+struct PyPublisher final : Closable {
+  std::shared_ptr<PyNode> node;
+  std::shared_ptr<lcmx::RawPublisher> pub;
+  bool closed() const override { return !pub; }
+  std::shared_ptr<lcmx::RawPublisher> get() {
+    if (!pub) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx publisher is closed");
+    return pub;
+  }
+  void publish(const py::buffer& data) {
+    lcmx::RawPublisher p = *get();  // a handle of our own (shares the publisher)
+    py::buffer_info info = data.request();  // holds the buffer while the GIL is released
+    if (!PyBuffer_IsContiguous(info.view(), 'C'))
+      throw lcmx::Error(lcmx::Errc::invalid_argument, "publish: the buffer is not contiguous");
+    std::span<const std::byte> bytes(static_cast<const std::byte*>(info.ptr),
+                                     static_cast<std::size_t>(info.size * info.itemsize));
+    py::gil_scoped_release nogil;
+    p.publish(bytes);
+  }
+  void close() override {
+    auto old = std::move(pub);
+    drop(old);
+  }
+  ~PyPublisher() override {
+    if (pub && !g_exiting.load()) {
+      py::gil_scoped_release nogil;
+      pub.reset();
+    }
+  }
+};
+
+struct PySubscriber final : Closable {
+  std::shared_ptr<PyNode> node;
+  std::shared_ptr<lcmx::RawSubscriber> sub;
+  std::shared_ptr<CallbackBox> box;
+  bool closed() const override { return !sub; }
+  std::shared_ptr<lcmx::RawSubscriber> get() {
+    if (!sub) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx subscriber is closed");
+    return sub;
+  }
+  void close() override {
+    if (box) box->clear();  // a callback waiting for the GIL then returns at once
+    auto old = std::move(sub);
+    drop(old);  // waits for a running callback (unless called from inside it)
+  }
+  ~PySubscriber() override {
+    if (sub && !g_exiting.load()) {
+      if (box) box->clear();
+      py::gil_scoped_release nogil;
+      sub.reset();
+    }
+  }
+};
+
+// ---- services over raw bytes (typed in python/lcmx/__init__.py) ----
+
+struct PyService final : Closable {
+  std::shared_ptr<lcmx::Service> svc;
+  std::shared_ptr<CallbackBox> box;
+  bool closed() const override { return !svc; }
+  void close() override {
+    if (box) box->clear();
+    auto old = std::move(svc);
+    drop(old);
+  }
+  ~PyService() override {
+    if (svc && !g_exiting.load()) {
+      if (box) box->clear();
+      drop(svc);
+    }
+  }
+};
+
+struct PyClient final : Closable {
+  std::shared_ptr<lcmx::RawClient> cli;
+  bool closed() const override { return !cli; }
+  std::shared_ptr<lcmx::RawClient> get() {
+    if (!cli) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx client is closed");
+    return cli;
+  }
+  void close() override {
+    auto old = std::move(cli);
+    drop(old);
+  }
+  ~PyClient() override {
+    if (cli && !g_exiting.load()) drop(cli);
+  }
+};
+
+// ---- the LCM drop-in's C++ half: messages queued by lcmx threads, handled by the caller ----
+
+struct PyLcm final : Closable {
+  struct Sub {
+    std::uint64_t id = 0;
+    lcmx::ChannelSubscription subscription;
+    py::object handler;  // GIL
+    std::size_t capacity = 30;
+    std::atomic<std::size_t> queued{0};
+    std::atomic<std::uint64_t> dropped{0};
+  };
+  struct Item {
+    std::shared_ptr<Sub> sub;
+    std::string channel;
+    std::vector<std::byte> data;
+  };
+
+  std::shared_ptr<PyRuntime> runtime;
+  std::optional<lcmx::Node> node;
+  std::map<std::string, lcmx::RawPublisher> pubs;  // GIL
+  std::map<std::uint64_t, std::shared_ptr<Sub>> subs;  // GIL
+  std::uint64_t next_id = 1;
+  int efd = -1;  // readable while the queue is not empty
+  std::mutex mu;
+  std::condition_variable cv;
+  std::deque<Item> queue;
+
+  PyLcm() {
+    efd = ::eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (efd < 0) throw lcmx::Error(lcmx::Errc::transport, "lcmx.LCM: eventfd failed");
+  }
+  ~PyLcm() override {
+    if (!g_exiting.load()) {
+      for (auto& [id, s] : subs) s->handler = py::object();
+      py::gil_scoped_release nogil;
+      drop_cpp();
+    } else {
+      for (auto& [id, s] : subs) s->handler.release();
+    }
+    if (efd >= 0) ::close(efd);
+  }
+  void drop_cpp() {
+    for (auto& [id, s] : subs) s->subscription.reset();
+    pubs.clear();
+    node.reset();
+  }
+  void close() override {
+    std::map<std::uint64_t, std::shared_ptr<Sub>> old;
+    old.swap(subs);
+    for (auto& [id, s] : old) s->handler = py::object();
+    py::gil_scoped_release nogil;
+    for (auto& [id, s] : old) s->subscription.reset();
+    pubs.clear();
+    node.reset();
+  }
+  bool closed() const override { return !node; }
+  lcmx::Node& get() {
+    if (!node) throw lcmx::Error(lcmx::Errc::invalid_argument, "the lcmx.LCM is closed");
+    return *node;
+  }
+
+  void publish(const std::string& channel, const py::buffer& data) {
+    auto& n = get();
+    auto it = pubs.find(channel);
+    if (it == pubs.end()) it = pubs.emplace(channel, n.advertise_raw(channel)).first;
+    py::buffer_info info = data.request();
+    std::span<const std::byte> bytes(static_cast<const std::byte*>(info.ptr),
+                                     static_cast<std::size_t>(info.size * info.itemsize));
+    lcmx::RawPublisher pub = it->second;  // our own handle: close() may clear pubs meanwhile
+    py::gil_scoped_release nogil;
+    pub.publish(bytes);
+  }
+
+  std::shared_ptr<Sub> subscribe(const std::string& pattern, py::object handler) {
+    auto& n = get();
+    auto re = std::make_shared<std::regex>(pattern, std::regex::ECMAScript);  // throws on a bad regex
+    auto s = std::make_shared<Sub>();
+    s->id = next_id++;
+    s->handler = std::move(handler);
+    std::weak_ptr<Sub> weak = s;
+    s->subscription = n.subscribe_channels(
+        [re](const std::string& channel) { return std::regex_match(channel, *re); },
+        [this, weak](const lcmx::RawMessage& m) {  // executor thread, no GIL
+          auto sub = weak.lock();
+          if (!sub) return;
+          if (sub->queued.load() >= sub->capacity && sub->capacity > 0) {
+            sub->dropped.fetch_add(1);
+            return;
+          }
+          Item item{sub, std::string(m.channel), std::vector<std::byte>(m.data.begin(), m.data.end())};
+          std::lock_guard lock(mu);
+          sub->queued.fetch_add(1);
+          if (queue.empty()) {
+            const std::uint64_t one = 1;
+            [[maybe_unused]] auto w = ::write(efd, &one, sizeof one);
+          }
+          queue.push_back(std::move(item));
+          cv.notify_one();
+        });
+    subs.emplace(s->id, s);
+    return s;
+  }
+
+  void unsubscribe(const std::shared_ptr<Sub>& s) {
+    if (!s || subs.erase(s->id) == 0)
+      throw lcmx::Error(lcmx::Errc::invalid_argument, "unsubscribe: not a subscription of this LCM");
+    s->handler = py::object();
+    py::gil_scoped_release nogil;
+    s->subscription.reset();
+  }
+
+  // Pops one message (waiting up to `timeout`); GIL not held.
+  std::optional<Item> pop(std::chrono::nanoseconds timeout) {
+    std::unique_lock lock(mu);
+    if (!cv.wait_for(lock, timeout, [&] { return !queue.empty(); })) return std::nullopt;
+    Item item = std::move(queue.front());
+    queue.pop_front();
+    item.sub->queued.fetch_sub(1);
+    if (queue.empty()) {
+      std::uint64_t v;
+      [[maybe_unused]] auto r = ::read(efd, &v, sizeof v);
+    }
+    return item;
+  }
+
+  // Handles one message; returns false if none came within `timeout` (None: forever).
+  bool handle(std::optional<double> timeout_s) {
+    get();
+    std::optional<Item> item;
+    const bool got = wait_interruptible(timeout_s, [&](std::chrono::nanoseconds slice) {
+      item = pop(slice);
+      return item.has_value();
+    });
+    if (!got) return false;
+    if (!item->sub->handler) return true;  // unsubscribed since: consumed, like LCM
+    py::bytes data(reinterpret_cast<const char*>(item->data.data()), item->data.size());
+    item->sub->handler(item->channel, data);  // exceptions propagate, as in LCM's handle()
+    return true;
+  }
+};
+
+}  // namespace
+
+PYBIND11_MODULE(_lcmx, m) {
+  m.doc() = "lcmx: LCM-compatible robotics middleware (C++ core); see the lcmx package.";
+
+  static py::exception<lcmx::Error> error(m, "Error", PyExc_RuntimeError);
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const lcmx::Error& e) {
+      error(e.what());
+    }
+  });
+
+  py::class_<PyRuntime, std::shared_ptr<PyRuntime>>(m, "_Runtime")
+      .def(py::init([](std::optional<std::string> discovery_url, std::optional<std::string> vehicle_url,
+                       std::optional<bool> mirror, std::optional<int> beacon_period_ms,
+                       std::optional<int> lease_ms) {
+             auto o = lcmx::RuntimeOptions::from_env();
+             if (discovery_url) o.discovery_url = *discovery_url;
+             if (vehicle_url) o.vehicle_url = *vehicle_url;
+             if (mirror) o.mirror = *mirror;
+             if (beacon_period_ms) o.beacon_period = std::chrono::milliseconds(*beacon_period_ms);
+             if (lease_ms) o.lease = std::chrono::milliseconds(*lease_ms);
+             auto r = std::make_shared<PyRuntime>();
+             {
+               py::gil_scoped_release nogil;
+               r->rt.emplace(lcmx::Runtime::create(std::move(o)));
+             }
+             register_closable(r);
+             g_runtime = r;
+             return r;
+           }),
+           py::arg("discovery_url") = py::none(), py::arg("vehicle_url") = py::none(),
+           py::arg("mirror") = py::none(), py::arg("beacon_period_ms") = py::none(),
+           py::arg("lease_ms") = py::none())
+      .def("close", &PyRuntime::close)
+      .def_property_readonly("closed", [](PyRuntime& r) { return !r.rt.has_value(); })
+      .def_property_readonly("participant_id", [](PyRuntime& r) { return r.get().participant_id(); })
+      .def_property_readonly("host_id", [](PyRuntime& r) { return r.get().host_id(); })
+      .def("on_event",
+           [](PyRuntime& r, py::object cb) {
+             auto box = r.events;
+             box->fn = std::move(cb);
+             r.get().on_event([box](const lcmx::Event& e) {
+               if (g_exiting.load()) return;
+               py::gil_scoped_acquire gil;
+               if (!box->fn || box->fn.is_none()) return;
+               try {
+                 box->fn(kind_name(e.kind), e.channel, e.message);
+               } catch (py::error_already_set& err) {
+                 report_callback_error(*box, "on_event", err);
+               }
+             });
+           })
+      .def("create_node", [](const std::shared_ptr<PyRuntime>& r, std::string name, bool manual, int threads) {
+        lcmx::NodeOptions o;
+        o.executor.kind = manual ? lcmx::ExecutorKind::manual : lcmx::ExecutorKind::own_threads;
+        o.executor.threads = threads;
+        auto n = std::make_shared<PyNode>();
+        n->runtime = r;
+        n->node = std::make_shared<lcmx::Node>(r->get().create_node(std::move(name), o));
+        r->adopt(n);
+        return n;
+      }, py::arg("name"), py::arg("manual") = false, py::arg("threads") = 1);
+
+  py::class_<PyNode, std::shared_ptr<PyNode>>(m, "_Node")
+      .def("close", &PyNode::close)
+      .def_property_readonly("name", [](PyNode& n) { return n.get()->name(); })
+      .def("advertise_raw",
+           [](const std::shared_ptr<PyNode>& n, std::string channel, std::optional<std::string> type_name,
+              std::int64_t fingerprint, std::size_t max_message_size, std::uint32_t shm_slots) {
+             lcmx::PublisherOptions o;
+             o.max_message_size = max_message_size;
+             o.shm_slots = shm_slots;
+             auto p = std::make_shared<PyPublisher>();
+             p->node = n;
+             auto node = n->get();
+             p->pub = std::make_shared<lcmx::RawPublisher>(
+                 type_name ? node->advertise_raw(std::move(channel), *type_name, fingerprint, o)
+                           : node->advertise_raw(std::move(channel), o));
+             n->runtime->adopt(p);
+             return p;
+           },
+           py::arg("channel"), py::arg("type_name") = py::none(), py::arg("fingerprint") = 0,
+           py::arg("max_message_size") = std::size_t{64} << 20, py::arg("shm_slots") = 8)
+      .def("subscribe_raw",
+           [](const std::shared_ptr<PyNode>& n, std::string channel, py::object callback,
+              std::optional<std::string> type_name, std::int64_t fingerprint, py::object decode,
+              std::size_t queue_depth) {
+             if (!PyCallable_Check(callback.ptr()))
+               throw lcmx::Error(lcmx::Errc::invalid_argument, "subscribe: the callback is not callable");
+             auto box = std::make_shared<CallbackBox>();
+             box->fn = std::move(callback);
+             box->decode = std::move(decode);
+             std::string where = channel;
+             auto cb = [box, where](const lcmx::RawMessage& msg) {  // executor thread
+               if (g_exiting.load()) return;
+               py::gil_scoped_acquire gil;
+               if (!box->fn) return;  // closed
+               try {
+                 with_view(msg.data, [&](py::object& view) {
+                   if (box->decode && !box->decode.is_none()) {
+                     py::object obj = box->decode(view);
+                     box->fn(obj);
+                   } else {
+                     box->fn(view);
+                   }
+                 });
+               } catch (py::error_already_set& e) {
+                 report_callback_error(*box, where, e);
+               }
+             };
+             lcmx::SubscriberOptions o;
+             o.queue_depth = queue_depth;
+             auto s = std::make_shared<PySubscriber>();
+             s->node = n;
+             s->box = box;
+             auto node = n->get();
+             s->sub = std::make_shared<lcmx::RawSubscriber>(
+                 type_name ? node->subscribe_raw(std::move(channel), *type_name, fingerprint, cb, o)
+                           : node->subscribe_raw(std::move(channel), cb, o));
+             n->runtime->adopt(s);
+             return s;
+           },
+           py::arg("channel"), py::arg("callback"), py::arg("type_name") = py::none(),
+           py::arg("fingerprint") = 0, py::arg("decode") = py::none(), py::arg("queue_depth") = 16)
+      .def("create_service_raw",
+           [](const std::shared_ptr<PyNode>& n, std::string name, py::object handler) {
+             if (!PyCallable_Check(handler.ptr()))
+               throw lcmx::Error(lcmx::Errc::invalid_argument, "create_service: the handler is not callable");
+             auto box = std::make_shared<CallbackBox>();
+             box->fn = std::move(handler);
+             std::string where = name;
+             // On the node's executor. What the handler raises reaches the client as
+             // handler_failed with its text.
+             auto h = [box, where](std::span<const std::byte> in, lcmx::ResponseWriter& out) {
+               if (g_exiting.load()) throw std::runtime_error("the Python interpreter is exiting");
+               py::gil_scoped_acquire gil;
+               if (!box->fn) throw std::runtime_error("the service is closed");
+               try {
+                 py::object r;
+                 with_view(in, [&](py::object& view) { r = box->fn(view); });
+                 if (!PyObject_CheckBuffer(r.ptr()))
+                   throw std::runtime_error("the handler did not return a bytes-like object");
+                 py::buffer_info info = py::reinterpret_borrow<py::buffer>(r).request();
+                 const auto size = static_cast<std::size_t>(info.size * info.itemsize);
+                 auto dst = out.allocate(size);
+                 std::memcpy(dst.data(), info.ptr, size);
+               } catch (py::error_already_set& e) {
+                 report_callback_error(*box, where, e);
+                 throw std::runtime_error(e.what());
+               }
+             };
+             auto s = std::make_shared<PyService>();
+             s->box = box;
+             s->svc = std::make_shared<lcmx::Service>(n->get()->create_service_raw(std::move(name), std::move(h)));
+             n->runtime->adopt(s);
+             return s;
+           },
+           py::arg("name"), py::arg("handler"))
+      .def("create_client_raw",
+           [](const std::shared_ptr<PyNode>& n, std::string name) {
+             auto c = std::make_shared<PyClient>();
+             c->cli = std::make_shared<lcmx::RawClient>(n->get()->create_client_raw(std::move(name)));
+             n->runtime->adopt(c);
+             return c;
+           },
+           py::arg("name"))
+      .def("spin_once",
+           [](PyNode& n, std::optional<double> timeout) {
+             auto node = n.get();
+             std::size_t ran = 0;
+             try {
+               wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
+                 ran = node->spin_once(slice);
+                 return ran > 0;
+               });
+             } catch (...) {
+               drop(node);
+               throw;
+             }
+             drop(node);
+             return ran;
+           },
+           py::arg("timeout") = py::none());
+
+  py::class_<PyService, std::shared_ptr<PyService>>(m, "_Service")
+      .def("close", &PyService::close)
+      .def_property_readonly("handler_errors", [](PyService& s) { return s.box->errors.load(); });
+
+  py::class_<PyClient, std::shared_ptr<PyClient>>(m, "_Client")
+      .def("close", &PyClient::close)
+      .def("wait_for_service",
+           [](PyClient& c, double timeout) {
+             auto cli = c.get();
+             bool ok = false;
+             try {
+               ok = wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
+                 return cli->wait_for_service(std::chrono::duration_cast<std::chrono::milliseconds>(slice));
+               });
+             } catch (...) {
+               drop(cli);
+               throw;
+             }
+             drop(cli);
+             return ok;
+           },
+           py::arg("timeout") = 10.0)
+      // Returns (True, response bytes, "", "", path) or (False, None, error code, message, path).
+      .def("call",
+           [](PyClient& c, const py::buffer& request, double timeout) {
+             auto cli = c.get();
+             py::buffer_info info = request.request();
+             std::span<const std::byte> bytes(static_cast<const std::byte*>(info.ptr),
+                                              static_cast<std::size_t>(info.size * info.itemsize));
+             std::future<lcmx::RawClient::Result> fut;
+             {
+               py::gil_scoped_release nogil;
+               fut = cli->call_async(bytes, std::chrono::duration_cast<std::chrono::milliseconds>(
+                                                std::chrono::duration<double>(std::max(0.0, timeout))));
+             }
+             try {
+               // The call ends by itself at its timeout; slices let Ctrl-C through meanwhile.
+               wait_interruptible(std::nullopt, [&](std::chrono::nanoseconds slice) {
+                 return fut.wait_for(slice) == std::future_status::ready;
+               });
+             } catch (...) {
+               drop(cli);
+               throw;
+             }
+             drop(cli);
+             auto r = fut.get();
+             const char* path = lcmx::to_string(r.server().path);
+             if (!r.ok()) return py::make_tuple(false, py::none(), lcmx::to_string(r.error()), r.message(), path);
+             const auto& v = r.value();
+             return py::make_tuple(true, py::bytes(reinterpret_cast<const char*>(v.data()), v.size()), "", "", path);
+           },
+           py::arg("request"), py::arg("timeout") = 1.0);
+
+  py::class_<PyPublisher, std::shared_ptr<PyPublisher>>(m, "_Publisher")
+      .def("close", &PyPublisher::close)
+      .def("publish", &PyPublisher::publish, py::arg("data"))
+      .def_property_readonly("channel", [](PyPublisher& p) { return p.get()->channel(); })
+      .def("subscriber_count", [](PyPublisher& p) { return p.get()->subscriber_count(); })
+      .def("wait_for_subscribers",
+           [](PyPublisher& p, std::size_t n, double timeout) {
+             lcmx::RawPublisher pub = *p.get();  // publisher handles copy (shared)
+             return wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
+               return pub.wait_for_subscribers(n, std::chrono::duration_cast<std::chrono::milliseconds>(slice));
+             });
+           },
+           py::arg("n") = 1, py::arg("timeout") = 10.0)
+      .def("stats", [](PyPublisher& p) {
+        const auto s = p.get()->stats();
+        py::dict d;
+        d["published"] = s.published;
+        d["shm_dropped"] = s.shm_dropped;
+        return d;
+      });
+
+  py::class_<PySubscriber, std::shared_ptr<PySubscriber>>(m, "_Subscriber")
+      .def("close", &PySubscriber::close)
+      .def_property_readonly("channel", [](PySubscriber& s) { return s.get()->channel(); })
+      .def("publisher_count", [](PySubscriber& s) { return s.get()->publisher_count(); })
+      .def("wait_for_publishers",
+           [](PySubscriber& s, std::size_t n, double timeout) {
+             auto sub = s.get();
+             bool ok = false;
+             try {
+               ok = wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
+                 return sub->wait_for_publishers(n, std::chrono::duration_cast<std::chrono::milliseconds>(slice));
+               });
+             } catch (...) {
+               drop(sub);
+               throw;
+             }
+             drop(sub);
+             return ok;
+           },
+           py::arg("n") = 1, py::arg("timeout") = 10.0)
+      .def("stats", [](PySubscriber& s) {
+        lcmx::SubscriberStats st;
+        {
+          auto sub = s.get();
+          py::gil_scoped_release nogil;
+          st = sub->stats();
+          sub.reset();
+        }
+        return to_dict(st, s.box ? s.box->errors.load() : 0);
+      });
+
+  py::class_<PyLcm::Sub, std::shared_ptr<PyLcm::Sub>>(m, "LCMSubscription")
+      .def("set_queue_capacity", [](PyLcm::Sub& s, std::size_t n) { s.capacity = n; })
+      .def_property_readonly("dropped", [](PyLcm::Sub& s) { return s.dropped.load(); });
+
+  py::class_<PyLcm, std::shared_ptr<PyLcm>>(m, "_LCM")
+      .def(py::init([](std::shared_ptr<PyRuntime> runtime) {
+        auto l = std::make_shared<PyLcm>();
+        l->runtime = std::move(runtime);
+        l->node.emplace(l->runtime->get().create_node("lcm"));
+        l->runtime->adopt(l);
+        return l;
+      }))
+      .def("close", &PyLcm::close)
+      .def("publish", &PyLcm::publish, py::arg("channel"), py::arg("data"))
+      .def("subscribe", &PyLcm::subscribe, py::arg("channel"), py::arg("handler"))
+      .def("unsubscribe", &PyLcm::unsubscribe, py::arg("subscription"))
+      .def("handle", [](PyLcm& l, std::optional<double> timeout) { return l.handle(timeout); },
+           py::arg("timeout") = py::none())
+      .def("fileno", [](PyLcm& l) { return l.efd; });
+
+  m.def("_current_runtime", []() -> std::shared_ptr<PyRuntime> {
+    auto r = g_runtime.lock();
+    return r && r->rt ? r : nullptr;
+  });
+  m.def("_close_all", &close_all);
+}

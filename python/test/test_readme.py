@@ -1,0 +1,33 @@
+"""README.md's Python tutorial, run as printed (with the C++ tutorial's .lcm file)."""
+import os
+import pathlib
+import re
+import subprocess
+import sys
+
+README = pathlib.Path(__file__).resolve().parents[2] / "README.md"
+
+
+def block_after(text, marker, lang):
+    start = text.index(marker)
+    m = re.compile(r"```%s\n(.*?)```" % lang, re.S).search(text, start)
+    lines = m.group(1).splitlines()
+    indent = min(len(l) - len(l.lstrip()) for l in lines if l.strip())
+    return "\n".join(l[indent:] for l in lines) + "\n"
+
+
+def test_readme_tutorial(lcmx_env, tmp_path):
+    text = README.read_text()
+    lcm_file = re.search(r"```\n\s*(package my_types;.*?)```", text, re.S).group(1)
+    (tmp_path / "my_types").mkdir()
+    (tmp_path / "my_types" / "temperature_t.lcm").write_text(
+        "\n".join(l.strip() for l in lcm_file.splitlines()) + "\n")
+    subprocess.run([os.environ["LCMX_LCM_GEN"], "--python", "my_types/temperature_t.lcm"],
+                   cwd=tmp_path, check=True)
+    (tmp_path / "thermo.py").write_text(block_after(text, "<!-- python-tutorial", "python"))
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), env["PYTHONPATH"]])
+    out = subprocess.run([sys.executable, "thermo.py"], cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == "21.5 C\n", (out.stdout, out.stderr)
