@@ -27,8 +27,11 @@
 //
 // Client: send_goal() blocks until the server accepted or rejected the goal (or an error:
 // no server, timeout, type mismatch). Feedback callbacks run on the client's own thread
-// (keep them short; do not block). Any client can ask the status, the result or a cancel of
-// any goal it heard of (its own, or one in a server's status) by id.
+// (keep them short; do not block; never call wait() from one). ClientGoal::wait() reports the
+// end only after the goal's feedback was delivered (all the server published, or what came
+// within 500 ms), and no feedback callback of that goal runs after it returned. Any client can
+// ask the status, the result or a cancel of any goal it heard of (its own, or one in a
+// server's status) by id.
 // Errors: creation throws lcmx::Error (invalid_argument for a bad name, at most 36 bytes);
 // calls return CallResult, never throw for call errors. All members are thread-safe.
 #pragma once
