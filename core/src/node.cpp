@@ -23,6 +23,18 @@ const char* to_string(Path p) {
   return "?";
 }
 
+const char* to_string(Event::Kind k) {
+  switch (k) {
+    case Event::Kind::type_mismatch: return "type_mismatch";
+    case Event::Kind::publisher_matched: return "publisher_matched";
+    case Event::Kind::publisher_unmatched: return "publisher_unmatched";
+    case Event::Kind::participant_joined: return "participant_joined";
+    case Event::Kind::participant_left: return "participant_left";
+    case Event::Kind::error: return "error";
+  }
+  return "?";
+}
+
 namespace detail {
 
 // ---------------------------------------------------------------- NodeImpl / executor

@@ -169,18 +169,6 @@ py::dict to_dict(const lcmx::SubscriberStats& s, std::uint64_t callback_errors) 
   return d;
 }
 
-const char* kind_name(lcmx::Event::Kind k) {
-  switch (k) {
-    case lcmx::Event::Kind::type_mismatch: return "type_mismatch";
-    case lcmx::Event::Kind::publisher_matched: return "publisher_matched";
-    case lcmx::Event::Kind::publisher_unmatched: return "publisher_unmatched";
-    case lcmx::Event::Kind::participant_joined: return "participant_joined";
-    case lcmx::Event::Kind::participant_left: return "participant_left";
-    case lcmx::Event::Kind::error: return "error";
-  }
-  return "?";
-}
-
 // ---- handles ----
 // Handles are held by shared_ptr: a call that releases the GIL works on its own reference, so
 // close() from another thread meanwhile cannot free what it uses; the last reference is then
@@ -528,7 +516,7 @@ PYBIND11_MODULE(_lcmx, m) {
                py::gil_scoped_acquire gil;
                if (!box->fn || box->fn.is_none()) return;
                try {
-                 box->fn(kind_name(e.kind), e.channel, e.message);
+                 box->fn(lcmx::to_string(e.kind), e.channel, e.message);
                } catch (py::error_already_set& err) {
                  report_callback_error(*box, "on_event", err);
                }

@@ -85,18 +85,6 @@ bool check(const V& data, std::int64_t seq, std::size_t from = 0) {
   return true;
 }
 
-const char* kind_name(lcmx::Event::Kind k) {
-  switch (k) {
-    case lcmx::Event::Kind::type_mismatch: return "type_mismatch";
-    case lcmx::Event::Kind::publisher_matched: return "publisher_matched";
-    case lcmx::Event::Kind::publisher_unmatched: return "publisher_unmatched";
-    case lcmx::Event::Kind::participant_joined: return "participant_joined";
-    case lcmx::Event::Kind::participant_left: return "participant_left";
-    case lcmx::Event::Kind::error: return "error";
-  }
-  return "?";
-}
-
 // Reads commands from stdin on its own thread: "quit" and "status" (EOF = quit).
 class Stdin {
  public:
@@ -546,7 +534,7 @@ int main(int argc, char** argv) {
   try {
     auto rt = lcmx::Runtime::create();
     rt.on_event([](const lcmx::Event& e) {
-      say(std::string("EVENT ") + kind_name(e.kind) + " " + (e.channel.empty() ? "-" : e.channel) + " " + e.message);
+      say(std::string("EVENT ") + lcmx::to_string(e.kind) + " " + (e.channel.empty() ? "-" : e.channel) + " " + e.message);
     });
     Stdin in;
     in.start();

@@ -51,5 +51,7 @@ struct Event {
   std::string channel;  // empty for participant events
   std::string message;  // human-readable, also logged
 };
+// "type_mismatch", "publisher_matched", ... (the enumerator's name), for logs and tools.
+const char* to_string(Event::Kind k);
 
 }  // namespace lcmx
