@@ -229,7 +229,7 @@ struct Options {
   std::string only;  // exp2 | exp3 | throughput ("" = all)
   std::string link_rate = "2gbit";
   std::string pin = "none";
-  std::string wait = "block";
+  std::string wait = "block";  // the library default (ExecutorOptions)
   double tput_seconds = 3;
   double tput_offer = 1.2;
   double tput_hz = 100;  // unlimited link only
@@ -1267,8 +1267,8 @@ int main(int argc, char** argv) {
   app.add_option("--link-rate", opt.link_rate, "tc tbf rate of the link (e.g. 1gbit, 2gbit); \"\" = unlimited")->capture_default_str();
   app.add_option("--pin", opt.pin, "none, or split: host A's processes on CPU 0, host B's on CPU 1")
       ->check(CLI::IsMember({"none", "split"}))->capture_default_str();
-  app.add_option("--wait", opt.wait, "lcmx subscribers' executor wait: block, spin (spin_then_block), busy")
-      ->check(CLI::IsMember({"block", "spin", "busy"}))->capture_default_str();
+  app.add_option("--wait", opt.wait, "lcmx subscribers' executor wait: block, spin (spin_then_block), adaptive, busy")
+      ->check(CLI::IsMember({"block", "spin", "adaptive", "busy"}))->capture_default_str();
   app.add_option("--timeout-ms", opt.timeout_ms, "per-message receive timeout (default: 10x the link time of all copies, >= 2 s)");
   app.add_option("--tput-seconds", opt.tput_seconds, "throughput: seconds of the bridge stream and of iperf3 -t")
       ->check(CLI::Range(0.5, 60.0))->capture_default_str();

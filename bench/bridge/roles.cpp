@@ -420,6 +420,8 @@ int run_lcmx_sub(const ChildConfig& c) {
     auto rt = lcmx::Runtime::create(lcmx_options(c));
     lcmx::NodeOptions no;
     if (c.wait == "spin") no.executor.wait = lcmx::WaitStrategy::spin_then_block;
+    else if (c.wait == "adaptive") no.executor.wait = lcmx::WaitStrategy::adaptive;
+    else if (c.wait == "block") no.executor.wait = lcmx::WaitStrategy::block;
     else if (c.wait == "busy") no.executor.wait = lcmx::WaitStrategy::busy_poll;
     auto node = rt.create_node("bench_bridge_sub", no);
     std::atomic<std::uint64_t> short_msgs{0};

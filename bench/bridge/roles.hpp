@@ -32,7 +32,7 @@ struct ChildConfig {
   std::vector<std::string> endpoints;  // zmq-pub: connect to each; zmq-sub: bind endpoints[0]
   std::string channel;                 // lcmx roles
   std::string discovery_url;           // lcmx roles
-  std::string wait = "block";          // lcmx-sub executor wait strategy: block | spin | busy
+  std::string wait = "block";          // lcmx-sub executor wait strategy: block | spin | adaptive | busy
   std::size_t max_size = 0;            // largest message of the run
 };
 

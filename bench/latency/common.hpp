@@ -97,7 +97,7 @@ struct RoleConfig {
   std::vector<SizePlan> plan;
   std::string name;           // unique per run: shm segment / channel names
   std::string url;            // liblcm udpm URL or lcmx discovery URL
-  std::string wait = "block";  // lcmx subscriber wait strategy: block | spin | busy
+  std::string wait = "block";  // lcmx subscriber wait strategy: block (lcmx default) | spin | adaptive | busy
   int timeout_ms = 200;       // receive timeout per message (then it counts as lost)
   int pub_cpu = -1;           // lcmx-intra only: CPU of the publishing thread (-1: none)
   int sub_cpu = -1;           // CPU of the subscriber's callback thread (-1: none)

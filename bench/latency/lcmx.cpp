@@ -49,6 +49,7 @@ lcmx::RuntimeOptions runtime_options(const RoleConfig& cfg) {
 lcmx::NodeOptions sub_node_options(const RoleConfig& cfg) {
   lcmx::NodeOptions o;
   if (cfg.wait == "spin") o.executor.wait = lcmx::WaitStrategy::spin_then_block;
+  else if (cfg.wait == "adaptive") o.executor.wait = lcmx::WaitStrategy::adaptive;
   else if (cfg.wait == "busy") o.executor.wait = lcmx::WaitStrategy::busy_poll;
   else o.executor.wait = lcmx::WaitStrategy::block;
   return o;

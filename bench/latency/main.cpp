@@ -263,7 +263,7 @@ struct Options {
   int warmup = -1;   // -1: per-size default
   std::vector<std::string> methods{"floor", "liblcm", "lcmx-intra", "lcmx-shm", "lcmx-loan"};
   std::string pin = "none";
-  std::string wait = "block";
+  std::string wait = "block";  // the library default (ExecutorOptions)
   int timeout_ms = 200;
   std::string lcm_url = "udpm://239.255.77.201:17701?ttl=0";
   std::string discovery_url = "udpm://239.255.77.202:17702?ttl=0&iface=lo";  // root namespace: lo only
@@ -727,8 +727,8 @@ int main(int argc, char** argv) {
       ->capture_default_str();
   app.add_option("--pin", opt.pin, "CPU pinning: none, same (both on CPU 0), split (pub CPU 0, sub CPU 1)")
       ->check(CLI::IsMember({"none", "same", "split"}))->capture_default_str();
-  app.add_option("--wait", opt.wait, "lcmx subscriber node's WaitStrategy: block, spin (spin_then_block), busy (busy_poll)")
-      ->check(CLI::IsMember({"block", "spin", "busy"}))->capture_default_str();
+  app.add_option("--wait", opt.wait, "lcmx subscriber node's WaitStrategy: block, spin (spin_then_block), adaptive, busy (busy_poll)")
+      ->check(CLI::IsMember({"block", "spin", "adaptive", "busy"}))->capture_default_str();
   app.add_option("--timeout-ms", opt.timeout_ms, "receive timeout per message; then it counts as lost")
       ->check(CLI::Range(10, 10000))->capture_default_str();
   app.add_option("--lcm-url", opt.lcm_url, "liblcm udpm URL (inside the bench's namespace)")->capture_default_str();

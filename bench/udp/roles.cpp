@@ -60,6 +60,8 @@ int run_lcmx_udp_sub(const UdpConfig& u, bool stream) {
     auto rt = lcmx::Runtime::create(runtime_options(u));
     lcmx::NodeOptions no;
     if (cfg.wait == "spin") no.executor.wait = lcmx::WaitStrategy::spin_then_block;
+    else if (cfg.wait == "adaptive") no.executor.wait = lcmx::WaitStrategy::adaptive;
+    else if (cfg.wait == "block") no.executor.wait = lcmx::WaitStrategy::block;
     else if (cfg.wait == "busy") no.executor.wait = lcmx::WaitStrategy::busy_poll;
     auto node = rt.create_node("bench_sub", no);
     Recorder rec(cfg.plan);

@@ -122,6 +122,9 @@ class NodeImpl : public std::enable_shared_from_this<NodeImpl> {
   std::atomic<int> fd_sleepers{0};   // of which in epoll: ring() must write wake_fd
   std::atomic<bool> stopping{false};
   std::atomic<bool> interrupted{false};
+  // WaitStrategy::adaptive: steady_clock time (ns since its epoch) when a run_once() pass last
+  // handled a message; relaxed (a stale value only shortens or lengthens one spin).
+  std::atomic<std::int64_t> last_work_ns{0};
   std::vector<std::thread> threads;
   // UDP waiting (one thread of the node at a time, `fd_waiter` held): an eventfd for ring()
   // and an epoll set with it and the runtime's group sockets. Created on first use.

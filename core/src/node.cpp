@@ -345,15 +345,26 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
   for (;;) {
     const std::uint32_t bell = doorbell.load(std::memory_order_seq_cst);
     refresh(local, local_version);
-    if (const auto n = poll_all(local); n > 0) return n;
+    if (const auto n = poll_all(local); n > 0) {
+      if (options.executor.wait == WaitStrategy::adaptive)
+        last_work_ns.store(std::chrono::nanoseconds(Clock::now().time_since_epoch()).count(),
+                           std::memory_order_relaxed);
+      return n;
+    }
     // After reading `bell`: an interrupt() after this check changes the doorbell, so the wait
     // below returns at once and the next pass sees it.
     if (interrupted.exchange(false, std::memory_order_seq_cst)) return 0;
     const auto now = Clock::now();
     if (now >= deadline || stopping.load(std::memory_order_acquire)) return 0;
     const auto& ex = options.executor;
-    if (ex.wait == WaitStrategy::busy_poll ||
-        (ex.wait == WaitStrategy::spin_then_block && now - start < ex.spin)) {
+    const bool spin =
+        ex.wait == WaitStrategy::busy_poll ||
+        (ex.wait == WaitStrategy::spin_then_block && now - start < ex.spin) ||
+        (ex.wait == WaitStrategy::adaptive &&
+         std::chrono::nanoseconds(now.time_since_epoch()).count() -
+                 last_work_ns.load(std::memory_order_relaxed) <
+             std::chrono::nanoseconds(ex.spin).count());
+    if (spin) {
       // Does any subscriber of ours receive over UDP (from another host or a stock LCM
       // program)? Read from the snapshots, under `busy` like poll_one().
       bool udp = false;
@@ -365,6 +376,15 @@ std::size_t NodeImpl::run_once(std::chrono::nanoseconds timeout) {
         st.busy.notify_all();
       }
       if (udp) runtime->drain_udp(/*try_only=*/true);  // spinning covers UDP too
+      if (ex.wait == WaitStrategy::adaptive) {
+        // Never keep a runnable peer off this CPU (the publisher we wait for may be queued
+        // behind us on this vCPU): give way between polls. If another thread ran meanwhile,
+        // the CPU is contended and polling only queues us behind the others (a woken sleeper
+        // runs sooner): sleep until the next message.
+        const auto before = Clock::now();
+        sched_yield();
+        if (Clock::now() - before > ex.spin) last_work_ns.store(0, std::memory_order_relaxed);
+      }
       continue;
     }
 

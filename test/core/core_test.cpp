@@ -1,11 +1,13 @@
 // Unit tests of the core API inside one process: intra-process path, executor, errors.
 // Each test uses its own discovery group (derived from the pid) so tests run in parallel.
 #include <sys/resource.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <condition_variable>
+#include <fstream>
 #include <functional>
 #include <map>
 #include <mutex>
@@ -313,6 +315,83 @@ TEST_CASE("an idle subscriber costs no CPU", "[core][executor]") {
   const double used_us = cpu() - before;
   // Discovery beacons every 100 ms in tests; the executor itself must stay asleep.
   CHECK(used_us < 20000);
+}
+
+namespace {
+
+// The scheduler state of one thread of this process ('R' running or runnable, 'S' asleep...).
+char thread_state(pid_t tid) {
+  std::ifstream f("/proc/self/task/" + std::to_string(tid) + "/stat");
+  std::string line;
+  std::getline(f, line);
+  const auto close = line.rfind(')');
+  return close == std::string::npos || close + 2 >= line.size() ? '?' : line[close + 2];
+}
+
+// How many of `samples` looks at a thread, 1 ms apart, found it running or runnable. A
+// spinning executor yields between polls, so on a busy machine it is runnable, not running:
+// the state tells spinning from sleeping whatever the load, CPU time would not.
+int runnable_samples(pid_t tid, int samples) {
+  int r = 0;
+  for (int i = 0; i < samples; ++i) {
+    r += thread_state(tid) == 'R';
+    std::this_thread::sleep_for(1ms);  // sampling period, not synchronisation
+  }
+  return r;
+}
+
+}  // namespace
+
+TEST_CASE("adaptive wait: polls for its window after messages, then sleeps", "[core][executor]") {
+  auto rt = lcmx::Runtime::create(test_options());
+  lcmx::NodeOptions no;
+  REQUIRE(no.executor.wait == lcmx::WaitStrategy::block);  // the default (bench/README.md)
+  no.executor.wait = lcmx::WaitStrategy::adaptive;
+  auto pub_node = rt.create_node("adaptive_pub");
+  SECTION("the default 50 us window: after a burst the executor is asleep again") {
+    auto node = rt.create_node("adaptive_default", no);
+    std::atomic<int> got{0};
+    std::atomic<pid_t> tid{0};
+    auto sub = node.subscribe<lcmx_examples::pose_t>("ADAPTIVE_A", [&](const lcmx_examples::pose_t&) {
+      tid = static_cast<pid_t>(::syscall(SYS_gettid));
+      ++got;
+    });
+    auto pub = pub_node.advertise<lcmx_examples::pose_t>("ADAPTIVE_A");
+    for (int i = 0; i < 200; ++i) pub.publish(lcmx_examples::pose_t{});
+    REQUIRE(eventually([&] { return got.load() + static_cast<int>(sub.stats().drops) == 200; }));
+    REQUIRE(eventually([&] { return thread_state(tid.load()) == 'S'; }));
+    CHECK(runnable_samples(tid.load(), 100) < 10);
+  }
+  SECTION("a long window is polled, not slept") {
+    no.executor.spin = 10s;
+    auto node = rt.create_node("adaptive_long", no);
+    std::atomic<int> got{0};
+    std::atomic<pid_t> tid{0};
+    auto sub = node.subscribe<lcmx_examples::pose_t>("ADAPTIVE_B", [&](const lcmx_examples::pose_t&) {
+      tid = static_cast<pid_t>(::syscall(SYS_gettid));
+      ++got;
+    });
+    auto pub = pub_node.advertise<lcmx_examples::pose_t>("ADAPTIVE_B");
+    pub.publish(lcmx_examples::pose_t{});
+    REQUIRE(eventually([&] { return got.load() == 1; }));
+    CHECK(runnable_samples(tid.load(), 100) > 80);
+  }
+  SECTION("block never polls") {
+    no.executor.wait = lcmx::WaitStrategy::block;
+    no.executor.spin = 10s;
+    auto node = rt.create_node("adaptive_block", no);
+    std::atomic<int> got{0};
+    std::atomic<pid_t> tid{0};
+    auto sub = node.subscribe<lcmx_examples::pose_t>("ADAPTIVE_C", [&](const lcmx_examples::pose_t&) {
+      tid = static_cast<pid_t>(::syscall(SYS_gettid));
+      ++got;
+    });
+    auto pub = pub_node.advertise<lcmx_examples::pose_t>("ADAPTIVE_C");
+    pub.publish(lcmx_examples::pose_t{});
+    REQUIRE(eventually([&] { return got.load() == 1; }));
+    REQUIRE(eventually([&] { return thread_state(tid.load()) == 'S'; }));
+    CHECK(runnable_samples(tid.load(), 100) < 10);
+  }
 }
 
 // DESIGN.md "Message Bridge": a bridge participant announces itself and the topics it

@@ -13,9 +13,17 @@ namespace lcmx {
 
 // How an executor thread waits for messages.
 enum class WaitStrategy {
-  block,            // sleep on a futex until woken (default: no CPU when idle)
-  spin_then_block,  // poll for `spin` first, then sleep (lower latency across vCPUs)
+  block,            // default: sleep on a futex until woken (no CPU when idle)
+  spin_then_block,  // poll for `spin` at the start of every wait, then sleep
   busy_poll,        // never sleep (lowest latency, one core per executor thread)
+  // Poll, yielding the CPU between polls, only while the node's last message was handled
+  // less than `spin` ago; then sleep. Stops polling as soon as a yield lets another thread
+  // run (a contended CPU). Catches a request/response exchange without a wake-up (round trip
+  // about halved on an idle machine) and costs nothing when idle, but up to `spin` per
+  // message on a steady stream, and worse tails than block on a busy machine: not the
+  // default (measured in bench/README.md "Wait strategies"). For request/response-heavy
+  // nodes on machines with spare cores.
+  adaptive,
 };
 
 enum class ExecutorKind {
@@ -27,7 +35,8 @@ struct ExecutorOptions {
   ExecutorKind kind = ExecutorKind::own_threads;
   int threads = 1;  // own_threads: >1 runs different subscriptions' callbacks in parallel
   WaitStrategy wait = WaitStrategy::block;
-  std::chrono::microseconds spin{50};  // spin_then_block: how long to poll first
+  // spin_then_block: how long to poll first; adaptive: how long after the last message.
+  std::chrono::microseconds spin{50};
 };
 
 struct NodeOptions {
