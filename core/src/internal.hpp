@@ -305,9 +305,27 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
     std::vector<std::byte> data;
     udpm::Source source;
     std::uint32_t sequence;
+    std::uint32_t lost_before;
   };
   std::vector<Forwarded> forwarded;  // guarded by recv_mu; handled before anything drained later
   void drain_locked(bool rx_thread);  // recv_mu held
+
+  // UDP loss per sender socket (issue 15): LCM sequence gaps (udpm::Message::lost_before)
+  // count data and beacons alike; the beacon's own sequence tells how many were beacons.
+  // Settled at each beacon of the sender: the rest is data it lost, given to the pair when the
+  // sender publishes one channel (its beacon's publisher list), else logged as not
+  // attributable. Guarded by recv_mu (on_udp runs with it held).
+  struct SourceLoss {
+    std::uint64_t pending = 0;        // sequence numbers missed since the last settlement
+    std::uint64_t beacon_credit = 0;  // beacons known lost, not yet matched by a gap
+    std::int64_t last_beacon = -1;    // beacon sequence of the sender's last beacon
+    std::uint64_t unattributed = 0;   // data messages lost, sender with several channels
+    std::chrono::steady_clock::time_point logged{};
+  };
+  std::map<std::pair<std::int8_t, std::string>, SourceLoss> source_loss;  // (scope, "ip:port")
+  void settle_loss(std::int8_t scope, const std::string& source, const lcmx_msgs::beacon_t& b,
+                   std::uint32_t lost_before);  // recv_mu held, mu not held
+  void log_foreign_loss(std::int8_t scope, const std::string& source, std::uint32_t lost);  // recv_mu
 };
 
 class PublisherImpl final : public PublisherCore {

@@ -546,10 +546,7 @@ RawSubscriberCore::RawSubscriberCore(std::string channel, SubscriberOptions o,
 }
 
 bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
-  if (item.type->carries_bytes()) {
-    const auto& bytes = *std::static_pointer_cast<const Bytes>(item.object);
-    return deliver_bytes(bytes);
-  }
+  if (item.type->carries_bytes()) return deliver_bytes(item.bytes);
   // A typed publisher in this process: encode for the raw subscriber.
   scratch_.resize(item.type->encoded_size(item.object.get()));
   item.type->encode(item.object.get(), scratch_.data(), scratch_.size());

@@ -46,7 +46,10 @@ void PublisherImpl::check_size(std::size_t size) const {
 }
 
 void PublisherImpl::deliver_intra(const Targets& t, std::shared_ptr<const void> object) {
-  for (const auto& target : t) push_intra(*target.sub, IntraItem{object, &type, target.stats});
+  // A raw publisher's object is its Bytes copy (make_bytes): the items point into it.
+  std::span<const std::byte> bytes;
+  if (type.carries_bytes()) bytes = *std::static_pointer_cast<const Bytes>(object);
+  for (const auto& target : t) push_intra(*target.sub, IntraItem{object, &type, target.stats, bytes});
 }
 
 bool PublisherImpl::wants_vehicle() const {

@@ -80,7 +80,7 @@ void RuntimeImpl::drain_locked(bool rx_thread) {
     auto pending = std::move(forwarded);
     forwarded.clear();
     for (const auto& f : pending) {
-      const udpm::Message m{f.channel, f.data, f.source, f.sequence};
+      const udpm::Message m{f.channel, f.data, f.source, f.sequence, f.lost_before, nullptr};
       try {
         on_udp(f.scope, m);
       } catch (const std::exception& e) {
@@ -96,7 +96,7 @@ void RuntimeImpl::drain_locked(bool rx_thread) {
           // stopped) loses nothing for good, and keeps this bounded.
           if (stopped.load() || forwarded.size() >= 256) return;
           forwarded.push_back({scope, std::string(m.channel), {m.data.begin(), m.data.end()},
-                               m.source, m.sequence});
+                               m.source, m.sequence, m.lost_before});
           const std::uint64_t v = 1;
           [[maybe_unused]] auto r = ::write(rx_wake_fd, &v, sizeof v);
           return;
@@ -148,12 +148,15 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
   if (m.channel == discovery::kBeaconChannel) {
     (vehicle ? disco_vehicle : disco)->deliver(m);
+    // Loss accounting needs every beacon's sequence: decoded a second time (small, a few per
+    // second per participant).
+    if (auto b = discovery::decode_beacon(m.data)) settle_loss(scope, udpm::to_string(m.source), *b, m.lost_before);
     return;
   }
   const auto& group = vehicle ? vehicle_group : local_group;
   if (group->is_own(m.source)) return;  // our own, looped back
   const std::string source = udpm::to_string(m.source);
-  std::shared_ptr<const Bytes> bytes;
+  std::uint32_t foreign_lost = 0;
   std::vector<std::pair<std::shared_ptr<SubscriberCore>, std::shared_ptr<PairCounters>>> targets;
   std::vector<Event> events;
   {
@@ -171,6 +174,12 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     } else if (auto p = neighbour_ports.find(m.source.port_be);
                p != neighbour_ports.end() && host_addresses.count(m.source.address_be)) {
       participant = p->second;  // ... sent where the group routes (another address of ours)
+    }
+    if (m.lost_before > 0) {
+      // A participant's gap is settled at its next beacon (some of it may be beacons); a stock
+      // LCM sender has no channel list: its loss cannot be given to a pair.
+      if (participant != 0) source_loss[{scope, source}].pending += m.lost_before;
+      else foreign_lost = m.lost_before;
     }
     for (auto& [id, sub] : subs) {
       if (sub->channel() != m.channel) continue;
@@ -214,9 +223,74 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     if (disco_vehicle) disco_vehicle->announce_now();
   }
   emit(std::move(events));
+  if (foreign_lost > 0 && !targets.empty()) log_foreign_loss(scope, source, foreign_lost);
   if (targets.empty()) return;
-  bytes = make_bytes(m.data);
-  for (auto& [sub, stats] : targets) push_intra(*sub, IntraItem{bytes, &raw_type_info(), stats});
+  // A reassembled message is handed over in its reassembly buffer; a single datagram's bytes
+  // live in the socket's receive slot, reused by the next read: copied.
+  std::shared_ptr<const void> owner = m.buffer;
+  if (!owner) owner = make_bytes(m.data);
+  const auto bytes = m.buffer ? m.data : std::span<const std::byte>(*std::static_pointer_cast<const Bytes>(owner));
+  for (auto& [sub, stats] : targets) push_intra(*sub, IntraItem{owner, &raw_type_info(), stats, bytes});
+}
+
+void RuntimeImpl::settle_loss(std::int8_t scope, const std::string& source, const lcmx_msgs::beacon_t& b,
+                              std::uint32_t lost_before) {
+  auto& s = source_loss[{scope, source}];
+  s.pending += lost_before;
+  if (s.last_beacon >= 0 && b.sequence > s.last_beacon) s.beacon_credit += static_cast<std::uint64_t>(b.sequence - s.last_beacon - 1);
+  s.last_beacon = b.sequence;
+  const std::uint64_t beacons = std::min(s.pending, s.beacon_credit);
+  const std::uint64_t lost = s.pending - beacons;
+  s.beacon_credit -= beacons;
+  s.pending = 0;
+  if (lost == 0) return;
+  std::set<std::string> channels;
+  for (const auto& e : b.endpoints)
+    if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) channels.insert(e.topic);
+  std::vector<std::string> subscribed;  // its channels matched here over UDP
+  {
+    std::lock_guard lock(mu);
+    for (auto& [id, sub] : subs) {
+      if (!channels.count(sub->channel())) continue;
+      auto& st = *sub->state;
+      std::lock_guard l2(st.mu);
+      for (auto& x : st.matches) {
+        if (x->path != Path::udp || x->publisher_participant != static_cast<std::uint64_t>(b.participant_id)) continue;
+        if (channels.size() == 1) x->stats->drops.fetch_add(lost, std::memory_order_relaxed);
+        subscribed.push_back(sub->channel());
+      }
+    }
+  }
+  if (channels.size() == 1) {
+    if (!subscribed.empty())
+      spdlog::warn("lcmx: {} message(s) on channel '{}' from {} pid {} ({}) lost on the {} group; counted in its "
+                   "subscribers' drops",
+                   lost, *channels.begin(), b.process_name, b.pid, source,
+                   scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE ? "vehicle" : "host-local");
+    return;
+  }
+  if (subscribed.empty()) return;  // none of its channels is received here: nobody here lost
+  s.unattributed += lost;
+  const auto now = std::chrono::steady_clock::now();
+  if (now - s.logged < std::chrono::seconds(5)) return;
+  s.logged = now;
+  std::string list;
+  for (const auto& c : channels) list += (list.empty() ? "" : ", ") + c;
+  spdlog::warn("lcmx: {} message(s) from {} pid {} ({}) lost on the {} group ({} so far); it sends several channels "
+               "({}), so the loss cannot be given to one subscription (UDP sequence numbers are per socket)",
+               lost, b.process_name, b.pid, source, scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE ? "vehicle" : "host-local",
+               s.unattributed, list);
+}
+
+void RuntimeImpl::log_foreign_loss(std::int8_t scope, const std::string& source, std::uint32_t lost) {
+  auto& s = source_loss[{scope, source}];
+  s.unattributed += lost;
+  const auto now = std::chrono::steady_clock::now();
+  if (now - s.logged < std::chrono::seconds(5)) return;
+  s.logged = now;
+  spdlog::warn("lcmx: {} message(s) from LCM sender {} lost on the {} group ({} so far); a stock LCM sender "
+               "announces no channel list, so the loss cannot be given to one subscription",
+               lost, source, scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE ? "vehicle" : "host-local", s.unattributed);
 }
 
 }  // namespace lcmx::detail

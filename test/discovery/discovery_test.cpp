@@ -230,7 +230,7 @@ TEST_CASE("a flood of fake participants is bounded, counted, and does not displa
   lcmx::discovery::Discovery d(o, nullptr, nullptr);
   auto deliver = [&](const beacon_t& b) {
     const auto bytes = lcmx::discovery::encode_beacon(b);
-    d.deliver(lcmx::udpm::Message{lcmx::discovery::kBeaconChannel, bytes, {}, 0});
+    d.deliver(lcmx::udpm::Message{lcmx::discovery::kBeaconChannel, bytes, {}, 0, 0, nullptr});
   };
   auto known = sample_beacon(1);
   known.sequence = 1;
@@ -403,7 +403,7 @@ TEST_CASE("on_change is told in the table's order: an update never lands after t
   b.sequence = 1;
   auto deliver = [&] {
     const auto bytes = lcmx::discovery::encode_beacon(b);
-    d.deliver(lcmx::udpm::Message{lcmx::discovery::kBeaconChannel, bytes, {}, 0});
+    d.deliver(lcmx::udpm::Message{lcmx::discovery::kBeaconChannel, bytes, {}, 0, 0, nullptr});
   };
   deliver();  // joined
   slow = true;

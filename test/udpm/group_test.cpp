@@ -291,3 +291,41 @@ TEST_CASE("A message whose source and sequence were delivered already is dropped
   CHECK(rx.counters().duplicates_dropped == 3);
   CHECK(rx.counters().messages_received == 7);
 }
+
+TEST_CASE("lost_before counts the sequence numbers a source skipped, and a reassembled message comes with its buffer",
+          "[integration][group][loss]") {
+  auto cfg = unique_config();
+  auto rx = Group::open(cfg);
+  RawSender raw(cfg);
+  const auto big = make_payload(9, 100000);
+  raw.send(lc02(10, "LOSS", make_payload(10, 10)));
+  raw.send(lc02(11, "LOSS", make_payload(11, 10)));
+  raw.send(lc02(14, "LOSS", make_payload(14, 10)));              // 12 and 13 lost
+  for (const auto& d : lc03_message(20, "LOSS", big)) raw.send(d);  // 15..19 lost
+  raw.send(lc02(21, "LOSS", make_payload(21, 10)));
+  raw.send(lc02(21 + 70000, "LOSS", make_payload(22, 10)));  // a jump this far: a restart, not loss
+  raw.send(lc02(3, "LOSS", make_payload(23, 10)));           // far behind: a restart too
+  raw.send(lc02(5, "LOSS", make_payload(24, 10)));           // 4 lost
+  struct Seen {
+    std::uint32_t sequence, lost;
+    bool buffer;
+    std::vector<std::byte> data;
+  };
+  std::vector<Seen> got;
+  REQUIRE(poll_until(
+      rx,
+      [&](const Message& m) {
+        got.push_back({m.sequence, m.lost_before, m.buffer != nullptr, {m.data.begin(), m.data.end()}});
+        if (m.buffer) CHECK(m.data.data() == m.buffer.get());  // the message is the buffer
+      },
+      [&] { return got.size() >= 8; }));
+  REQUIRE(got.size() == 8);
+  std::vector<std::uint32_t> seqs, lost;
+  for (const auto& g : got) seqs.push_back(g.sequence), lost.push_back(g.lost);
+  CHECK(seqs == std::vector<std::uint32_t>{10, 11, 14, 20, 21, 21 + 70000, 3, 5});
+  CHECK(lost == std::vector<std::uint32_t>{0, 0, 2, 5, 0, 0, 0, 1});
+  CHECK(got[3].buffer);
+  CHECK(got[3].data == big);
+  for (std::size_t i = 0; i < got.size(); ++i)
+    if (i != 3) CHECK_FALSE(got[i].buffer);
+}

@@ -266,8 +266,13 @@ struct Group::Impl {
   static constexpr std::size_t kMaxSenders = 4096;
   std::unordered_map<std::uint64_t, Window> windows;
 
-  // True the first time (source, sequence) is seen.
-  bool fresh(const Source& source, std::uint32_t seq) {
+  // A jump ahead this large is a sender that restarted on the same port, not a loss.
+  static constexpr std::uint32_t kMaxGap = 1u << 16;
+
+  // True the first time (source, sequence) is seen. *lost: sequence numbers skipped since the
+  // source's newest message (Message::lost_before).
+  bool fresh(const Source& source, std::uint32_t seq, std::uint32_t* lost) {
+    *lost = 0;
     if (windows.size() >= kMaxSenders) windows.clear();
     const std::uint64_t key = (std::uint64_t{source.address_be} << 16) | source.port_be;
     auto [it, inserted] = windows.try_emplace(key, Window{seq, 1});
@@ -275,6 +280,7 @@ struct Group::Impl {
     Window& w = it->second;
     const std::uint32_t ahead = seq - w.top;  // modulo 2^32
     if (ahead != 0 && ahead < 0x80000000u) {  // newer
+      if (ahead <= kMaxGap) *lost = ahead - 1;
       w.bits = ahead >= 64 ? 1 : (w.bits << ahead) | 1;
       w.top = seq;
       return true;
@@ -431,25 +437,28 @@ struct Group::Impl {
       return 0;
     }
     const Source source{names[i].sin_addr.s_addr, names[i].sin_port};
+    std::uint32_t lost = 0;
     if (!parsed->fragment) {
-      if (!fresh(source, parsed->sequence)) {
+      if (!fresh(source, parsed->sequence, &lost)) {
         ++recv_counters.duplicates_dropped;
         return 0;
       }
       ++recv_counters.messages_received;
-      on_message(Message{parsed->channel, parsed->payload, source, parsed->sequence});
+      on_message(Message{parsed->channel, parsed->payload, source, parsed->sequence, lost, nullptr});
       return 1;
     }
     ++recv_counters.fragments_received;
     auto complete = reassembler.add(*parsed, source, detail::Reassembler::Clock::now());
     if (!complete) return 0;
-    if (!fresh(complete->source, complete->sequence)) {
+    if (!fresh(complete->source, complete->sequence, &lost)) {
       ++recv_counters.duplicates_dropped;
       return 0;
     }
     ++recv_counters.messages_received;
-    on_message(Message{complete->channel, std::span<const std::byte>(complete->data.get(), complete->size),
-                       complete->source, complete->sequence});
+    // The reassembly buffer is handed over with the message (no copy after reassembly).
+    std::shared_ptr<const std::byte[]> buffer(std::move(complete->data));
+    on_message(Message{complete->channel, std::span<const std::byte>(buffer.get(), complete->size),
+                       complete->source, complete->sequence, lost, buffer});
     return 1;
   }
 

@@ -45,8 +45,7 @@ class TypedSubscriberCore final : public SubscriberCore {
       if (shared_) shared_(p); else ref_(*p);
       return true;
     }
-    const auto& bytes = *std::static_pointer_cast<const Bytes>(item.object);
-    return deliver_bytes(bytes);
+    return deliver_bytes(item.bytes);
   }
 
   bool deliver_bytes(std::span<const std::byte> bytes, const shm::ReadSample* sample = nullptr,

@@ -62,11 +62,14 @@ struct PairCounters {
   std::atomic<std::uint64_t> drops{0};
 };
 
-// A message handed to a subscriber on the intra-process path.
+// A message handed to a subscriber on the intra-process path (or queued from UDP).
 struct IntraItem {
-  std::shared_ptr<const void> object;  // const T (typed publisher) or const Bytes (raw)
-  const TypeInfo* type = nullptr;      // the publisher's type
+  // const T (a typed publisher's object), or, when type->carries_bytes(), whatever owns
+  // `bytes` (a Bytes copy, a UDP reassembly buffer).
+  std::shared_ptr<const void> object;
+  const TypeInfo* type = nullptr;  // the publisher's type
   std::shared_ptr<PairCounters> pair;
+  std::span<const std::byte> bytes;  // type->carries_bytes(): the message, kept alive by `object`
 };
 
 // Type-erased subscriber. Owned by shared_ptr (Subscriber handle, node executor, runtime).

@@ -27,7 +27,15 @@ struct Message {
   std::string_view channel;
   std::span<const std::byte> data;
   Source source;
-  std::uint32_t sequence;  // the sender's LCM sequence number
+  std::uint32_t sequence = 0;  // the sender's LCM sequence number
+  // Sequence numbers of this source that never arrived between its previous message and this
+  // one: datagrams the kernel dropped, fragmented messages never completed, loss on the link.
+  // 0 for a source's first message and after a sender restart. A message overtaken by a
+  // later one (no reordering happens on one link) counts here and is still delivered.
+  std::uint32_t lost_before = 0;
+  // A reassembled message's buffer (`data` points into it), null otherwise: on_message may
+  // keep it instead of copying `data`.
+  std::shared_ptr<const std::byte[]> buffer;
 };
 
 struct Counters {
