@@ -11,6 +11,7 @@
 #include <functional>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include "core_support.hpp"
@@ -348,15 +349,21 @@ TEST_CASE("adaptive wait: polls for its window after messages, then sleeps", "[c
   REQUIRE(no.executor.wait == lcmx::WaitStrategy::block);  // the default (bench/README.md)
   no.executor.wait = lcmx::WaitStrategy::adaptive;
   auto pub_node = rt.create_node("adaptive_pub");
-  SECTION("the default 50 us window: after a burst the executor is asleep again") {
-    auto node = rt.create_node("adaptive_default", no);
-    std::atomic<int> got{0};
-    std::atomic<pid_t> tid{0};
-    auto sub = node.subscribe<lcmx_examples::pose_t>("ADAPTIVE_A", [&](const lcmx_examples::pose_t&) {
+  std::atomic<int> got{0};
+  std::atomic<pid_t> tid{0};  // the executor thread that ran the callback
+  std::optional<lcmx::Node> node;
+  lcmx::Subscriber<lcmx_examples::pose_t> sub;
+  lcmx::Publisher<lcmx_examples::pose_t> pub;
+  auto start = [&](const std::string& name) {
+    node.emplace(rt.create_node(name, no));
+    sub = node->subscribe<lcmx_examples::pose_t>(name, [&](const lcmx_examples::pose_t&) {
       tid = static_cast<pid_t>(::syscall(SYS_gettid));
       ++got;
     });
-    auto pub = pub_node.advertise<lcmx_examples::pose_t>("ADAPTIVE_A");
+    pub = pub_node.advertise<lcmx_examples::pose_t>(name);
+  };
+  SECTION("the default 50 us window: after a burst the executor is asleep again") {
+    start("ADAPTIVE_A");
     for (int i = 0; i < 200; ++i) pub.publish(lcmx_examples::pose_t{});
     REQUIRE(eventually([&] { return got.load() + static_cast<int>(sub.stats().drops) == 200; }));
     REQUIRE(eventually([&] { return thread_state(tid.load()) == 'S'; }));
@@ -364,14 +371,7 @@ TEST_CASE("adaptive wait: polls for its window after messages, then sleeps", "[c
   }
   SECTION("a long window is polled, not slept") {
     no.executor.spin = 10s;
-    auto node = rt.create_node("adaptive_long", no);
-    std::atomic<int> got{0};
-    std::atomic<pid_t> tid{0};
-    auto sub = node.subscribe<lcmx_examples::pose_t>("ADAPTIVE_B", [&](const lcmx_examples::pose_t&) {
-      tid = static_cast<pid_t>(::syscall(SYS_gettid));
-      ++got;
-    });
-    auto pub = pub_node.advertise<lcmx_examples::pose_t>("ADAPTIVE_B");
+    start("ADAPTIVE_B");
     pub.publish(lcmx_examples::pose_t{});
     REQUIRE(eventually([&] { return got.load() == 1; }));
     CHECK(runnable_samples(tid.load(), 100) > 80);
@@ -379,14 +379,7 @@ TEST_CASE("adaptive wait: polls for its window after messages, then sleeps", "[c
   SECTION("block never polls") {
     no.executor.wait = lcmx::WaitStrategy::block;
     no.executor.spin = 10s;
-    auto node = rt.create_node("adaptive_block", no);
-    std::atomic<int> got{0};
-    std::atomic<pid_t> tid{0};
-    auto sub = node.subscribe<lcmx_examples::pose_t>("ADAPTIVE_C", [&](const lcmx_examples::pose_t&) {
-      tid = static_cast<pid_t>(::syscall(SYS_gettid));
-      ++got;
-    });
-    auto pub = pub_node.advertise<lcmx_examples::pose_t>("ADAPTIVE_C");
+    start("ADAPTIVE_C");
     pub.publish(lcmx_examples::pose_t{});
     REQUIRE(eventually([&] { return got.load() == 1; }));
     REQUIRE(eventually([&] { return thread_state(tid.load()) == 'S'; }));
