@@ -998,4 +998,16 @@ RawActionClient Node::create_action_client_raw(std::string name) {
   return RawActionClient(detail::create_action_client(*impl_, std::move(name), {}));
 }
 
+ActionServer Node::create_action_server_raw(std::string name, detail::ActionTypes types,
+                                            std::function<void(RawActionGoal&)> execute,
+                                            std::function<std::string(std::span<const std::byte>)> accept,
+                                            ActionServerOptions options) {
+  return ActionServer(detail::create_action_server(*impl_, std::move(name), std::move(types), std::move(accept),
+                                                   std::move(execute), options));
+}
+
+RawActionClient Node::create_action_client_raw(std::string name, detail::ActionTypes types) {
+  return RawActionClient(detail::create_action_client(*impl_, std::move(name), std::move(types)));
+}
+
 }  // namespace lcmx
