@@ -11,6 +11,8 @@ Methods (publisher -> subscriber, two processes on this host, shared memory):
   py-py-raw  Python advertise_raw().publish(bytearray) (one copy into the slot) -> Python
              subscribe_raw: memoryview of the slot, header read in place (no copy)
   py-cpp-raw Python advertise_raw().publish(bytearray) -> C++ RawSubscriber (header read in place)
+  py-py-loan Python pub.loan(size), 16-byte header only written (as cpp-loan) -> Python raw
+  py-cpp-loan  the same -> C++ RawSubscriber
 Each is a ping-pong (next message after the subscriber's ack on a pipe, not timed), as
 bench/latency (bench/README.md): the publisher stamps CLOCK_MONOTONIC just before it encodes or
 copies, the subscriber reads it once it has the message (decoded for typed, the view for raw).
@@ -37,6 +39,8 @@ METHODS = {  # name: (publisher role, subscriber role); lcmx-* roles are C++
     "py-cpp": ("py-pub", "lcmx-shm-sub"),
     "py-py-raw": ("py-raw-pub", "py-raw-sub"),
     "py-cpp-raw": ("py-raw-pub", "lcmx-loan-sub"),
+    "py-py-loan": ("py-loan-pub", "py-raw-sub"),
+    "py-cpp-loan": ("py-loan-pub", "lcmx-loan-sub"),
 }
 
 
@@ -114,7 +118,7 @@ def run_py_sub(args, plan, raw):
     return 0
 
 
-def run_py_pub(args, plan, raw):
+def run_py_pub(args, plan, raw, loan):
     import lcmx
     from lcmx_examples import bench_t
     ok = False
@@ -144,7 +148,11 @@ def run_py_pub(args, plan, raw):
                 for i in range(warmup + messages):
                     seq = (k << 1) | (1 if i >= warmup else 0)
                     k += 1
-                    if raw:
+                    if loan:  # as cpp-loan: stamp, loan, write the header only, publish
+                        t = now()
+                        with pub.loan(size) as slot:
+                            struct.pack_into("=qq", slot, 0, seq, t)
+                    elif raw:
                         struct.pack_into("=qq", buf, 0, seq, now())
                         pub.publish(buf)
                     else:
@@ -286,8 +294,10 @@ def main():
     sys.path.insert(0, os.path.join(args.build, "python"))
     if args.role:
         plan = [tuple(int(v) for v in p.split(":")) for p in args.plan.split(",")]
-        raw = "raw" in args.role
-        return run_py_sub(args, plan, raw) if args.role.endswith("sub") else run_py_pub(args, plan, raw)
+        raw = "raw" in args.role or "loan" in args.role
+        if args.role.endswith("sub"):
+            return run_py_sub(args, plan, raw)
+        return run_py_pub(args, plan, raw, "loan" in args.role)
 
     args.bench_exe = os.path.join(args.build, "bench", "lcmx_bench_latency")
     if not os.access(args.bench_exe, os.X_OK):

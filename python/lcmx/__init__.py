@@ -28,9 +28,9 @@ import collections as _collections
 import struct as _struct
 
 from . import _lcmx
-from ._lcmx import Error, LCMSubscription
+from ._lcmx import Error, LCMSubscription, Loan
 
-__all__ = ["Runtime", "Node", "Publisher", "Subscriber", "Service", "Client", "CallError",
+__all__ = ["Runtime", "Node", "Publisher", "Loan", "Subscriber", "Service", "Client", "CallError",
            "ActionServer", "ActionGoal", "ActionClient", "ClientGoal", "GoalStatus", "GoalOutcome",
            "LCM", "LCMSubscription", "Error"]
 
@@ -249,6 +249,23 @@ class Publisher(_Closing):
     def publish(self, msg):
         """Typed: an instance of the advertised type. Raw: any bytes-like object."""
         self._pub.publish(_encode(msg, self._type, "publish on '%s'" % self.channel))
+
+    def loan(self, size):
+        """Raw publishers: a Loan of a shared-memory slot of size bytes to write in place
+        (zero-copy publish, C++ RawPublisher::loan):
+
+            with pub.loan(len(frame)) as buf:   # buf: a writable memoryview of the slot
+                buf[:] = frame                   # or numpy.frombuffer(buf, ...) ... del array
+            # published on leaving the block; dropped (nothing sent) if it raised
+
+        A Loan has .view (that memoryview), .size, publish(size=None) (size: the bytes to send,
+        at most the loan's) and drop(); both release the view first and raise lcmx.Error while
+        a slice, cast or array of it is still alive (the slot is then reused). One loan per
+        publisher at a time; publish() and loan() of the same publisher raise lcmx.Error on
+        this thread while it is out."""
+        if self._type is not None:
+            raise TypeError("loan: only raw publishers (advertise_raw) loan slots")
+        return self._pub.loan(size)
 
     def subscriber_count(self):
         return self._pub.subscriber_count()

@@ -99,31 +99,130 @@ struct CallbackBox {
   }
 };
 
+// The GIL for a callback on a long-lived lcmx thread (a node's executor, a client's or the
+// discovery thread): the thread keeps its Python thread state between callbacks (pybind11's
+// inc_ref) instead of creating and deleting one per callback, which cost several µs of each
+// small message's latency (bench/python). The state of an ended thread is freed with the
+// interpreter. Per-goal execute threads take py::gil_scoped_acquire (one state per goal would
+// accumulate).
+struct ExecutorGil {
+  py::gil_scoped_acquire gil;
+  ExecutorGil() {
+    thread_local bool kept = false;
+    if (!kept) {
+      gil.inc_ref();
+      kept = true;
+    }
+  }
+};
+
 void report_callback_error(CallbackBox& box, const std::string& where, py::error_already_set& e) {
   const auto n = box.errors.fetch_add(1) + 1;
   spdlog::error("lcmx: python callback on '{}' raised ({} so far): {}", where, n, e.what());
 }
 
-// Runs `fn` with a read-only memoryview over `data`, released after the call (so a view kept
-// past the callback raises instead of reading reused memory). GIL held.
+// The memory behind the memoryviews lcmx hands out (a received message, a loaned slot):
+// a buffer exporter that counts its exports. A memoryview and every slice or cast of it hold
+// one export between them, and numpy arrays over them keep it too, so once our own view is
+// released, exports > 0 means something still refers to the memory; revoke() then makes new
+// exports fail.
+struct SlotBuffer {
+  PyObject_HEAD
+  char* ptr;
+  Py_ssize_t len;
+  int readonly;
+  Py_ssize_t exports;
+};
+
+int slot_getbuffer(PyObject* self, Py_buffer* view, int flags) {
+  auto* b = reinterpret_cast<SlotBuffer*>(self);
+  if (!b->ptr) {
+    PyErr_SetString(PyExc_ValueError,
+                    "lcmx: this memory is no longer valid (its callback returned, or its loan was published)");
+    view->obj = nullptr;
+    return -1;
+  }
+  if (PyBuffer_FillInfo(view, self, b->ptr, b->len, b->readonly, flags) < 0) return -1;
+  ++b->exports;
+  return 0;
+}
+
+void slot_releasebuffer(PyObject* self, Py_buffer*) { --reinterpret_cast<SlotBuffer*>(self)->exports; }
+
+PyTypeObject* slot_buffer_type() {  // GIL
+  static PyTypeObject* type = [] {
+    static PyType_Slot slots[] = {{Py_bf_getbuffer, reinterpret_cast<void*>(slot_getbuffer)},
+                                  {Py_bf_releasebuffer, reinterpret_cast<void*>(slot_releasebuffer)},
+                                  {0, nullptr}};
+    static PyType_Spec spec = {"lcmx._lcmx._SlotBuffer", sizeof(SlotBuffer), 0, Py_TPFLAGS_DEFAULT, slots};
+    auto* t = reinterpret_cast<PyTypeObject*>(PyType_FromSpec(&spec));
+    if (!t) throw py::error_already_set();
+    return t;
+  }();
+  return type;
+}
+
+// A memoryview of [data, data + size) (writable unless readonly) and its exporter. GIL held.
+struct SlotView {
+  py::object exporter, view;
+  SlotView(const void* data, std::size_t size, bool readonly) {
+    auto* type = slot_buffer_type();
+    exporter = py::reinterpret_steal<py::object>(type->tp_alloc(type, 0));
+    if (!exporter) throw py::error_already_set();
+    auto* b = reinterpret_cast<SlotBuffer*>(exporter.ptr());
+    b->ptr = static_cast<char*>(const_cast<void*>(data));
+    b->len = static_cast<Py_ssize_t>(size);
+    b->readonly = readonly ? 1 : 0;
+    view = py::reinterpret_steal<py::object>(PyMemoryView_FromObject(exporter.ptr()));
+    if (!view) throw py::error_already_set();
+  }
+  // Releases our view and revokes the memory; false if something still refers to it (a
+  // slice, a cast, an array over it), which cannot be revoked.
+  bool revoke() {
+    bool clean = true;
+    if (view) {
+      try {
+        view.attr("release")();
+      } catch (py::error_already_set&) {
+        clean = false;  // exported by an array
+      }
+      view = py::object();
+    }
+    if (exporter) {
+      auto* b = reinterpret_cast<SlotBuffer*>(exporter.ptr());
+      if (b->exports > 0) clean = false;
+      b->ptr = nullptr;
+    }
+    return clean;
+  }
+  // Releases our view if nothing else refers to the memory (then true), else leaves it all.
+  bool try_release() {
+    if (!exporter) return true;
+    try {
+      if (view) view.attr("release")();
+    } catch (py::error_already_set&) {
+      return false;
+    }
+    view = py::object();
+    return reinterpret_cast<SlotBuffer*>(exporter.ptr())->exports == 0;
+  }
+};
+
+// Runs `fn` with a read-only memoryview over `data`, revoked after the call (so a view kept
+// past the callback raises instead of reading reused memory; slices, casts and arrays over it
+// that are kept cannot be revoked: logged). GIL held.
 template <class F>
 void with_view(std::span<const std::byte> data, F&& fn) {
-  py::object view = py::reinterpret_steal<py::object>(PyMemoryView_FromMemory(
-      reinterpret_cast<char*>(const_cast<std::byte*>(data.data())),
-      static_cast<Py_ssize_t>(data.size()), PyBUF_READ));
-  if (!view) throw py::error_already_set();
+  SlotView slot(data.data(), data.size(), true);
   try {
-    fn(view);
+    fn(slot.view);
   } catch (...) {
-    try { view.attr("release")(); } catch (py::error_already_set&) {}
+    slot.revoke();
     throw;
   }
-  try {
-    view.attr("release")();
-  } catch (py::error_already_set& e) {
-    // Still exported (e.g. a numpy array over it kept past the callback): cannot revoke.
-    spdlog::warn("lcmx: a memoryview of a received message was kept past its callback: {}", e.what());
-  }
+  if (!slot.revoke())
+    spdlog::warn("lcmx: a view of a received message (a slice, cast or array of its memoryview) was kept past "
+                 "its callback; it reads memory that lcmx reuses");
 }
 
 // Waits in slices so Ctrl-C (SIGINT) raises KeyboardInterrupt promptly. `step` is called
@@ -179,6 +278,25 @@ void drop(std::shared_ptr<H>& h) {
   if (!h) return;
   py::gil_scoped_release nogil;
   h.reset();
+}
+
+// wait_interruptible over a handle of our own (h: a copy of the Python handle's shared_ptr),
+// dropped without the GIL however the wait ends. step(H&, slice) -> bool (done).
+template <class H, class Step>
+bool wait_on(std::shared_ptr<H> h, std::optional<double> timeout_s, Step&& step) {
+  bool ok = false;
+  try {
+    ok = wait_interruptible(timeout_s, [&](std::chrono::nanoseconds slice) { return step(*h, slice); });
+  } catch (...) {
+    drop(h);
+    throw;
+  }
+  drop(h);
+  return ok;
+}
+
+std::chrono::milliseconds slice_ms(std::chrono::nanoseconds slice) {
+  return std::max(std::chrono::duration_cast<std::chrono::milliseconds>(slice), std::chrono::milliseconds(1));
 }
 
 struct PyRuntime final : Closable {
@@ -265,6 +383,51 @@ struct PyPublisher final : Closable {
     if (pub && !g_exiting.load()) {
       py::gil_scoped_release nogil;
       pub.reset();
+    }
+  }
+};
+
+// A slot loaned from a raw publisher (zero-copy publish): `view` is a writable memoryview of
+// it until publish() or drop(), which release the view first and refuse (lcmx.Error) while
+// something still exports it (e.g. a numpy array over it), since the slot is then reused.
+struct PyLoan {
+  lcmx::RawPublisher pub;  // a handle of our own (shares the publisher)
+  lcmx::Loan loan;
+  std::size_t size = 0;
+  std::optional<SlotView> slot;  // GIL
+
+  void release_view() {
+    if (slot && !slot->try_release())
+      throw lcmx::Error(lcmx::Errc::invalid_argument,
+                        "the loan's memory is still referred to (a slice, cast or array of its view): "
+                        "delete those first");
+    if (slot) slot->revoke();
+    slot.reset();
+  }
+  bool open() const { return loan.data() != nullptr; }
+  void publish(std::optional<std::size_t> n) {
+    if (!open()) throw lcmx::Error(lcmx::Errc::invalid_argument, "the loan was already published or dropped");
+    const std::size_t bytes = n.value_or(size);
+    if (bytes > size)
+      throw lcmx::Error(lcmx::Errc::invalid_argument,
+                        "publish: " + std::to_string(bytes) + " bytes from a loan of " + std::to_string(size));
+    release_view();
+    py::gil_scoped_release nogil;
+    pub.publish(std::move(loan), bytes);
+  }
+  void drop() {
+    if (!open()) return;
+    release_view();
+    py::gil_scoped_release nogil;
+    loan = lcmx::Loan();
+  }
+  ~PyLoan() {
+    // The loan's last Python reference is going (GIL held): revoke the memory, drop the slot.
+    if (slot) slot->revoke();
+    slot.reset();
+    if (open() && !g_exiting.load()) {
+      py::gil_scoped_release nogil;
+      loan = lcmx::Loan();
     }
   }
 };
@@ -457,7 +620,7 @@ std::shared_ptr<PyActionServer> create_action_server(const std::shared_ptr<PyNod
 
   auto acc = [box = s->accept, where, goal_name](std::span<const std::byte> in) -> std::string {
     if (g_exiting.load()) return "the Python interpreter is exiting";
-    py::gil_scoped_acquire gil;
+    ExecutorGil gil;
     if (!box->fn) return "the action server is closed";
     std::string verdict;
     with_view(in, [&](py::object& view) {
@@ -662,18 +825,9 @@ void bind_actions(py::module_& m) {
       .def_property_readonly("name", [](PyActionClient& c) { return c.get()->name(); })
       .def("wait_for_server",
            [](PyActionClient& c, double timeout) {
-             auto cli = c.get();
-             bool ok = false;
-             try {
-               ok = wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
-                 return cli->wait_for_server(std::max(std::chrono::duration_cast<std::chrono::milliseconds>(slice), 1ms));
-               });
-             } catch (...) {
-               drop(cli);
-               throw;
-             }
-             drop(cli);
-             return ok;
+             return wait_on(c.get(), timeout, [](lcmx::RawActionClient& cli, std::chrono::nanoseconds slice) {
+               return cli.wait_for_server(slice_ms(slice));
+             });
            },
            py::arg("timeout") = 10.0)
       // Returns (True, goal) — rejected goals too (goal.accepted) — or (False, code, message).
@@ -694,7 +848,7 @@ void bind_actions(py::module_& m) {
                std::string where = cli->name() + " (feedback)";
                fb = [box, where](std::span<const std::byte> b) {  // the client's thread
                  if (g_exiting.load()) return;
-                 py::gil_scoped_acquire gil;
+                 ExecutorGil gil;
                  if (!box->fn) return;
                  try {
                    with_view(b, [&](py::object& view) {
@@ -934,7 +1088,7 @@ PYBIND11_MODULE(_lcmx, m) {
              box->fn = std::move(cb);
              r.get().on_event([box](const lcmx::Event& e) {
                if (g_exiting.load()) return;
-               py::gil_scoped_acquire gil;
+               ExecutorGil gil;
                if (!box->fn || box->fn.is_none()) return;
                try {
                  box->fn(lcmx::to_string(e.kind), e.channel, e.message);
@@ -986,7 +1140,7 @@ PYBIND11_MODULE(_lcmx, m) {
              std::string where = channel;
              auto cb = [box, where](const lcmx::RawMessage& msg) {  // executor thread
                if (g_exiting.load()) return;
-               py::gil_scoped_acquire gil;
+               ExecutorGil gil;
                if (!box->fn) return;  // closed
                try {
                  with_view(msg.data, [&](py::object& view) {
@@ -1030,7 +1184,7 @@ PYBIND11_MODULE(_lcmx, m) {
              // the handler raises reaches the client as handler_failed with its text.
              auto h = [box, where, request_name](std::span<const std::byte> in, lcmx::ResponseWriter& out) {
                if (g_exiting.load()) throw std::runtime_error("the Python interpreter is exiting");
-               py::gil_scoped_acquire gil;
+               ExecutorGil gil;
                if (!box->fn) throw std::runtime_error("the service is closed");
                try {
                  py::object r;
@@ -1081,18 +1235,11 @@ PYBIND11_MODULE(_lcmx, m) {
            py::arg("name"), py::arg("types") = py::none())
       .def("spin_once",
            [](PyNode& n, std::optional<double> timeout) {
-             auto node = n.get();
              std::size_t ran = 0;
-             try {
-               wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
-                 ran = node->spin_once(slice);
-                 return ran > 0;
-               });
-             } catch (...) {
-               drop(node);
-               throw;
-             }
-             drop(node);
+             wait_on(n.get(), timeout, [&ran](lcmx::Node& node, std::chrono::nanoseconds slice) {
+               ran = node.spin_once(slice);
+               return ran > 0;
+             });
              return ran;
            },
            py::arg("timeout") = py::none());
@@ -1105,18 +1252,9 @@ PYBIND11_MODULE(_lcmx, m) {
       .def("close", &PyClient::close)
       .def("wait_for_service",
            [](PyClient& c, double timeout) {
-             auto cli = c.get();
-             bool ok = false;
-             try {
-               ok = wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
-                 return cli->wait_for_service(std::chrono::duration_cast<std::chrono::milliseconds>(slice));
-               });
-             } catch (...) {
-               drop(cli);
-               throw;
-             }
-             drop(cli);
-             return ok;
+             return wait_on(c.get(), timeout, [](lcmx::RawClient& cli, std::chrono::nanoseconds slice) {
+               return cli.wait_for_service(slice_ms(slice));
+             });
            },
            py::arg("timeout") = 10.0)
       // Returns (True, response bytes, "", "", path) or (False, None, error code, message, path).
@@ -1155,6 +1293,19 @@ PYBIND11_MODULE(_lcmx, m) {
   py::class_<PyPublisher, std::shared_ptr<PyPublisher>>(m, "_Publisher")
       .def("close", &PyPublisher::close)
       .def("publish", &PyPublisher::publish, py::arg("data"))
+      .def("loan",
+           [](PyPublisher& p, std::size_t size) {
+             auto l = std::make_shared<PyLoan>();
+             l->pub = *p.get();
+             l->size = size;
+             {
+               py::gil_scoped_release nogil;
+               l->loan = l->pub.loan(size);
+             }
+             l->slot.emplace(l->loan.data(), size, false);
+             return l;
+           },
+           py::arg("size"))
       .def_property_readonly("channel", [](PyPublisher& p) { return p.get()->channel(); })
       .def("subscriber_count", [](PyPublisher& p) { return p.get()->subscriber_count(); })
       .def("wait_for_subscribers",
@@ -1173,24 +1324,35 @@ PYBIND11_MODULE(_lcmx, m) {
         return d;
       });
 
+  py::class_<PyLoan, std::shared_ptr<PyLoan>>(m, "Loan")
+      .def_property_readonly("view", [](PyLoan& l) -> py::object {
+        if (!l.open() || !l.slot) throw lcmx::Error(lcmx::Errc::invalid_argument, "the loan was already published or dropped");
+        return l.slot->view;
+      })
+      .def_property_readonly("size", [](PyLoan& l) { return l.size; })
+      .def("publish", &PyLoan::publish, py::arg("size") = py::none())
+      .def("drop", &PyLoan::drop)
+      // The context manager (lcmx.Loan): yields the view, publishes on a normal exit, drops on
+      // an exception. In C++: it is on the path of every loaned message.
+      .def("__enter__", [](PyLoan& l) -> py::object {
+        if (!l.open() || !l.slot) throw lcmx::Error(lcmx::Errc::invalid_argument, "the loan was already published or dropped");
+        return l.slot->view;
+      })
+      .def("__exit__", [](PyLoan& l, py::handle type, py::handle, py::handle) {
+        if (type.is_none()) l.publish(std::nullopt);
+        else l.drop();
+        return false;
+      });
+
   py::class_<PySubscriber, std::shared_ptr<PySubscriber>>(m, "_Subscriber")
       .def("close", &PySubscriber::close)
       .def_property_readonly("channel", [](PySubscriber& s) { return s.get()->channel(); })
       .def("publisher_count", [](PySubscriber& s) { return s.get()->publisher_count(); })
       .def("wait_for_publishers",
            [](PySubscriber& s, std::size_t n, double timeout) {
-             auto sub = s.get();
-             bool ok = false;
-             try {
-               ok = wait_interruptible(timeout, [&](std::chrono::nanoseconds slice) {
-                 return sub->wait_for_publishers(n, std::chrono::duration_cast<std::chrono::milliseconds>(slice));
-               });
-             } catch (...) {
-               drop(sub);
-               throw;
-             }
-             drop(sub);
-             return ok;
+             return wait_on(s.get(), timeout, [n](lcmx::RawSubscriber& sub, std::chrono::nanoseconds slice) {
+               return sub.wait_for_publishers(n, slice_ms(slice));
+             });
            },
            py::arg("n") = 1, py::arg("timeout") = 10.0)
       .def("stats", [](PySubscriber& s) {

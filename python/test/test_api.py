@@ -68,6 +68,44 @@ def test_raw_memoryview_released_after_callback(lcmx_env):
         bytes(views[0])
 
 
+def test_raw_loan_zero_copy_publish(lcmx_env):
+    got = []
+    done = threading.Event()
+    with lcmx.Runtime() as rt:
+        node = rt.create_node("loaner")
+        pub = node.advertise_raw("PY_LOAN")
+
+        def cb(view):
+            got.append(bytes(view))
+            if len(got) == 2:
+                done.set()
+
+        node.subscribe_raw("PY_LOAN", cb)
+        assert pub.wait_for_subscribers(1, timeout=10)
+        with pub.loan(5) as buf:  # a writable view of the slot, published on leaving
+            assert not buf.readonly and len(buf) == 5
+            buf[:] = b"first"
+        with pytest.raises(RuntimeError):
+            with pub.loan(8) as buf:
+                buf[:3] = b"bad"
+                raise RuntimeError("dropped, never sent")
+        loan = pub.loan(64)
+        head = loan.view[:6]  # a slice: the slot cannot be published while it is alive
+        head[:] = b"second"
+        with pytest.raises(lcmx.Error):
+            loan.publish()
+        head.release()
+        loan.publish(6)  # 6 of the 64 bytes
+        with pytest.raises(lcmx.Error):
+            loan.publish()  # once
+        with pytest.raises(ValueError):
+            head[0]  # released
+        assert done.wait(10)
+        assert got == [b"first", b"second"]
+        with pytest.raises(TypeError):
+            node.advertise("PY_LOAN_TYPED", pose_t).loan(10)  # typed publishers publish messages
+
+
 def test_raising_callback_is_counted_and_executor_lives_on(lcmx_env, capfd):
     first = threading.Event()
     second = threading.Event()

@@ -4,7 +4,7 @@ import os
 import pytest
 
 import lcmx
-from conftest import wait_for
+from conftest import pattern
 from lcmx_examples import bench_t, pose_t
 
 PEER = os.environ["LCMX_SERVICE_PEER"]
@@ -38,10 +38,6 @@ def test_python_service_and_client(lcmx_env):
         with pytest.raises(lcmx.CallError) as err:
             rt.create_node("lost").create_client_raw("py_nobody").call(b"x", timeout=0.2)
         assert err.value.code in ("no_server", "timeout")
-
-
-def pattern(seq, n):
-    return bytes(((i * 131 + seq * 7) & 0xFF) for i in range(n))
 
 
 def test_python_client_of_cpp_server(lcmx_env, procs):
