@@ -1,7 +1,8 @@
 #!/usr/bin/python3
 """One-way latency of lcmx from Python (issue 14's benchmark), against C++ in the same run.
 
-    bench/python/bench_python.py [--build build] [--sizes 1K,6M] [--messages N] [--pin none|same|split]
+    bench/python/bench_python.py [--build build] [--sizes 1K,6M] [--messages N] [--rounds 3]
+                                 [--pin none|same|split] [--methods ...] [--markdown FILE]
 
 Methods (publisher -> subscriber, two processes on this host, shared memory):
   cpp-shm    C++ Publisher<bench_t> -> C++ Subscriber<bench_t>      (lcmx_bench_latency's roles)
@@ -18,7 +19,8 @@ bench/latency (bench/README.md): the publisher stamps CLOCK_MONOTONIC just befor
 copies, the subscriber reads it once it has the message (decoded for typed, the view for raw).
 The C++ roles are lcmx_bench_latency's hidden --role children (same pipe protocol: report fd 3,
 acks fd 4, end fd 5); the Python roles are this script's --role. Prints a Markdown table with
-p50/p99 and the ratios to C++ of the same run. Needs no root. Exit 1 if a method failed.
+p50/p99 and the ratios to C++ of the same run, then issue 14's targets. Every method runs
+--rounds times in rotated order, pooled. Needs no root. Exit 1 if a method failed.
 """
 import argparse
 import os
@@ -282,6 +284,7 @@ def main():
     ap.add_argument("--sizes", default="1K,6M")
     ap.add_argument("--messages", type=int, default=0, help="measured per size (default 200 <= 100 KB, else 50)")
     ap.add_argument("--methods", default=",".join(METHODS))
+    ap.add_argument("--rounds", type=int, default=3, help="runs of every method, rotated, pooled")
     ap.add_argument("--pin", default="none", choices=["none", "same", "split"])
     ap.add_argument("--timeout-ms", type=int, default=1000)
     ap.add_argument("--url", default="udpm://239.255.77.203:17703?ttl=0&iface=lo")
@@ -310,14 +313,34 @@ def main():
         plan.append((n, 20 if n <= 100 << 10 else 5, args.messages or (200 if n <= 100 << 10 else 50)))
     pub_cpu, sub_cpu = {"none": (-1, -1), "same": (0, 0), "split": (0, 1)}[args.pin]
     results, failed = {}, []
-    for method in args.methods.split(","):
-        print("bench_python: %s ..." % method, file=sys.stderr, flush=True)
-        try:
-            results[method] = run_method(args, method, plan, pub_cpu, sub_cpu)
-        except RuntimeError as e:
-            failed.append((method, str(e)))
-    md = ["## Python latency (one-way µs, p50 / p99), %s, pin %s, %s" % (
-        time.strftime("%Y-%m-%d %H:%M"), args.pin, ", ".join("%s %d+%d" % (size_label(n), w, m) for n, w, m in plan)),
+    methods = args.methods.split(",")
+    for m in methods:
+        if m not in METHODS:
+            sys.exit("unknown method %r (known: %s)" % (m, ", ".join(METHODS)))
+    # Rounds in rotated order, pooled per method: a drift of the shared machine (or a flip
+    # of the wake-up between vCPUs) hits every method alike.
+    for r in range(args.rounds):
+        for method in methods[r % len(methods):] + methods[:r % len(methods)]:
+            if any(m == method for m, _ in failed):
+                continue
+            print("bench_python: round %d: %s ..." % (r + 1, method), file=sys.stderr, flush=True)
+            try:
+                lat, lost, notes = run_method(args, method, plan, pub_cpu, sub_cpu)
+            except RuntimeError as e:
+                failed.append((method, str(e)))
+                continue
+            if method not in results:
+                results[method] = ({n: [] for n in lat}, {n: 0 for n in lat}, [])
+            for n in lat:
+                results[method][0].setdefault(n, []).extend(lat[n])
+                results[method][1][n] = results[method][1].get(n, 0) + lost.get(n, 0)
+            results[method][2].extend(notes)
+    for lat, _, _ in results.values():
+        for v in lat.values():
+            v.sort()
+    md = ["## Python latency (one-way µs, p50 / p99), %s, pin %s, %d rounds of %s" % (
+        time.strftime("%Y-%m-%d %H:%M"), args.pin, args.rounds,
+        ", ".join("%s %d+%d" % (size_label(n), w, m) for n, w, m in plan)),
         "",
         "| method | size | p50 | p99 | lost | p50 vs cpp-shm | p50 vs cpp-loan |",
         "|---|---|---|---|---|---|---|"]
@@ -332,6 +355,21 @@ def main():
             md.append("| %s | %s | %s | %s | %d | %s | %s |" % (
                 method, size_label(n), "%.1f" % p50 if p50 else "-", "%.1f" % p99 if p99 else "-",
                 lost.get(n, 0), *ratios))
+    # Issue 14's targets, on p50: at 1 KB <= 3x C++ (typed Python against typed C++), at 6 MB
+    # raw <= 1.2x C++ (Python raw against C++'s shm path; Python loan against C++ loan).
+    targets = [("1 KB", "py-py", "cpp-shm", 3.0), ("1 KB", "py-cpp", "cpp-shm", 3.0),
+               ("6 MB", "py-py-raw", "cpp-shm", 1.2), ("6 MB", "py-cpp-raw", "cpp-shm", 1.2),
+               ("6 MB", "py-py-loan", "cpp-loan", 1.2), ("6 MB", "py-cpp-loan", "cpp-loan", 1.2)]
+    md += ["", "Targets (p50):"]
+    for label, method, ref, limit in targets:
+        n = next((n for n, _, _ in plan if size_label(n) == label), None)
+        a = pct(results[method][0].get(n, []), 50) if method in results and n else None
+        b = pct(results[ref][0].get(n, []), 50) if ref in results and n else None
+        if a is None or b is None:
+            md.append("- %s %s <= %.1fx %s: not measured" % (label, method, limit, ref))
+        else:
+            md.append("- %s %s <= %.1fx %s: %s (%.2fx)" % (label, method, limit, ref,
+                                                         "holds" if a <= limit * b else "FAILS", a / b))
     for method, text in failed:
         md.append("")
         md.append("FAILED %s: %s" % (method, text))
