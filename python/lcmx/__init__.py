@@ -149,6 +149,8 @@ class Node(_Closing):
         node's executor. The types' names and fingerprints are announced as a C++ typed
         service's are: a client of other types gets CallError("type_mismatch"), a request
         that does not decode "bad_request", and what the handler raises "handler_failed"."""
+        _check_callable(handler, "handler")
+
         def raw(request):
             response = handler(request)
             if not isinstance(response, resp_type):

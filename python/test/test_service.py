@@ -105,6 +105,8 @@ def test_typed_service_types_on_the_wire(lcmx_env):
             raw.call(b"\x01\x02not a pose", timeout=5)
         assert err.value.code == "bad_request" and "pose_t" in str(err.value), err.value
         assert len(calls) == 1 and srv.handler_errors == 0
+        with pytest.raises(TypeError):
+            rt.create_node("bad").create_service("py_bad", pose_t, bench_t, 42)  # not callable
 
 
 def test_typed_service_type_mismatch_with_cpp(lcmx_env, procs):
