@@ -100,20 +100,35 @@ struct CallbackBox {
 };
 
 // The GIL for a callback on a long-lived lcmx thread (a node's executor, a client's or the
-// discovery thread): the thread keeps its Python thread state between callbacks (pybind11's
-// inc_ref) instead of creating and deleting one per callback, which cost several µs of each
-// small message's latency (bench/python). The state of an ended thread is freed with the
-// interpreter. Per-goal execute threads take py::gil_scoped_acquire (one state per goal would
-// accumulate).
-struct ExecutorGil {
-  py::gil_scoped_acquire gil;
+// discovery thread): such a thread keeps the Python thread state pybind11 made for it between
+// callbacks (inc_ref) instead of creating and deleting one per callback, which cost several µs
+// of each small message's latency (bench/python). It is deleted when the thread ends (the
+// thread-local below), unless the interpreter is exiting then. Threads Python made (a manual
+// node's spin_once caller) have their own state and are left alone. Per-goal execute threads
+// take py::gil_scoped_acquire.
+struct KeptThreadState {
+  PyThreadState* state = nullptr;
+  ~KeptThreadState() {  // at the thread's exit, without the GIL
+    if (!state || g_exiting.load() || !Py_IsInitialized()) return;
+    PyEval_RestoreThread(state);
+    PyThreadState_Clear(state);
+    PyThreadState_DeleteCurrent();  // and releases the GIL
+  }
+};
+
+class ExecutorGil {
+ public:
   ExecutorGil() {
-    thread_local bool kept = false;
-    if (!kept) {
-      gil.inc_ref();
-      kept = true;
+    thread_local KeptThreadState kept;
+    if (!kept.state && foreign_) {
+      gil_.inc_ref();
+      kept.state = PyThreadState_Get();
     }
   }
+
+ private:
+  bool foreign_ = PyGILState_GetThisThreadState() == nullptr;  // before gil_ (declaration order)
+  py::gil_scoped_acquire gil_;
 };
 
 void report_callback_error(CallbackBox& box, const std::string& where, py::error_already_set& e) {

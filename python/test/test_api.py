@@ -106,6 +106,40 @@ def test_raw_loan_zero_copy_publish(lcmx_env):
             node.advertise("PY_LOAN_TYPED", pose_t).loan(10)  # typed publishers publish messages
 
 
+def _python_thread_states():
+    import ctypes
+    api = ctypes.pythonapi
+    api.PyInterpreterState_Head.restype = ctypes.c_void_p
+    api.PyInterpreterState_ThreadHead.restype = ctypes.c_void_p
+    api.PyInterpreterState_ThreadHead.argtypes = [ctypes.c_void_p]
+    api.PyThreadState_Next.restype = ctypes.c_void_p
+    api.PyThreadState_Next.argtypes = [ctypes.c_void_p]
+    n, t = 0, api.PyInterpreterState_ThreadHead(api.PyInterpreterState_Head())
+    while t:
+        n, t = n + 1, api.PyThreadState_Next(t)
+    return n
+
+
+def test_executor_thread_states_freed_with_their_threads(lcmx_env):
+    """Executor threads keep their Python thread state between callbacks; it goes when the
+    thread ends (closed nodes), so making and closing nodes does not accumulate them."""
+    before = _python_thread_states()
+    with lcmx.Runtime() as rt:
+        pub = rt.create_node("ts_pub").advertise_raw("PY_TS")
+        for i in range(5):
+            got = threading.Event()
+            node = rt.create_node("ts_%d" % i)
+            sub = node.subscribe_raw("PY_TS", lambda view: got.set())
+            assert pub.wait_for_subscribers(1, timeout=10)
+            pub.publish(b"x")
+            assert got.wait(10)
+            sub.close()
+            node.close()
+        # An executor thread ends within its 1 s wait once its node is gone.
+        assert wait_for(lambda: _python_thread_states() == before, timeout=10), \
+            (before, _python_thread_states())
+
+
 def test_raising_callback_is_counted_and_executor_lives_on(lcmx_env, capfd):
     first = threading.Event()
     second = threading.Event()
