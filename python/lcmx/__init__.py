@@ -243,6 +243,8 @@ class Publisher(_Closing):
     def __init__(self, impl, msg_type):
         self._pub = impl
         self._type = msg_type
+        if msg_type is None:
+            self.loan = impl.loan  # raw: straight to C++ (on the path of every loaned message)
 
     @property
     def channel(self):

@@ -191,16 +191,24 @@ struct SlotView {
     view = py::reinterpret_steal<py::object>(PyMemoryView_FromObject(exporter.ptr()));
     if (!view) throw py::error_already_set();
   }
+  // view.release(): false (the error cleared) if it is exported (an array over it). On the
+  // path of every message: no attribute lookup by string.
+  bool release_view() {
+    static PyObject* name = PyUnicode_InternFromString("release");
+    PyObject* r = PyObject_CallMethodNoArgs(view.ptr(), name);
+    if (!r) {
+      PyErr_Clear();
+      return false;
+    }
+    Py_DECREF(r);
+    return true;
+  }
   // Releases our view and revokes the memory; false if something still refers to it (a
   // slice, a cast, an array over it), which cannot be revoked.
   bool revoke() {
     bool clean = true;
     if (view) {
-      try {
-        view.attr("release")();
-      } catch (py::error_already_set&) {
-        clean = false;  // exported by an array
-      }
+      clean = release_view();
       view = py::object();
     }
     if (exporter) {
@@ -213,11 +221,7 @@ struct SlotView {
   // Releases our view if nothing else refers to the memory (then true), else leaves it all.
   bool try_release() {
     if (!exporter) return true;
-    try {
-      if (view) view.attr("release")();
-    } catch (py::error_already_set&) {
-      return false;
-    }
+    if (view && !release_view()) return false;
     view = py::object();
     return reinterpret_cast<SlotBuffer*>(exporter.ptr())->exports == 0;
   }
