@@ -45,9 +45,10 @@ def test_typed_roundtrip_in_process(lcmx_env):
             pub.publish(header_t())
 
 
-def test_raw_memoryview_released_after_callback(lcmx_env):
+def test_raw_memoryview_released_after_callback(lcmx_env, capfd):
     views = []
     contents = []
+    slices = []
     done = threading.Event()
     with lcmx.Runtime() as rt:
         node = rt.create_node("raw")
@@ -57,15 +58,20 @@ def test_raw_memoryview_released_after_callback(lcmx_env):
             assert isinstance(view, memoryview) and view.readonly
             contents.append(bytes(view))
             views.append(view)
-            done.set()
+            if len(views) == 2:
+                slices.append(view[1:3])  # a view of its own: cannot be revoked, is reported
+                done.set()
 
         node.subscribe_raw("PY_RAW", cb)
         assert pub.wait_for_subscribers(1, timeout=10)
         pub.publish(b"hello lcmx")
+        pub.publish(b"second")
         assert done.wait(10)
-    assert contents == [b"hello lcmx"]
+    assert contents == [b"hello lcmx", b"second"]
     with pytest.raises(ValueError):  # released: a view kept past its callback cannot read
         bytes(views[0])
+    assert capfd.readouterr().out.count("was kept past its callback") == 1
+    slices[0].release()
 
 
 def test_raw_loan_zero_copy_publish(lcmx_env):
