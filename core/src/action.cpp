@@ -901,20 +901,35 @@ CallResult<std::pair<GoalStatus, Bytes>> ActionClientCore::result(const std::str
   if (st.state == GoalState::lost || st.state == GoalState::rejected) return Result::success({st, {}}, server);
   // Our goal's server may be gone already (destroyed right after its final status): then the
   // end is all there is; asking would wait for a server that never answers.
-  bool alive = !mine;
-  for (const auto& s : client_servers(*goal_client))
-    alive = alive || (s.participant == server.participant && s.id == goal_server);
-  if (!alive) {
+  auto alive = [&] {
+    bool listed = !mine;
+    for (const auto& s : client_servers(*goal_client))
+      listed = listed || (s.participant == server.participant && s.id == goal_server);
+    return listed;
+  };
+  if (!alive()) {
     st.message += st.message.empty() ? "" : "; ";
     st.message += "the action server went away before its result was fetched";
     return Result::success({st, {}}, server);
   }
   lcmx_msgs::action_goal_ref_t ref;
   ref.goal_id = id;
-  const auto left = std::max<ms>(ms(100), std::chrono::duration_cast<ms>(deadline - Clock::now()));
-  auto r = call<lcmx_msgs::action_result_t>(*result_client, encode(ref), left, &server);
+  // Asked in slices of at most 1 s: a server that leaves right after the check above may never
+  // have answered the result client's probe, and then nothing tells the pinned call that it
+  // went away (it waited for the whole timeout); between slices, a server no longer listed
+  // ends the wait.
+  std::optional<CallResult<lcmx_msgs::action_result_t>> answer;
+  bool gone = false;
+  for (;;) {
+    const auto left = std::max<ms>(ms(100), std::chrono::duration_cast<ms>(deadline - Clock::now()));
+    const auto slice = std::min<ms>(left, ms(1000));
+    answer = call<lcmx_msgs::action_result_t>(*result_client, encode(ref), slice, &server);
+    if (answer->ok() || answer->error() != CallErrc::timeout || slice == left) break;
+    if ((gone = !alive())) break;
+  }
+  auto& r = *answer;
   if (!r) {
-    if (r.error() == CallErrc::server_gone || r.error() == CallErrc::no_server) {
+    if (gone || r.error() == CallErrc::server_gone || r.error() == CallErrc::no_server) {
       st.state = GoalState::lost;
       st.message = "the action server went away before the result was fetched";
       return Result::success({st, {}}, server);
@@ -996,6 +1011,18 @@ ActionServer Node::create_action_server_raw(std::string name, std::function<void
 
 RawActionClient Node::create_action_client_raw(std::string name) {
   return RawActionClient(detail::create_action_client(*impl_, std::move(name), {}));
+}
+
+ActionServer Node::create_action_server_raw(std::string name, detail::ActionTypes types,
+                                            std::function<void(RawActionGoal&)> execute,
+                                            std::function<std::string(std::span<const std::byte>)> accept,
+                                            ActionServerOptions options) {
+  return ActionServer(detail::create_action_server(*impl_, std::move(name), std::move(types), std::move(accept),
+                                                   std::move(execute), options));
+}
+
+RawActionClient Node::create_action_client_raw(std::string name, detail::ActionTypes types) {
+  return RawActionClient(detail::create_action_client(*impl_, std::move(name), std::move(types)));
 }
 
 }  // namespace lcmx

@@ -1019,4 +1019,13 @@ RawClient Node::create_client_raw(std::string name) {
   return RawClient(detail::create_client(*impl_, std::move(name), {}));
 }
 
+Service Node::create_service_raw(std::string name, detail::ServiceTypes types, detail::ServerHandler handler) {
+  if (!handler) throw Error(Errc::invalid_argument, "create_service_raw '" + name + "': empty handler");
+  return Service(detail::create_server(*impl_, std::move(name), std::move(types), std::move(handler)));
+}
+
+RawClient Node::create_client_raw(std::string name, detail::ServiceTypes types) {
+  return RawClient(detail::create_client(*impl_, std::move(name), std::move(types)));
+}
+
 }  // namespace lcmx

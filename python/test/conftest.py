@@ -6,6 +6,7 @@ starts, with short beacons and lease.
 """
 import os
 import queue
+import struct
 import subprocess
 import sys
 import threading
@@ -106,3 +107,32 @@ def procs():
 def python_script(code):
     """argv for a child Debian python3 (this interpreter) running code."""
     return [sys.executable, "-c", code]
+
+
+def summary(line):
+    """The key=value fields of a peer's report line ("SUMMARY channel=X received=20 ...")."""
+    return dict(kv.split("=", 1) for kv in line.split()[1:])
+
+
+def pattern(seq, n):
+    """The C++ peers' content: byte i of message seq is (i * 131 + seq * 7) & 0xFF."""
+    block = bytes(((i * 131 + seq * 7) & 0xFF) for i in range(256))
+    return (block * (n // 256 + 1))[:n]
+
+
+def image_fields(view):
+    """(seq, width, height, data) of an lcmx_examples.image_t encoding; data is a slice of
+    view (no copy). Fields: fingerprint, header (seq, stamp, frame_id), width, height, stride,
+    encoding, size, data."""
+    off = 8
+    seq = struct.unpack_from(">q", view, off)[0]
+    off += 16
+    off += 4 + struct.unpack_from(">i", view, off)[0]
+    w, h, _stride = struct.unpack_from(">iii", view, off)
+    off += 12
+    off += 4 + struct.unpack_from(">i", view, off)[0]
+    size = struct.unpack_from(">i", view, off)[0]
+    off += 4
+    if size != len(view) - off:
+        raise ValueError("image_t: size %d but %d bytes follow" % (size, len(view) - off))
+    return seq, w, h, view[off:off + size]

@@ -45,9 +45,10 @@ def test_typed_roundtrip_in_process(lcmx_env):
             pub.publish(header_t())
 
 
-def test_raw_memoryview_released_after_callback(lcmx_env):
+def test_raw_memoryview_released_after_callback(lcmx_env, capfd):
     views = []
     contents = []
+    slices = []
     done = threading.Event()
     with lcmx.Runtime() as rt:
         node = rt.create_node("raw")
@@ -57,15 +58,92 @@ def test_raw_memoryview_released_after_callback(lcmx_env):
             assert isinstance(view, memoryview) and view.readonly
             contents.append(bytes(view))
             views.append(view)
-            done.set()
+            if len(views) == 2:
+                slices.append(view[1:3])  # a view of its own: cannot be revoked, is reported
+                done.set()
 
         node.subscribe_raw("PY_RAW", cb)
         assert pub.wait_for_subscribers(1, timeout=10)
         pub.publish(b"hello lcmx")
+        pub.publish(b"second")
         assert done.wait(10)
-    assert contents == [b"hello lcmx"]
+    assert contents == [b"hello lcmx", b"second"]
     with pytest.raises(ValueError):  # released: a view kept past its callback cannot read
         bytes(views[0])
+    assert capfd.readouterr().out.count("was kept past its callback") == 1
+    slices[0].release()
+
+
+def test_raw_loan_zero_copy_publish(lcmx_env):
+    got = []
+    done = threading.Event()
+    with lcmx.Runtime() as rt:
+        node = rt.create_node("loaner")
+        pub = node.advertise_raw("PY_LOAN")
+
+        def cb(view):
+            got.append(bytes(view))
+            if len(got) == 2:
+                done.set()
+
+        node.subscribe_raw("PY_LOAN", cb)
+        assert pub.wait_for_subscribers(1, timeout=10)
+        with pub.loan(5) as buf:  # a writable view of the slot, published on leaving
+            assert not buf.readonly and len(buf) == 5
+            buf[:] = b"first"
+        with pytest.raises(RuntimeError):
+            with pub.loan(8) as buf:
+                buf[:3] = b"bad"
+                raise RuntimeError("dropped, never sent")
+        loan = pub.loan(64)
+        head = loan.view[:6]  # a slice: the slot cannot be published while it is alive
+        head[:] = b"second"
+        with pytest.raises(lcmx.Error):
+            loan.publish()
+        head.release()
+        loan.publish(6)  # 6 of the 64 bytes
+        with pytest.raises(lcmx.Error):
+            loan.publish()  # once
+        with pytest.raises(ValueError):
+            head[0]  # released
+        assert done.wait(10)
+        assert got == [b"first", b"second"]
+        with pytest.raises(TypeError):
+            node.advertise("PY_LOAN_TYPED", pose_t).loan(10)  # typed publishers publish messages
+
+
+def _python_thread_states():
+    import ctypes
+    api = ctypes.pythonapi
+    api.PyInterpreterState_Head.restype = ctypes.c_void_p
+    api.PyInterpreterState_ThreadHead.restype = ctypes.c_void_p
+    api.PyInterpreterState_ThreadHead.argtypes = [ctypes.c_void_p]
+    api.PyThreadState_Next.restype = ctypes.c_void_p
+    api.PyThreadState_Next.argtypes = [ctypes.c_void_p]
+    n, t = 0, api.PyInterpreterState_ThreadHead(api.PyInterpreterState_Head())
+    while t:
+        n, t = n + 1, api.PyThreadState_Next(t)
+    return n
+
+
+def test_executor_thread_states_freed_with_their_threads(lcmx_env):
+    """Executor threads keep their Python thread state between callbacks; it goes when the
+    thread ends (closed nodes), so making and closing nodes does not accumulate them."""
+    before = _python_thread_states()
+    with lcmx.Runtime() as rt:
+        pub = rt.create_node("ts_pub").advertise_raw("PY_TS")
+        for i in range(5):
+            got = threading.Event()
+            node = rt.create_node("ts_%d" % i)
+            sub = node.subscribe_raw("PY_TS", lambda view: got.set())
+            assert pub.wait_for_subscribers(1, timeout=10)
+            pub.publish(b"x")
+            assert got.wait(10)
+            sub.close()
+            node.close()
+        # An executor thread ends within its 1 s wait once its node is gone.
+        assert wait_for(lambda: _python_thread_states() == before, timeout=10), \
+            (before, _python_thread_states())
 
 
 def test_raising_callback_is_counted_and_executor_lives_on(lcmx_env, capfd):

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from conftest import unique_url
+from conftest import summary, unique_url
 
 PEER = os.environ["LCMX_TEST_PEER"]
 HOLDER = os.environ["LCMX_NETNS_HOLDER"]
@@ -74,7 +74,7 @@ def test_python_to_cpp_udp_across_hosts(lcmx_env, hosts, procs):
     sub.expect("READY")
     pub = procs([IP, "netns", "exec", hosts[0], sys.executable, "-c", _PUB], env=env)
     pub.expect("PUBLISHED 20", timeout=40)
-    s = dict(kv.split("=", 1) for kv in sub.expect("SUMMARY channel=PY_UDP", timeout=30).split()[1:])
+    s = summary(sub.expect("SUMMARY channel=PY_UDP", timeout=30))
     assert s["received"] == "20" and s["bad_content"] == "0" and s["paths"] == "udp", s
     assert sub.wait(20) == 0
     pub.send("quit")
@@ -97,23 +97,13 @@ def test_cpp_to_python_udp_across_hosts(lcmx_env, hosts, procs):
 # ---- through the Message Bridges: 6 MB images, a large topic ----
 
 _IMAGE_SUB = r"""
-import struct, threading, lcmx
-def pattern(seq, n):
-    block = bytes(((i * 131 + seq * 7) & 0xFF) for i in range(256))
-    return (block * (n // 256 + 1))[:n]
+import threading, lcmx
+from conftest import image_fields, pattern
 ok = []
 done = threading.Event()
 def cb(view):  # image_t's encoding, read in place
-    off = 8
-    seq = struct.unpack_from(">q", view, off)[0]
-    off += 16
-    off += 4 + struct.unpack_from(">i", view, off)[0]
-    w, h, stride = struct.unpack_from(">iii", view, off)
-    off += 12
-    off += 4 + struct.unpack_from(">i", view, off)[0]
-    size = struct.unpack_from(">i", view, off)[0]
-    off += 4
-    ok.append(size == w * h * 3 == len(view) - off and view[off:off + size] == pattern(seq, size))
+    seq, w, h, data = image_fields(view)
+    ok.append(len(data) == w * h * 3 and data == pattern(seq, len(data)))
     if len(ok) == 3:
         done.set()
 with lcmx.Runtime() as rt:
@@ -127,9 +117,7 @@ with lcmx.Runtime() as rt:
 _IMAGE_PUB = r"""
 import select, sys, lcmx
 from lcmx_examples import image_t
-def pattern(seq, n):
-    block = bytes(((i * 131 + seq * 7) & 0xFF) for i in range(256))
-    return (block * (n // 256 + 1))[:n]
+from conftest import pattern
 with lcmx.Runtime() as rt:
     pub = rt.create_node("py_img_pub").advertise("PY_BIG", image_t)
     assert pub.wait_for_subscribers(1, timeout=30)  # the local bridge, on demand of host B
@@ -196,7 +184,7 @@ def test_python_to_cpp_images_through_bridges(lcmx_env, hosts, procs, tmp_path):
                  "image", "--expect", "3", "--timeout-ms", "60000"], env=env)
     sub.expect("READY")
     pub = procs([IP, "netns", "exec", hosts[0], sys.executable, "-c", _IMAGE_PUB], env=env)
-    s = dict(kv.split("=", 1) for kv in sub.expect("SUMMARY channel=PY_BIG", timeout=60).split()[1:])
+    s = summary(sub.expect("SUMMARY channel=PY_BIG", timeout=60))
     assert int(s["received"]) >= 3 and s["bad_content"] == "0" and s["paths"] == "bridge", s
     assert s["decode_errors"] == "0", s
     assert sub.wait(20) == 0

@@ -1,16 +1,12 @@
 """Python <-> C++ over shared memory, with test/integration/peer.cpp's lcmx_test_peer."""
 import os
-import struct
 import threading
 
 import lcmx
+from conftest import image_fields, pattern, summary
 from lcmx_examples import pose_t
 
 PEER = os.environ["LCMX_TEST_PEER"]
-
-
-def summary(line):
-    return dict(kv.split("=", 1) for kv in line.split()[1:])
 
 
 def test_cpp_to_python_pose_shm(lcmx_env, procs):
@@ -61,11 +57,6 @@ def test_python_to_cpp_pose_shm(lcmx_env, procs):
         assert peer.wait(20) == 0
 
 
-def pattern(seq, n):
-    block = bytes(((i * 131 + seq * 7) & 0xFF) for i in range(256))
-    return (block * (n // 256 + 1))[:n]
-
-
 def test_cpp_to_python_6mb_zero_copy(lcmx_env, procs):
     """Raw receive of 6 MB images from shared memory: a read-only memoryview of the slot."""
     width, height = 2048, 1024  # 6 MiB of rgb8
@@ -75,20 +66,9 @@ def test_cpp_to_python_6mb_zero_copy(lcmx_env, procs):
         node = rt.create_node("py_images")
 
         def cb(view):
-            # image_t's encoding: fingerprint, header (seq, stamp, frame_id), width, height,
-            # stride, encoding, size, data.
-            off = 8
-            seq = struct.unpack_from(">q", view, off)[0]
-            off += 16
-            off += 4 + struct.unpack_from(">i", view, off)[0]
-            w, h, stride = struct.unpack_from(">iii", view, off)
-            off += 12
-            off += 4 + struct.unpack_from(">i", view, off)[0]
-            size = struct.unpack_from(">i", view, off)[0]
-            off += 4
-            data = view[off:off + size]  # a view, no copy
-            checked.append((seq, view.readonly, w * h * 3 == size == len(data),
-                            data == pattern(seq, size)))
+            seq, w, h, data = image_fields(view)  # data: a view, no copy
+            checked.append((seq, view.readonly, w * h * 3 == len(data),
+                            data == pattern(seq, len(data))))
             if len(checked) == 3:
                 done.set()
 

@@ -1,11 +1,14 @@
-"""README.md's Python tutorial, run as printed (with the C++ tutorial's .lcm file)."""
+"""README.md's Python tutorial (with the C++ tutorial's .lcm file) and docs/python.md's service
+and action examples, run as printed."""
 import os
 import pathlib
 import re
 import subprocess
 import sys
 
-README = pathlib.Path(__file__).resolve().parents[2] / "README.md"
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+README = ROOT / "README.md"
+PYTHON_MD = ROOT / "docs" / "python.md"
 
 
 def block_after(text, marker, lang):
@@ -31,3 +34,19 @@ def test_readme_tutorial(lcmx_env, tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout == "21.5 C\n", (out.stdout, out.stderr)
+
+
+def run_block(marker, tmp_path):
+    (tmp_path / "example.py").write_text(block_after(PYTHON_MD.read_text(), marker, "python"))
+    out = subprocess.run([sys.executable, "example.py"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    return out.stdout
+
+
+def test_python_md_service(lcmx_env, tmp_path):
+    assert run_block("<!-- python-service", tmp_path) == "7\n"
+
+
+def test_python_md_action(lcmx_env, tmp_path):
+    assert run_block("<!-- python-action", tmp_path) == "at 1.0\nat 2.0\nat 3.0\nsucceeded 3\n"

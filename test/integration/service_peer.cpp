@@ -7,8 +7,10 @@
 //       "block"  from now on a request with x < 0 prints "CALLED <x>" and never returns
 //       "quit"   (or EOF) prints "SERVED <requests>" and exits 0
 //   client --name N --calls K [--size BYTES] [--call-timeout-ms T] [--servers S] [--first X] [--go]
+//          [--no-wait]
 //     Waits for a server (for S servers with --servers), prints "CHOSEN participant=<id>" (the
-//     server calls go to), with --go waits for "go" on stdin, makes K calls (x = X..X+K-1,
+//     server calls go to; --no-wait: neither waits nor prints, e.g. for a server of other
+//     types), with --go waits for "go" on stdin, makes K calls (x = X..X+K-1,
 //     default X = 0), checks every response's seq and bytes,
 //     prints "CALLS ok=<n> failed=<f> wrong=<w> path=<path of the last answer>
 //     server=<participant> error=<first error or ->" and exits 0.
@@ -87,18 +89,20 @@ int run_server(const std::string& name) {
 }
 
 int run_client(const std::string& name, int calls, int size, int call_timeout_ms,
-               std::size_t servers_wanted, int first, bool go) {
+               std::size_t servers_wanted, int first, bool go, bool no_wait) {
   auto rt = lcmx::Runtime::create();
   auto node = rt.create_node("service_peer_client");
   auto client = node.create_client<lcmx_examples::pose_t, lcmx_examples::bench_t>(name);
-  if (!client.wait_for_service(20s)) {
+  if (no_wait) {
+    servers_wanted = 0;
+  } else if (!client.wait_for_service(20s)) {
     say("CALLS ok=0 failed=" + std::to_string(calls) + " wrong=0 path=- server=0 error=no-server");
     return 0;
   }
   const auto deadline = std::chrono::steady_clock::now() + 20s;
   while (client.servers().size() < servers_wanted && std::chrono::steady_clock::now() < deadline)
     std::this_thread::sleep_for(5ms);  // condition polling with a deadline
-  say("CHOSEN participant=" + std::to_string(client.servers().front().participant));
+  if (!no_wait) say("CHOSEN participant=" + std::to_string(client.servers().front().participant));
   if (go) {
     std::string line;
     while (std::getline(std::cin, line) && line != "go") {
@@ -203,7 +207,7 @@ int main(int argc, char** argv) {
   int calls = 10, size = 16, call_timeout_ms = 5000, timeout_ms = 60000;
   std::size_t servers_wanted = 1;
   int first = 0;
-  bool go = false;
+  bool go = false, no_wait = false;
   app.require_subcommand(1);
   auto* server = app.add_subcommand("server", "serve NAME");
   auto* client = app.add_subcommand("client", "call NAME");
@@ -222,6 +226,7 @@ int main(int argc, char** argv) {
   client->add_option("--servers", servers_wanted, "wait until this many servers are known");
   client->add_option("--first", first, "x of the first call");
   client->add_flag("--go", go, "wait for \"go\" on stdin before calling");
+  client->add_flag("--no-wait", no_wait, "call without waiting for a server");
   CLI11_PARSE(app, argc, argv);
   std::thread([timeout_ms] {
     std::this_thread::sleep_for(std::chrono::milliseconds(timeout_ms));
@@ -232,7 +237,7 @@ int main(int argc, char** argv) {
     if (*server) return run_server(name);
     if (*action_server) return run_action_server(name, client_timeout_ms);
     if (*action_client) return run_action_client(name, x);
-    return run_client(name, calls, size, call_timeout_ms, servers_wanted, first, go);
+    return run_client(name, calls, size, call_timeout_ms, servers_wanted, first, go, no_wait);
   } catch (const std::exception& e) {
     say(std::string("FATAL ") + e.what());
     return 1;

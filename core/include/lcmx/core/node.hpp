@@ -150,6 +150,11 @@ class Node {
   }
   // A client over raw bytes: matches servers of any type.
   RawClient create_client_raw(std::string name);
+  // A raw server / client that announce lcm-gen types (names and fingerprints, as typed ones
+  // do), so a peer of other types gets CallErrc::type_mismatch. Bytes are not checked here.
+  // Used by the Python binding (lcm-gen's Python types).
+  Service create_service_raw(std::string name, detail::ServiceTypes types, detail::ServerHandler handler);
+  RawClient create_client_raw(std::string name, detail::ServiceTypes types);
 
   // Actions (action.hpp). `execute`: void(ActionGoal<G, F, R>&), on a thread of its own per
   // goal. `accept` (optional): bool(const G&), or std::string(const G&) ("" accepts, anything
@@ -200,6 +205,13 @@ class Node {
         {G::getTypeName(), F::getTypeName(), R::getTypeName(), G::getHash(), F::getHash(), R::getHash()}));
   }
   RawActionClient create_action_client_raw(std::string name);
+  // The same with lcm-gen types announced (Python binding): peers of other types get
+  // CallErrc::type_mismatch.
+  ActionServer create_action_server_raw(std::string name, detail::ActionTypes types,
+                                        std::function<void(RawActionGoal&)> execute,
+                                        std::function<std::string(std::span<const std::byte>)> accept,
+                                        ActionServerOptions options);
+  RawActionClient create_action_client_raw(std::string name, detail::ActionTypes types);
 
   // Manual executor only: waits up to `timeout` for messages and runs the callbacks of what
   // arrived. Returns the number of callbacks run. Throws Error(invalid_argument) on a node
