@@ -37,6 +37,8 @@ class TypedType {
   const types::StructType& lcm_type() const noexcept { return *type_; }
   const std::string& dds_type_name() const noexcept { return name_; }
   std::size_t sample_size() const noexcept;
+  // The descriptor's opcodes (as many words as descriptor()->m_ops holds).
+  std::span<const std::uint32_t> ops() const noexcept { return ops_; }
 
   // A sample built from an LCM message: its memory and everything its pointers point to, owned
   // here (release flags false: DDS never frees them). Pass data() to dds_write.
