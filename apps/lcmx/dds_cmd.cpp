@@ -39,7 +39,9 @@ void print_status(std::ostream& out, const lcmx_msgs::dds_gateway_status_t& s) {
   for (const auto& m : s.mappings) {
     std::string state;
     if (m.direction != "from_dds") state += m.exporting ? "out:" + std::to_string(m.dds_readers) + "rd " : "out:idle ";
-    if (m.direction != "to_dds") state += m.importing ? "in:" + std::to_string(m.lcmx_subscribers) + "sub" : "in:idle";
+    if (m.direction != "to_dds")
+      state += m.importing ? "in:" + std::to_string(m.lcmx_subscribers) + "sub/" + std::to_string(m.dds_writers) + "wr"
+                           : "in:idle";
     out << "  " << pad(m.channel, 18) << pad(m.topic, 20) << pad(m.mode, 7) << pad(m.direction, 9) << pad(state, 18)
         << pad(std::to_string(m.exported), 10) << pad(std::to_string(m.exported_bytes), 12)
         << pad(std::to_string(m.export_drops), 9) << pad(std::to_string(m.imported), 9)
@@ -61,7 +63,8 @@ std::string status_json(const lcmx_msgs::dds_gateway_status_t& s) {
       << ",\"dds_type\":" << json_str(m.dds_type) << ",\"mode\":" << json_str(m.mode)
       << ",\"direction\":" << json_str(m.direction) << ",\"exporting\":" << (m.exporting ? "true" : "false")
       << ",\"importing\":" << (m.importing ? "true" : "false") << ",\"dds_readers\":" << m.dds_readers
-      << ",\"lcmx_subscribers\":" << m.lcmx_subscribers << ",\"exported\":" << m.exported
+      << ",\"lcmx_subscribers\":" << m.lcmx_subscribers << ",\"dds_writers\":" << m.dds_writers
+      << ",\"exported\":" << m.exported
       << ",\"exported_bytes\":" << m.exported_bytes << ",\"export_drops\":" << m.export_drops
       << ",\"imported\":" << m.imported << ",\"imported_bytes\":" << m.imported_bytes
       << ",\"import_drops\":" << m.import_drops << ",\"suppressed\":" << m.suppressed << ",\"errors\":[";

@@ -59,7 +59,7 @@ struct Mapping {
 
   std::atomic<std::uint64_t> exported{0}, exported_bytes{0}, export_drops{0};
   std::atomic<std::uint64_t> imported{0}, imported_bytes{0}, import_drops{0}, suppressed{0};
-  std::atomic<int> dds_readers{0}, lcmx_subscribers{0};
+  std::atomic<int> dds_readers{0}, lcmx_subscribers{0}, dds_writers{0};
 
   mutable std::mutex err_mu;
   std::vector<std::string> errors;  // first 16 distinct
@@ -281,6 +281,10 @@ void Gateway::Impl::update_export_demand(Mapping& m) {
 void Gateway::Impl::update_import_demand(Mapping& m) {
   const auto subs = m.import_pub.subscriber_count();
   m.lcmx_subscribers.store(static_cast<int>(subs));
+  dds_subscription_matched_status_t sm{};
+  m.dds_writers.store(m.reader && dds_get_subscription_matched_status(m.reader.get(), &sm) == DDS_RETCODE_OK
+                          ? static_cast<int>(sm.current_count)
+                          : 0);
   if (subs > 0 && !m.reader) {
     Qos q;
     dds_qset_reliability(q.get(), m.cfg.reliability == Reliability::reliable ? DDS_RELIABILITY_RELIABLE
@@ -382,6 +386,7 @@ lcmx_msgs::dds_gateway_status_t Gateway::Impl::status() const {
     ms.direction = to_string(m->cfg.direction);
     ms.dds_readers = m->dds_readers.load();
     ms.lcmx_subscribers = m->lcmx_subscribers.load();
+    ms.dds_writers = m->dds_writers.load();
     ms.exporting = m->cfg.exports() && ms.dds_readers > 0 ? 1 : 0;
     ms.importing = m->cfg.imports() && ms.lcmx_subscribers > 0 ? 1 : 0;
     ms.exported = static_cast<std::int64_t>(m->exported.load());

@@ -1,7 +1,8 @@
 // The lcmx side of the DDS gateway's tests, as a process (so it can run in an emulated host):
-//   lcmx_dds_lcmx_peer pub CHANNEL COUNT     waits for a subscriber (the gateway's export),
-//                                            publishes lcmx_ddstest::sample_t seq 0..COUNT-1
-//   lcmx_dds_lcmx_peer sub CHANNEL COUNT     prints COUNT received sample_t, one line each
+//   lcmx_dds_lcmx_peer pub CHANNEL COUNT [SUBS]  waits for SUBS subscribers (default 1: the
+//                                            gateway's export), publishes sample_t seq 0..COUNT-1
+//   lcmx_dds_lcmx_peer sub CHANNEL COUNT [stay]  prints COUNT received sample_t, one line each;
+//                                            with stay, then "done" and on until stdin closes
 //   lcmx_dds_lcmx_peer image CHANNEL BYTES   publishes one lcmx_examples::image_t of BYTES data
 // Prints "ready" when its endpoint exists; exits 0 when done, 1 on timeout (20 s).
 #include <cstdio>
@@ -58,8 +59,9 @@ int main(int argc, char** argv) {
   if (mode == "pub") {
     auto pub = node.advertise<lcmx_ddstest::sample_t>(channel);
     std::cout << "ready" << std::endl;
-    if (!pub.wait_for_subscribers(1, 20000ms)) {
-      std::cerr << "timeout: no subscriber\n";
+    const std::size_t subs = argc > 4 ? static_cast<std::size_t>(std::atol(argv[4])) : 1;
+    if (!pub.wait_for_subscribers(subs, 20000ms)) {
+      std::cerr << "timeout: fewer than " << subs << " subscribers\n";
       return 1;
     }
     for (long k = 0; k < count; ++k) pub.publish(make_sample(static_cast<int>(k)));
@@ -115,6 +117,12 @@ int main(int argc, char** argv) {
   if (!cv.wait_for(lock, 20s, [&] { return got >= count; })) {
     std::cerr << "timeout: " << got << " of " << count << "\n";
     return 1;
+  }
+  if (argc > 4 && std::string(argv[4]) == "stay") {
+    std::cout << "done" << std::endl;
+    lock.unlock();
+    std::string line;
+    std::getline(std::cin, line);
   }
   return 0;
 }
