@@ -94,6 +94,7 @@ int main(int argc, char** argv) {
 
   if (strncmp(mode, "read", 4) == 0) {
     dds_entity_t rd = check(dds_create_reader(pp, topic, q, NULL), "reader");
+    dds_delete_qos(q);
     printf("ready\n");
     fflush(stdout);
     int got = 0;
@@ -132,6 +133,7 @@ int main(int argc, char** argv) {
   }
 
   dds_entity_t wr = check(dds_create_writer(pp, topic, q, NULL), "writer");
+  dds_delete_qos(q);
   printf("ready\n");
   fflush(stdout);
   if (strcmp(mode, "write-other") == 0) {
