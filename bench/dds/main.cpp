@@ -79,7 +79,7 @@ int sink(const std::string& topic, long count) {
   std::vector<double> lat;
   std::uint64_t last_seq = 0, bytes = 0, lost = 0;
   long got = 0;
-  std::int64_t first = 0, last = 0;
+  std::int64_t first = 0, last = 0;  // first: the first received sample's send time
   const std::int64_t deadline = now_ns() + 120'000'000'000ll;
   // Until `count` samples, or 3 s without one after the first (the rest was lost upstream).
   while (got < count && now_ns() < deadline && !(got > 0 && now_ns() - last > 3'000'000'000ll)) {
@@ -99,7 +99,7 @@ int sink(const std::string& topic, long count) {
         std::memcpy(&seq, e->payload._buffer + 16, 8);
         if (got > 0 && seq > last_seq + 1) lost += seq - last_seq - 1;
         last_seq = seq;
-        if (got == 0) first = t;
+        if (got == 0) first = sent;
         last = t;
         bytes += e->payload._length;
         lat.push_back(static_cast<double>(t - sent) / 1000.0);

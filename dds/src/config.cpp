@@ -90,7 +90,7 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
   // The pre-scan against toml++ 3.3.0's non-ASCII bug, then the parse (as the bridge's).
   const toml::table root = bridge::detail::parse_toml(text, file);
   c.only(root, "", {"name", "domain", "partition", "interface", "allow_multicast", "peers", "types",
-                    "status_period_ms", "ros2", "map"});
+                    "status_period_ms", "spin_us", "ros2", "map"});
   Config cfg;
   cfg.file = file;
   cfg.name = c.string(root, "", "name", true);
@@ -120,6 +120,7 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
     c.fail("peers", "allow_multicast = false needs at least one peer (else nothing is discovered)",
            root.get("allow_multicast"));
   cfg.status_period = std::chrono::milliseconds(c.integer(root, "", "status_period_ms", false, 1000, 50, 600000));
+  cfg.spin = std::chrono::microseconds(c.integer(root, "", "spin_us", false, 50, 0, 100000));
   const bool ros2_default = c.boolean(root, "", "ros2", false);
 
   for (const auto& p : c.strings(root, "", "types", false)) {

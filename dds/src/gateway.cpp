@@ -450,7 +450,12 @@ Gateway Gateway::start(Config cfg, RuntimeOptions options) {
   g.cfg = std::move(cfg);
   options.dds_gateway = true;
   g.runtime.emplace(Runtime::create(options));
-  g.node.emplace(g.runtime->create_node("dds_gateway_" + g.cfg.name));
+  NodeOptions no;
+  if (g.cfg.spin.count() > 0) {
+    no.executor.wait = WaitStrategy::spin_then_block;
+    no.executor.spin = g.cfg.spin;
+  }
+  g.node.emplace(g.runtime->create_node("dds_gateway_" + g.cfg.name, no));
   g.status_pub = g.node->advertise<lcmx_msgs::dds_gateway_status_t>(kStatusChannel);
 
   const std::string xml = g.cfg.cyclone_xml();
