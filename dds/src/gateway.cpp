@@ -250,16 +250,21 @@ void Gateway::Impl::update_export_demand(Mapping& m) {
   dds_instance_handle_t handles[256];
   const dds_return_t n = dds_get_matched_subscriptions(m.writer.get(), handles, 256);
   int native = 0;
+  std::unordered_map<dds_instance_handle_t, bool> current;  // the cache keeps matched readers only
   for (dds_return_t i = 0; i < n && i < 256; ++i) {
-    auto it = m.reader_is_gateway.find(handles[i]);
-    if (it == m.reader_is_gateway.end()) {
+    bool gw_reader = false;
+    if (auto it = m.reader_is_gateway.find(handles[i]); it != m.reader_is_gateway.end()) {
+      gw_reader = it->second;
+    } else {
       dds_builtintopic_endpoint_t* ep = dds_get_matched_subscription_data(m.writer.get(), handles[i]);
       if (!ep) continue;  // gone meanwhile
-      it = m.reader_is_gateway.emplace(handles[i], is_gateway_qos(ep->qos)).first;
+      gw_reader = is_gateway_qos(ep->qos);
       dds_builtintopic_free_endpoint(ep);
     }
-    if (!it->second) ++native;
+    current.emplace(handles[i], gw_reader);
+    if (!gw_reader) ++native;
   }
+  m.reader_is_gateway = std::move(current);
   m.dds_readers.store(native);
   if (native > 0 && !m.export_sub) {
     SubscriberOptions so;
