@@ -124,7 +124,7 @@ int sink(const std::string& topic, long count) {
 int dds_source(const std::string& topic, long count, std::size_t size, double hz) {
   const dds_entity_t pp = check(dds_create_participant(domain(), nullptr, nullptr), "participant");
   const dds_entity_t tp = check(dds_create_topic(pp, &lcmx_dds_Envelope_desc, topic.c_str(), nullptr, nullptr), "topic");
-  dds_qos_t* q = qos(hz <= 0);
+  dds_qos_t* q = qos(false);  // reliable KEEP_LAST 16: the gateway's writer's defaults
   const dds_entity_t wr = check(dds_create_writer(pp, tp, q, nullptr), "writer");
   dds_delete_qos(q);
   dds_set_status_mask(wr, DDS_PUBLICATION_MATCHED_STATUS);

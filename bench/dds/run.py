@@ -126,7 +126,7 @@ for s, d, gg in rows:
     print("| %d | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f |" % (s, d["p50_us"], d["p99_us"], gg["p50_us"], gg["p99_us"],
                                                            gg["p50_us"] / d["p50_us"], gg["p99_us"] / d["p99_us"]))
 print("\n### 6 MB throughput at the reader, Mbit/s\n")
-print("| DDS writer -> reader | lcmx -> gateway -> reader | ddsperf pub/sub (median of 1 s lines) |")
+print("| DDS writer -> reader (reliable, KEEP_LAST 16 as the gateway) | lcmx -> gateway -> reader | ddsperf pub/sub (median of 1 s lines) |")
 print("|---:|---:|---:|")
 print("| %.0f (%d of %d received) | %.0f (%d of %d received) | %.0f |" % (
     thr["direct"]["mbps"], thr["direct"]["n"], n6, thr["gateway"]["mbps"], thr["gateway"]["n"], n6, thr["ddsperf"]["mbps"]))
