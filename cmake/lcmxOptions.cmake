@@ -72,3 +72,26 @@ if(NOT DEFINED LCMX_WITH_PYTHON AND NOT Python3_FOUND)
   message(STATUS "lcmx: Python 3 headers not found, LCMX_WITH_PYTHON=OFF")
 endif()
 lcmx_optional_dependency(LCMX_WITH_PYTHON "Build the Python module (pybind11)" pybind11)
+
+# The Cyclone DDS gateway (dds/, `lcmx dds-gateway`, `lcmx idl`): ON when Cyclone DDS's C API
+# (Debian: cyclonedds-dev) and its IDL compiler idlc (cyclonedds-tools) are found; ON forces
+# both (REQUIRED); OFF leaves dds/ out, and nothing else of lcmx links Cyclone.
+# ThreadSanitizer builds leave it out by default: Cyclone is not instrumented, and its threads
+# call the gateway's listeners (TSan would report its own blind spots as races).
+if(NOT DEFINED LCMX_WITH_DDS AND LCMX_SANITIZE_THREAD)
+  set(LCMX_WITH_DDS OFF CACHE BOOL "Build the Cyclone DDS gateway (dds/)")
+  message(STATUS "lcmx: ThreadSanitizer build, LCMX_WITH_DDS=OFF")
+endif()
+if(NOT DEFINED LCMX_WITH_DDS)
+  find_package(CycloneDDS QUIET)
+  find_program(LCMX_IDLC_EXECUTABLE idlc)
+  if(CycloneDDS_FOUND AND LCMX_IDLC_EXECUTABLE)
+    set(LCMX_WITH_DDS ON CACHE BOOL "Build the Cyclone DDS gateway (dds/)")
+  else()
+    set(LCMX_WITH_DDS OFF CACHE BOOL "Build the Cyclone DDS gateway (dds/)")
+    message(STATUS "lcmx: Cyclone DDS (cyclonedds-dev) or idlc (cyclonedds-tools) not found, LCMX_WITH_DDS=OFF")
+  endif()
+elseif(LCMX_WITH_DDS)
+  find_package(CycloneDDS REQUIRED)
+  find_program(LCMX_IDLC_EXECUTABLE idlc REQUIRED)
+endif()

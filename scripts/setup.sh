@@ -15,6 +15,7 @@ packages=(
   python3 python3-jsonschema       # tests: the independent MCAP reader (test/integration/mcap_check.py)
   python3-dev pybind11-dev python3-pytest  # the Python module (python/) and its tests
   nlohmann-json3-dev               # lcmx::types from_json (lcmx pub)
+  cyclonedds-dev cyclonedds-tools  # the DDS gateway (dds/: Cyclone DDS C API, idlc, ddsperf)
   iproute2 procps                  # network namespaces for multi-host tests, ps/pgrep
   tmux                             # tests of lcmx record/play on a terminal (status line, space bar)
   iperf3                           # bench/bridge: TCP reference on the emulated link

@@ -16,6 +16,9 @@
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/types/schema.hpp"
 #include "bridge_cmd.hpp"
+#ifdef LCMX_WITH_DDS
+#include "dds_cmds.hpp"
+#endif
 #include "echo_cmds.hpp"
 #include "log_cmds.hpp"
 #include "monitor_cmds.hpp"
@@ -130,6 +133,10 @@ int main(int argc, char** argv) {
   verbs.push_back(lcmx::cli::add_call(app, g));
   verbs.push_back(lcmx::cli::add_actions(app, g));
   verbs.push_back(lcmx::cli::add_action(app, g));
+#ifdef LCMX_WITH_DDS
+  verbs.push_back(lcmx::cli::add_dds_gateway(app, g));
+  verbs.push_back(lcmx::cli::add_idl(app, g));
+#endif
 
   // An unknown verb is named (also before --help, which would otherwise print the top-level help).
   if (const auto verb = verb_of(app, argc, argv)) {

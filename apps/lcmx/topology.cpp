@@ -139,8 +139,14 @@ void print_topics(std::ostream& out, const std::vector<discovery::Participant>& 
     std::string type;
     for (const auto& t : names) type += (type.empty() ? "" : " | ") + t;
     if (type.empty()) type = "raw";
+    // Endpoints of DDS gateways (FLAG_DDS_GATEWAY): the channel is mapped to a DDS topic.
+    std::set<std::string> gateways;
+    for (const auto& r : refs)
+      if (r.b->flags & Beacon::FLAG_DDS_GATEWAY) gateways.insert(r.b->process_name + " pid " + std::to_string(r.b->pid));
+    std::string dds;
+    for (const auto& g : gateways) dds += (dds.empty() ? "  DDS-mapped by " : ", ") + g;
     out << topic << "  [" << type << "]  " << npub << " publisher(s), " << nsub
-        << " subscriber(s)" << (names.size() > 1 ? "  CONFLICT: different types" : "") << "\n";
+        << " subscriber(s)" << (names.size() > 1 ? "  CONFLICT: different types" : "") << dds << "\n";
     for (const auto& r : refs) {
       if (r.e->kind != Endpoint::KIND_PUBLISHER) continue;
       out << "  pub " << who(*r.b, *r.e) << "  host " << host_hex(r.b->host_id) << "  "
@@ -215,6 +221,9 @@ void print_topics_json(std::ostream& out, const std::vector<discovery::Participa
       if (r.e->fingerprint != 0) names.insert(type_label(*r.e, types));
     j << (first_topic ? "" : ",") << "{\"topic\":" << json_str(topic) << ",\"types\":"
       << json_strings({names.begin(), names.end()}) << ",\"conflict\":" << (names.size() > 1 ? "true" : "false")
+      << ",\"dds_mapped\":"
+      << (std::any_of(refs.begin(), refs.end(), [](const Ref& r) { return (r.b->flags & Beacon::FLAG_DDS_GATEWAY) != 0; })
+              ? "true" : "false")
       << ",\"publishers\":[";
     first_topic = false;
     bool first = true;

@@ -15,22 +15,12 @@
 #include <sstream>
 #include <toml++/toml.h>
 
+#include "lcmx/bridge/detail/toml_check.hpp"
+
 namespace lcmx::bridge {
 namespace {
 
 constexpr std::int64_t kMaxMs = 600000;
-
-bool valid_name(std::string_view s, std::size_t max) {
-  if (s.empty() || s.size() > max) return false;
-  return std::all_of(s.begin(), s.end(), [](char c) {
-    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
-  });
-}
-
-bool valid_ipv4(const std::string& s) {
-  in_addr a{};
-  return ::inet_pton(AF_INET, s.c_str(), &a) == 1;
-}
 
 bool valid_z85_key(const std::string& k) {
   if (k.size() != 40) return false;
@@ -38,148 +28,24 @@ bool valid_z85_key(const std::string& k) {
   return ::zmq_z85_decode(raw, k.c_str()) != nullptr;
 }
 
-// Errors name the file, the key path and, when known, the line.
-class Checker {
- public:
-  explicit Checker(std::filesystem::path file) : file_(std::move(file)) {}
+using detail::Checker;
+using detail::valid_ipv4;
+using detail::valid_name;
 
-  [[noreturn]] void fail(const std::string& key, const std::string& what, const toml::node* at = nullptr) const {
-    std::string msg = file_.string() + ": " + key + ": " + what;
-    if (at && at->source().begin.line > 0) msg += " (line " + std::to_string(at->source().begin.line) + ")";
-    throw ConfigError(msg);
+// A CURVE key file named by config key `key_name`; its errors name that key.
+std::string key_of(const Checker& c, const std::string& key_name, const std::filesystem::path& p) {
+  try {
+    return read_key_file(p);
+  } catch (const ConfigError& e) {
+    c.fail(key_name, e.what());
   }
-
-  // Every key of `t` must be in `known`.
-  void only(const toml::table& t, const std::string& prefix, std::initializer_list<std::string_view> known) const {
-    for (auto&& [k, v] : t) {
-      if (std::find(known.begin(), known.end(), k.str()) == known.end()) {
-        std::string list;
-        for (auto x : known) list += (list.empty() ? "" : ", ") + std::string(x);
-        fail(prefix + std::string(k.str()), "unknown key (expected one of: " + list + ")", &v);
-      }
-    }
-  }
-
-  std::string string(const toml::table& t, const std::string& prefix, std::string_view key, bool required,
-                     std::string def = {}) const {
-    const toml::node* n = t.get(key);
-    if (!n) {
-      if (required) fail(prefix + std::string(key), "missing (required)");
-      return def;
-    }
-    if (!n->is_string()) fail(prefix + std::string(key), "must be a string", n);
-    return n->as_string()->get();
-  }
-
-  std::int64_t integer(const toml::table& t, const std::string& prefix, std::string_view key, bool required,
-                       std::int64_t def, std::int64_t lo, std::int64_t hi) const {
-    const toml::node* n = t.get(key);
-    if (!n) {
-      if (required) fail(prefix + std::string(key), "missing (required)");
-      return def;
-    }
-    const std::string range = "must be an integer from " + std::to_string(lo) + " to " + std::to_string(hi);
-    if (!n->is_integer()) fail(prefix + std::string(key), range, n);
-    const std::int64_t v = n->as_integer()->get();
-    if (v < lo || v > hi) fail(prefix + std::string(key), range + " (got " + std::to_string(v) + ")", n);
-    return v;
-  }
-
-  bool boolean(const toml::table& t, const std::string& prefix, std::string_view key, bool def) const {
-    const toml::node* n = t.get(key);
-    if (!n) return def;
-    if (!n->is_boolean()) fail(prefix + std::string(key), "must be true or false", n);
-    return n->as_boolean()->get();
-  }
-
-  std::vector<std::string> strings(const toml::table& t, const std::string& prefix, std::string_view key,
-                                   bool required, std::vector<std::string> def = {}) const {
-    const toml::node* n = t.get(key);
-    if (!n) {
-      if (required) fail(prefix + std::string(key), "missing (required)");
-      return def;
-    }
-    const toml::array* a = n->as_array();
-    if (!a) fail(prefix + std::string(key), "must be an array of strings", n);
-    std::vector<std::string> out;
-    for (std::size_t i = 0; i < a->size(); ++i) {
-      const toml::node& e = *a->get(i);
-      if (!e.is_string())
-        fail(prefix + std::string(key) + "[" + std::to_string(i) + "]", "must be a string", &e);
-      out.push_back(e.as_string()->get());
-    }
-    return out;
-  }
-
-  // An array of tables ([[x]] or [ {..}, {..} ]); empty if absent.
-  std::vector<const toml::table*> tables(const toml::table& t, const std::string& prefix, std::string_view key) const {
-    std::vector<const toml::table*> out;
-    const toml::node* n = t.get(key);
-    if (!n) return out;
-    const toml::array* a = n->as_array();
-    if (!a) fail(prefix + std::string(key), "must be an array of tables ([[" + std::string(key) + "]])", n);
-    for (std::size_t i = 0; i < a->size(); ++i) {
-      const toml::node& e = *a->get(i);
-      if (!e.is_table())
-        fail(prefix + std::string(key) + "[" + std::to_string(i) + "]", "must be a table", &e);
-      out.push_back(e.as_table());
-    }
-    return out;
-  }
-
-  std::filesystem::path path(const std::string& value) const {
-    std::filesystem::path p(value);
-    if (p.is_relative()) p = file_.parent_path() / p;
-    return p;
-  }
-
-  std::string key(const std::string& key_name, const std::filesystem::path& p) const {
-    try {
-      return read_key_file(p);
-    } catch (const ConfigError& e) {
-      fail(key_name, e.what());
-    }
-  }
-
- private:
-  std::filesystem::path file_;
-};
+}
 
 bool glob_match(const std::vector<std::string>& globs, std::string_view topic) {
   const std::string t(topic);
   for (const auto& g : globs)
     if (::fnmatch(g.c_str(), t.c_str(), 0) == 0) return true;
   return false;
-}
-
-// toml++ 3.3.0 (Debian 12) reaches __builtin_unreachable() (undefined behaviour) when it asks
-// whether a non-ASCII character is whitespace (its is_non_ascii_horizontal_whitespace has no
-// case for most code points; upstream marzer/tomlplusplus#190 and #295, fixed after 3.3.0),
-// which it does wherever it scans a bare token, a key or the whitespace after a line-ending
-// backslash: `name = "a"é`, `x = 3.o[".ƹ`, `s = """` + newline + `# """é` (found by
-// fuzz_bridge_config, three times). Telling those places apart means lexing exactly as toml++
-// does, so the rule is simple instead: non-ASCII characters only in comment lines (first
-// non-blank character '#'). Such a line is a comment in every state in which toml++ goes on
-// reading, except inside a multi-line string (a single-line string or an inline table cannot
-// span lines: toml++ stops at the newline with an error). So a file with a multi-line string
-// delimiter (""" or ''', anywhere) must be ASCII throughout. With ASCII input toml++ never
-// reaches that code: escapes decode into string values, never into a whitespace test. lcmx's
-// keys and values (names, addresses, channel globs, key paths) are ASCII. Returns the 1-based
-// line of the first refused non-ASCII byte, or 0.
-std::size_t refused_non_ascii_line(std::string_view t) {
-  const bool multi_line_strings =
-      t.find(R"(""")") != std::string_view::npos || t.find("'''") != std::string_view::npos;
-  std::size_t line = 1;
-  for (std::size_t i = 0; i < t.size(); ++line) {
-    const std::size_t end = std::min(t.find('\n', i), t.size());
-    const std::size_t first = t.find_first_not_of(" \t", i);
-    const bool comment = !multi_line_strings && first < end && t[first] == '#';
-    if (!comment)
-      for (std::size_t k = i; k < end; ++k)
-        if (static_cast<unsigned char>(t[k]) >= 0x80) return line;
-    i = end + 1;
-  }
-  return 0;
 }
 
 }  // namespace
@@ -194,17 +60,8 @@ bool Config::carried(std::string_view topic) const { return glob_match(carry, to
 
 Config parse_config(std::string_view text, const std::filesystem::path& file) {
   Checker c(file);
-  if (const auto line = refused_non_ascii_line(text))
-    throw ConfigError(file.string() + ": line " + std::to_string(line) +
-                      ": a non-ASCII character (allowed only in comment lines, and nowhere in a file with a "
-                      "multi-line string)");
-  toml::table root;
-  try {
-    root = toml::parse(text, file.string());
-  } catch (const toml::parse_error& e) {
-    throw ConfigError(file.string() + ": line " + std::to_string(e.source().begin.line) + ": " +
-                      std::string(e.description()));
-  }
+  // The pre-scan against toml++ 3.3.0's non-ASCII bug, then the parse (detail/toml_check.hpp).
+  const toml::table root = detail::parse_toml(text, file);
   c.only(root, "", {"name", "listen", "control_port", "carry", "heartbeat_ms", "link_timeout_ms",
                     "failback_hold_ms", "status_period_ms", "channel", "peer", "security"});
   Config cfg;
@@ -287,8 +144,8 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
       if (!curve_available()) c.fail("security.curve", "this libzmq was built without CURVE support", t->get("curve"));
       cfg.security.secret_key_file = c.path(sk);
       cfg.security.public_key_file = c.path(pk);
-      cfg.security.secret_key = c.key("security.secret_key_file", cfg.security.secret_key_file);
-      cfg.security.public_key = c.key("security.public_key_file", cfg.security.public_key_file);
+      cfg.security.secret_key = key_of(c, "security.secret_key_file", cfg.security.secret_key_file);
+      cfg.security.public_key = key_of(c, "security.public_key_file", cfg.security.public_key_file);
       char derived[41] = {};
       if (::zmq_curve_public(derived, cfg.security.secret_key.c_str()) != 0 || cfg.security.public_key != derived)
         c.fail("security.public_key_file", "does not hold the public key of security.secret_key_file");
@@ -330,7 +187,7 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
     const auto pk = c.string(t, p, "public_key_file", cfg.security.curve);
     if (cfg.security.curve) {
       peer.public_key_file = c.path(pk);
-      peer.public_key = c.key(p + "public_key_file", peer.public_key_file);
+      peer.public_key = key_of(c, p + "public_key_file", peer.public_key_file);
     }
     cfg.peers.push_back(std::move(peer));
   }

@@ -29,6 +29,7 @@ void RuntimeImpl::match_local_locked(PublisherImpl& pub, SubscriberCore& sub,
                                      std::vector<Event>& events) {
   if (pub.channel() != sub.channel()) return;
   if (options.bridge && !sub.options().from_bridges) return;  // our own republished messages
+  if (options.dds_gateway && !sub.options().from_dds_gateways) return;  // our own imports
   if (!compatible(pub.type.fingerprint, sub.type().fingerprint)) {
     const std::string text = "type mismatch on channel '" + sub.channel() + "': publisher (node '" +
                              pub.node->name + "') has " + pub.type.name + ", subscriber (node '" +
@@ -76,6 +77,7 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
     const Path path = scope_map == &remotes ? Path::shm : Path::udp;
     const bool from_bridge = (b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) != 0;
     if (from_bridge && !sub.options().from_bridges) continue;
+    if ((b.flags & lcmx_msgs::beacon_t::FLAG_DDS_GATEWAY) && !sub.options().from_dds_gateways) continue;
     for (const auto& e : b.endpoints) {
       if (e.kind != lcmx_msgs::endpoint_t::KIND_PUBLISHER || e.topic != sub.channel()) continue;
       if (!compatible(e.fingerprint, sub.type().fingerprint)) {

@@ -157,6 +157,7 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
   b.pid = static_cast<std::int32_t>(::getpid());
   b.process_name = discovery::process_name();
   b.flags = options.bridge ? lcmx_msgs::beacon_t::FLAG_BRIDGE : 0;
+  if (options.dds_gateway) b.flags = static_cast<std::int8_t>(b.flags | lcmx_msgs::beacon_t::FLAG_DDS_GATEWAY);
   if (!vehicle) b.carried = options.bridge_carry;
   b.num_carried = static_cast<std::int32_t>(b.carried.size());
   const auto now = std::chrono::steady_clock::now();

@@ -62,6 +62,10 @@ struct SubscriberOptions {
   // including this process's own when it is one. The bridge's own subscribers use it, so a
   // bridge never forwards what a bridge republished (no loops).
   bool from_bridges = true;
+  // false: never matched with publishers of DDS gateways (RuntimeOptions::dds_gateway),
+  // including this process's own. A gateway's export subscribers use it, so no gateway sends
+  // back to DDS what a gateway imported from DDS (docs/dds.md "Loops").
+  bool from_dds_gateways = true;
 };
 
 // A topic's class decides its path to other hosts (DESIGN.md "Delivery").
@@ -109,6 +113,10 @@ struct RuntimeOptions {
   // endpoints are never announced to other hosts, and while it runs the other participants of
   // this host send large topics to other hosts only through it (not as UDP fragments).
   bool bridge = false;
+  // This participant is a DDS gateway (`lcmx dds-gateway`): its beacons carry FLAG_DDS_GATEWAY
+  // (`lcmx topics` marks its endpoints) and subscribers with from_dds_gateways = false never
+  // match its publishers. Nothing else changes: its endpoints take every path.
+  bool dds_gateway = false;
   // Bridge only: topic globs (fnmatch) it carries besides the large class. Announced on this
   // host; every participant here then treats matching topics as large.
   std::vector<std::string> bridge_carry;

@@ -1,0 +1,187 @@
+// Roles of the DDS gateway benchmark (bench/dds/run.py starts them; docs/dds.md "Benchmark"):
+//   lcmx_bench_dds sink TOPIC COUNT            DDS reader of lcmx::dds::Envelope: one-way latency of
+//                                              each sample from the timestamp in its payload, then
+//                                              "result n=.. p50_us=.. p99_us=.. mbps=.. lost=.."
+//                                              (stops 3 s after the last sample if fewer came)
+//   lcmx_bench_dds dds-source TOPIC COUNT SIZE HZ   DDS writer of envelopes (HZ 0: as fast as it can)
+//   lcmx_bench_dds lcmx-source CHANNEL COUNT SIZE HZ  lcmx raw publisher (the gateway exports it)
+// Payload: 8 bytes of fingerprint (0x6c636d7864647362), 8 bytes CLOCK_MONOTONIC ns at send, 8
+// bytes sequence, then filler. Cyclone's network: CYCLONEDDS_URI (run.py: loopback only);
+// domain: BENCH_DDS_DOMAIN.
+#include <dds/dds.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <iostream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "lcmx/core.hpp"
+#include "lcmx_envelope.h"
+
+namespace {
+
+constexpr std::uint64_t kFingerprint = 0x6c636d7864647362ull;
+
+std::int64_t now_ns() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+
+void stamp(std::vector<std::uint8_t>& p, std::uint64_t seq) {
+  std::memcpy(p.data(), &kFingerprint, 8);
+  const std::int64_t t = now_ns();
+  std::memcpy(p.data() + 8, &t, 8);
+  std::memcpy(p.data() + 16, &seq, 8);
+}
+
+dds_domainid_t domain() {
+  const char* d = std::getenv("BENCH_DDS_DOMAIN");
+  return d ? static_cast<dds_domainid_t>(std::atoi(d)) : 0;
+}
+
+dds_entity_t check(dds_entity_t e, const char* what) {
+  if (e < 0) {
+    std::fprintf(stderr, "lcmx_bench_dds: %s: %s\n", what, dds_strretcode(e));
+    std::exit(1);
+  }
+  return e;
+}
+
+dds_qos_t* qos(bool keep_all) {
+  dds_qos_t* q = dds_create_qos();
+  dds_qset_reliability(q, DDS_RELIABILITY_RELIABLE, DDS_SECS(10));
+  if (keep_all) dds_qset_history(q, DDS_HISTORY_KEEP_ALL, 0);
+  else dds_qset_history(q, DDS_HISTORY_KEEP_LAST, 16);
+  return q;
+}
+
+void pace(std::int64_t start, std::uint64_t k, double hz) {
+  if (hz <= 0) return;
+  const auto due = start + static_cast<std::int64_t>(static_cast<double>(k) * 1e9 / hz);
+  while (now_ns() < due) std::this_thread::sleep_for(std::chrono::microseconds(50));
+}
+
+int sink(const std::string& topic, long count) {
+  const dds_entity_t pp = check(dds_create_participant(domain(), nullptr, nullptr), "participant");
+  const dds_entity_t tp = check(dds_create_topic(pp, &lcmx_dds_Envelope_desc, topic.c_str(), nullptr, nullptr), "topic");
+  dds_qos_t* q = qos(true);
+  const dds_entity_t rd = check(dds_create_reader(pp, tp, q, nullptr), "reader");
+  dds_delete_qos(q);
+  const dds_entity_t ws = check(dds_create_waitset(pp), "waitset");
+  const dds_entity_t rc = check(dds_create_readcondition(rd, DDS_ANY_STATE), "readcondition");
+  dds_waitset_attach(ws, rc, rd);
+  std::cout << "ready" << std::endl;
+  std::vector<double> lat;
+  std::uint64_t last_seq = 0, bytes = 0, lost = 0;
+  long got = 0;
+  std::int64_t first = 0, last = 0;  // first: the first received sample's send time
+  const std::int64_t deadline = now_ns() + 120'000'000'000ll;
+  // Until `count` samples, or 3 s without one after the first (the rest was lost upstream).
+  while (got < count && now_ns() < deadline && !(got > 0 && now_ns() - last > 3'000'000'000ll)) {
+    dds_waitset_wait(ws, nullptr, 0, DDS_MSECS(200));
+    void* samples[16] = {};
+    dds_sample_info_t infos[16];
+    int n;
+    while ((n = dds_take(rd, samples, infos, 16, 16)) > 0) {
+      const std::int64_t t = now_ns();
+      for (int i = 0; i < n; ++i) {
+        if (!infos[i].valid_data) continue;
+        const auto* e = static_cast<const lcmx_dds_Envelope*>(samples[i]);
+        if (e->payload._length < 24) continue;
+        std::int64_t sent;
+        std::uint64_t seq;
+        std::memcpy(&sent, e->payload._buffer + 8, 8);
+        std::memcpy(&seq, e->payload._buffer + 16, 8);
+        if (got > 0 && seq > last_seq + 1) lost += seq - last_seq - 1;
+        last_seq = seq;
+        if (got == 0) first = sent;
+        last = t;
+        bytes += e->payload._length;
+        lat.push_back(static_cast<double>(t - sent) / 1000.0);
+        ++got;
+      }
+      dds_return_loan(rd, samples, n);
+      samples[0] = nullptr;
+    }
+  }
+  // Latency: without the first 10% (discovery, first allocations).
+  std::vector<double> l(lat.begin() + static_cast<long>(lat.size() / 10), lat.end());
+  std::sort(l.begin(), l.end());
+  auto pct = [&](double p) { return l.empty() ? 0.0 : l[std::min(l.size() - 1, static_cast<std::size_t>(p * l.size()))]; };
+  const double secs = static_cast<double>(last - first) / 1e9;
+  std::printf("result n=%ld p50_us=%.1f p99_us=%.1f mbps=%.1f lost=%llu\n", got, pct(0.5), pct(0.99),
+              secs > 0 ? static_cast<double>(bytes) * 8 / 1e6 / secs : 0.0, static_cast<unsigned long long>(lost));
+  std::fflush(stdout);
+  dds_delete(pp);
+  return got == count ? 0 : 1;
+}
+
+int dds_source(const std::string& topic, long count, std::size_t size, double hz) {
+  const dds_entity_t pp = check(dds_create_participant(domain(), nullptr, nullptr), "participant");
+  const dds_entity_t tp = check(dds_create_topic(pp, &lcmx_dds_Envelope_desc, topic.c_str(), nullptr, nullptr), "topic");
+  dds_qos_t* q = qos(false);  // reliable KEEP_LAST 16: the gateway's writer's defaults
+  const dds_entity_t wr = check(dds_create_writer(pp, tp, q, nullptr), "writer");
+  dds_delete_qos(q);
+  dds_set_status_mask(wr, DDS_PUBLICATION_MATCHED_STATUS);
+  const std::int64_t deadline = now_ns() + 30'000'000'000ll;
+  for (;;) {
+    dds_publication_matched_status_t st{};
+    dds_get_publication_matched_status(wr, &st);
+    if (st.current_count > 0) break;
+    if (now_ns() > deadline) return 1;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));  // polling discovery, no data yet
+  }
+  std::vector<std::uint8_t> p(std::max<std::size_t>(size, 24), 0x5a);
+  lcmx_dds_Envelope e{};
+  e.channel = const_cast<char*>("BENCH");
+  e.type_name = const_cast<char*>("");
+  e.payload._buffer = p.data();
+  e.payload._length = e.payload._maximum = static_cast<std::uint32_t>(p.size());
+  const std::int64_t start = now_ns();
+  for (long k = 0; k < count; ++k) {
+    pace(start, static_cast<std::uint64_t>(k), hz);
+    stamp(p, static_cast<std::uint64_t>(k));
+    dds_write(wr, &e);
+  }
+  dds_wait_for_acks(wr, DDS_SECS(30));
+  std::cout << "sent " << count << std::endl;
+  dds_delete(pp);
+  return 0;
+}
+
+int lcmx_source(const std::string& channel, long count, std::size_t size, double hz) {
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("bench_dds_source");
+  auto pub = node.advertise_raw(channel);
+  if (!pub.wait_for_subscribers(1, std::chrono::seconds(30))) return 1;
+  std::vector<std::uint8_t> p(std::max<std::size_t>(size, 24), 0x5a);
+  const std::int64_t start = now_ns();
+  for (long k = 0; k < count; ++k) {
+    pace(start, static_cast<std::uint64_t>(k), hz);
+    stamp(p, static_cast<std::uint64_t>(k));
+    pub.publish(std::as_bytes(std::span(p)));
+  }
+  std::cout << "sent " << count << std::endl;
+  std::string line;
+  std::getline(std::cin, line);  // until the driver closes stdin (the gateway drains meanwhile)
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const std::string role = argc > 1 ? argv[1] : "";
+  if (role == "sink" && argc == 4) return sink(argv[2], std::atol(argv[3]));
+  if (role == "dds-source" && argc == 6)
+    return dds_source(argv[2], std::atol(argv[3]), static_cast<std::size_t>(std::atol(argv[4])), std::atof(argv[5]));
+  if (role == "lcmx-source" && argc == 6)
+    return lcmx_source(argv[2], std::atol(argv[3]), static_cast<std::size_t>(std::atol(argv[4])), std::atof(argv[5]));
+  std::cerr << "usage: lcmx_bench_dds sink TOPIC COUNT | dds-source TOPIC COUNT SIZE HZ | "
+               "lcmx-source CHANNEL COUNT SIZE HZ\n";
+  return 2;
+}

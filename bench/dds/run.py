@@ -1,0 +1,139 @@
+#!/usr/bin/env python3
+"""The DDS gateway benchmark (issue 13; docs/dds.md "Benchmark"), one run, one host.
+
+1. One-way latency p50/p99 (us) by size, 1 KB .. 2 MB, measured by the same DDS reader process
+   (lcmx_bench_dds sink, envelope type):
+     direct:  DDS writer process (lcmx_bench_dds dds-source) -> DDS reader
+     gateway: lcmx publisher process (lcmx-source, shared memory) -> lcmx dds-gateway -> DDS reader
+   The two alternate per size; ratio = gateway / direct.
+2. 6 MB throughput (Mbit/s at the reader): DDS writer -> reader, lcmx -> gateway -> reader, and
+   ddsperf pub/sub (Cyclone's own tool, size 6 MB) on the same host.
+Cyclone runs on loopback only (unicast to 127.0.0.1, no multicast); lcmx on a group of its own
+pinned to lo.
+
+usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--csv FILE]
+"""
+import argparse, os, re, subprocess, sys, tempfile, time
+
+p = argparse.ArgumentParser()
+p.add_argument("build")
+p.add_argument("--pin", default="", help="taskset CPU list for every process (e.g. 0), default none")
+p.add_argument("--quick", action="store_true", help="fewer samples")
+p.add_argument("--csv", default="")
+a = p.parse_args()
+bench = os.path.join(a.build, "bench/dds/lcmx_bench_dds")
+tool = os.path.join(a.build, "apps/lcmx")
+domain = 1 + os.getpid() % 200
+env = dict(os.environ)
+env["CYCLONEDDS_URI"] = ("<General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>"
+                         "<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto"
+                         "</ParticipantIndex><MaxAutoParticipantIndex>60</MaxAutoParticipantIndex><Peers>"
+                         "<Peer address=\"127.0.0.1\"/></Peers></Discovery>")
+env["BENCH_DDS_DOMAIN"] = str(domain)
+g = os.getpid()
+env["LCMX_DISCOVERY_URL"] = "udpm://239.255.%d.%d:%d?ttl=0&iface=lo" % (1 + g // 250 % 250, 1 + g % 250, 30000 + g % 20000)
+env["SPDLOG_LEVEL"] = "warn"
+pin = ["taskset", "-c", a.pin] if a.pin else []
+procs = []
+
+
+def start(argv, stdin=subprocess.DEVNULL):
+    pr = subprocess.Popen(pin + argv, env=env, stdin=stdin, stdout=subprocess.PIPE, text=True)
+    procs.append(pr)
+    return pr
+
+
+def expect(pr, prefix, timeout=60):
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        line = pr.stdout.readline()
+        if not line:
+            break
+        if line.startswith(prefix):
+            return line.strip()
+    raise SystemExit("no '%s' from %s" % (prefix, pr.args))
+
+
+def result(line):
+    return {k: float(v) for k, v in re.findall(r"(\w+)=([\d.]+)", line)}
+
+
+sizes = [1024, 10240, 102400, 1048576, 2097152]
+plan = {1024: (400, 200), 10240: (400, 200), 102400: (300, 100), 1048576: (150, 30), 2097152: (100, 20)}
+if a.quick:
+    plan = {s: (max(50, n // 4), hz) for s, (n, hz) in plan.items()}
+tmp = tempfile.mkdtemp(prefix="lcmx_bench_dds_")
+cfg = os.path.join(tmp, "gw.toml")
+with open(cfg, "w") as f:
+    f.write('name = "bench"\ndomain = %d\ninterface = "127.0.0.1"\nallow_multicast = false\npeers = ["127.0.0.1"]\n' % domain)
+    for s in sizes + [6000000]:
+        f.write('[[map]]\nchannel = "BENCH_%d"\ndirection = "to_dds"\ntopic = "G_%d"\n' % (s, s))
+rows = []
+try:
+    gw = start([tool, "dds-gateway", "--config", cfg])
+    expect(gw, "dds-gateway bench: ready")
+    for s in sizes:
+        n, hz = plan[s]
+        res = {}
+        for path in ("direct", "gateway"):
+            sink = start([bench, "sink", ("D_%d" if path == "direct" else "G_%d") % s, str(n)])
+            expect(sink, "ready")
+            if path == "direct":
+                src = start([bench, "dds-source", "D_%d" % s, str(n), str(s), str(hz)])
+            else:
+                src = start([bench, "lcmx-source", "BENCH_%d" % s, str(n), str(s), str(hz)], stdin=subprocess.PIPE)
+            res[path] = result(expect(sink, "result", 180))
+            if src.stdin:
+                src.stdin.close()
+            src.wait(30)
+            sink.wait(30)
+        rows.append((s, res["direct"], res["gateway"]))
+        print("size %7d  direct p50 %8.1f p99 %8.1f | gateway p50 %8.1f p99 %8.1f | ratio p50 %.2f p99 %.2f" % (
+            s, res["direct"]["p50_us"], res["direct"]["p99_us"], res["gateway"]["p50_us"], res["gateway"]["p99_us"],
+            res["gateway"]["p50_us"] / res["direct"]["p50_us"], res["gateway"]["p99_us"] / res["direct"]["p99_us"]),
+            flush=True)
+    # 6 MB throughput.
+    n6 = 15 if a.quick else 40
+    thr = {}
+    sink = start([bench, "sink", "D_6000000", str(n6)]); expect(sink, "ready")
+    src = start([bench, "dds-source", "D_6000000", str(n6), "6000000", "0"])
+    thr["direct"] = result(expect(sink, "result", 300)); src.wait(60); sink.wait(30)
+    sink = start([bench, "sink", "G_6000000", str(n6)]); expect(sink, "ready")
+    # lcmx as fast as it publishes: what the gateway does not keep up with is lost (counted).
+    src = start([bench, "lcmx-source", "BENCH_6000000", str(n6), "6000000", "0"], stdin=subprocess.PIPE)
+    thr["gateway"] = result(expect(sink, "result", 300)); src.stdin.close(); src.wait(30); sink.wait(30)
+    # ddsperf: sub and pub processes, 6 MB samples, 8 s; the sub's per-second "Mb/s" lines.
+    dsub = start(["ddsperf", "-i", str(domain), "-D", "10", "sub"])
+    dpub = start(["ddsperf", "-i", str(domain), "-D", "8", "pub", "size", "6MB"])
+    out = dsub.communicate(timeout=60)[0]
+    dpub.wait(30)
+    rates = [float(x) for x in re.findall(r"([\d.]+) Mb/s", out)]
+    rates = [r for r in rates if r > 0]
+    thr["ddsperf"] = {"mbps": sorted(rates)[len(rates) // 2] if rates else 0.0}
+    gw.terminate(); gw.wait(10)
+finally:
+    for pr in procs:
+        if pr.poll() is None:
+            pr.kill()
+            pr.wait()
+    import shutil
+    shutil.rmtree(tmp, ignore_errors=True)
+
+print("\n### One-way latency, us (%s; %s)\n" % ("pinned to CPU " + a.pin if a.pin else "unpinned", time.strftime("%Y-%m-%d %H:%M")))
+print("| size | direct p50 | direct p99 | gateway p50 | gateway p99 | ratio p50 | ratio p99 |")
+print("|---:|---:|---:|---:|---:|---:|---:|")
+for s, d, gg in rows:
+    print("| %d | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f |" % (s, d["p50_us"], d["p99_us"], gg["p50_us"], gg["p99_us"],
+                                                           gg["p50_us"] / d["p50_us"], gg["p99_us"] / d["p99_us"]))
+print("\n### 6 MB throughput at the reader, Mbit/s\n")
+print("| DDS writer -> reader (reliable, KEEP_LAST 16 as the gateway) | lcmx -> gateway -> reader | ddsperf pub/sub (median of 1 s lines) |")
+print("|---:|---:|---:|")
+print("| %.0f (%d of %d received) | %.0f (%d of %d received) | %.0f |" % (
+    thr["direct"]["mbps"], thr["direct"]["n"], n6, thr["gateway"]["mbps"], thr["gateway"]["n"], n6, thr["ddsperf"]["mbps"]))
+print("\nratio gateway/direct 6 MB throughput: %.2f; gateway/ddsperf: %.2f" % (
+    thr["gateway"]["mbps"] / max(thr["direct"]["mbps"], 1e-9), thr["gateway"]["mbps"] / max(thr["ddsperf"]["mbps"], 1e-9)))
+if a.csv:
+    with open(a.csv, "w") as f:
+        f.write("size,direct_p50_us,direct_p99_us,gateway_p50_us,gateway_p99_us\n")
+        for s, d, gg in rows:
+            f.write("%d,%.1f,%.1f,%.1f,%.1f\n" % (s, d["p50_us"], d["p99_us"], gg["p50_us"], gg["p99_us"]))

@@ -1,0 +1,84 @@
+// The DDS gateway's configuration file (TOML; reference and defaults in docs/dds.md, a
+// commented example in dds/examples/dds_gateway.toml).
+//
+// load_config() validates everything at once (types, ranges, names, duplicate mappings, unknown
+// keys, the .lcm type path and the typed mappings' types) with the Message Bridge's checker
+// (lcmx/bridge/detail/toml_check.hpp) and throws ConfigError naming the file and the key, e.g.
+// "gw.toml: map[1].history: must be an integer from 1 to 100000 (line 12)".
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "lcmx/bridge/config.hpp"
+#include "lcmx/types/schema.hpp"
+
+namespace lcmx::dds {
+
+using bridge::ConfigError;  // the same error type as the bridge's config
+
+inline constexpr std::size_t kMaxMappings = 256;
+inline constexpr std::int64_t kMaxDomain = 230;  // Cyclone's default port mapping ends there
+
+enum class Direction { to_dds, from_dds, both };
+enum class Mode {
+  opaque,  // one envelope type (lcmx::dds::Envelope): the LCM bytes
+  typed,   // the .lcm type as IDL (lcmx idl): DDS programs see its fields
+};
+enum class Reliability { reliable, best_effort };
+enum class Durability { volatile_, transient_local };
+
+const char* to_string(Direction d);
+const char* to_string(Mode m);
+
+struct MappingConfig {
+  std::string channel;          // LCM channel (<= 63 bytes)
+  Direction direction = Direction::to_dds;
+  Mode mode = Mode::opaque;
+  std::string type;             // "pkg.type_t": required for typed; optional for opaque
+  bool ros2 = false;            // topic "rt/<channel>", type "pkg::msg::dds_::T_"
+  std::string topic;            // DDS topic name (default: channel, or rt/<channel> with ros2)
+  Reliability reliability = Reliability::reliable;
+  int history = 16;             // KEEP_LAST depth
+  Durability durability = Durability::volatile_;
+  std::string partition;        // per mapping; default: the gateway's
+  const types::StructType* lcm_type = nullptr;  // resolved `type` (in Config::types), or null
+
+  bool exports() const { return direction != Direction::from_dds; }
+  bool imports() const { return direction != Direction::to_dds; }
+};
+
+struct Config {
+  std::filesystem::path file;
+  std::string name;                 // [A-Za-z0-9_-]{1,32}
+  std::uint32_t domain = 0;         // DDS domain id, 0..230
+  std::string partition;            // default partition of every mapping ("" = DDS's default)
+  // Cyclone's network: when `interface` is set the gateway builds Cyclone's config from these
+  // (and ignores CYCLONEDDS_URI); otherwise Cyclone's own default or CYCLONEDDS_URI applies.
+  std::string interface;            // an interface name ("eth0") or IPv4 address ("127.0.0.1")
+  bool allow_multicast = true;      // with `interface` only
+  std::vector<std::string> peers;   // unicast discovery peers (IPv4), with `interface` only
+  std::chrono::milliseconds status_period{1000};
+  // How long the gateway's executor polls for the next lcmx message before it sleeps
+  // (WaitStrategy::spin_then_block; 0 = block at once). Saves the cross-CPU wake-up per export
+  // at the cost of CPU while traffic flows; idle it costs nothing.
+  std::chrono::microseconds spin{50};
+  std::vector<std::filesystem::path> type_paths;  // .lcm files/directories (absolute)
+  std::shared_ptr<const types::TypeRegistry> types;  // loaded type_paths (never null)
+  std::vector<MappingConfig> mappings;
+
+  // Cyclone's XML config for `interface` / `allow_multicast` / `peers`; "" without interface.
+  std::string cyclone_xml() const;
+};
+
+// Reads and validates a config file. Throws ConfigError.
+Config load_config(const std::filesystem::path& file);
+// Same, from text; `file` names it in messages and anchors relative paths.
+Config parse_config(std::string_view text, const std::filesystem::path& file);
+
+}  // namespace lcmx::dds

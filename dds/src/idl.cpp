@@ -1,0 +1,148 @@
+#include "lcmx/dds/idl.hpp"
+
+#include <algorithm>
+#include <array>
+#include <functional>
+#include <set>
+#include <sstream>
+
+namespace lcmx::dds {
+namespace {
+
+// IDL 4.2 keywords (case-insensitive collisions are errors in IDL, so compare lower-case).
+constexpr std::array<std::string_view, 76> kKeywords = {
+    "abstract", "any", "alias", "attribute", "bitfield", "bitmask", "bitset", "boolean", "case", "char",
+    "component", "connector", "const", "consumes", "context", "custom", "default", "double", "exception",
+    "emits", "enum", "eventtype", "factory", "false", "finder", "fixed", "float", "getraises", "getter",
+    "home", "import", "in", "inout", "interface", "local", "long", "manages", "map", "mirrorport", "module",
+    "multiple", "native", "object", "octet", "oneway", "out", "primarykey", "private", "port", "porttype",
+    "provides", "public", "publishes", "raises", "readonly", "setraises", "sequence", "short", "string",
+    "struct", "supports", "switch", "true", "truncatable", "typedef", "typeid", "typename", "typeprefix",
+    "unsigned", "union", "uses", "valuebase", "valuetype", "void", "wchar", "wstring"};
+// int8 .. uint64 are keywords of IDL 4 too.
+constexpr std::array<std::string_view, 8> kIntKeywords = {"int8", "uint8", "int16", "int32", "int64",
+                                                          "uint16", "uint32", "uint64"};
+
+std::string ident(const std::string& name) {
+  std::string lower = name;
+  std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char c) { return std::tolower(c); });
+  const bool kw = std::find(kKeywords.begin(), kKeywords.end(), lower) != kKeywords.end() ||
+                  std::find(kIntKeywords.begin(), kIntKeywords.end(), lower) != kIntKeywords.end();
+  return kw ? "_" + name : name;
+}
+
+std::vector<std::string> modules_of(const types::StructType& t, bool ros2) {
+  std::vector<std::string> mods;
+  std::string cur;
+  for (char ch : t.package) {
+    if (ch == '.') {
+      mods.push_back(cur);
+      cur.clear();
+    } else {
+      cur += ch;
+    }
+  }
+  if (!cur.empty()) mods.push_back(cur);
+  if (ros2) {
+    mods.push_back("msg");
+    mods.push_back("dds_");
+  }
+  return mods;
+}
+
+std::string short_name(const types::StructType& t, bool ros2) { return ros2 ? t.name + "_" : t.name; }
+
+std::string primitive_idl(types::Primitive p) {
+  switch (p) {
+    case types::Primitive::int8: return "int8";
+    case types::Primitive::int16: return "short";
+    case types::Primitive::int32: return "long";
+    case types::Primitive::int64: return "long long";
+    case types::Primitive::float32: return "float";
+    case types::Primitive::float64: return "double";
+    case types::Primitive::string: return "string";
+    case types::Primitive::boolean: return "boolean";
+    case types::Primitive::byte: return "octet";
+  }
+  return "?";
+}
+
+void check_one(const types::StructType& t, std::set<const types::StructType*>& seen) {
+  if (!seen.insert(&t).second) return;
+  for (const auto& m : t.members) {
+    if (!m.primitive && !m.nested)
+      throw types::Error("typed mode: " + t.full_name() + "." + m.name + ": nested type " + m.type_name +
+                         " is not resolved");
+    const bool any_var = std::any_of(m.dims.begin(), m.dims.end(), [](const auto& d) { return d.variable; });
+    if (any_var && m.dims.size() > 1)
+      throw types::Error("typed mode: " + t.full_name() + "." + m.name +
+                         ": a variable-size dimension with other dimensions is not supported (only x[n] or "
+                         "fixed sizes x[3][4])");
+    for (const auto& d : m.dims)
+      if (!d.variable && d.fixed <= 0)
+        throw types::Error("typed mode: " + t.full_name() + "." + m.name + ": zero-length array");
+    if (m.nested) check_one(*m.nested, seen);
+  }
+}
+
+}  // namespace
+
+void check_typed(const types::StructType& type) {
+  std::set<const types::StructType*> seen;
+  check_one(type, seen);
+}
+
+std::string dds_type_name(const types::StructType& type, bool ros2) {
+  std::string n;
+  for (const auto& m : modules_of(type, ros2)) n += m + "::";
+  return n + short_name(type, ros2);
+}
+
+std::string to_idl(const std::vector<const types::StructType*>& roots, bool ros2) {
+  for (const auto* r : roots) check_typed(*r);
+  // Nested types first (post-order), each once.
+  std::vector<const types::StructType*> order;
+  std::set<const types::StructType*> done, active;
+  std::function<void(const types::StructType*)> visit = [&](const types::StructType* t) {
+    if (done.count(t)) return;
+    if (!active.insert(t).second)
+      throw types::Error("typed mode: " + t->full_name() + " contains itself (recursive types have no IDL struct)");
+    for (const auto& m : t->members)
+      if (m.nested) visit(m.nested);
+    active.erase(t);
+    done.insert(t);
+    order.push_back(t);
+  };
+  for (const auto* r : roots) visit(r);
+
+  std::ostringstream o;
+  o << "// Generated by `lcmx idl` from .lcm types (docs/dds.md \"Typed mode\"). Do not edit.\n";
+  for (const auto* t : order) {
+    const auto mods = modules_of(*t, ros2);
+    o << "\n";
+    for (const auto& m : mods) o << "module " << ident(m) << " { ";
+    if (!mods.empty()) o << "\n";
+    o << "  // " << t->full_name() << " (" << t->file << ":" << t->line << ")\n";
+    o << "  @final\n  struct " << ident(short_name(*t, ros2)) << " {\n";
+    for (const auto& m : t->members) {
+      const std::string ty =
+          m.primitive ? primitive_idl(*m.primitive) : "::" + dds_type_name(*m.nested, ros2);
+      o << "    ";
+      if (!m.dims.empty() && m.dims[0].variable) {
+        o << "sequence<" << ty << "> " << ident(m.name) << ";";
+        o << "  // LCM " << m.name << "[" << m.dims[0].size << "]";
+      } else {
+        o << ty << " " << ident(m.name);
+        for (const auto& d : m.dims) o << "[" << d.fixed << "]";
+        o << ";";
+      }
+      o << "\n";
+    }
+    o << "  };\n";
+    for (std::size_t i = 0; i < mods.size(); ++i) o << "};";
+    if (!mods.empty()) o << "\n";
+  }
+  return o.str();
+}
+
+}  // namespace lcmx::dds
