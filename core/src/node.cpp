@@ -546,27 +546,41 @@ RawSubscriberCore::RawSubscriberCore(std::string channel, SubscriberOptions o,
 }
 
 bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
+  RetainSource src;
   if (item.type->carries_bytes()) {
     const auto& bytes = *std::static_pointer_cast<const Bytes>(item.object);
-    return deliver_bytes(bytes);
+    src.owner = item.object;  // retain() shares the publisher's (or UDP receiver's) buffer
+    return deliver(bytes, src, nullptr, nullptr);
   }
   // A typed publisher in this process: encode for the raw subscriber.
   scratch_.resize(item.type->encoded_size(item.object.get()));
   item.type->encode(item.object.get(), scratch_.data(), scratch_.size());
-  return deliver_bytes(scratch_);
+  return deliver(scratch_, src, nullptr, nullptr);
 }
 
 // Zero-copy: the callback reads the slot itself, so intact() is checked before (a torn view
 // is withheld) and after it (the slot was rewritten or truncated during the callback: it may
-// have read a torn view; delivered, and counted as a drop).
-bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes,
-                                      const shm::ReadSample* sample, bool* torn) {
+// have read a torn view; delivered, and counted as a drop). After a retain() the sample lives
+// on as a DetachedSample: the check after the callback is made on that.
+bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes, shm::ReadSample* sample,
+                                      bool* torn) {
+  RetainSource src;
+  src.sample = sample;
+  return deliver(bytes, src, sample, torn);
+}
+
+bool RawSubscriberCore::deliver(std::span<const std::byte> bytes, RetainSource& src,
+                                shm::ReadSample* sample, bool* torn) {
   if (sample != nullptr && !sample->intact()) {
     if (torn != nullptr) *torn = true;
     return false;
   }
-  cb_(RawMessage{channel(), bytes});
-  if (sample != nullptr && !sample->intact() && torn != nullptr) *torn = true;
+  cb_(RawMessage{channel(), bytes, &src});
+  if (src.copies != 0) copies_.fetch_add(src.copies, std::memory_order_relaxed);
+  if (sample != nullptr && torn != nullptr) {
+    const bool ok = src.detached ? src.detached->intact() : sample->intact();
+    if (!ok) *torn = true;
+  }
   return true;
 }
 
@@ -662,5 +676,32 @@ std::size_t Node::spin_once(std::chrono::nanoseconds timeout) {
 }
 
 const std::string& Node::name() const { return impl_->name; }
+
+}  // namespace lcmx
+
+namespace lcmx {
+
+RetainedBytes RawMessage::retain() const {
+  if (source != nullptr) {
+    auto& src = *source;
+    if (src.detached) return {data, src.detached, true};  // retained before in this callback
+    if (src.owner) return {data, src.owner, true};
+    if (src.copy) return {{src.copy->data(), src.copy->size()}, src.copy, false};
+    if (src.sample != nullptr) {
+      if (auto d = src.sample->detach()) {
+        src.detached = std::make_shared<const shm::DetachedSample>(std::move(*d));
+        return {data, src.detached, true};
+      }
+    }
+  }
+  // No source (a RawMessage made by hand), encoded bytes, or every detachable pin held: copy.
+  auto copy = std::make_shared<const detail::Bytes>(data.begin(), data.end());
+  std::span<const std::byte> view(copy->data(), copy->size());
+  if (source != nullptr) {
+    source->copy = copy;
+    ++source->copies;
+  }
+  return {view, std::move(copy), false};
+}
 
 }  // namespace lcmx
