@@ -1,5 +1,5 @@
 // Data channels: the shm subscription callback that queues a message for every wanting peer
-// (one copy out of the slot, drop policy), and the channel threads that send the queues to the
+// (zero-copy from the pinned slot, or one copy when the pins are held; drop policy), and the channel threads that send the queues to the
 // peers' active links and receive peers' data into this host's shared memory (sequence check,
 // republishers). The queue and sequence rules: channels.hpp.
 #include "engine.hpp"
@@ -24,6 +24,26 @@ std::unique_ptr<zmq::socket_t> Bridge::Impl::make_data_dealer(const Peer& p, con
   s->set(zmq::sockopt::tos, ch.cfg.priority << 5);
   s->connect("tcp://" + l.cfg.address + ":" + std::to_string(ch.cfg.port));
   return s;
+}
+
+// Zero-copy send (issue 15 item 1): the ZeroMQ message points into the pinned shared-memory
+// slot (RawMessage::retain: a DetachedSample) and owns it through a heap RetainedBytes that
+// ZeroMQ's free callback deletes once every peer's copy (zmq_msg_copy: refcount) is sent or
+// dropped, on whichever thread drops the last reference (usually the channel's ZeroMQ I/O
+// thread; DetachedSample's release is thread-safe). When this subscriber already holds
+// shm::Reader::kMaxDetached slots of the publisher (a slow or stalled link), retain() copies
+// instead: counted in copied_msgs, so a slow link never holds more than kMaxDetached slots
+// and never stops the publisher or this bridge's other peers.
+zmq::message_t Bridge::Impl::retained_payload(const RawMessage& m) {
+  auto held = std::make_unique<RetainedBytes>(m.retain());
+  (held->zero_copy ? zero_copy_msgs : copied_msgs).fetch_add(1, std::memory_order_relaxed);
+  // ZeroMQ takes a non-const pointer but only reads a message it sends.
+  void* data = const_cast<std::byte*>(held->data.data());
+  const std::size_t size = held->data.size();
+  zmq::message_t msg(data, size, [](void*, void* hint) { delete static_cast<RetainedBytes*>(hint); },
+                     held.get());
+  held.release();  // owned by the message now (zmq_msg_init_data succeeded)
+  return msg;
 }
 
 void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
@@ -51,7 +71,7 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
       if (n < std::size(targets)) targets[n++] = p;
   }
   if (n == 0) return;
-  zmq::message_t payload(m.data.data(), m.data.size());  // the one copy out of the slot
+  zmq::message_t payload = retained_payload(m);
   Channel& ch = *channels[s.channel];
   for (std::size_t i = 0; i < n; ++i) {
     PeerChannel& pc = *peers[targets[i]]->chans[s.channel];

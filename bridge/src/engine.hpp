@@ -121,7 +121,9 @@ struct RateLimit {
 
 struct Outgoing {
   std::shared_ptr<const std::string> topic;
-  zmq::message_t payload;  // a refcounted copy (zmq_msg_copy) of the one copy of the slot
+  // A refcounted copy (zmq_msg_copy) of the message made by retained_payload(): the pinned
+  // slot itself, or one copy of it.
+  zmq::message_t payload;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -207,6 +209,8 @@ struct Bridge::Impl {
   std::uint64_t instance = 0;
   std::atomic<bool> stopping{false};
   std::atomic<std::uint64_t> bad_frames{0};
+  // Local messages queued for peers: sent straight from their pinned slot / copied out of it.
+  std::atomic<std::uint64_t> zero_copy_msgs{0}, copied_msgs{0};
   RateLimit bad_log;
 
   zmq::context_t ctx;
@@ -265,6 +269,7 @@ struct Bridge::Impl {
   bool authentic(zmq::message_t& m, const std::string& claimed);
   void zap_loop();
   void on_local_message(Served& s, const RawMessage& m);
+  zmq::message_t retained_payload(const RawMessage& m);
   void channel_loop(Channel& ch);
   void flush(Channel& ch, Peer& p);
   void receive_data(Channel& ch);
