@@ -681,18 +681,28 @@ const std::string& Node::name() const { return impl_->name; }
 
 namespace lcmx {
 
-RetainedBytes RawMessage::retain() const {
-  if (source != nullptr) {
-    auto& src = *source;
-    if (src.detached) return {data, src.detached, true};  // retained before in this callback
-    if (src.owner) return {data, src.owner, true};
-    if (src.copy) return {{src.copy->data(), src.copy->size()}, src.copy, false};
-    if (src.sample != nullptr) {
-      if (auto d = src.sample->detach()) {
+std::optional<RetainedBytes> RawMessage::retain_zero_copy() const noexcept {
+  if (source == nullptr) return std::nullopt;
+  auto& src = *source;
+  if (src.detached) return RetainedBytes{data, src.detached, true};  // retained before
+  if (src.owner) return RetainedBytes{data, src.owner, true};
+  if (src.sample != nullptr) {
+    if (auto d = src.sample->detach()) {
+      try {
         src.detached = std::make_shared<const shm::DetachedSample>(std::move(*d));
-        return {data, src.detached, true};
+      } catch (const std::bad_alloc&) {
+        return std::nullopt;  // *d (destroyed here) gave the pin back
       }
+      return RetainedBytes{data, src.detached, true};
     }
+  }
+  return std::nullopt;
+}
+
+RetainedBytes RawMessage::retain() const {
+  if (auto r = retain_zero_copy()) return std::move(*r);
+  if (source != nullptr && source->copy) {
+    return {{source->copy->data(), source->copy->size()}, source->copy, false};
   }
   // No source (a RawMessage made by hand), encoded bytes, or every detachable pin held: copy.
   auto copy = std::make_shared<const detail::Bytes>(data.begin(), data.end());

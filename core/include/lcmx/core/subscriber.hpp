@@ -12,6 +12,7 @@
 #include <chrono>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -149,6 +150,10 @@ struct RawMessage {
   // a typed in-process publisher's encoded bytes: copied. Calling it again in the same
   // callback returns the same bytes. Throws std::bad_alloc only.
   RetainedBytes retain() const;
+  // As retain(), but never copies: nullopt where retain() would copy (kMaxDetached samples of
+  // this publisher held, encoded bytes, or no source). May be called again later in the same
+  // callback (e.g. after waiting for a holder to release a sample). Never throws.
+  std::optional<RetainedBytes> retain_zero_copy() const noexcept;
 };
 
 using RawSubscriber = Subscriber<void>;
