@@ -34,6 +34,7 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <iostream>
 #include <map>
 #include <memory>
@@ -215,8 +216,29 @@ struct TputResult {
   int sent = 0, received = 0;
   double link_ratio = 0;  // A's tx bytes / delivered payload bytes (bridge) or / TCP bytes (iperf3)
   double seconds = 0;
+  // Bridge processes' CPU (utime + stime of all their threads, /proc/<pid>/stat) over the
+  // measured window, per GB of payload delivered; 0: not measured (iperf3).
+  double cpu_a_s_per_gb = 0, cpu_b_s_per_gb = 0;
+  double user_a_s_per_gb = 0;  // of which user time (A): the bridge's own copies; the rest is the kernel's
   std::vector<std::string> errors, notes;
 };
+
+// utime (+ stime unless user_only) of process `pid` (every thread) in seconds; -1 if unreadable.
+double process_cpu_seconds(pid_t pid, bool user_only = false) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string stat((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const auto close = stat.rfind(')');
+  if (close == std::string::npos) return -1;
+  std::istringstream f(stat.substr(close + 2));
+  std::string field;
+  unsigned long long utime = 0, stime = 0;
+  // Fields after the name: state (3) ... utime (14), stime (15).
+  for (int i = 3; i <= 15 && f >> field; ++i) {
+    if (i == 14) utime = std::stoull(field);
+    if (i == 15) stime = std::stoull(field);
+  }
+  return static_cast<double>(utime + (user_only ? 0 : stime)) / static_cast<double>(::sysconf(_SC_CLK_TCK));
+}
 
 // ---- the run ----
 
@@ -634,6 +656,9 @@ TputResult run_bridge_throughput(Run& run) {
     });
     rx.clear();
     const std::uint64_t tx0 = run.emu->tx_bytes(0, "eth");
+    const double cpu_a0 = process_cpu_seconds(run.bridges.at(0).pid());
+    const double cpu_b0 = process_cpu_seconds(run.bridges.at(1).pid());
+    const double user_a0 = process_cpu_seconds(run.bridges.at(0).pid(), true);
     const std::int64_t first = k + 1;
     pub->command("stream " + std::to_string(size) + " " + std::to_string(count) + " " + std::to_string(res.offered_hz) +
                  " " + std::to_string(first));
@@ -661,6 +686,9 @@ TputResult run_bridge_throughput(Run& run) {
       return static_cast<int>(rx.size()) >= count || now_ns() - last_change > 1'000'000'000;
     });
     const std::uint64_t tx = run.emu->tx_bytes(0, "eth") - tx0;
+    const double cpu_a = process_cpu_seconds(run.bridges.at(0).pid()) - cpu_a0;
+    const double cpu_b = process_cpu_seconds(run.bridges.at(1).pid()) - cpu_b0;
+    const double user_a = process_cpu_seconds(run.bridges.at(0).pid(), true) - user_a0;
     std::int64_t last_recv = t0;
     for (const auto& [seq, r] : rx) last_recv = std::max(last_recv, r.recv_ns);
     res.sent = count;
@@ -671,10 +699,17 @@ TputResult run_bridge_throughput(Run& run) {
       res.msgs_per_s = res.received / res.seconds;
     }
     if (res.received > 0) res.link_ratio = static_cast<double>(tx) / (static_cast<double>(res.received) * static_cast<double>(size));
+    const double gb = static_cast<double>(res.received) * static_cast<double>(size) / 1e9;
+    if (gb > 0 && cpu_a0 >= 0 && cpu_a >= 0) res.cpu_a_s_per_gb = cpu_a / gb;
+    if (gb > 0 && cpu_b0 >= 0 && cpu_b >= 0) res.cpu_b_s_per_gb = cpu_b / gb;
+    if (gb > 0 && user_a0 >= 0 && user_a >= 0) res.user_a_s_per_gb = user_a / gb;
     res.ok = res.received > 0;
-    char buf[200];
-    std::snprintf(buf, sizeof buf, "throughput bridge: %.3f Gbit/s (%.1f msg/s of %s), received %d/%d offered at %.1f Hz",
-                  res.gbit, res.msgs_per_s, size_label(size).c_str(), res.received, res.sent, res.offered_hz);
+    char buf[300];
+    std::snprintf(buf, sizeof buf,
+                  "throughput bridge: %.3f Gbit/s (%.1f msg/s of %s), received %d/%d offered at %.1f Hz; bridge CPU "
+                  "per GB delivered: A (sender) %.3f s (user %.3f s), B (receiver) %.3f s",
+                  res.gbit, res.msgs_per_s, size_label(size).c_str(), res.received, res.sent, res.offered_hz,
+                  res.cpu_a_s_per_gb, res.user_a_s_per_gb, res.cpu_b_s_per_gb);
     progress(buf);
   } catch (const std::exception& e) {
     res.errors.push_back(e.what());
@@ -878,6 +913,9 @@ Report aggregate(const std::vector<Report>& runs) {
       m.gbit = med([](const TputResult& t) { return t.gbit; });
       m.msgs_per_s = med([](const TputResult& t) { return t.msgs_per_s; });
       m.link_ratio = med([](const TputResult& t) { return t.link_ratio; });
+      m.cpu_a_s_per_gb = med([](const TputResult& t) { return t.cpu_a_s_per_gb; });
+      m.cpu_b_s_per_gb = med([](const TputResult& t) { return t.cpu_b_s_per_gb; });
+      m.user_a_s_per_gb = med([](const TputResult& t) { return t.user_a_s_per_gb; });
       m.received = static_cast<int>(std::lround(med([](const TputResult& t) { return t.received; })));
       m.gbit_lo = 1e300, m.gbit_hi = 0;
       for (const auto& t : v) m.gbit_lo = std::min(m.gbit_lo, t.gbit), m.gbit_hi = std::max(m.gbit_hi, t.gbit);
@@ -1009,11 +1047,11 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   // Throughput
   if (rep.bridge_tput || rep.iperf) {
     md << "### Throughput on the same link (" << (o.link_rate.empty() ? "not rate-limited" : o.link_rate) << ")\n\n";
-    md << "| method | Gbit/s | messages/s | received/sent | A's link bytes / delivered bytes | notes |\n|---|---|---|---|---|---|\n";
+    md << "| method | Gbit/s | messages/s | received/sent | A's link bytes / delivered bytes | bridge CPU s per GB (A sends, B receives) | notes |\n|---|---|---|---|---|---|---|\n";
     for (const auto* t : {rep.bridge_tput ? &*rep.bridge_tput : nullptr, rep.iperf ? &*rep.iperf : nullptr}) {
       if (!t) continue;
       if (!t->ok) {
-        md << "| " << t->method << " | failed | | | | " << (t->errors.empty() ? "" : t->errors.front()) << " |\n";
+        md << "| " << t->method << " | failed | | | | | " << (t->errors.empty() ? "" : t->errors.front()) << " |\n";
         continue;
       }
       char g[64];
@@ -1028,6 +1066,14 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
         md << "— | — | ";
       }
       md << (t->link_ratio > 0 ? fx(t->link_ratio) : std::string("—")) << " | ";
+      if (t->cpu_a_s_per_gb > 0) {
+        char c[64];
+        std::snprintf(c, sizeof c, "A %.3f (user %.3f), B %.3f", t->cpu_a_s_per_gb, t->user_a_s_per_gb,
+                      t->cpu_b_s_per_gb);
+        md << c << " | ";
+      } else {
+        md << "— | ";
+      }
       if (t->sent) {
         char b[120];
         std::snprintf(b, sizeof b, "%s offered at %.1f Hz for %.1f s, 1 subscriber on B", size_label(run.tput_size).c_str(),
@@ -1134,7 +1180,7 @@ void write_csv(const std::string& path, const Run& run, const std::vector<Report
   std::ofstream f(path);
   f << "run,section,method,subscribers,size,sent,received,lost,mean_us,p50_us,p99_us,max_us,link_bytes_per_msg,"
        "link_ratio,link_ratio_net,idle_bytes_per_s,diff_p50_us,diff_p99_us,diff_mean_us,spread_p50_us,spread_p99_us,"
-       "gbit_s,msgs_s,link_rate,pin,wait\n";
+       "gbit_s,msgs_s,cpu_a_s_per_gb,user_a_s_per_gb,cpu_b_s_per_gb,link_rate,pin,wait\n";
   const std::string tail = "," + run.opt.link_rate + "," + run.opt.pin + "," + run.opt.wait + "\n";
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const Report& rep = runs[r];
@@ -1144,12 +1190,13 @@ void write_csv(const std::string& path, const Run& run, const std::vector<Report
           << s.received << "," << s.lost() << "," << s.lat.mean << "," << s.lat.p50 << "," << s.lat.p99 << ","
           << s.lat.max << "," << s.bytes_per_msg() << "," << s.ratio() << "," << s.net_ratio() << ","
           << fo.bg_bytes_per_s << "," << s.diff.p50 << "," << s.diff.p99 << "," << s.diff.mean << ","
-          << s.spread.p50 << "," << s.spread.p99 << ",," << tail;
+          << s.spread.p50 << "," << s.spread.p99 << ",,,,," << tail;
     for (const auto* t : {rep.bridge_tput ? &*rep.bridge_tput : nullptr, rep.iperf ? &*rep.iperf : nullptr})
       if (t && t->ok)
         f << r + 1 << ",throughput," << (t->sent ? "bridge" : "iperf3") << ",1," << (t->sent ? run.tput_size : 0)
           << "," << t->sent << "," << t->received << "," << (t->sent - t->received) << ",,,,,," << t->link_ratio
-          << ",,,,,,,," << t->gbit << "," << t->msgs_per_s << tail;
+          << ",,,,,,,," << t->gbit << "," << t->msgs_per_s << "," << t->cpu_a_s_per_gb << "," << t->user_a_s_per_gb << "," << t->cpu_b_s_per_gb
+          << tail;
   }
 }
 

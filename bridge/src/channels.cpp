@@ -1,5 +1,5 @@
 // Data channels: the shm subscription callback that queues a message for every wanting peer
-// (one copy out of the slot, drop policy), and the channel threads that send the queues to the
+// (zero-copy from the pinned slot, or one copy when the pins are held; drop policy), and the channel threads that send the queues to the
 // peers' active links and receive peers' data into this host's shared memory (sequence check,
 // republishers). The queue and sequence rules: channels.hpp.
 #include "engine.hpp"
@@ -24,6 +24,92 @@ std::unique_ptr<zmq::socket_t> Bridge::Impl::make_data_dealer(const Peer& p, con
   s->set(zmq::sockopt::tos, ch.cfg.priority << 5);
   s->connect("tcp://" + l.cfg.address + ":" + std::to_string(ch.cfg.port));
   return s;
+}
+
+// Zero-copy send (issue 15 item 1): the ZeroMQ message points into the pinned shared-memory
+// slot (RawMessage::retain_zero_copy: a DetachedSample) and owns it through a heap holder that
+// ZeroMQ's free callback deletes once every peer's copy (zmq_msg_copy: refcount) is sent or
+// dropped, on whichever thread drops the last reference (usually the channel's ZeroMQ I/O
+// thread; DetachedSample's release is thread-safe), then signals the topic's PinWatch.
+// When this subscription already holds shm::Reader::kMaxDetached slots of the publisher:
+//  - one peer wants the topic and its link is moving (a pin came back within kPinProgress,
+//    from a send, not from a queue dropping it, and its socket took a message within
+//    kPinProgress): wait for the next release, at most kPinWait, then send zero-copy.
+//    Back-pressure into the shm ring instead of a copy that the queue would mostly drop: the
+//    publisher never waits, and what its ring overwrites meanwhile is counted as this
+//    subscription's drops. (This executor thread serves every topic of the channel: a wait
+//    delays them by at most kPinWait, about one message's time on the wire.)
+//  - several peers want it, the link is stalled (no pin back, or the peer took nothing, for
+//    kPinProgress), or the wait timed out: copy (one copy, counted in copied_msgs). So a slow
+//    link never holds more than kMaxDetached slots, never paces the other peers to its
+//    speed, and never stops this bridge from serving them.
+namespace {
+constexpr std::chrono::milliseconds kPinWait{50};
+constexpr std::chrono::milliseconds kPinProgress{100};
+
+// Set while on_local_message pushes into the peers' queues: a message freed then was dropped
+// by a queue's policy, not sent, so its release says nothing about the link moving (a stalled
+// peer's queue dropping its oldest must not make the executor wait for pins).
+thread_local bool t_pushing = false;
+
+struct HeldPayload {
+  RetainedBytes bytes;
+  std::shared_ptr<PinWatch> watch;  // zero-copy only: told when the slot is released
+};
+
+void free_payload(void*, void* hint) {
+  auto* h = static_cast<HeldPayload*>(hint);
+  auto watch = std::move(h->watch);
+  delete h;  // releases the pin first, so a waiter woken below finds it free
+  if (watch && !t_pushing) watch->on_release();
+}
+}  // namespace
+
+std::optional<RetainedBytes> Bridge::Impl::wait_for_pin(PinWatch& w, const RawMessage& m) {
+  const auto now = std::chrono::steady_clock::now();
+  const std::int64_t last = w.last_release_ns.load(std::memory_order_relaxed);
+  if (last == 0 || now.time_since_epoch().count() - last > std::chrono::nanoseconds(kPinProgress).count())
+    return std::nullopt;  // stalled (or nothing sent yet): no pin is coming back soon
+  pin_waits.fetch_add(1, std::memory_order_relaxed);
+  const auto deadline = now + kPinWait;
+  std::unique_lock lock(w.mu);
+  std::uint64_t seen = w.released;
+  while (!stopping.load(std::memory_order_relaxed)) {
+    if (!w.cv.wait_until(lock, deadline, [&] { return w.released != seen; })) return std::nullopt;
+    seen = w.released;
+    lock.unlock();
+    if (auto r = m.retain_zero_copy()) return r;  // the release may be of another publisher's pin
+    lock.lock();
+  }
+  return std::nullopt;
+}
+
+zmq::message_t Bridge::Impl::retained_payload(Served& s, const RawMessage& m, const std::size_t* targets,
+                                              std::size_t n) {
+  auto zc = m.retain_zero_copy();
+  // Wait only for one wanting peer whose link is moving (its socket took a message within
+  // kPinProgress). With several peers the pins may be held by the slowest one, and waiting
+  // for it would pace the others to its speed (a slow peer must not hold back the others);
+  // a stopped peer's pins sit in its queue, which only our next push drops from.
+  if (!zc && n == 1) {
+    const std::int64_t now = std::chrono::steady_clock::now().time_since_epoch().count();
+    const std::int64_t sent = peers[targets[0]]->chans[s.channel]->last_sent_ns.load(std::memory_order_relaxed);
+    if (sent != 0 && now - sent <= std::chrono::nanoseconds(kPinProgress).count()) zc = wait_for_pin(*s.pins, m);
+  }
+  auto held = std::make_unique<HeldPayload>();
+  if (zc) {
+    held->bytes = std::move(*zc);
+    held->watch = s.pins;
+  } else {
+    held->bytes = m.retain();  // copies
+  }
+  (held->bytes.zero_copy ? zero_copy_msgs : copied_msgs).fetch_add(1, std::memory_order_relaxed);
+  // ZeroMQ takes a non-const pointer but only reads a message it sends.
+  void* data = const_cast<std::byte*>(held->bytes.data.data());
+  const std::size_t size = held->bytes.data.size();
+  zmq::message_t msg(data, size, free_payload, held.get());
+  held.release();  // owned by the message now (zmq_msg_init_data succeeded)
+  return msg;
 }
 
 void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
@@ -51,8 +137,12 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
       if (n < std::size(targets)) targets[n++] = p;
   }
   if (n == 0) return;
-  zmq::message_t payload(m.data.data(), m.data.size());  // the one copy out of the slot
+  zmq::message_t payload = retained_payload(s, m, targets, n);
   Channel& ch = *channels[s.channel];
+  struct Pushing {
+    Pushing() { t_pushing = true; }
+    ~Pushing() { t_pushing = false; }
+  } pushing;
   for (std::size_t i = 0; i < n; ++i) {
     PeerChannel& pc = *peers[targets[i]]->chans[s.channel];
     Outgoing out{s.topic_ptr, zmq::message_t()};
@@ -62,6 +152,7 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
       pc.drops.fetch_add(1, std::memory_order_relaxed);
     pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
   }
+  payload.rebuild();  // our reference goes while t_pushing (a message every queue refused)
   ch.wake->ring();
 }
 
@@ -140,6 +231,7 @@ void Bridge::Impl::flush(Channel& ch, Peer& p) {
       break;
     }
     ++pc.seq;
+    pc.last_sent_ns.store(std::chrono::steady_clock::now().time_since_epoch().count(), std::memory_order_relaxed);
     pc.sent_msgs.fetch_add(1, std::memory_order_relaxed);
     pc.sent_bytes.fetch_add(bytes, std::memory_order_relaxed);
     if (link >= 0) p.links[static_cast<std::size_t>(link)]->bytes_sent.fetch_add(bytes, std::memory_order_relaxed);

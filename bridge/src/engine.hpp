@@ -119,9 +119,30 @@ struct RateLimit {
   }
 };
 
+// Releases of one served topic's zero-copy messages (their pinned slots), signalled from
+// ZeroMQ's free callback on whichever thread frees the message; waited on by the topic's
+// executor thread (Bridge::Impl::wait_for_pin). Shared with every message in flight, so it
+// outlives the Served and the Bridge.
+struct PinWatch {
+  std::mutex mu;
+  std::condition_variable cv;
+  std::uint64_t released = 0;                      // guarded by mu
+  std::atomic<std::int64_t> last_release_ns{0};    // steady clock; 0: never
+  void on_release() {
+    last_release_ns.store(std::chrono::steady_clock::now().time_since_epoch().count(), std::memory_order_relaxed);
+    {
+      std::lock_guard lock(mu);
+      ++released;
+    }
+    cv.notify_all();
+  }
+};
+
 struct Outgoing {
   std::shared_ptr<const std::string> topic;
-  zmq::message_t payload;  // a refcounted copy (zmq_msg_copy) of the one copy of the slot
+  // A refcounted copy (zmq_msg_copy) of the message made by retained_payload(): the pinned
+  // slot itself, or one copy of it.
+  zmq::message_t payload;
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -145,6 +166,7 @@ struct Bridge::Impl {
     std::deque<Outgoing> queue;
     std::atomic<std::uint64_t> sent_msgs{0}, sent_bytes{0}, drops{0}, recv_msgs{0}, recv_bytes{0}, lost{0};
     std::atomic<std::int32_t> queued{0};
+    std::atomic<std::int64_t> last_sent_ns{0};  // steady clock of the last message the socket took; 0: never
     // channel thread:
     std::unique_ptr<zmq::socket_t> dealer;
     int connected_link = -1;
@@ -184,6 +206,7 @@ struct Bridge::Impl {
     std::atomic<bool> large{false};
     std::mutex mu;              // guards peers
     std::vector<std::size_t> peers;
+    std::shared_ptr<PinWatch> pins = std::make_shared<PinWatch>();
     RawSubscriber sub;
   };
 
@@ -207,6 +230,9 @@ struct Bridge::Impl {
   std::uint64_t instance = 0;
   std::atomic<bool> stopping{false};
   std::atomic<std::uint64_t> bad_frames{0};
+  // Local messages queued for peers: sent straight from their pinned slot / copied out of it.
+  std::atomic<std::uint64_t> zero_copy_msgs{0}, copied_msgs{0};
+  std::atomic<std::uint64_t> pin_waits{0};  // on_local_message waited for a pin (link moving)
   RateLimit bad_log;
 
   zmq::context_t ctx;
@@ -265,6 +291,8 @@ struct Bridge::Impl {
   bool authentic(zmq::message_t& m, const std::string& claimed);
   void zap_loop();
   void on_local_message(Served& s, const RawMessage& m);
+  zmq::message_t retained_payload(Served& s, const RawMessage& m, const std::size_t* targets, std::size_t n);
+  std::optional<RetainedBytes> wait_for_pin(PinWatch& w, const RawMessage& m);
   void channel_loop(Channel& ch);
   void flush(Channel& ch, Peer& p);
   void receive_data(Channel& ch);

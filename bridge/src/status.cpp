@@ -64,6 +64,8 @@ lcmx_msgs::bridge_status_t Bridge::Impl::status() const {
   s.num_peers = static_cast<std::int32_t>(s.peers.size());
   s.demand.assign(demand.begin(), demand.end());
   s.num_demand = static_cast<std::int32_t>(s.demand.size());
+  s.zero_copy_sends = static_cast<std::int64_t>(zero_copy_msgs.load(std::memory_order_relaxed));
+  s.copied_sends = static_cast<std::int64_t>(copied_msgs.load(std::memory_order_relaxed));
   return s;
 }
 

@@ -546,24 +546,40 @@ RawSubscriberCore::RawSubscriberCore(std::string channel, SubscriberOptions o,
 }
 
 bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
-  if (item.type->carries_bytes()) return deliver_bytes(item.bytes);
+  RetainSource src;
+  if (item.type->carries_bytes()) {
+    src.owner = item.object;  // retain() shares the publisher's (or UDP receiver's) buffer
+    return deliver(item.bytes, src, nullptr, nullptr);
+  }
   // A typed publisher in this process: encode for the raw subscriber.
   scratch_.resize(item.type->encoded_size(item.object.get()));
   item.type->encode(item.object.get(), scratch_.data(), scratch_.size());
-  return deliver_bytes(scratch_);
+  return deliver(scratch_, src, nullptr, nullptr);
 }
 
 // Zero-copy: the callback reads the slot itself, so intact() is checked before (a torn view
 // is withheld) and after it (the slot was rewritten or truncated during the callback: it may
-// have read a torn view; delivered, and counted as a drop).
-bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes,
-                                      const shm::ReadSample* sample, bool* torn) {
+// have read a torn view; delivered, and counted as a drop). After a retain() the sample lives
+// on as a DetachedSample: the check after the callback is made on that.
+bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes, shm::ReadSample* sample,
+                                      bool* torn) {
+  RetainSource src;
+  src.sample = sample;
+  return deliver(bytes, src, sample, torn);
+}
+
+bool RawSubscriberCore::deliver(std::span<const std::byte> bytes, RetainSource& src,
+                                shm::ReadSample* sample, bool* torn) {
   if (sample != nullptr && !sample->intact()) {
     if (torn != nullptr) *torn = true;
     return false;
   }
-  cb_(RawMessage{channel(), bytes});
-  if (sample != nullptr && !sample->intact() && torn != nullptr) *torn = true;
+  cb_(RawMessage{channel(), bytes, &src});
+  if (src.copies != 0) copies_.fetch_add(src.copies, std::memory_order_relaxed);
+  if (sample != nullptr && torn != nullptr) {
+    const bool ok = src.detached ? src.detached->intact() : sample->intact();
+    if (!ok) *torn = true;
+  }
   return true;
 }
 
@@ -659,5 +675,42 @@ std::size_t Node::spin_once(std::chrono::nanoseconds timeout) {
 }
 
 const std::string& Node::name() const { return impl_->name; }
+
+}  // namespace lcmx
+
+namespace lcmx {
+
+std::optional<RetainedBytes> RawMessage::retain_zero_copy() const noexcept {
+  if (source == nullptr) return std::nullopt;
+  auto& src = *source;
+  if (src.detached) return RetainedBytes{data, src.detached, true};  // retained before
+  if (src.owner) return RetainedBytes{data, src.owner, true};
+  if (src.sample != nullptr) {
+    if (auto d = src.sample->detach()) {
+      try {
+        src.detached = std::make_shared<const shm::DetachedSample>(std::move(*d));
+      } catch (const std::bad_alloc&) {
+        return std::nullopt;  // *d (destroyed here) gave the pin back
+      }
+      return RetainedBytes{data, src.detached, true};
+    }
+  }
+  return std::nullopt;
+}
+
+RetainedBytes RawMessage::retain() const {
+  if (auto r = retain_zero_copy()) return std::move(*r);
+  if (source != nullptr && source->copy) {
+    return {{source->copy->data(), source->copy->size()}, source->copy, false};
+  }
+  // No source (a RawMessage made by hand), encoded bytes, or every detachable pin held: copy.
+  auto copy = std::make_shared<const detail::Bytes>(data.begin(), data.end());
+  std::span<const std::byte> view(copy->data(), copy->size());
+  if (source != nullptr) {
+    source->copy = copy;
+    ++source->copies;
+  }
+  return {view, std::move(copy), false};
+}
 
 }  // namespace lcmx

@@ -219,6 +219,14 @@ struct GenView {
   SubscriberEntry& sub() const noexcept { return seg->sub(entry); }
 };
 
+// Pins of one Reader held by DetachedSamples (bit i: pin i). Set by the Reader's owner
+// thread (detach), cleared by whichever thread destroys the DetachedSample, after it stored
+// kPinFree into the pin word (fetch_and release; take()'s acquire load pairs with it).
+// Shared: it outlives the Reader while DetachedSamples do.
+struct PinLedger {
+  std::atomic<std::uint32_t> detached{0};
+};
+
 struct ReaderImpl {
   std::string base;
   std::shared_ptr<GenView> cur;
@@ -231,6 +239,8 @@ struct ReaderImpl {
   std::chrono::milliseconds backoff{0};
   std::shared_ptr<GenView> pin_gen[kMaxPins];
   std::shared_ptr<GenView> armed;
+  std::shared_ptr<PinLedger> ledger = std::make_shared<PinLedger>();
+  std::uint64_t detach_refused = 0;
   std::int32_t pid = 0;
   std::uint64_t start_time = 0;
 

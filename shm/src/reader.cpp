@@ -28,6 +28,7 @@
 //   shared memory are range-checked before use.
 #include <unistd.h>
 
+#include <bit>
 #include <limits>
 #include <utility>
 
@@ -75,6 +76,22 @@ std::unique_ptr<Segment> open_generation_or_newer(const std::string& base, std::
 
 }  // namespace
 
+// The seqlock re-check of ReadSample/DetachedSample::intact(). A Writer probing a pinned
+// slot stores WRITING and then restores the seq without touching the payload (writer.cpp,
+// step 3): WRITING is re-read a bounded number of times before it counts as a rewrite
+// (seqs are never reused, so seeing `local` again proves the payload was not touched).
+bool slot_still_holds(const std::byte* payload, std::uint64_t local, const GenView& gen) noexcept {
+  // Acquire fence: the caller's payload reads happen before these loads.
+  std::atomic_thread_fence(std::memory_order_acquire);
+  const auto* sh = reinterpret_cast<const SlotHeader*>(payload - kSlotHeaderSize);
+  std::uint64_t sq = sh->seq.load(std::memory_order_relaxed);
+  for (int spin = 0; sq == kSlotWriting && spin < kWritingSpins; ++spin) {
+    cpu_relax();
+    sq = sh->seq.load(std::memory_order_relaxed);
+  }
+  return sq == local && gen.still_ours();
+}
+
 ReaderImpl::~ReaderImpl() {
   if (armed && armed->sub().armed.exchange(0, std::memory_order_acq_rel) != 0) {
     armed->seg->hdr->waiters.fetch_sub(1, std::memory_order_seq_cst);
@@ -89,7 +106,17 @@ ReaderImpl::~ReaderImpl() {
 }
 
 GenView::~GenView() {
-  if (seg && ::getpid() == pid) deregister_subscriber(*seg, entry, seg->lock.get());
+  if (!seg || ::getpid() != pid) return;
+  deregister_subscriber(*seg, entry, seg->lock.get());
+  // The last holder of a generation may be a DetachedSample released after its Reader was
+  // destroyed (on any thread): like ~ReaderImpl, remove what a closed Writer left for us.
+  if (seg->hdr->writer_closed.load(std::memory_order_acquire) != 0) {
+    if (auto sg = split_generation(seg->name)) {
+      const std::string base = sg->first;
+      seg.reset();
+      release_unneeded_generations(base);
+    }
+  }
 }
 
 void ReaderImpl::unpin(int pin) noexcept {
@@ -214,11 +241,75 @@ bool ReadSample::intact() const noexcept {
   if (reader_ == nullptr || pin_ < 0 || pin_ >= detail::kMaxPins) return false;
   const auto& gen = reader_->pin_gen[pin_];
   if (!gen) return false;
-  // Seqlock-style validation: our payload reads happen before these loads.
-  std::atomic_thread_fence(std::memory_order_acquire);
-  const auto* sh = reinterpret_cast<const detail::SlotHeader*>(data_ - detail::kSlotHeaderSize);
-  const std::uint64_t local = sequence_ - gen->seg->first_global_seq;
-  return sh->seq.load(std::memory_order_relaxed) == local && gen->still_ours();
+  return detail::slot_still_holds(data_, sequence_ - gen->seg->first_global_seq, *gen);
+}
+
+std::optional<DetachedSample> ReadSample::detach() noexcept {
+  if (reader_ == nullptr || pin_ < 0 || pin_ >= detail::kMaxPins || !reader_->pin_gen[pin_]) {
+    return std::nullopt;
+  }
+  auto& r = *reader_;
+  // Only this (the owner) thread sets bits, so the count cannot grow under us; releasers
+  // may clear bits meanwhile (then we refuse one that would have fit: harmless).
+  const std::uint32_t mask = r.ledger->detached.load(std::memory_order_acquire);
+  if (std::popcount(mask) >= Reader::kMaxDetached) {
+    ++r.detach_refused;
+    return std::nullopt;
+  }
+  DetachedSample d;
+  const std::uint32_t bit = std::uint32_t{1} << pin_;
+  // Relaxed: only the owner thread reads the bit to decide (it set it itself); the pin word
+  // in shared memory stays set, so the Writer keeps skipping the slot.
+  r.ledger->detached.fetch_or(bit, std::memory_order_relaxed);
+  d.gen_ = std::move(r.pin_gen[pin_]);
+  r.pin_gen[pin_].reset();
+  d.ledger_ = r.ledger;
+  d.pin_ = std::exchange(pin_, -1);
+  d.data_ = data_;
+  d.size_ = size_;
+  d.sequence_ = sequence_;
+  reader_ = nullptr;
+  return d;
+}
+
+// ---- DetachedSample ----
+
+DetachedSample::DetachedSample(DetachedSample&& o) noexcept
+    : gen_(std::move(o.gen_)), ledger_(std::move(o.ledger_)), pin_(std::exchange(o.pin_, -1)),
+      data_(o.data_), size_(o.size_), sequence_(o.sequence_) {}
+
+DetachedSample& DetachedSample::operator=(DetachedSample&& o) noexcept {
+  if (this != &o) {
+    release();
+    gen_ = std::move(o.gen_);
+    ledger_ = std::move(o.ledger_);
+    pin_ = std::exchange(o.pin_, -1);
+    data_ = o.data_;
+    size_ = o.size_;
+    sequence_ = o.sequence_;
+  }
+  return *this;
+}
+
+DetachedSample::~DetachedSample() { release(); }
+
+void DetachedSample::release() noexcept {
+  if (!gen_ || pin_ < 0 || pin_ >= detail::kMaxPins) return;
+  // 1. Release: the payload reads (on any thread that had the sample) happen-before the
+  //    Writer's reuse of the slot (its pin load reads this store).
+  gen_->sub().pins[pin_].store(detail::kPinFree, std::memory_order_release);
+  // 2. Release: pairs with take()'s acquire load of the mask; the owner thread stores a new
+  //    seq into this pin word only after it sees the bit clear, hence after step 1.
+  ledger_->detached.fetch_and(~(std::uint32_t{1} << pin_), std::memory_order_release);
+  pin_ = -1;
+  // 3. The last holder of the generation unmaps it and deregisters from it (GenView).
+  gen_.reset();
+  ledger_.reset();
+}
+
+bool DetachedSample::intact() const noexcept {
+  if (!gen_ || pin_ < 0) return false;
+  return detail::slot_still_holds(data_, sequence_ - gen_->seg->first_global_seq, *gen_);
 }
 
 // ---- Reader ----
@@ -268,8 +359,11 @@ std::optional<ReadSample> Reader::take() {
   using namespace detail;
   auto& r = *impl_;
   int pin = -1;
+  // Acquire: pairs with a DetachedSample's release (fetch_and after its kPinFree store): a
+  // pin whose bit is clear is free in shared memory too, and our store below comes after.
+  const std::uint32_t detached = r.ledger->detached.load(std::memory_order_acquire);
   for (int i = 0; i < kMaxPins; ++i) {
-    if (!r.pin_gen[i]) {
+    if (!r.pin_gen[i] && (detached & (std::uint32_t{1} << i)) == 0) {
       pin = i;
       break;
     }
@@ -369,6 +463,10 @@ std::uint32_t Reader::armed_readers() const noexcept {
 }
 
 std::uint64_t Reader::drops() const noexcept { return impl_->drops; }
+int Reader::detached() const noexcept {
+  return std::popcount(impl_->ledger->detached.load(std::memory_order_acquire));
+}
+std::uint64_t Reader::detach_refused() const noexcept { return impl_->detach_refused; }
 std::uint64_t Reader::received() const noexcept { return impl_->received; }
 
 bool Reader::writer_alive() const {

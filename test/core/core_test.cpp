@@ -4,6 +4,7 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <condition_variable>
@@ -204,6 +205,43 @@ TEST_CASE("raw and typed endpoints interoperate through the LCM encoding", "[cor
   raw_pub.publish(junk);
   node.spin_once(100ms);
   CHECK(typed_sub.stats().decode_errors == 1);
+}
+
+TEST_CASE("RawMessage::retain on the intra-process path shares the raw publisher's buffer, copies a typed one's encoding",
+          "[core][raw][retain]") {
+  auto rt = lcmx::Runtime::create(test_options());
+  auto node = rt.create_node("n", manual());
+  auto raw_pub = node.advertise_raw("RETAIN_RAW");
+  auto typed_pub = node.advertise<lcmx_examples::pose_t>("RETAIN_RAW");
+  std::vector<lcmx::RetainedBytes> kept;
+  std::vector<const std::byte*> views;
+  auto sub = node.subscribe_raw("RETAIN_RAW", [&](const lcmx::RawMessage& m) {
+    views.push_back(m.data.data());
+    kept.push_back(m.retain());
+  });
+  std::vector<std::byte> bytes(100000);
+  for (std::size_t i = 0; i < bytes.size(); ++i) bytes[i] = static_cast<std::byte>(i * 7);
+  raw_pub.publish(bytes);
+  lcmx_examples::pose_t p{};
+  p.position[0] = 3.5;
+  typed_pub.publish(p);
+  CHECK(node.spin_once(1s) == 2);
+  REQUIRE(kept.size() == 2);
+  CHECK(kept[0].zero_copy);
+  CHECK(kept[0].data.data() == views[0]);  // the delivered buffer itself
+  CHECK(std::equal(bytes.begin(), bytes.end(), kept[0].data.begin(), kept[0].data.end()));
+  CHECK_FALSE(kept[1].zero_copy);  // encoded for the raw subscriber into reused scratch: copied
+  CHECK(kept[1].data.data() != views[1]);
+  // After more traffic, what was kept is unchanged.
+  std::fill(bytes.begin(), bytes.end(), std::byte{0});
+  raw_pub.publish(bytes);
+  p.position[0] = -1;
+  typed_pub.publish(p);
+  CHECK(node.spin_once(1s) == 2);
+  CHECK(kept[0].data[1] == std::byte{7});
+  lcmx_examples::pose_t back{};
+  REQUIRE(back.decode(kept[1].data.data(), 0, static_cast<int>(kept[1].data.size())) > 0);
+  CHECK(back.position[0] == 3.5);
 }
 
 TEST_CASE("spin_once is for manual nodes and returns the callbacks it ran", "[core][executor]") {

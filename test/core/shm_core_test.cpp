@@ -283,3 +283,75 @@ TEST_CASE("a reader whose generation follow failed delivers later without a comm
   CHECK(took < 600ms);
   child.send('q');
 }
+
+TEST_CASE("RawMessage::retain keeps shm samples zero-copy past the callback, copies beyond the pins, outlives the subscriber and publisher",
+          "[core][shm][retain]") {
+  const auto o = shm_test_options();
+  const std::string channel = "RETAIN_" + std::to_string(::getpid());
+  PublisherChild child(o, channel, 1);
+  auto rt = lcmx::Runtime::create(o);
+  auto node = rt.create_node("holder");
+  std::mutex mu;
+  std::vector<lcmx::RetainedBytes> kept;
+  int same = 0;  // checked here, not in the callback (Catch is not thread-safe)
+  auto sub = node.subscribe_raw(channel, [&](const lcmx::RawMessage& m) {
+    auto r = m.retain();
+    auto again = m.retain();  // same bytes, no second pin
+    std::lock_guard lock(mu);
+    if (again.data.data() == r.data.data() && again.zero_copy == r.zero_copy) ++same;
+    kept.push_back(std::move(r));
+  });
+  const auto count = [&] {
+    std::lock_guard lock(mu);
+    return kept.size();
+  };
+  REQUIRE(child.ready());
+  constexpr std::size_t kMax = lcmx::shm::Reader::kMaxDetached;
+  // One at a time: kMaxDetached zero-copy holds, then copies (the subscriber keeps
+  // receiving: one pin always stays for take()).
+  for (std::size_t k = 0; k < kMax + 2; ++k) {
+    child.send('p');
+    REQUIRE(eventually([&] { return count() == k + 1; }, kWait));
+  }
+  {
+    std::lock_guard lock(mu);
+    for (std::size_t k = 0; k < kept.size(); ++k) {
+      INFO("message " << k);
+      CHECK(kept[k].zero_copy == (k < kMax));
+      REQUIRE(kept[k].data.size() == 8);
+      std::uint64_t v = ~0ull;
+      std::memcpy(&v, kept[k].data.data(), 8);
+      CHECK(v == k);
+    }
+    // Released on another thread (as ZeroMQ's I/O thread does): the pin comes back.
+    std::thread([r = std::move(kept[0])]() mutable { lcmx::RetainedBytes x = std::move(r); }).join();
+  }
+  child.send('p');
+  REQUIRE(eventually([&] { return count() == kMax + 3; }, kWait));
+  {
+    std::lock_guard lock(mu);
+    CHECK(kept.back().zero_copy);
+    CHECK(same == static_cast<int>(kept.size()));
+  }
+  child.send('s');
+  std::uint64_t published = 0, dropped = 0;
+  REQUIRE(std::sscanf(child.line().c_str(), "%lu %lu", &published, &dropped) == 2);
+  CHECK(published == kMax + 3);
+  CHECK(dropped == 0);  // 8 slots, at most kMaxPins pinned by us
+  CHECK(sub.stats().drops == 0);
+  // The subscriber and then the publisher go away; what was retained stays readable.
+  sub.reset();
+  child.send('q');
+  REQUIRE(eventually([&] {
+    int st = 0;
+    return ::waitpid(child.pid, &st, WNOHANG) == child.pid;
+  }, kWait));
+  child.pid = -1;
+  std::lock_guard lock(mu);
+  for (std::size_t k = 1; k < kept.size(); ++k) {
+    std::uint64_t v = ~0ull;
+    std::memcpy(&v, kept[k].data.data(), 8);
+    CHECK(v == k);
+  }
+  kept.clear();  // the last holders unmap and deregister
+}

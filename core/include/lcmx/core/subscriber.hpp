@@ -12,6 +12,7 @@
 #include <chrono>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <type_traits>
 #include <utility>
 #include <vector>
@@ -48,7 +49,7 @@ class TypedSubscriberCore final : public SubscriberCore {
     return deliver_bytes(item.bytes);
   }
 
-  bool deliver_bytes(std::span<const std::byte> bytes, const shm::ReadSample* sample = nullptr,
+  bool deliver_bytes(std::span<const std::byte> bytes, shm::ReadSample* sample = nullptr,
                      bool* torn = nullptr) override {
     // Reuse the last decoded object when nobody kept it: decoding into the same object
     // reuses its buffers (no allocation for same-sized images).
@@ -108,11 +109,50 @@ class Subscriber {
   std::shared_ptr<detail::SubscriberCore> core_;
 };
 
+// The bytes of a RawMessage kept beyond its callback (RawMessage::retain()). Move-only in
+// spirit (copies share `owner`); destroy it on any thread. `data` stays valid and unchanged
+// while `owner` lives.
+struct RetainedBytes {
+  std::span<const std::byte> data;
+  std::shared_ptr<const void> owner;  // keeps `data` alive
+  // True: `data` is the message's own storage, no byte copied (a pinned shared-memory slot,
+  // or the in-process/UDP message's buffer). False: a private copy (see retain()).
+  bool zero_copy = false;
+};
+
+namespace detail {
+// Where RawMessage::retain() takes the message from (set by the runtime; nullptr: copy).
+struct RetainSource {
+  shm::ReadSample* sample = nullptr;           // shm path: detached on the first retain()
+  std::shared_ptr<const void> owner;           // intra-process/UDP path: the shared buffer
+  std::shared_ptr<const shm::DetachedSample> detached;  // after a successful detach
+  std::shared_ptr<const Bytes> copy;           // after a copying retain()
+  std::uint64_t copies = 0;                    // messages retain() had to copy
+};
+}  // namespace detail
+
 // A received raw message: a zero-copy view (into shared memory for the shm path), valid only
 // during the callback.
 struct RawMessage {
   std::string_view channel;
   std::span<const std::byte> data;
+  detail::RetainSource* source = nullptr;  // the runtime's; see retain()
+
+  // Keeps the message beyond the callback. Call only during the callback, on its thread.
+  // Shared-memory path: the pinned slot itself (zero_copy): the slot stays pinned, and the
+  // publisher skips it, until the result (and every copy of its owner) is destroyed, on any
+  // thread; it stays valid after the subscriber, its publisher match or the publisher are
+  // gone. At most shm::Reader::kMaxDetached messages per publisher are held this way; beyond
+  // that (a slow holder) retain() copies the bytes (zero_copy false), so a slow holder can
+  // never make this subscriber stop receiving nor hold more than kMaxDetached slots of a
+  // publisher. Intra-process and UDP paths: shares the received buffer (zero_copy true);
+  // a typed in-process publisher's encoded bytes: copied. Calling it again in the same
+  // callback returns the same bytes. Throws std::bad_alloc only.
+  RetainedBytes retain() const;
+  // As retain(), but never copies: nullopt where retain() would copy (kMaxDetached samples of
+  // this publisher held, encoded bytes, or no source). May be called again later in the same
+  // callback (e.g. after waiting for a holder to release a sample). Never throws.
+  std::optional<RetainedBytes> retain_zero_copy() const noexcept;
 };
 
 using RawSubscriber = Subscriber<void>;
@@ -126,12 +166,17 @@ class RawSubscriberCore final : public SubscriberCore {
                     std::function<void(const RawMessage&)> cb,
                     const TypeInfo& type = raw_type_info());
   bool deliver_intra(const IntraItem& item) override;
-  bool deliver_bytes(std::span<const std::byte> bytes, const shm::ReadSample* sample = nullptr,
+  bool deliver_bytes(std::span<const std::byte> bytes, shm::ReadSample* sample = nullptr,
                      bool* torn = nullptr) override;
+  // retain() calls that copied (pins exhausted, or encoded from a typed publisher).
+  std::uint64_t retain_copies() const noexcept { return copies_.load(std::memory_order_relaxed); }
 
  private:
+  bool deliver(std::span<const std::byte> bytes, RetainSource& src, shm::ReadSample* sample,
+               bool* torn);
   std::function<void(const RawMessage&)> cb_;
   Bytes scratch_;
+  std::atomic<std::uint64_t> copies_{0};
 };
 
 struct ChannelSubscriptionCore;

@@ -63,9 +63,12 @@ struct WriterOptions {
 namespace detail {
 struct WriterImpl;
 struct ReaderImpl;
+struct GenView;
+struct PinLedger;
 }  // namespace detail
 
 class Writer;
+class DetachedSample;
 
 // A slot reserved by Writer::loan(): write up to capacity() bytes at data(), then
 // Writer::commit(). Destroyed without commit: the slot goes back, nothing is published.
@@ -160,11 +163,61 @@ class ReadSample {
   // was read and count it as a drop. Cheap (two loads).
   bool intact() const noexcept;
 
+  // Detaches the sample from its Reader so that it can outlive the Reader's thread, the
+  // Reader itself and the Writer's move to a new generation (zero-copy hand-off, e.g. to a
+  // network stack that frees buffers on its own thread). Owner thread (the Reader's) only.
+  // On success the pin and the mapping move into the returned DetachedSample and *this
+  // becomes empty (data() stays as it was, intact() false). Returns nullopt and leaves *this
+  // unchanged when kMaxDetached samples of this Reader are already detached and alive: the
+  // last pin is kept for take(), so detaching can never make take() fail. The Writer keeps
+  // skipping the slot until the DetachedSample is destroyed (so held samples cost the Writer
+  // slots: see Writer::loan() for what happens when every slot is pinned). Never throws.
+  std::optional<DetachedSample> detach() noexcept;
+
  private:
   friend class Reader;
   ReadSample(detail::ReaderImpl* r, int pin, const std::byte* d, std::size_t n, std::uint64_t s)
       : reader_(r), pin_(pin), data_(d), size_(n), sequence_(s) {}
   detail::ReaderImpl* reader_ = nullptr;
+  int pin_ = -1;
+  const std::byte* data_ = nullptr;
+  std::size_t size_ = 0;
+  std::uint64_t sequence_ = 0;
+};
+
+// A sample detached from its Reader (ReadSample::detach): a pinned, zero-copy message that
+// may be read and destroyed on any thread, any number of threads reading at once.
+// Thread contract: the destructor (or move-assignment over it) may run on any thread,
+// concurrently with the Reader's owner thread calling take() and with other
+// DetachedSamples being destroyed. Release protocol: the destructor stores kPinFree into
+// its pin word in shared memory (release: every read of the payload happens-before the
+// Writer's reuse of the slot), then clears the pin's bit in the Reader's detached mask
+// (release; the owner thread's acquire load of the mask in take() pairs with it, so a pin
+// is reused only after the free store, never overwritten by it). It keeps the generation's
+// mapping and subscriber entry alive by itself: it stays valid after its Reader is
+// destroyed, after the Writer moved to another generation, and after the Writer exited;
+// the last holder of an old generation deregisters from it.
+class DetachedSample {
+ public:
+  DetachedSample(DetachedSample&&) noexcept;
+  DetachedSample& operator=(DetachedSample&&) noexcept;
+  DetachedSample(const DetachedSample&) = delete;
+  DetachedSample& operator=(const DetachedSample&) = delete;
+  ~DetachedSample();  // releases the pin: any thread
+
+  const std::byte* data() const noexcept { return data_; }
+  std::size_t size() const noexcept { return size_; }
+  std::uint64_t sequence() const noexcept { return sequence_; }
+  // As ReadSample::intact(), callable from any thread: false if the slot was rewritten (a
+  // broken pin: our entry reclaimed as dead) or the file truncated by another process.
+  bool intact() const noexcept;
+
+ private:
+  friend class ReadSample;
+  DetachedSample() = default;
+  void release() noexcept;
+  std::shared_ptr<detail::GenView> gen_;
+  std::shared_ptr<detail::PinLedger> ledger_;
   int pin_ = -1;
   const std::byte* data_ = nullptr;
   std::size_t size_ = 0;
@@ -184,6 +237,8 @@ struct WaitToken {
 class Reader {
  public:
   static constexpr int kMaxPins = 4;  // ReadSamples alive at once per Reader
+  // DetachedSamples alive at once per Reader (ReadSample::detach): one pin stays for take().
+  static constexpr int kMaxDetached = kMaxPins - 1;
 
   // Opens a Writer's segment by name (any generation; follows to the newest) and registers
   // in its subscriber table, reclaiming entries of dead processes. The first message
@@ -198,7 +253,8 @@ class Reader {
 
   // The next message in order, pinned; nullopt when there is none new. Messages overwritten
   // before being read are skipped and counted in drops(). Follows generations.
-  // Throws Error(too_many_pins -> invalid_argument) if kMaxPins samples are alive; when
+  // Throws Error(too_many_pins -> invalid_argument) if kMaxPins samples (ReadSamples and
+  // DetachedSamples of this Reader) are alive; when
   // following the Writer to a new generation fails, the error of open() (no_subscriber_slot,
   // corrupt, untrusted, system) once: the Reader stays where it was and retries by itself
   // after 100 ms (doubling up to 1 s; has_data() is false meanwhile, take() returns nullopt
@@ -217,6 +273,10 @@ class Reader {
   // woken together by the last commit (hint, for fan-out scheduling). 0 when not armed.
   std::uint32_t armed_readers() const noexcept;
   std::uint64_t drops() const noexcept;       // messages this Reader lost
+  // DetachedSamples of this Reader alive now (any thread may be releasing them: a snapshot).
+  int detached() const noexcept;
+  // ReadSample::detach() calls refused because kMaxDetached samples were alive.
+  std::uint64_t detach_refused() const noexcept;
   std::uint64_t received() const noexcept;    // messages returned by take()
   // The Writer still runs and has not closed the segment: its OFD lock on the segment file is
   // held (works across pid namespaces; no pid is involved). One fcntl call.

@@ -87,8 +87,10 @@ class SubscriberCore {
   // decode, then check sample->intact() before the callback; raw subscribers check it before
   // and after their zero-copy callback. A sample found not intact sets `*torn` (a drop for
   // the caller to count); withheld unless found only after a raw callback.
+  // A raw subscriber's callback may detach `sample` (RawMessage::retain): *sample is then
+  // empty when deliver_bytes returns.
   virtual bool deliver_bytes(std::span<const std::byte> bytes,
-                             const shm::ReadSample* sample = nullptr, bool* torn = nullptr) = 0;
+                             shm::ReadSample* sample = nullptr, bool* torn = nullptr) = 0;
 
   const std::string& channel() const { return channel_; }
   const TypeInfo& type() const { return type_; }
