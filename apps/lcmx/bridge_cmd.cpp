@@ -19,6 +19,7 @@
 #include "lcmx/bridge/bridge.hpp"
 #include "lcmx/core.hpp"
 #include "log_common.hpp"
+#include "status_collect.hpp"
 #include "verb.hpp"
 
 namespace lcmx::cli {
@@ -200,29 +201,8 @@ std::string bridge_status_json(const lcmx_msgs::bridge_status_t& s) {
 
 int bridge_status(const std::string& url, int wait_ms, bool json) {
   spdlog::set_level(spdlog::level::warn);
-  std::mutex mu;
-  std::condition_variable cv;
-  std::map<std::int32_t, lcmx_msgs::bridge_status_t> seen;  // by pid
   try {
-    auto options = RuntimeOptions::from_env();
-    options.discovery_url = url;
-    options.vehicle_url.clear();  // this host's bridges only
-    auto rt = Runtime::create(options);
-    auto node = rt.create_node("bridge_status");
-    auto sub = node.subscribe<lcmx_msgs::bridge_status_t>(bridge::kStatusChannel,
-                                                          [&](const lcmx_msgs::bridge_status_t& s) {
-                                                            std::lock_guard lock(mu);
-                                                            seen[s.pid] = s;
-                                                            cv.notify_all();
-                                                          });
-    // A bridge publishes at once when it sees a new status subscriber; wait for the first
-    // status, then a little longer for other bridges on this host (normally there is one).
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(wait_ms);
-    std::unique_lock lock(mu);
-    if (cv.wait_until(lock, deadline, [&] { return !seen.empty(); })) {
-      const auto more = std::min(deadline, std::chrono::steady_clock::now() + std::chrono::milliseconds(300));
-      cv.wait_until(lock, more, [] { return false; });
-    }
+    const auto seen = collect_statuses<lcmx_msgs::bridge_status_t>(url, bridge::kStatusChannel, "bridge_status", wait_ms);
     if (json) {
       std::cout << "{\"bridges\":[";
       bool first = true;

@@ -19,6 +19,7 @@
 #include "lcmx/dds/gateway.hpp"
 #include "lcmx/dds/idl.hpp"
 #include "log_common.hpp"
+#include "status_collect.hpp"
 
 namespace lcmx::cli {
 namespace {
@@ -122,29 +123,8 @@ int gateway_run(const std::string& path, bool check_only, bool json) {
 
 int gateway_status(const std::string& url, int wait_ms, bool json) {
   spdlog::set_level(spdlog::level::warn);
-  std::mutex mu;
-  std::condition_variable cv;
-  std::map<std::int32_t, lcmx_msgs::dds_gateway_status_t> seen;  // by pid
   try {
-    auto options = RuntimeOptions::from_env();
-    options.discovery_url = url;
-    options.vehicle_url.clear();  // this host's gateways
-    auto rt = Runtime::create(options);
-    auto node = rt.create_node("dds_gateway_status");
-    auto sub = node.subscribe<lcmx_msgs::dds_gateway_status_t>(dds::kStatusChannel,
-                                                               [&](const lcmx_msgs::dds_gateway_status_t& s) {
-                                                                 std::lock_guard lock(mu);
-                                                                 seen[s.pid] = s;
-                                                                 cv.notify_all();
-                                                               });
-    // A gateway publishes at once when it sees a new status subscriber; wait for the first
-    // status, then a little longer for other gateways on this host.
-    const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(wait_ms);
-    std::unique_lock lock(mu);
-    if (cv.wait_until(lock, deadline, [&] { return !seen.empty(); })) {
-      const auto more = std::min(deadline, std::chrono::steady_clock::now() + std::chrono::milliseconds(300));
-      cv.wait_until(lock, more, [] { return false; });
-    }
+    const auto seen = collect_statuses<lcmx_msgs::dds_gateway_status_t>(url, dds::kStatusChannel, "dds_gateway_status", wait_ms);
     if (json) {
       std::cout << "{\"gateways\":[";
       bool first = true;
