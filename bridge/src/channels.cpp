@@ -313,11 +313,13 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
     if (it != repubs.end()) r = it->second;
   }
   if (!r) {
+    std::uint32_t history = 0;
     {
       std::lock_guard lock(view_mu);
       if (!demand.count(topic)) return;  // nobody here wants it (any more)
+      history = keep_of_locked(topic);
     }
-    r = ensure_republisher(topic);
+    r = ensure_republisher(topic, history);
     if (!r) return;
   }
   r->last_message = Clock::now();
@@ -335,13 +337,19 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
   ::sched_yield();
 }
 
-std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(const std::string& topic) {
+std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(const std::string& topic,
+                                                                           std::uint32_t history) {
+  std::shared_ptr<Republisher> old;  // destroyed outside the lock
   std::lock_guard lock(repub_mu);
   auto& slot = repubs[topic];
+  if (slot && slot->history != history) old = std::move(slot);
   if (!slot) {
     try {
       auto r = std::make_shared<Republisher>();
-      r->pub = repub_node->advertise_raw(topic);
+      PublisherOptions po;
+      po.history = history;  // a late subscriber here gets the origin's last N from our ring
+      r->pub = repub_node->advertise_raw(topic, po);
+      r->history = history;
       r->last_message = Clock::now();
       slot = std::move(r);
     } catch (const std::exception& e) {

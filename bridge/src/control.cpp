@@ -83,13 +83,20 @@ void Bridge::Impl::send_pings() {
   const auto now = Clock::now();
   for (auto& p : peers) {
     const int active = p->active.load();
+    // Every topic we serve it, small ones too: its republisher then exists (and its
+    // subscribers have matched it) before the topic becomes large, so the message that makes
+    // it large, forwarded at once, reaches them (DESIGN.md "Delivery", the large switch).
     std::set<std::string> offer;
+    std::map<std::string, std::uint32_t> keep;
     if (active >= 0) {
       std::lock_guard lock(view_mu);
-      for (const auto& t : p->served)
-        if (is_large_locked(t)) offer.insert(t);
+      for (const auto& t : p->served) {
+        offer.insert(t);
+        if (auto it = kept.find(t); it != kept.end() && it->second > 0) keep[t] = it->second;
+      }
     }
     const bool full = active >= 0 && (want != p->sent_want || offer != p->sent_offer || have != p->sent_have ||
+                                      keep != p->sent_keep ||
                                       active != p->full_sent_link || p->instance != p->full_sent_instance ||
                                       now - p->full_sent_at >= kDemandRefresh);
     for (std::size_t i = 0; i < p->links.size(); ++i) {
@@ -100,6 +107,7 @@ void Bridge::Impl::send_pings() {
       c.has_demand = c.active && full;
       c.want.clear();
       c.offer.clear();
+      c.keep.clear();
       c.have.clear();
       c.channels.clear();
       if (c.has_demand) {
@@ -107,9 +115,11 @@ void Bridge::Impl::send_pings() {
         for (const auto& ch : cfg.channels) c.channels.emplace_back(ch.name, ch.port);
         c.want = want;
         c.offer = offer;
+        c.keep = keep;
         c.have = have;
         p->sent_want = want;
         p->sent_offer = offer;
+        p->sent_keep = keep;
         p->sent_have = have;
         p->full_sent_at = now;
         p->full_sent_link = active;
@@ -175,6 +185,7 @@ void Bridge::Impl::receive_control() {
       std::lock_guard lock(view_mu);
       p.wants.clear();
       p.offers.clear();
+      p.keeps.clear();
       p.has.clear();
     }
     if (c->has_demand && p.hello_checked_instance != c->instance) {
@@ -185,6 +196,7 @@ void Bridge::Impl::receive_control() {
       std::lock_guard lock(view_mu);
       p.wants = std::move(c->want);
       p.offers = std::move(c->offer);
+      p.keeps = std::move(c->keep);
       p.has = std::move(c->have);
       p.demand_at = Clock::now();
     } else if (c->active) {

@@ -13,6 +13,7 @@ using namespace std::chrono_literals;
 void Bridge::Impl::refresh_view() {
   std::set<std::string> d;
   std::map<std::string, bool> pubs;
+  std::map<std::string, std::uint32_t> keeps;
   bool patterns = false;
   for (const auto& part : observer->participants()) {
     const auto& b = part.beacon;
@@ -22,13 +23,27 @@ void Bridge::Impl::refresh_view() {
     for (const auto& e : b.endpoints) {
       if (!wire::valid_topic(e.topic)) continue;
       if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER) d.insert(e.topic);
-      else if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) pubs[e.topic] = pubs[e.topic] || e.large != 0;
+      else if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) {
+        pubs[e.topic] = pubs[e.topic] || e.large != 0;
+        if (e.history > 0)
+          keeps[e.topic] = std::max(keeps[e.topic], std::min<std::uint32_t>(static_cast<std::uint32_t>(e.history),
+                                                                             wire::Control::kMaxKeep));
+      }
     }
   }
   std::lock_guard lock(view_mu);
   demand = std::move(d);
   published = std::move(pubs);
+  kept = std::move(keeps);
   channel_subscribers = patterns;
+}
+
+std::uint32_t Bridge::Impl::keep_of_locked(const std::string& topic) const {
+  std::uint32_t n = 0;
+  for (const auto& p : peers)
+    if (p->active.load() >= 0)
+      if (auto it = p->keeps.find(topic); it != p->keeps.end()) n = std::max(n, it->second);
+  return n;
 }
 
 bool Bridge::Impl::is_large_locked(const std::string& topic) const {
@@ -59,6 +74,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
   std::map<std::string, std::vector<std::size_t>> want;  // topic -> peers
   std::map<std::string, bool> large;
   std::set<std::string> offered, local_demand;
+  std::map<std::string, std::uint32_t> keep_of;  // offered topic -> peers' keep last N
   std::set<std::string> announce;  // peers' catalogues, while a local participant has patterns
   bool announce_cut = false;
   {
@@ -87,6 +103,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
         }
     }
     for (const auto& [t, v] : want) large[t] = is_large_locked(t);
+    for (const auto& t : offered) keep_of[t] = keep_of_locked(t);
     local_demand = demand;
   }
   // Subscribe / update / unsubscribe.
@@ -141,17 +158,19 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
                  "to pattern subscribers",
                  cfg.name, wire::kMaxCatalogue, wire::kMaxCatalogue);
   announce_cut_logged = announce_cut_logged || announce_cut;
-  auto ensure = [this](const std::string& t) {
+  auto ensure = [this](const std::string& t, std::uint32_t history) {
     bool have;
     {
       std::lock_guard lock(repub_mu);
-      have = repubs.count(t) > 0;
+      auto it = repubs.find(t);
+      have = it != repubs.end() && it->second->history == history;
     }
-    if (!have) ensure_republisher(t);
+    if (!have) ensure_republisher(t, history);
   };
   for (const auto& t : offered)
-    if (local_demand.count(t)) ensure(t);
-  for (const auto& t : announce) ensure(t);
+    if (local_demand.count(t)) ensure(t, keep_of[t]);
+  for (const auto& t : announce)
+    if (!offered.count(t) || !local_demand.count(t)) ensure(t, 0);
   std::vector<std::shared_ptr<Republisher>> dead;  // destroyed outside the lock
   {
     std::lock_guard lock(repub_mu);

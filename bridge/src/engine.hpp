@@ -188,11 +188,13 @@ struct Bridge::Impl {
     bool was_up = false;
     // What our last full ping (demand) to it said, and when/where/to which instance of it.
     std::set<std::string> sent_want, sent_offer, sent_have;
+    std::map<std::string, std::uint32_t> sent_keep;
     Clock::time_point full_sent_at{};
     int full_sent_link = -1;
     std::uint64_t full_sent_instance = 0;
     // guarded by view_mu:
     std::set<std::string> wants, offers;
+    std::map<std::string, std::uint32_t> keeps;  // keep last N of offered topics (0: absent)
     std::set<std::string> has;     // its catalogue: the large topics its host publishes
     Clock::time_point demand_at{};
     std::set<std::string> served;  // what we forward to it now
@@ -212,6 +214,7 @@ struct Bridge::Impl {
 
   struct Republisher {
     RawPublisher pub;
+    std::uint32_t history = 0;  // PublisherOptions::history: the peers' keep for the topic
     Clock::time_point last_message{};
   };
 
@@ -257,6 +260,7 @@ struct Bridge::Impl {
   mutable std::mutex view_mu;
   std::set<std::string> demand;                 // topics local non-bridge participants subscribe to
   std::map<std::string, bool> published;        // topic -> some local non-bridge publisher is large
+  std::map<std::string, std::uint32_t> kept;     // topic -> largest PublisherOptions::history of them
   std::set<std::string> sticky_large;           // topics once seen large (never go back)
   bool channel_subscribers = false;             // a local participant has FLAG_CHANNELS
 
@@ -298,7 +302,9 @@ struct Bridge::Impl {
   void receive_data(Channel& ch);
   // Channel threads: into this host's shared memory.
   void republish(const std::string& topic, const zmq::message_t& payload);
-  std::shared_ptr<Republisher> ensure_republisher(const std::string& topic);
+  // Makes (or remakes, when the keep differs) the topic's republisher. repub_mu not held.
+  std::shared_ptr<Republisher> ensure_republisher(const std::string& topic, std::uint32_t history);
+  std::uint32_t keep_of_locked(const std::string& topic) const;  // view_mu held: peers' keep
   void control_loop();
   void refresh_view();
   bool is_large_locked(const std::string& topic) const;

@@ -39,6 +39,7 @@ std::string encode(const Control& c) {
       s += "demand\n";
       for (const auto& t : c.want) s += "want " + t + "\n";
       for (const auto& t : c.offer) s += "offer " + t + "\n";
+      for (const auto& [t, n] : c.keep) s += "keep " + t + " " + std::to_string(n) + "\n";
       for (const auto& t : c.have) s += "have " + t + "\n";
     }
   }
@@ -98,6 +99,13 @@ std::optional<Control> decode(std::string_view f) {
     } else if ((key == "want" || key == "offer") && c.has_demand) {
       if (!valid_topic(val)) return std::nullopt;
       (key == "want" ? c.want : c.offer).emplace(val);
+    } else if (key == "keep" && c.has_demand) {
+      const auto sp2 = val.find(' ');
+      std::uint32_t n = 0;
+      if (sp2 == std::string_view::npos || !valid_topic(val.substr(0, sp2)) ||
+          !parse_num(val.substr(sp2 + 1), n) || n > Control::kMaxKeep || c.keep.size() >= kMaxCatalogue)
+        return std::nullopt;
+      c.keep[std::string(val.substr(0, sp2))] = n;
     } else if (key == "have" && c.has_demand) {
       if (!valid_topic(val) || c.have.size() >= kMaxCatalogue) return std::nullopt;
       c.have.emplace(val);

@@ -17,7 +17,7 @@ namespace lcmx::detail {
 
 void RuntimeImpl::expand_locked(const std::string& channel, std::vector<Event>& events) {
   if (channel.empty() || channel.size() > kMaxChannelLength ||
-      channel.find('\0') != std::string::npos || channel == discovery::kBeaconChannel)
+      channel.find('\0') != std::string::npos || channel == discovery::kBeaconChannel || channel == kHistoryChannel)
     return;
   for (const auto& p : channel_subs) {
     if (p->removed || p->children.count(channel) || p->declined.count(channel)) continue;

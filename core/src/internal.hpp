@@ -40,6 +40,10 @@ struct Match {
   bool foreign = false;                 // udp from a non-lcmx sender (stock LCM program)
   // The publisher left: the executor reads what it committed, then drops the match.
   std::atomic<bool> retiring{false};
+  // UDP path, keep last N (RuntimeImpl::on_history): the sequence number of the first message
+  // received live, and one past the newest sent message a replay delivered (live messages
+  // below it were delivered by the replay). Guarded by SubscriberState::mu.
+  std::optional<std::uint32_t> first_live, replay_floor;
 };
 
 struct SubscriberState {
@@ -226,6 +230,18 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   void match_local_locked(PublisherImpl& pub, SubscriberCore& sub, std::vector<Event>& events);
   void sync_remote_locked(SubscriberCore& sub, std::vector<Event>& events);
   void count_remote_locked(PublisherImpl& pub, std::vector<Event>& events);
+  // Keep last N over UDP (docs/ARCHITECTURE.md "Keep last N"): count_remote_locked queues a
+  // replay for each subscriber of another host (or a neighbour) newly matched with a
+  // publisher that keeps messages; send_replays() sends them (mu not held); on_history()
+  // hands a replay addressed to one of our subscribers to it, without what it got live.
+  struct ReplayJob {
+    std::uint64_t publisher = 0;
+    std::int64_t participant = 0, endpoint = 0;  // the subscriber
+    bool vehicle = false;                        // vehicle group, else host-local (neighbour)
+  };
+  std::vector<ReplayJob> replay_jobs;  // guarded by mu
+  void send_replays();
+  void on_history(const udpm::Message& m);
   void update_bridges_locked();
   // Channel subscriptions: subscribes `channel` for every one whose filter accepts it and
   // that has no subscriber of it yet. Sets announce_pending when it did.
@@ -355,6 +371,18 @@ class PublisherImpl final : public PublisherCore {
   // local_udp (neighbours, host-local group).
   void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp);
   bool large() const { return large_.load(); }
+  // Keep last N (options.history): the kept encodings for a UDP replay to one late subscriber
+  // on the vehicle group (vehicle) or the host-local group (a neighbour), oldest first, with
+  // the sequence number each was sent with on that group (if it was). Empty when nothing is
+  // kept for UDP (history 0, or a large topic a bridge of this host carries). Takes publish_mu.
+  struct KeptUdp {
+    std::shared_ptr<const Bytes> encoded;
+    std::optional<std::uint32_t> sequence;
+  };
+  std::vector<KeptUdp> kept_for_udp(bool vehicle) const;
+  // Subscribers of other processes already given a UDP replay: (participant, endpoint).
+  // Guarded by RuntimeImpl::mu.
+  std::set<std::pair<std::int64_t, std::int64_t>> replayed;
   // A bridge of this host now carries the topic: it is large from now on (sticky).
   void mark_large();
 
@@ -377,10 +405,23 @@ class PublisherImpl final : public PublisherCore {
   std::shared_ptr<const Targets> targets() const;
   void deliver_intra(const Targets& t, std::shared_ptr<const void> object);
   void check_size(std::size_t size) const;
-  void write_encoded(const void* object, bool shm, bool udp);
+  std::shared_ptr<const Bytes> write_encoded(const void* object, bool shm, bool udp);
   void note_generation();  // publish_mu held
 
   std::unique_lock<std::mutex> lock_no_loan(const char* what);
+  // Keep last N: remembers a published message (publish_mu held). `object`: what the intra
+  // path hands over; `encoded`: its encoding when it is kept for UDP replays (else null).
+  void keep(std::shared_ptr<const void> object, std::shared_ptr<const Bytes> encoded);
+  // Whether a message of this size is kept as a private encoding (for UDP replays).
+  bool keeps_encoding() const;
+  // The sequence numbers send_udp() last used (publish_mu held; reset by each send_udp).
+  std::optional<std::uint32_t> sent_vehicle_, sent_local_;
+  struct Kept {
+    std::shared_ptr<const void> object;
+    std::shared_ptr<const Bytes> encoded;
+    std::optional<std::uint32_t> vehicle_sequence, local_sequence;
+  };
+  std::deque<Kept> kept_;  // guarded by publish_mu; at most options.history
 
   std::string channel_;
   mutable std::mutex publish_mu;  // serialises publishers' writes into shm
@@ -413,6 +454,10 @@ class PublisherImpl final : public PublisherCore {
   std::atomic<std::uint64_t> shm_dropped_{0};
 };
 
+// The reserved channel of keep-last-N replays (lcmx_msgs::history_t).
+inline constexpr const char* kHistoryChannel = "LCMX_HISTORY";
+// a comes before b in serial-number order (32-bit LCM sequence numbers). udp_receive.cpp.
+bool serial_before(std::uint32_t a, std::uint32_t b);
 // Whether an LCM encoding starts with `fingerprint` (big-endian). udp_receive.cpp.
 bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint);
 // This host's IPv4 addresses, network order (empty if getifaddrs fails). udp_receive.cpp.

@@ -148,7 +148,11 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
     if (path == Path::shm || path == Path::bridge) {
       const auto fkey = std::make_tuple(sub.id, key.first, key.second);
       try {
-        m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment));
+        // Keep last N: the publisher's kept messages are still in its ring (bounded: the
+        // beacon is not trusted).
+        const auto backlog = static_cast<std::uint32_t>(
+            std::clamp<std::int32_t>(e->history, 0, static_cast<std::int32_t>(PublisherOptions::kMaxHistory)));
+        m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment, backlog));
         open_failures.erase(fkey);
         watch_owner_locked(*b, *e);
       } catch (const shm::Error& err) {
@@ -196,6 +200,7 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
 // segment), and reports remote subscribers of another type.
 void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& events) {
   std::size_t counts[3] = {0, 0, 0};  // shm (this host), udp (other hosts), neighbours
+  std::set<std::pair<std::int64_t, std::int64_t>> seen;  // subscribers given a replay, still here
   for (const auto* scope_map : {&remotes, &vehicle_remotes, &neighbour_remotes})
   for (const auto& [pid, b] : *scope_map) {
     auto& n = counts[scope_map == &remotes ? 0 : scope_map == &vehicle_remotes ? 1 : 2];
@@ -214,11 +219,21 @@ void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& ev
       }
       for (const auto& m : e.matches)
         if (static_cast<std::uint64_t>(m.publisher_participant) == participant_id &&
-            static_cast<std::uint64_t>(m.publisher_endpoint) == pub.id)
+            static_cast<std::uint64_t>(m.publisher_endpoint) == pub.id) {
           ++n;
+          if (pub.options.history > 0 && scope_map != &remotes) {
+            const auto key = std::make_pair(b.participant_id, e.id);
+            seen.insert(key);
+            if (pub.replayed.insert(key).second)
+              replay_jobs.push_back({pub.id, b.participant_id, e.id, scope_map == &vehicle_remotes});
+          }
+        }
     }
   }
+  // Sent after this (send_replays): the subscriber counts are set first, so every message
+  // published after the replay's snapshot is sent live.
   pub.set_remote_subscribers(counts[0], counts[1], counts[2]);
+  std::erase_if(pub.replayed, [&](const auto& k) { return !seen.count(k); });
 }
 
 // The bridges of this host (DESIGN.md "Message Bridge"): while one runs, large topics reach

@@ -115,6 +115,7 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
     if (disco) disco->announce_now();
     if (disco_vehicle) disco_vehicle->announce_now();
   }
+  send_replays();
   // A participant of this host that vanished without a goodbye may have left shared memory.
   if (!vehicle && change == discovery::Change::left && options.reclaim_orphans) {
     const auto r = shm::reclaim_orphans();
@@ -201,6 +202,7 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
     if (!vehicle) e.shm_segment = pub->segment_name();
     e.large = pub->large() ? 1 : 0;
     e.max_message_size = static_cast<std::int64_t>(pub->options.max_message_size);
+    e.history = static_cast<std::int32_t>(pub->options.history);
     e.messages = static_cast<std::int64_t>(pub->published());
     e.rate_hz = rate(id, pub->published());
     e.errors = pub->errors;

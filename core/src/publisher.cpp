@@ -12,8 +12,15 @@ PublisherImpl::PublisherImpl(std::shared_ptr<NodeImpl> n, std::string channel,
       channel_(std::move(channel)), mirrored_(node->runtime->mirrored(channel_)) {
   if (options.max_message_size == 0)
     throw Error(Errc::invalid_argument, "publisher '" + channel_ + "': max_message_size is 0");
+  if (options.history > PublisherOptions::kMaxHistory)
+    throw Error(Errc::invalid_argument, "publisher '" + channel_ + "': history " +
+                                            std::to_string(options.history) + " exceeds " +
+                                            std::to_string(PublisherOptions::kMaxHistory));
   shm::WriterOptions w;
-  w.slot_count = options.shm_slots;
+  // Keep last N: the ring holds the kept messages for late shm subscribers (Reader backlog)
+  // and carries them into each larger generation.
+  w.slot_count = std::max<std::uint32_t>(options.shm_slots, options.history + 1);
+  w.keep = options.history;
   w.initial_slot_size = std::min(options.shm_initial_slot_size, options.max_message_size);
   w.max_message_size = options.max_message_size;
   try {
@@ -89,12 +96,10 @@ void PublisherImpl::note_size(std::size_t size) {
 // publish_mu held.
 void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
   auto& rt = *node->runtime;
-  auto send = [&](udpm::Group& group, const char* which) {
+  auto send = [&](udpm::Group& group, const char* which) -> std::optional<std::uint32_t> {
     try {
-      if (&group == rt.local_group.get())
-        group.publish_routed(channel_, encoded);
-      else
-        group.publish(channel_, encoded);
+      if (&group == rt.local_group.get()) return group.publish_routed(channel_, encoded);
+      return group.publish(channel_, encoded);
     } catch (const udpm::Error& e) {
       if (e.code() != udpm::Error::Code::system) throw Error(Errc::transport, e.what());
       ++udp_send_failures_;
@@ -104,6 +109,7 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
         spdlog::warn("lcmx: topic '{}': cannot send on the {} group ({} lost so far): {}", channel_,
                      which, udp_send_failures_, e.what());
       }
+      return std::nullopt;
     }
   };
   if (wants_vehicle()) {
@@ -113,24 +119,28 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
                    "to other hosts as UDP fragments (start `lcmx bridge` on every host)",
                    channel_);
     }
-    send(*rt.vehicle_group, "vehicle");
+    sent_vehicle_ = send(*rt.vehicle_group, "vehicle");
   }
   // The mirror, and subscribers of neighbours (this network namespace, another /dev/shm).
   if ((mirrored_ && !large_.load()) || local_udp_subscribers_.load() > 0)
-    send(*rt.local_group, "host-local");
+    sent_local_ = send(*rt.local_group, "host-local");
 }
 
-// Encodes once: straight into a shm slot when shm readers exist (UDP is sent from the same
-// bytes before the commit), else into a reused buffer for UDP. publish_mu held.
-void PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
+// Encodes once: straight into a shm slot when shm readers exist or messages are kept (UDP is
+// sent from the same bytes before the commit), else into a reused buffer for UDP. Returns a
+// copy of the encoding when keep last N keeps it for UDP replays (keeps_encoding), else null.
+// publish_mu held.
+std::shared_ptr<const Bytes> PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
   const std::size_t size = type.encoded_size(object);
   check_size(size);
   note_size(size);
+  std::shared_ptr<const Bytes> kept;
   if (shm) {
     try {
       auto loan = writer_->loan(size);
       type.encode(object, loan.data(), size);
       if (udp) send_udp({loan.data(), size});
+      if (keeps_encoding()) kept = make_bytes({loan.data(), size});
       writer_->commit(std::move(loan), size);
     } catch (const shm::Error& e) {
       throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
@@ -141,6 +151,26 @@ void PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
     type.encode(object, udp_buf_.data(), size);
     send_udp(udp_buf_);
   }
+  return kept;
+}
+
+bool PublisherImpl::keeps_encoding() const {
+  return options.history > 0 && !(large_.load() && node->runtime->bridge_on_host());
+}
+
+void PublisherImpl::keep(std::shared_ptr<const void> object, std::shared_ptr<const Bytes> encoded) {
+  kept_.push_back({std::move(object), std::move(encoded), sent_vehicle_, sent_local_});
+  sent_vehicle_.reset();
+  sent_local_.reset();
+  while (kept_.size() > options.history) kept_.pop_front();
+}
+
+std::vector<PublisherImpl::KeptUdp> PublisherImpl::kept_for_udp(bool vehicle) const {
+  std::lock_guard lock(publish_mu);
+  std::vector<KeptUdp> out;
+  for (const auto& k : kept_)
+    if (k.encoded) out.push_back({k.encoded, vehicle ? k.vehicle_sequence : k.local_sequence});
+  return out;
 }
 
 // A larger message moved the writer to a new segment generation: announce its name at once
@@ -154,9 +184,12 @@ void PublisherImpl::note_generation() {
 
 void PublisherImpl::publish_ref(const void* object,
                                 std::shared_ptr<const void> (*copy)(const void*)) {
-  auto t = targets();
+  // Targets are read under publish_mu: a subscriber matched meanwhile (add_intra, which
+  // hands over the kept messages under publish_mu) gets this message exactly once.
   auto lock = lock_no_loan("publish");
-  const bool shm = writer_->registered_readers() > 0;
+  auto t = targets();
+  const bool history = options.history > 0;
+  const bool shm = history || writer_->registered_readers() > 0;
   const bool udp = wants_udp();
   // Not encoded when nobody reads through shm or UDP (in-process subscribers only, or none), but
   // checked and classified all the same: a Message Bridge lists the large topics of its host
@@ -167,16 +200,21 @@ void PublisherImpl::publish_ref(const void* object,
     note_size(size);
   }
   // In-process subscribers first: handing over a pointer is cheaper than encoding.
-  if (!t->empty()) deliver_intra(*t, copy(object));
-  if (shm || udp) write_encoded(object, shm, udp);
+  std::shared_ptr<const void> shared;
+  if (!t->empty() || history) shared = copy(object);
+  if (!t->empty()) deliver_intra(*t, shared);
+  std::shared_ptr<const Bytes> encoded;
+  if (shm || udp) encoded = write_encoded(object, shm, udp);
+  if (history) keep(std::move(shared), std::move(encoded));
   published_.fetch_add(1);
 }
 
 void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   if (!object) throw Error(Errc::invalid_argument, "publish on '" + channel_ + "': null message");
+  auto lock = lock_no_loan("publish");  // then the targets: see publish_ref
   auto t = targets();
-  auto lock = lock_no_loan("publish");
-  const bool shm = writer_->registered_readers() > 0;
+  const bool history = options.history > 0;
+  const bool shm = history || writer_->registered_readers() > 0;
   const bool udp = wants_udp();
   if (!shm && !udp) {  // as publish_ref
     const std::size_t size = type.encoded_size(object.get());
@@ -184,16 +222,19 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
     note_size(size);
   }
   if (!t->empty()) deliver_intra(*t, object);
-  if (shm || udp) write_encoded(object.get(), shm, udp);
+  std::shared_ptr<const Bytes> encoded;
+  if (shm || udp) encoded = write_encoded(object.get(), shm, udp);
+  if (history) keep(std::move(object), std::move(encoded));
   published_.fetch_add(1);
 }
 
 void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   check_size(data.size());
+  auto lock = lock_no_loan("publish");  // then the targets: see publish_ref
   auto t = targets();
-  auto lock = lock_no_loan("publish");
   note_size(data.size());
-  if (writer_->registered_readers() > 0) {
+  const bool history = options.history > 0;
+  if (history || writer_->registered_readers() > 0) {
     try {
       writer_->write(data.data(), data.size());
     } catch (const shm::Error& e) {
@@ -202,7 +243,10 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
     note_generation();
   }
   if (wants_udp()) send_udp(data);
-  if (!t->empty()) deliver_intra(*t, make_bytes(data));
+  std::shared_ptr<const Bytes> copy;
+  if (!t->empty() || history) copy = make_bytes(data);
+  if (!t->empty()) deliver_intra(*t, copy);
+  if (history) keep(copy, keeps_encoding() ? copy : nullptr);
   published_.fetch_add(1);
 }
 
@@ -236,13 +280,17 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
   if (size > loan.capacity())
     throw Error(Errc::invalid_argument, "publish on '" + channel_ + "': size " +
                                             std::to_string(size) + " exceeds the loan's capacity");
-  auto t = targets();
   std::lock_guard lock(publish_mu);
+  auto t = targets();  // under publish_mu: see publish_ref
   note_size(size);
   // In-process subscribers get a copy taken before the slot is handed to other processes.
   // If this throws, the loan stays out: the Loan's destructor drops it.
-  if (!t->empty()) deliver_intra(*t, make_bytes({loan.data(), size}));
+  const bool history = options.history > 0;
+  std::shared_ptr<const Bytes> copy;
+  if (!t->empty() || history) copy = make_bytes({loan.data(), size});
+  if (!t->empty()) deliver_intra(*t, copy);
   if (wants_udp()) send_udp({loan.data(), size});
+  if (history) keep(copy, keeps_encoding() ? copy : nullptr);
   auto end = [&] {  // committed or refused: the loan is over, waiting publishers go on
     loan_out_ = false;
     loan_cv_.notify_all();
@@ -276,13 +324,25 @@ bool PublisherImpl::wait_for_subscribers(std::size_t n, std::chrono::millisecond
                           [&] { return intra_->size() + remote_subscribers_ >= n; });
 }
 
+// Keep last N: the kept messages are handed over under publish_mu, so each message published
+// around the match reaches the new subscriber once, either kept or live (publishers read
+// their targets under publish_mu). A Loan out does not hold this up: its publish comes later.
 void PublisherImpl::add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_ptr<PairCounters> stats) {
-  std::lock_guard lock(intra_mu);
-  auto next = std::make_shared<Targets>(*intra_);
-  next->push_back({std::move(sub), std::move(stats)});
-  if (interrupt_on_match.load()) node->interrupt();
-  intra_ = std::move(next);
-  subs_cv.notify_all();
+  std::unique_lock<std::mutex> publishing;
+  if (options.history > 0) publishing = std::unique_lock(publish_mu);
+  {
+    std::lock_guard lock(intra_mu);
+    auto next = std::make_shared<Targets>(*intra_);
+    next->push_back({sub, stats});
+    if (interrupt_on_match.load()) node->interrupt();
+    intra_ = std::move(next);
+    subs_cv.notify_all();
+  }
+  for (const auto& k : kept_) {
+    std::span<const std::byte> bytes;
+    if (type.carries_bytes()) bytes = *std::static_pointer_cast<const Bytes>(k.object);
+    push_intra(*sub, IntraItem{k.object, &type, stats, bytes});
+  }
 }
 
 void PublisherImpl::remove_intra(const SubscriberCore* sub) {

@@ -12,6 +12,7 @@
 
 #include "internal.hpp"
 #include "lcmx/discovery/beacon_codec.hpp"
+#include "lcmx_msgs/history_t.hpp"
 
 namespace lcmx::detail {
 
@@ -26,6 +27,9 @@ std::set<std::uint32_t> local_addresses() {
   ::freeifaddrs(list);
   return out;
 }
+
+// Serial number order (RFC 1982) of LCM's 32-bit sequence numbers: a comes before b.
+bool serial_before(std::uint32_t a, std::uint32_t b) { return static_cast<std::int32_t>(a - b) < 0; }
 
 // The LCM encoding starts with the type's fingerprint, big-endian.
 bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint) {
@@ -155,6 +159,10 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   }
   const auto& group = vehicle ? vehicle_group : local_group;
   if (group->is_own(m.source)) return;  // our own, looped back
+  if (m.channel == kHistoryChannel) {
+    on_history(m);
+    return;
+  }
   const std::string source = udpm::to_string(m.source);
   std::uint32_t foreign_lost = 0;
   std::vector<std::pair<std::shared_ptr<SubscriberCore>, std::shared_ptr<PairCounters>>> targets;
@@ -195,6 +203,10 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
         }
       }
       if (!match && participant != 0) continue;  // not matched (type mismatch, or not yet)
+      if (match && participant != 0) {  // keep last N: see on_history
+        if (match->replay_floor && serial_before(m.sequence, *match->replay_floor)) continue;
+        if (!match->first_live) match->first_live = m.sequence;
+      }
       if (!match && !sub->type().raw() && !fingerprint_is(m.data, sub->type().fingerprint)) {
         // A stock LCM sender of another type on this channel: not delivered, reported once.
         const std::string text = "type mismatch on channel '" + sub->channel() + "': LCM sender " +
@@ -231,6 +243,94 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   if (!owner) owner = make_bytes(m.data);
   const auto bytes = m.buffer ? m.data : std::span<const std::byte>(*std::static_pointer_cast<const Bytes>(owner));
   for (auto& [sub, stats] : targets) push_intra(*sub, IntraItem{owner, &raw_type_info(), stats, bytes});
+}
+
+// Sends the queued keep-last-N replays (count_remote_locked). mu not held: each publisher's
+// kept messages are read under mu (the publisher cannot go away meanwhile) and its
+// publish_mu, then sent on the subscriber's group from this participant's socket.
+void RuntimeImpl::send_replays() {
+  std::vector<ReplayJob> jobs;
+  {
+    std::lock_guard lock(mu);
+    jobs.swap(replay_jobs);
+  }
+  for (const auto& j : jobs) {
+    lcmx_msgs::history_t h{};
+    {
+      std::lock_guard lock(mu);
+      auto it = pubs.find(j.publisher);
+      if (it == pubs.end()) continue;
+      for (auto& k : it->second->kept_for_udp(j.vehicle)) {
+        lcmx_msgs::history_message_t x{};
+        x.sent = k.sequence ? 1 : 0;
+        x.sequence = static_cast<std::int32_t>(k.sequence.value_or(0));
+        x.data.assign(reinterpret_cast<const std::uint8_t*>(k.encoded->data()),
+                      reinterpret_cast<const std::uint8_t*>(k.encoded->data()) + k.encoded->size());
+        x.size = static_cast<std::int32_t>(x.data.size());
+        h.messages.push_back(std::move(x));
+      }
+      h.channel = it->second->channel();
+    }
+    if (h.messages.empty()) continue;
+    h.publisher_participant = static_cast<std::int64_t>(participant_id);
+    h.publisher_endpoint = static_cast<std::int64_t>(j.publisher);
+    h.subscriber_participant = j.participant;
+    h.subscriber_endpoint = j.endpoint;
+    h.num_messages = static_cast<std::int32_t>(h.messages.size());
+    std::vector<std::byte> buf(static_cast<std::size_t>(h.getEncodedSize()));
+    h.encode(buf.data(), 0, static_cast<int>(buf.size()));
+    try {
+      if (j.vehicle && vehicle_group)
+        vehicle_group->publish(kHistoryChannel, buf);
+      else if (!j.vehicle)
+        local_group->publish_routed(kHistoryChannel, buf);
+      spdlog::debug("lcmx: channel '{}': sent the last {} messages to a subscriber that matched late ({} group)",
+                    h.channel, h.num_messages, j.vehicle ? "vehicle" : "host-local");
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx: channel '{}': cannot send the last {} messages to a subscriber that matched late: {}",
+                   h.channel, h.num_messages, e.what());
+    }
+  }
+}
+
+// A keep-last-N replay (send_replays) for one of our subscribers: its messages go to the
+// subscriber's queue, oldest first, except those it received live (sent with a sequence
+// number at or after the first it received live from that participant); live messages that
+// arrive later, already delivered by the replay, are dropped (Match::replay_floor).
+void RuntimeImpl::on_history(const udpm::Message& m) {
+  lcmx_msgs::history_t h;
+  if (h.decode(m.data.data(), 0, static_cast<int>(m.data.size())) < 0) return;  // not ours to judge
+  if (h.subscriber_participant != static_cast<std::int64_t>(participant_id)) return;
+  std::shared_ptr<SubscriberCore> sub;
+  std::shared_ptr<PairCounters> stats;
+  std::vector<std::shared_ptr<const Bytes>> deliver;
+  {
+    std::lock_guard lock(mu);
+    auto it = subs.find(static_cast<std::uint64_t>(h.subscriber_endpoint));
+    if (it == subs.end() || it->second->channel() != h.channel) return;
+    sub = it->second;
+    auto& st = *sub->state;
+    std::lock_guard l2(st.mu);
+    std::shared_ptr<Match> match;
+    for (auto& x : st.matches)  // as on_udp picks it: live messages carry no endpoint
+      if (x->path == Path::udp && x->publisher_participant == static_cast<std::uint64_t>(h.publisher_participant)) {
+        match = x;
+        break;
+      }
+    if (!match) return;  // unmatched since: nothing to hand over
+    stats = match->stats;
+    for (const auto& x : h.messages) {
+      const auto seq = static_cast<std::uint32_t>(x.sequence);
+      if (x.sent && match->first_live && !serial_before(seq, *match->first_live)) continue;  // had it live
+      if (x.sent && (!match->replay_floor || serial_before(*match->replay_floor, seq + 1))) match->replay_floor = seq + 1;
+      deliver.push_back(std::make_shared<const Bytes>(reinterpret_cast<const std::byte*>(x.data.data()),
+                                                      reinterpret_cast<const std::byte*>(x.data.data()) + x.data.size()));
+    }
+  }
+  for (auto& b : deliver) {
+    const std::span<const std::byte> bytes(*b);
+    push_intra(*sub, IntraItem{std::move(b), &raw_type_info(), stats, bytes});
+  }
 }
 
 void RuntimeImpl::settle_loss(std::int8_t scope, const std::string& source, const lcmx_msgs::beacon_t& b,

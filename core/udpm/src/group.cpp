@@ -326,7 +326,7 @@ struct Group::Impl {
     }
   }
 
-  void publish(std::string_view channel, std::span<const std::byte> payload, bool routed) {
+  std::uint32_t publish(std::string_view channel, std::span<const std::byte> payload, bool routed) {
     if (channel.size() > kMaxChannelLength)
       throw Error(Error::Code::channel_too_long, "udpm publish: channel '" + std::string(channel) + "' is " +
                                                      std::to_string(channel.size()) + " bytes (max 63)");
@@ -397,6 +397,7 @@ struct Group::Impl {
       }
     }
     messages_sent.fetch_add(1, std::memory_order_relaxed);
+    return seq;
   }
 
   void arm_batch() {
@@ -656,12 +657,12 @@ bool Group::is_own(const Source& source) const {
   return std::find(a.begin(), a.end(), source.address_be) != a.end();
 }
 
-void Group::publish(std::string_view channel, std::span<const std::byte> payload) {
-  impl_->publish(channel, payload, false);
+std::uint32_t Group::publish(std::string_view channel, std::span<const std::byte> payload) {
+  return impl_->publish(channel, payload, false);
 }
 
-void Group::publish_routed(std::string_view channel, std::span<const std::byte> payload) {
-  impl_->publish(channel, payload, true);
+std::uint32_t Group::publish_routed(std::string_view channel, std::span<const std::byte> payload) {
+  return impl_->publish(channel, payload, true);
 }
 
 int Group::fd() const noexcept { return impl_ ? impl_->recv_fd.get() : -1; }

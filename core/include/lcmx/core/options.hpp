@@ -47,6 +47,16 @@ struct PublisherOptions {
   std::size_t max_message_size = 64u << 20;  // publish() of a larger message throws
   std::uint32_t shm_slots = 8;               // messages a shm subscriber may lag by
   std::size_t shm_initial_slot_size = 4096;  // grows by itself up to max_message_size
+  // Keep last N ("transient-local" durability, like DDS/ROS 2 KEEP_LAST + TRANSIENT_LOCAL):
+  // a subscriber that matches this publisher later receives its last `history` messages
+  // first, once, then the live ones; on every path (intra, shm, UDP to other hosts, the
+  // Message Bridge). 0 (default): volatile, a subscriber gets what is published after it
+  // matched, as LCM does. At most kMaxHistory; shm_slots is raised to history + 1 if it is
+  // smaller. Cost while > 0: every message is encoded into shared memory even with no
+  // subscriber, and small ones are also kept as a private copy (N x message size) for
+  // subscribers on other hosts. docs/ARCHITECTURE.md "Keep last N".
+  std::uint32_t history = 0;
+  static constexpr std::uint32_t kMaxHistory = 1000;
 };
 
 // What a full subscriber queue (in-process and UDP messages) does with a new message.

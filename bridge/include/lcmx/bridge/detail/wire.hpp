@@ -10,6 +10,7 @@
 #pragma once
 
 #include <cstdint>
+#include <map>
 #include <optional>
 #include <set>
 #include <string>
@@ -40,6 +41,10 @@ struct Control {
   std::vector<std::pair<std::string, int>> channels;
   bool has_demand = false;
   std::set<std::string> want, offer;
+  // Keep last N of offered topics (PublisherOptions::history of the sender's publishers, at
+  // most kMaxKeep): the receiver's republisher keeps as many. Absent: 0.
+  std::map<std::string, std::uint32_t> keep;
+  static constexpr std::uint32_t kMaxKeep = 1000;
   // Part of the demand state: the topics the sender could serve (docs/bridge.md "Pattern
   // subscribers"), at most kMaxCatalogue.
   std::set<std::string> have;

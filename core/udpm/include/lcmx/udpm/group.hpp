@@ -101,12 +101,14 @@ class Group {
   // Throws: Error(channel_too_long) for > 63 bytes, Error(invalid_channel) for a NUL in the
   // channel, Error(message_too_large) for payload > kMaxMessageSize, Error(system) when sending
   // fails (the message may have been partly sent; its sequence number is used up).
-  void publish(std::string_view channel, std::span<const std::byte> payload);
+  // Returns the LCM sequence number the message was sent with (receivers see it in
+  // Message::sequence).
+  std::uint32_t publish(std::string_view channel, std::span<const std::byte> payload);
 
   // Like publish(), but where stock LCM programs on this host listen: in host-local mode the
   // interface the kernel routes the group to (lo when it routes nowhere); pinned, the same as
-  // publish(). Same sequence counter as publish(). Thread-safe; throws as publish().
-  void publish_routed(std::string_view channel, std::span<const std::byte> payload);
+  // publish(). Same sequence counter as publish(). Thread-safe; throws and returns as publish().
+  std::uint32_t publish_routed(std::string_view channel, std::span<const std::byte> payload);
 
   // Host-local mode: re-reads the route of the group; if it now routes to an interface not yet
   // joined, joins it too (earlier memberships stay), and moves publish_routed() to it. Pinned: no-op.
