@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -84,7 +85,8 @@ struct Segment {
   LockFd lock;  // our own open file description of the file (OFD locks)
   Geometry geo;
   std::uint64_t generation = 0;
-  std::uint64_t first_global_seq = 0;
+  std::uint64_t first_global_seq = 0;  // global number of seq 0 (see layout.hpp)
+  std::uint32_t carried = 0;           // validated copy of SegmentHeader::carried
   SegmentHeader* hdr = nullptr;
 
   std::byte* base() const noexcept { return static_cast<std::byte*>(map.addr); }
@@ -109,6 +111,7 @@ struct HeaderInfo {
   Geometry geo;
   std::uint64_t generation = 0;
   std::uint64_t first_global_seq = 0;
+  std::uint32_t carried = 0;
   std::int32_t owner_pid = 0;
   std::uint64_t owner_start_time = 0;
   std::uint64_t owner_pidns = 0;
@@ -120,9 +123,14 @@ std::optional<HeaderInfo> validate_header(const void* mem, std::uint64_t file_si
 // posix_fallocate (a full tmpfs is Error(system), never a later SIGBUS). If a file of that
 // name exists with a valid header and no Writer lock, removes it and retries once. Throws
 // Error(system) otherwise.
-std::unique_ptr<Segment> create_segment(const std::string& name, const Geometry& geo,
-                                        std::uint64_t generation, std::uint64_t first_global_seq,
-                                        std::int32_t pid, std::uint64_t start_time);
+// `fill` (optional) runs on the initialised segment before its magic is published: it may
+// commit messages 0..c-1 into slots 0..c-1 (slot seq, size, desc; not write_seq) and returns
+// c (< slot_count), which create_segment stores as `carried` and write_seq, so nobody can
+// see the generation without its carried messages. first_global_seq is of seq 0.
+std::unique_ptr<Segment> create_segment(
+    const std::string& name, const Geometry& geo, std::uint64_t generation,
+    std::uint64_t first_global_seq, std::int32_t pid, std::uint64_t start_time,
+    const std::function<std::uint32_t(Segment&)>& fill = {});
 
 // Opens and validates an existing segment read-write: a regular file owned by our euid or
 // by root, not writable by others (Error(untrusted) otherwise), large enough for its
@@ -195,6 +203,9 @@ struct WriterImpl {
 
   ~WriterImpl();
   void grow(std::size_t size, bool same_size = false);
+  // Copies the last min(opt.keep, intact) messages of `from` (the current generation) into
+  // slots 0..c-1 of `to`; returns c. Only a contiguous tail whose slots still hold it.
+  std::uint32_t carry(const Segment& from, Segment& to) const;
   void maybe_reclaim() noexcept;
   bool pinned(std::uint64_t seq) const noexcept;
   std::optional<std::uint32_t> acquire_slot();

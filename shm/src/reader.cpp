@@ -6,7 +6,9 @@
 //   Cases of the take() loop, each iteration either returns or advances `next`/generation:
 //   a. next == W: nothing new here. If next_generation is set (acquire; pairs with the
 //      Writer's release, stored after its last write_seq, so W is final) open the successor
-//      and continue at its seq 0; else return nullopt.
+//      and continue at its seq `carried` (its seqs 0..carried-1 are copies of the messages
+//      we just drained or counted as drops here: global number first_global_seq + seq is the
+//      same message in both generations; see start_in); else return nullopt.
 //   b. W - next > N: the ring lapped us; the oldest W - N - next messages are gone: count
 //      them as drops and jump to W - N.
 //   c. d = desc[next % N] (acquire; pairs with the Writer's desc release) has another seq
@@ -24,10 +26,13 @@
 //   e. ReadSample::intact() re-checks after the caller's read (seqlock style: acquire fence,
 //      then slot.seq and our entry's state word): a sample whose slot was rewritten while it
 //      was read (our entry taken from us, or the file truncated under us) is not intact.
+//   Open with a backlog k: next = W - min(k, W, N - 1) (case b cannot apply at once; what
+//   the Writer overwrites before we get there is counted by cases b-d as usual).
 //   All offsets come from the geometry validated at open; slot indices and sizes read from
 //   shared memory are range-checked before use.
 #include <unistd.h>
 
+#include <algorithm>
 #include <bit>
 #include <limits>
 #include <utility>
@@ -72,6 +77,21 @@ std::unique_ptr<Segment> open_generation_or_newer(const std::string& base, std::
     throw Error(Errc::not_found, "segment " + generation_name(base, gen) + ": not found");
   }
   return open_segment(generation_name(base, *hi));
+}
+
+// Seq in `to` at which a Reader whose next message has global number `here` continues, and
+// the messages it lost in between (added to *drops). Seqs 0..carried-1 of `to` are copies of
+// global messages first_global_seq.. (the previous generation's last ones): a Reader that
+// drained the previous generation is at first_global_seq + carried and starts at carried
+// (no duplicates); one that skipped generations and is behind first_global_seq starts at 0
+// (carried messages it never had are delivered, the rest is drops).
+std::uint64_t start_in(const Segment& to, std::uint64_t here, std::uint64_t* drops) {
+  const std::uint64_t first = to.first_global_seq;
+  if (here < first) {
+    *drops += gap(here, first);
+    return 0;
+  }
+  return std::min<std::uint64_t>(here - first, to.carried);
 }
 
 }  // namespace
@@ -176,9 +196,9 @@ bool ReaderImpl::try_follow() {
   backoff = std::chrono::milliseconds(0);
   retry_at = {};
   // Messages of skipped generations (if any) are drops; first_global_seq makes it exact.
-  drops += gap(here, view->seg->first_global_seq);
+  const std::uint64_t start = start_in(*view->seg, here, &drops);
   cur = std::move(view);  // the old view deregisters when unpinned
-  next = 0;
+  next = start;
   publish_counters();
   if (cur->seg->hdr->writer_closed.load(std::memory_order_acquire) != 0) {
     release_unneeded_generations(base, cur->seg->generation);
@@ -205,9 +225,9 @@ bool ReaderImpl::follow_fault() {
     retry_at = std::chrono::steady_clock::now() + std::chrono::milliseconds(10);
     return false;
   }
-  drops += gap(s.first_global_seq + next, seg->first_global_seq);
+  const std::uint64_t start = start_in(*seg, s.first_global_seq + next, &drops);
   cur = make_view(std::move(seg), pid);
-  next = 0;
+  next = start;
   retry_at = {};
   publish_counters();
   return true;
@@ -321,7 +341,7 @@ Reader::~Reader() = default;
 
 static_assert(Reader::kMaxPins == detail::kMaxPins);
 
-Reader Reader::open(const std::string& segment_name) {
+Reader Reader::open(const std::string& segment_name, std::uint32_t backlog) {
   using namespace detail;
   if (segment_name.empty() || segment_name.size() > 240 ||
       segment_name.find('/') != std::string::npos) {
@@ -351,7 +371,11 @@ Reader Reader::open(const std::string& segment_name) {
     }
   }
   impl->cur = make_view(std::move(seg), impl->pid);
-  impl->next = impl->cur->seg->hdr->write_seq.load(std::memory_order_acquire);
+  const Segment& s = *impl->cur->seg;
+  const std::uint64_t w = s.hdr->write_seq.load(std::memory_order_acquire);
+  const std::uint64_t k = std::min<std::uint64_t>({backlog, w, s.geo.slot_count - 1u});
+  impl->next = w - k;
+  impl->publish_counters();
   return Reader(std::move(impl));
 }
 

@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <map>
 
@@ -99,6 +100,8 @@ std::optional<HeaderInfo> validate_header(const void* mem, std::uint64_t file_si
   if (info.geo.total_size > file_size) return fail("file smaller than its layout (truncated)");
   info.generation = h->generation;
   info.first_global_seq = h->first_global_seq;
+  info.carried = h->carried;
+  if (info.carried >= slot_count) return fail("bad carried count");
   info.owner_pid = h->owner_pid;
   info.owner_start_time = h->owner_start_time;
   info.owner_pidns = h->owner_pidns;
@@ -144,9 +147,10 @@ bool unlink_segment(const std::string& name) noexcept {
   return ::shm_unlink(("/" + name).c_str()) == 0;
 }
 
-std::unique_ptr<Segment> create_segment(const std::string& name, const Geometry& geo,
-                                        std::uint64_t generation, std::uint64_t first_global_seq,
-                                        std::int32_t pid, std::uint64_t start_time) {
+std::unique_ptr<Segment> create_segment(
+    const std::string& name, const Geometry& geo, std::uint64_t generation,
+    std::uint64_t first_global_seq, std::int32_t pid, std::uint64_t start_time,
+    const std::function<std::uint32_t(Segment&)>& fill) {
   int fd = -1;
   for (int attempt = 0; attempt < 2 && fd < 0; ++attempt) {
     fd = shm_open_cloexec(name, O_RDWR | O_CREAT | O_EXCL, 0660);
@@ -218,6 +222,19 @@ std::unique_ptr<Segment> create_segment(const std::string& name, const Geometry&
     seg->desc(i).store(kDescEmpty, std::memory_order_relaxed);
     seg->slot(i).seq.store(kSlotEmpty, std::memory_order_relaxed);
   }
+  if (fill) {
+    std::uint32_t c = 0;
+    try {
+      c = fill(*seg);
+    } catch (...) {
+      unlink_segment(name);  // never published: no Reader can have it
+      throw;
+    }
+    if (c >= geo.slot_count) std::abort();  // fill's contract
+    seg->carried = c;
+    h->carried = c;
+    h->write_seq.store(c, std::memory_order_relaxed);  // published by the magic below
+  }
   // Publishes everything above; pairs with validate_header's magic.load(acquire).
   h->magic.store(kMagic, std::memory_order_release);
   return seg;
@@ -268,6 +285,7 @@ std::unique_ptr<Segment> open_segment(const std::string& name) {
   seg->geo = info->geo;
   seg->generation = info->generation;
   seg->first_global_seq = info->first_global_seq;
+  seg->carried = info->carried;
   seg->hdr = static_cast<SegmentHeader*>(a);
   if (auto sg = split_generation(name); sg && sg->second != seg->generation) {
     throw Error(Errc::corrupt, "segment " + name + ": generation field does not match the name");

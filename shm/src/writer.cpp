@@ -112,8 +112,57 @@ void WriterImpl::bump_and_wake(const Segment& s) noexcept {
   if (s.hdr->waiters.load(std::memory_order_seq_cst) > 0) futex_wake_all(&s.hdr->futex_word);
 }
 
+// Keep-last-N carry-over (WriterOptions::keep). Runs inside create_segment, before the new
+// generation's magic is published: nobody else can see `to` yet. Reads `from` (ours; no loan
+// is outstanding) through the Writer's private slot_seq, never trusting shared memory for
+// which slot holds which message: message m (of the last `keep`) is carried only if a slot
+// still holds it (slot_seq and the slot's seq word agree) with a size <= its slot size, and
+// only a contiguous tail (the carried ones must be exactly the last c messages: their
+// global numbers stay first_global_seq + seq). A message taken by the drop buffer (no slot)
+// or overwritten because a pinned slot was skipped ends the tail. A truncated file (the
+// SIGBUS guard reads zeros) carries nothing: the fault is checked after copying.
+std::uint32_t WriterImpl::carry(const Segment& from, Segment& to) const {
+  if (opt.keep == 0 || write_seq == 0 || from.faulted()) return 0;
+  const std::uint32_t n = from.geo.slot_count;
+  const std::uint64_t want = std::min<std::uint64_t>(opt.keep, write_seq);
+  // (slot, size) of messages write_seq - 1, - 2, ... (newest first); each size read once.
+  std::vector<std::pair<std::uint32_t, std::uint64_t>> tail;
+  for (std::uint64_t k = 1; k <= want; ++k) {
+    const std::uint64_t m = write_seq - k;
+    std::uint32_t s = n;
+    for (std::uint32_t i = 0; i < n; ++i) {
+      if (slot_seq[i] == m) {
+        s = i;
+        break;
+      }
+    }
+    if (s == n || from.slot(s).seq.load(std::memory_order_relaxed) != m) break;
+    const std::uint64_t size = from.slot(s).size;
+    if (size > from.geo.slot_size || size > to.geo.slot_size) break;
+    tail.emplace_back(s, size);
+  }
+  const auto c = static_cast<std::uint32_t>(tail.size());
+  for (std::uint32_t i = 0; i < c; ++i) {  // oldest first: new seq i, new slot i
+    const auto [s, size] = tail[c - 1 - i];
+    if (size != 0) std::memcpy(to.payload(i), from.payload(s), size);
+    to.slot(i).size = size;
+    to.slot(i).seq.store(i, std::memory_order_relaxed);  // published by the magic release
+    to.desc(i).store(pack_desc(i, i), std::memory_order_relaxed);
+  }
+  if (from.faulted()) {  // truncated while we copied: what we read may be zeros
+    for (std::uint32_t i = 0; i < c; ++i) {
+      to.slot(i).seq.store(kSlotEmpty, std::memory_order_relaxed);
+      to.desc(i).store(kDescEmpty, std::memory_order_relaxed);
+    }
+    return 0;
+  }
+  return c;
+}
+
 // same_size: the current generation was truncated by another process (its mapping now
 // reads zeros): move to a fresh file of the same geometry; Readers follow by name.
+// With keep > 0 the new generation starts with the old one's last c <= keep messages
+// (carry), so first_global_seq (the global number of its seq 0) is old total - c.
 void WriterImpl::grow(std::size_t size, bool same_size) {
   const std::uint64_t old_size = seg->geo.slot_size;
   std::uint64_t want = std::max<std::uint64_t>(round_up(size, 4096), 2 * old_size);
@@ -122,10 +171,23 @@ void WriterImpl::grow(std::size_t size, bool same_size) {
   if (same_size) want = old_size;
   const Geometry geo = make_geometry(seg->geo.slot_count, seg->geo.max_subscribers, want);
   const std::uint64_t gen = seg->generation + 1;
-  const std::uint64_t first = seg->first_global_seq + write_seq;
-  auto next = create_segment(generation_name(base, gen), geo, gen, first, pid, start_time);
-  // The new generation is fully initialised (magic published). Release pairs with the
-  // Reader's next_generation.load(acquire): it then sees our final write_seq here too.
+  // first_global_seq is of seq 0: create_segment gets the old total and fill lowers it by
+  // the number actually carried, before the magic is published.
+  std::uint32_t carried = 0;
+  const Segment& from = *seg;
+  auto fill = [&](Segment& to) {
+    carried = carry(from, to);
+    to.first_global_seq = from.first_global_seq + write_seq - carried;
+    to.hdr->first_global_seq = to.first_global_seq;
+    return carried;
+  };
+  const std::uint64_t total = seg->first_global_seq + write_seq;
+  auto next = create_segment(generation_name(base, gen), geo, gen, total, pid, start_time,
+                             opt.keep != 0 ? std::function<std::uint32_t(Segment&)>(fill)
+                                           : std::function<std::uint32_t(Segment&)>());
+  // The new generation is fully initialised (carried messages, write_seq, magic published).
+  // Release pairs with the Reader's next_generation.load(acquire): it then sees our final
+  // write_seq here too, and (through the new file's magic) the new generation's carried.
   seg->hdr->next_generation.store(gen, std::memory_order_release);
   bump_and_wake(*seg);  // sleeping Readers of the old generation must move on
   // The old name stays while Readers are registered there or earlier (they open the next
@@ -134,8 +196,9 @@ void WriterImpl::grow(std::size_t size, bool same_size) {
   seg = std::move(next);
   release_old_generations(true);
   slot_seq.assign(geo.slot_count, kSlotEmpty);
-  next_slot = 0;
-  write_seq = 0;
+  for (std::uint32_t i = 0; i < carried; ++i) slot_seq[i] = i;
+  next_slot = carried % geo.slot_count;
+  write_seq = carried;
 }
 
 bool WriterImpl::pinned(std::uint64_t seq) const noexcept {
@@ -169,7 +232,9 @@ std::optional<std::uint32_t> WriterImpl::acquire_slot() {
   // Readers keeping up (the common case): reuse the newest message's slot, still in the
   // cache, instead of the round-robin one (large messages: a cold 6 MB slot costs a copy's
   // worth of cache misses). Its pin check below still protects a Reader reading it now.
-  if (readers_caught_up()) {
+  // Not with keep > 0: reusing the newest message's slot would overwrite it (the last
+  // `keep` messages must stay readable for late Readers).
+  if (opt.keep == 0 && readers_caught_up()) {
     const std::uint32_t hot = desc_slot(seg->desc(static_cast<std::uint32_t>((write_seq - 1) % n))
                                             .load(std::memory_order_relaxed));
     if (hot < n && slot_seq[hot] == write_seq - 1) next_slot = hot;
@@ -289,6 +354,12 @@ Writer Writer::create(const std::string& base_name, const WriterOptions& options
       options.initial_slot_size > options.max_message_size) {
     throw Error(Errc::invalid_argument,
                 "Writer: need 0 < initial_slot_size <= max_message_size <= 2^40");
+  }
+  if (options.keep >= options.slot_count) {
+    throw Error(Errc::invalid_argument,
+                "Writer: keep (" + std::to_string(options.keep) +
+                    ") must be < slot_count (" + std::to_string(options.slot_count) +
+                    "): one slot stays free for the message being written");
   }
   // O_EXCL covers one name; a live Writer of the same base may be at a later generation.
   for (const auto& n : list_shm(base_name + "_g")) {

@@ -329,6 +329,45 @@ TEST_CASE("a hostile process truncating a live segment: no SIGBUS in Writer or R
   CHECK(exited_ok(rs));
 }
 
+// Keep last N after a truncation: the Writer's move to a fresh generation carries nothing
+// it cannot read safely (the truncated file reads zeros), and what it delivers is intact.
+TEST_CASE("keep: a truncated generation carries nothing into the fresh one", "[shm][truncate][keep]") {
+  Watchdog wd(20s);
+  const auto base = unique_base("trunckeep");
+  ShmGuard g(base);
+  Child writer([&] {
+    WriterOptions o = opts(8);
+    o.keep = 3;
+    auto w = Writer::create(base, o);
+    for (std::uint64_t i = 1; i <= 3; ++i) write_msg(w, i, 64);
+    int fd = ::shm_open(("/" + base + "_g0").c_str(), O_RDWR, 0);
+    if (fd < 0 || ::ftruncate(fd, 0) != 0) return 40;
+    ::close(fd);
+    // The first write after the truncation faults (lost); the next moves to generation 1.
+    for (std::uint64_t i = 4; i <= 6; ++i) write_msg(w, i, 64);
+    if (w.segment_name() != base + "_g1") return 41;
+    const auto img = read_shm_file(base + "_g1");
+    if (img.size() < sizeof(d::SegmentHeader)) return 42;
+    std::uint32_t carried = ~0u;
+    std::memcpy(&carried, img.data() + offsetof(d::SegmentHeader, carried), 4);
+    if (carried != 0) return 43;
+    auto r = Reader::open(base, 7);
+    std::uint64_t last = 0;
+    while (auto s = r.take()) {
+      std::uint64_t idx = 0;
+      if (!check_message(s->data(), s->size(), &idx) || !s->intact()) return 44;
+      if (idx <= last || idx < 4) return 45;  // in order, nothing from the truncated file
+      last = idx;
+    }
+    return last == 6 ? 0 : 46;
+  });
+  wd.watch_child(writer.pid());
+  const int ws = writer.wait(15s);
+  INFO("writer wait status " << ws);
+  CHECK_FALSE(killed_by(ws, SIGBUS));
+  CHECK(exited_ok(ws));
+}
+
 // ---- item 7: geometry ----
 
 TEST_CASE("default options: 9 and 32 Readers holding pins never make write() throw",

@@ -268,3 +268,64 @@ TEST_CASE("stress: fork()ed writer, 2 readers, random sizes, checksums, growth",
     CHECK(r.last == total - 1);
   }
 }
+
+// Keep last N across processes: a Writer child with keep = 3; the parent opens with a backlog
+// before and after the child's growth.
+TEST_CASE("keep: a Reader in another process gets the backlog and the carried messages once",
+          "[shm][fork][keep]") {
+  Watchdog wd(30s);
+  const auto base = unique_base("xkeep");
+  ShmGuard g(base);
+  Pipe up, down;
+  Child c([&] {
+    WriterOptions o = opts(8);
+    o.keep = 3;
+    auto w = Writer::create(base, o);
+    for (std::uint64_t i = 1; i <= 5; ++i) write_msg(w, i, 64);
+    up.send('R');
+    if (down.recv(10s) != 'G') return 10;
+    write_msg(w, 6, 10000);  // > 4096-byte slots: generation 1 carries 3, 4, 5
+    write_msg(w, 7, 64);
+    if (w.segment_name() != base + "_g1" || w.published() != 7) return 12;
+    up.send('W');
+    if (down.recv(10s) != 'Q') return 11;
+    return 0;
+  });
+  wd.watch_child(c.pid());
+  REQUIRE(up.recv(10s) == 'R');
+
+  // Takes messages until `want` arrived or the deadline passed (futex wait, no sleeps).
+  auto collect = [](Reader& r, std::size_t want) {
+    std::vector<std::uint64_t> got;
+    const auto deadline = Clock::now() + 10s;
+    while (got.size() < want && Clock::now() < deadline) {
+      if (auto s = r.take()) {
+        std::uint64_t idx = 0;
+        REQUIRE(check_message(s->data(), s->size(), &idx));
+        REQUIRE(s->intact());
+        CHECK(s->sequence() == idx - 1);
+        got.push_back(idx);
+        continue;
+      }
+      WaitToken t = r.arm();
+      if (!r.has_data()) wait_any({&t, 1}, 100ms);
+      r.disarm();
+    }
+    return got;
+  };
+  using V = std::vector<std::uint64_t>;
+  auto early = Reader::open(base, 3);
+  CHECK(collect(early, 3) == V{3, 4, 5});
+  down.send('G');
+  REQUIRE(up.recv(10s) == 'W');
+  CHECK(collect(early, 2) == V{6, 7});
+  auto late = Reader::open(base, 4);
+  CHECK(late.segment_name() == base + "_g1");
+  CHECK(collect(late, 4) == V{4, 5, 6, 7});
+  CHECK_FALSE(early.take().has_value());  // nothing twice
+  CHECK_FALSE(late.take().has_value());
+  CHECK(early.drops() == 0);
+  CHECK(late.drops() == 0);
+  down.send('Q');
+  CHECK(exited_ok(c.wait(10s)));
+}

@@ -58,6 +58,16 @@ struct WriterOptions {
   std::uint32_t max_subscribers = 32;      // Readers registered at once (live ones)
   std::size_t initial_slot_size = 4096;    // first generation's slot payload size
   std::size_t max_message_size = 64u << 20;// bound: loan(size) above it throws too_large
+  // Keep last N: the last `keep` committed messages stay readable for late Readers
+  // (Reader::open's backlog), also across a generation change: a new generation (growth or
+  // a truncated file) starts with copies of the old one's last min(keep, committed) messages
+  // whose slots are intact (fewer, possibly 0, if slots were lost: truncation, every slot
+  // pinned), same bytes and global sequence numbers; they are not new messages (published()
+  // and Readers that followed see each message once). Must be < slot_count, else
+  // Writer::create throws Error(invalid_argument). Best effort while Readers pin slots (a
+  // pinned slot is skipped, so a newer one is overwritten). 0: nothing kept on purpose (the
+  // Writer may then reuse the newest message's slot once every Reader has taken it).
+  std::uint32_t keep = 0;
 };
 
 namespace detail {
@@ -97,7 +107,8 @@ class WriteLoan {
 class Writer {
  public:
   // Creates generation 0 of segment "<base_name>_g0". base_name must start with kPrefix and
-  // be a valid POSIX shm name without '/'. Throws Error (invalid_argument, system).
+  // be a valid POSIX shm name without '/'. Throws Error (invalid_argument: bad name or
+  // options, e.g. keep >= slot_count; system).
   // Records this process's pid and start time in the header so orphans can be reclaimed.
   // A same-name segment left by a dead process is removed first; one whose owner is alive
   // (any generation of base_name) makes create throw Error(system).
@@ -241,11 +252,19 @@ class Reader {
   static constexpr int kMaxDetached = kMaxPins - 1;
 
   // Opens a Writer's segment by name (any generation; follows to the newest) and registers
-  // in its subscriber table, reclaiming entries of dead processes. The first message
-  // returned is the next one committed after open. The file must be owned by our euid or
-  // root and not writable by others (names come from unauthenticated beacons). Throws Error
-  // (not_found, corrupt, untrusted, no_subscriber_slot, system).
-  static Reader open(const std::string& segment_name);
+  // in its subscriber table, reclaiming entries of dead processes. The file must be owned by
+  // our euid or root and not writable by others (names come from unauthenticated beacons).
+  // Throws Error (not_found, corrupt, untrusted, no_subscriber_slot, system).
+  // backlog: the first message returned is the oldest of the last
+  // min(backlog, committed, slot_count - 1) messages committed in the newest generation at
+  // open ("committed" includes messages it carried from the previous one, see
+  // WriterOptions::keep), then every later one in order, each at most once. Older messages
+  // are not counted as drops; a backlog message the Writer overwrites before take() gets to
+  // it is a drop, as for any lagging Reader. Only what the Writer still holds can be
+  // returned: with WriterOptions::keep < backlog, messages beyond keep may already be gone
+  // (drops). backlog 0: the first message returned is the next one committed after open.
+  // Called on any thread; the Reader is then used by one thread at a time.
+  static Reader open(const std::string& segment_name, std::uint32_t backlog = 0);
 
   Reader(Reader&&) noexcept;
   Reader& operator=(Reader&&) noexcept;

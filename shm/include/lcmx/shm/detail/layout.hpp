@@ -3,7 +3,7 @@
 //
 //   offset 0                   SegmentHeader (4 cache lines, 256 B)
 //     line 0  immutable after creation: magic (written last, release), version, geometry,
-//             generation, owner pid + start time, first_global_seq
+//             generation, owner pid + start time, carried, first_global_seq
 //     line 1  offsets (validated by readers against their own computation),
 //             next_generation, writer_closed, sub_high_water
 //     line 2  write_seq      (writer-side, alone on its line)
@@ -18,8 +18,13 @@
 // Memory bound per generation: total_size ~= header + slot_count * slot_size.
 //
 // Sequence numbers ("seq") count messages committed in one generation, starting at 0.
-// first_global_seq = messages committed in all earlier generations of the same Writer, so a
-// Reader that had to skip a generation can still count its drops exactly.
+// Carried messages: with WriterOptions::keep > 0, a new generation starts with copies of the
+// last `carried` messages of the previous one (seqs 0..carried-1, same sizes and bytes,
+// written with write_seq = carried before magic is published). They are not new messages:
+// first_global_seq is the global number of this generation's seq 0, i.e. messages committed
+// in all earlier generations minus `carried`, so a message keeps its global number in every
+// generation it is in. A Reader following from the previous generation starts at `carried`;
+// one that had to skip a generation can still count its drops exactly.
 //
 // Slot states (SlotHeader::seq): kSlotEmpty (never written / aborted loan), kSlotWriting
 // (the writer owns it; a writer that dies mid-write leaves it so: never delivered), or the
@@ -37,8 +42,10 @@ namespace lcmx::shm::detail {
 inline constexpr std::size_t kCacheLine = 64;
 inline constexpr std::uint32_t kMagic = 0x584d434cu;  // "LCMX" little-endian
 // 2: SubscriberEntry::next replaces received. 3: liveness by OFD locks (see below), state
-// word with an epoch, armed flag, owner pid namespace, final_seq.
-inline constexpr std::uint32_t kVersion = 3;
+// word with an epoch, armed flag, owner pid namespace, final_seq. 4: `carried` (was
+// reserved0) and first_global_seq = global number of seq 0 (a version-3 Reader would
+// deliver carried messages twice and miscount drops: it is refused as "unsupported version").
+inline constexpr std::uint32_t kVersion = 4;
 inline constexpr int kMaxPins = 4;                     // == Reader::kMaxPins
 
 inline constexpr std::uint64_t kSlotEmpty = ~std::uint64_t{0} - 1;
@@ -92,7 +99,9 @@ struct SegmentHeader {
   std::uint64_t total_size;           // bytes of the whole segment
   std::uint64_t generation;
   std::int32_t owner_pid;             // in the owner's pid namespace (informational, pidfd)
-  std::uint32_t reserved0;
+  // Messages copied from the previous generation into seqs 0..carried-1 (< slot_count;
+  // 0 in generation 0). Written before magic (release), so before next_generation too.
+  std::uint32_t carried;
   std::uint64_t owner_start_time;     // /proc/<pid>/stat field 22 (clock ticks since boot)
   std::uint64_t first_global_seq;
   // ---- line 1 ----
@@ -151,6 +160,7 @@ static_assert(offsetof(SegmentHeader, magic) == 0);
 static_assert(offsetof(SegmentHeader, version) == 4);
 static_assert(offsetof(SegmentHeader, slot_size) == 16);
 static_assert(offsetof(SegmentHeader, owner_pid) == 40);
+static_assert(offsetof(SegmentHeader, carried) == 44);
 static_assert(offsetof(SegmentHeader, first_global_seq) == 56);
 static_assert(offsetof(SegmentHeader, subscribers_offset) == 1 * kCacheLine);
 static_assert(offsetof(SegmentHeader, next_generation) == 1 * kCacheLine + 32);
