@@ -145,7 +145,7 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
   } pushing;
   for (std::size_t i = 0; i < n; ++i) {
     PeerChannel& pc = *peers[targets[i]]->chans[s.channel];
-    Outgoing out{s.topic_ptr, zmq::message_t()};
+    Outgoing out{s.topic_ptr, zmq::message_t(), s.keep.load(std::memory_order_relaxed)};
     out.payload.copy(payload);  // zmq_msg_copy: shares the buffer (refcount), no byte copy
     std::lock_guard lock(pc.mu);
     if (datapath::push_bounded(pc.queue, std::move(out), ch.cfg.hwm, ch.cfg.drop))
@@ -211,7 +211,7 @@ void Bridge::Impl::flush(Channel& ch, Peer& p) {
       pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
     }
     unsigned char hdr[wire::kDataHeader];
-    wire::encode_header({instance, pc.seq + 1}, hdr);
+    wire::encode_header({instance, pc.seq + 1, out.keep}, hdr);
     const std::size_t bytes = out.topic->size() + out.payload.size();
     bool sent = false;
     try {
@@ -300,26 +300,26 @@ void Bridge::Impl::receive_data(Channel& ch) {
     pc.recv_bytes.fetch_add(bytes, std::memory_order_relaxed);
     if (int l = link_of(p, peer_address(parts[3])); l >= 0)
       p.links[static_cast<std::size_t>(l)]->bytes_received.fetch_add(bytes, std::memory_order_relaxed);
-    republish(topic, parts[3]);
+    republish(topic, parts[3], static_cast<std::uint32_t>(std::min<std::uint64_t>(h.keep, wire::Control::kMaxKeep)));
   }
 }
 
 // Channel threads: into this host's shared memory.
-void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& payload) {
+// `keep`: the topic's keep last N at its origin, from the data header: it decides the
+// republisher's (remade when it differs: the origin's publishers changed).
+void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& payload, std::uint32_t keep) {
   std::shared_ptr<Republisher> r;
   {
     std::lock_guard lock(repub_mu);
     auto it = repubs.find(topic);
-    if (it != repubs.end()) r = it->second;
+    if (it != repubs.end() && it->second->history == keep) r = it->second;
   }
   if (!r) {
-    std::uint32_t history = 0;
     {
       std::lock_guard lock(view_mu);
       if (!demand.count(topic)) return;  // nobody here wants it (any more)
-      history = keep_of_locked(topic);
     }
-    r = ensure_republisher(topic, history);
+    r = ensure_republisher(topic, keep);
     if (!r) return;
   }
   r->last_message = Clock::now();

@@ -73,6 +73,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
   const auto demand_ttl = 2 * cfg.link_timeout + cfg.heartbeat;
   std::map<std::string, std::vector<std::size_t>> want;  // topic -> peers
   std::map<std::string, bool> large;
+  std::map<std::string, std::uint32_t> keep_local;  // served topic -> local publishers' keep
   std::set<std::string> offered, local_demand;
   std::map<std::string, std::uint32_t> keep_of;  // offered topic -> peers' keep last N
   std::set<std::string> announce;  // peers' catalogues, while a local participant has patterns
@@ -102,7 +103,10 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
           announce.insert(t);
         }
     }
-    for (const auto& [t, v] : want) large[t] = is_large_locked(t);
+    for (const auto& [t, v] : want) {
+      large[t] = is_large_locked(t);
+      if (auto k = kept.find(t); k != kept.end()) keep_local[t] = k->second;
+    }
     for (const auto& t : offered) keep_of[t] = keep_of_locked(t);
     local_demand = demand;
   }
@@ -130,6 +134,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       s->topic_ptr = std::make_shared<const std::string>(t);
       s->channel = *ch;
       s->large = large[t];
+      s->keep = keep_local[t];
       s->peers = ps;
       Served* raw = s.get();
       SubscriberOptions so;
@@ -144,6 +149,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       served.emplace(t, std::move(s));
     } else {
       if (large[t]) it->second->large = true;
+      it->second->keep = keep_local[t];
       std::lock_guard lock(it->second->mu);
       it->second->peers = ps;
     }
@@ -158,12 +164,13 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
                  "to pattern subscribers",
                  cfg.name, wire::kMaxCatalogue, wire::kMaxCatalogue);
   announce_cut_logged = announce_cut_logged || announce_cut;
+  // Made with the keep the peers' offers give; never remade here (the data headers' keep
+  // decides that, in republish: an offer may lag behind the data).
   auto ensure = [this](const std::string& t, std::uint32_t history) {
     bool have;
     {
       std::lock_guard lock(repub_mu);
-      auto it = repubs.find(t);
-      have = it != repubs.end() && it->second->history == history;
+      have = repubs.count(t) > 0;
     }
     if (!have) ensure_republisher(t, history);
   };

@@ -143,6 +143,7 @@ struct Outgoing {
   // A refcounted copy (zmq_msg_copy) of the message made by retained_payload(): the pinned
   // slot itself, or one copy of it.
   zmq::message_t payload;
+  std::uint32_t keep = 0;  // the topic's keep last N at the origin (DataHeader::keep)
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -206,6 +207,7 @@ struct Bridge::Impl {
     std::shared_ptr<const std::string> topic_ptr;
     std::size_t channel = 0;
     std::atomic<bool> large{false};
+    std::atomic<std::uint32_t> keep{0};  // largest history of the local publishers (reconcile)
     std::mutex mu;              // guards peers
     std::vector<std::size_t> peers;
     std::shared_ptr<PinWatch> pins = std::make_shared<PinWatch>();
@@ -301,7 +303,7 @@ struct Bridge::Impl {
   void flush(Channel& ch, Peer& p);
   void receive_data(Channel& ch);
   // Channel threads: into this host's shared memory.
-  void republish(const std::string& topic, const zmq::message_t& payload);
+  void republish(const std::string& topic, const zmq::message_t& payload, std::uint32_t keep);
   // Makes (or remakes, when the keep differs) the topic's republisher. repub_mu not held.
   std::shared_ptr<Republisher> ensure_republisher(const std::string& topic, std::uint32_t history);
   std::uint32_t keep_of_locked(const std::string& topic) const;  // view_mu held: peers' keep

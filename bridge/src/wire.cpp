@@ -126,6 +126,7 @@ void encode_header(const DataHeader& h, unsigned char out[kDataHeader]) {
   for (int i = 0; i < 8; ++i) {
     out[i] = static_cast<unsigned char>(h.instance >> (8 * i));
     out[8 + i] = static_cast<unsigned char>(h.seq >> (8 * i));
+    out[16 + i] = static_cast<unsigned char>(h.keep >> (8 * i));
   }
 }
 
@@ -134,6 +135,7 @@ DataHeader decode_header(const unsigned char in[kDataHeader]) {
   for (int i = 0; i < 8; ++i) {
     h.instance |= std::uint64_t{in[i]} << (8 * i);
     h.seq |= std::uint64_t{in[8 + i]} << (8 * i);
+    h.keep |= std::uint64_t{in[16 + i]} << (8 * i);
   }
   return h;
 }

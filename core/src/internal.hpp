@@ -40,10 +40,6 @@ struct Match {
   bool foreign = false;                 // udp from a non-lcmx sender (stock LCM program)
   // The publisher left: the executor reads what it committed, then drops the match.
   std::atomic<bool> retiring{false};
-  // UDP path, keep last N (RuntimeImpl::on_history): the sequence number of the first message
-  // received live, and one past the newest sent message a replay delivered (live messages
-  // below it were delivered by the replay). Guarded by SubscriberState::mu.
-  std::optional<std::uint32_t> first_live, replay_floor;
 };
 
 struct SubscriberState {
@@ -55,6 +51,16 @@ struct SubscriberState {
   std::mutex mu;                        // guards queue, matches, version, errors
   std::condition_variable matched_cv;   // matches changed (wait_for_publishers)
   std::deque<IntraItem> queue;          // intra-process messages waiting for the executor
+  // Keep last N over UDP (RuntimeImpl::on_history), per sender socket ("ip:port", whether
+  // its participant is known yet or not): the sequence number of the first message delivered
+  // live, and one past the newest sent message a replay delivered (live messages below it
+  // came in the replay). At most kMaxUdpSources (cleared beyond: a replay may then repeat
+  // what came live before).
+  struct UdpSource {
+    std::optional<std::uint32_t> first_live, replay_floor;
+  };
+  std::map<std::string, UdpSource> udp_sources;
+  static constexpr std::size_t kMaxUdpSources = 4096;
   // !queue.empty(), written under `mu` (release), read by the executor without it (acquire),
   // so a wake-up with nothing queued and no match change takes no lock (NodeImpl::poll_one).
   std::atomic<bool> queued{false};

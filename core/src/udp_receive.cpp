@@ -203,10 +203,6 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
         }
       }
       if (!match && participant != 0) continue;  // not matched (type mismatch, or not yet)
-      if (match && participant != 0) {  // keep last N: see on_history
-        if (match->replay_floor && serial_before(m.sequence, *match->replay_floor)) continue;
-        if (!match->first_live) match->first_live = m.sequence;
-      }
       if (!match && !sub->type().raw() && !fingerprint_is(m.data, sub->type().fingerprint)) {
         // A stock LCM sender of another type on this channel: not delivered, reported once.
         const std::string text = "type mismatch on channel '" + sub->channel() + "': LCM sender " +
@@ -226,6 +222,12 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
         st.matched_cv.notify_all();
         spdlog::info("lcmx: channel '{}': receiving from LCM sender {} ({} group)", sub->channel(),
                      source, vehicle ? "vehicle" : "host-local");
+      }
+      {  // keep last N: see on_history
+        if (st.udp_sources.size() >= SubscriberState::kMaxUdpSources) st.udp_sources.clear();
+        auto& src = st.udp_sources[source];
+        if (src.replay_floor && serial_before(m.sequence, *src.replay_floor)) continue;
+        if (!src.first_live) src.first_live = m.sequence;
       }
       targets.push_back({sub, match->stats});
     }
@@ -295,8 +297,9 @@ void RuntimeImpl::send_replays() {
 
 // A keep-last-N replay (send_replays) for one of our subscribers: its messages go to the
 // subscriber's queue, oldest first, except those it received live (sent with a sequence
-// number at or after the first it received live from that participant); live messages that
-// arrive later, already delivered by the replay, are dropped (Match::replay_floor).
+// number at or after the first it received live from the publisher's socket, known as a
+// participant or not yet); live messages that arrive later, already delivered by the replay,
+// are dropped (SubscriberState::UdpSource).
 void RuntimeImpl::on_history(const udpm::Message& m) {
   lcmx_msgs::history_t h;
   if (h.decode(m.data.data(), 0, static_cast<int>(m.data.size())) < 0) return;  // not ours to judge
@@ -319,10 +322,14 @@ void RuntimeImpl::on_history(const udpm::Message& m) {
       }
     if (!match) return;  // unmatched since: nothing to hand over
     stats = match->stats;
+    // Per socket: what came live before the publisher was known (its beacon not yet here)
+    // went to a match of the socket as an unknown LCM sender.
+    if (st.udp_sources.size() >= SubscriberState::kMaxUdpSources) st.udp_sources.clear();
+    auto& src = st.udp_sources[udpm::to_string(m.source)];
     for (const auto& x : h.messages) {
       const auto seq = static_cast<std::uint32_t>(x.sequence);
-      if (x.sent && match->first_live && !serial_before(seq, *match->first_live)) continue;  // had it live
-      if (x.sent && (!match->replay_floor || serial_before(*match->replay_floor, seq + 1))) match->replay_floor = seq + 1;
+      if (x.sent && src.first_live && !serial_before(seq, *src.first_live)) continue;  // had it live
+      if (x.sent && (!src.replay_floor || serial_before(*src.replay_floor, seq + 1))) src.replay_floor = seq + 1;
       deliver.push_back(std::make_shared<const Bytes>(reinterpret_cast<const std::byte*>(x.data.data()),
                                                       reinterpret_cast<const std::byte*>(x.data.data()) + x.data.size()));
     }

@@ -64,9 +64,9 @@ bool walk_match(Walker& w) {
 
 bool walk_endpoint(Walker& w) {
   // id, kind, node, topic, type_name, fingerprint, shm_segment, large, max_message_size,
-  // messages, drops, rate_hz
+  // history, messages, drops, rate_hz
   if (!(w.i64() && w.i8() && w.str() && w.str() && w.str() && w.i64() && w.str() && w.i8() &&
-        w.i64() && w.i64() && w.i64() && w.f64()))
+        w.i64() && w.i32() && w.i64() && w.i64() && w.f64()))
     return false;
   std::int32_t n = 0;
   if (!w.count(&n, 8 + 8 + kMinString + 8 + 8)) return false;
@@ -89,7 +89,7 @@ bool walk_beacon(Walker& w) {
   if (!w.count(&n, kMinString)) return false;
   for (std::int32_t i = 0; i < n; ++i)
     if (!w.str()) return false;
-  constexpr std::size_t kMinEndpoint = 8 + 1 + 4 * kMinString + 1 + 8 * 5 + 4 + 4;
+  constexpr std::size_t kMinEndpoint = 8 + 1 + 4 * kMinString + 1 + 8 * 5 + 4 + 4 + 4;
   if (!w.count(&n, kMinEndpoint)) return false;
   for (std::int32_t i = 0; i < n; ++i)
     if (!walk_endpoint(w)) return false;

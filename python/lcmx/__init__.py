@@ -122,17 +122,18 @@ class Node(_Closing):
     def name(self):
         return self._node.name
 
-    def advertise(self, channel, msg_type, max_message_size=64 << 20, shm_slots=8):
+    def advertise(self, channel, msg_type, max_message_size=64 << 20, shm_slots=8, history=0):
         """A Publisher of lcm-gen type msg_type on channel. shm_slots: messages a subscriber
-        of another process may lag by before it loses the oldest."""
+        of another process may lag by before it loses the oldest. history: keep last N, a
+        subscriber that matches later gets the last `history` messages first, once (0: none)."""
         name, fingerprint = _type_info(msg_type)
         return Publisher(self._node.advertise_raw(channel, name, fingerprint, max_message_size,
-                                                  shm_slots), msg_type)
+                                                  shm_slots, history), msg_type)
 
-    def advertise_raw(self, channel, max_message_size=64 << 20, shm_slots=8):
-        """A Publisher of bytes (any bytes-like object) on channel."""
-        return Publisher(self._node.advertise_raw(channel, None, 0, max_message_size, shm_slots),
-                         None)
+    def advertise_raw(self, channel, max_message_size=64 << 20, shm_slots=8, history=0):
+        """A Publisher of bytes (any bytes-like object) on channel; history as advertise()."""
+        return Publisher(self._node.advertise_raw(channel, None, 0, max_message_size, shm_slots,
+                                                  history), None)
 
     def subscribe(self, channel, msg_type, callback, queue_depth=16):
         """callback(msg) with each message decoded as msg_type (msg_type.decode)."""

@@ -1132,10 +1132,12 @@ PYBIND11_MODULE(_lcmx, m) {
       .def_property_readonly("name", [](PyNode& n) { return n.get()->name(); })
       .def("advertise_raw",
            [](const std::shared_ptr<PyNode>& n, std::string channel, std::optional<std::string> type_name,
-              std::int64_t fingerprint, std::size_t max_message_size, std::uint32_t shm_slots) {
+              std::int64_t fingerprint, std::size_t max_message_size, std::uint32_t shm_slots,
+              std::uint32_t history) {
              lcmx::PublisherOptions o;
              o.max_message_size = max_message_size;
              o.shm_slots = shm_slots;
+             o.history = history;
              auto p = std::make_shared<PyPublisher>();
              p->node = n;
              auto node = n->get();
@@ -1146,7 +1148,8 @@ PYBIND11_MODULE(_lcmx, m) {
              return p;
            },
            py::arg("channel"), py::arg("type_name") = py::none(), py::arg("fingerprint") = 0,
-           py::arg("max_message_size") = std::size_t{64} << 20, py::arg("shm_slots") = 8)
+           py::arg("max_message_size") = std::size_t{64} << 20, py::arg("shm_slots") = 8,
+           py::arg("history") = 0)
       .def("subscribe_raw",
            [](const std::shared_ptr<PyNode>& n, std::string channel, py::object callback,
               std::optional<std::string> type_name, std::int64_t fingerprint, py::object decode,

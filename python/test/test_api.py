@@ -45,6 +45,21 @@ def test_typed_roundtrip_in_process(lcmx_env):
             pub.publish(header_t())
 
 
+def test_keep_last_n_late_subscriber_gets_the_last_messages_once(lcmx_env):
+    got = []
+    with lcmx.Runtime() as rt:
+        node = rt.create_node("keep")
+        pub = node.advertise("PY_KEEP", pose_t, history=3)
+        for i in range(5):
+            pub.publish(pose(i))
+        node.subscribe("PY_KEEP", pose_t, lambda m: got.append(m.header.seq))
+        assert wait_for(lambda: len(got) >= 3)
+        for i in range(5, 7):
+            pub.publish(pose(i))
+        assert wait_for(lambda: len(got) >= 5)
+        assert got == [2, 3, 4, 5, 6]
+
+
 def test_raw_memoryview_released_after_callback(lcmx_env, capfd):
     views = []
     contents = []

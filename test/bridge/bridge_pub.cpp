@@ -1,9 +1,10 @@
 // lcmx_bridge_test_pub: a publisher the bridge tests drive message by message.
 //
-//   lcmx_bridge_test_pub --channel C --size BYTES --id ID
+//   lcmx_bridge_test_pub --channel C --size BYTES --id ID [--history N]
 // Advertises lcmx_examples::bench_t on C, prints "READY", then reads commands on stdin:
 //   "pub N RATE"  publish N more messages (seq continues) at RATE Hz (0: back to back), then
 //                 print "PUBLISHED <total>"
+//   "size BYTES"  the size of the messages published from now on; prints "SIZE <bytes>"
 //   "quit" or EOF exit 0.
 // Messages are what lcmx_test_peer's `sub --type bench` checks: data[0..7] = ID, then byte i
 // of message seq is (i * 131 + seq * 7) & 0xff.
@@ -30,12 +31,17 @@ int main(int argc, char** argv) {
   app.add_option("--channel", channel)->required();
   app.add_option("--size", size);
   app.add_option("--id", id);
+  std::uint32_t history = 0;
+  std::size_t max_size = 16u << 20;
+  app.add_option("--history", history, "PublisherOptions::history (keep last N)");
+  app.add_option("--max-size", max_size, "largest size a 'size' command may set");
   CLI11_PARSE(app, argc, argv);
   try {
     auto rt = lcmx::Runtime::create();
     auto node = rt.create_node("bridge_test_pub");
     lcmx::PublisherOptions po;
-    po.max_message_size = std::max<std::size_t>(16u << 20, size + 4096);
+    po.max_message_size = std::max<std::size_t>(max_size, size + 4096);
+    po.history = history;
     po.shm_slots = 64;
     auto pub = node.advertise<lcmx_examples::bench_t>(channel, po);
     lcmx_examples::bench_t m{};
@@ -49,6 +55,18 @@ int main(int argc, char** argv) {
       std::string cmd;
       in >> cmd;
       if (cmd == "quit") break;
+      if (cmd == "size") {
+        std::size_t bytes = 0;
+        in >> bytes;
+        if (bytes < 8 || bytes + 4096 > po.max_message_size) {
+          std::cout << "BAD size " << bytes << std::endl;
+          continue;
+        }
+        m.size = static_cast<std::int32_t>(bytes);
+        m.data.resize(bytes);
+        std::cout << "SIZE " << bytes << std::endl;
+        continue;
+      }
       if (cmd != "pub") continue;
       long n = 0;
       double rate = 0;

@@ -67,8 +67,17 @@ class World {
   }
 
   std::vector<std::string> env() const {
-    return {"LCMX_DISCOVERY_URL=" + discovery_url, "LCMX_VEHICLE_URL", "LCMX_BEACON_PERIOD_MS=100",
-            "LCMX_LEASE_MS=800", "SPDLOG_LEVEL=info"};
+    return {"LCMX_DISCOVERY_URL=" + discovery_url,
+            vehicle_url_.empty() ? "LCMX_VEHICLE_URL" : "LCMX_VEHICLE_URL=" + vehicle_url_,
+            "LCMX_BEACON_PERIOD_MS=100", "LCMX_LEASE_MS=800", "SPDLOG_LEVEL=info"};
+  }
+
+  // Participants started from now on also have a vehicle group on `link` (small topics cross
+  // hosts over LCM UDP, as on a vehicle with bridges); a group of this test's own.
+  void use_vehicle_group(const std::string& link) {
+    const int id = static_cast<int>(::getpid()) * 64 + index_;
+    vehicle_url_ = "udpm://239.253." + std::to_string((id >> 8) & 0xff) + "." + std::to_string(id & 0xff) + ":" +
+                   std::to_string(30000 + id % 30000) + "?ttl=1&iface=" + emu_.interface(0, link);
   }
 
   Child& spawn(int host, std::vector<std::string> argv, bool merge_stderr = false) {
@@ -154,6 +163,7 @@ class World {
 
  private:
   std::vector<std::unique_ptr<Child>> children_;
+  std::string vehicle_url_;  // use_vehicle_group
 };
 
 
@@ -1104,4 +1114,71 @@ TEST_CASE("service across hosts through the bridges: 6 MB responses, each checke
   CHECK(kv.at("path") == "bridge");
   server.send("quit");
   REQUIRE(server.expect("SERVED"));
+}
+
+TEST_CASE("vehicle group and bridges: the message that makes a topic large, and every one after it, reach host B once",
+          "[bridge][multihost][delivery]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 44, {{.name = "eth"}});
+  w.use_vehicle_group("eth");  // small topics cross over LCM UDP, large ones through the bridges
+  const auto ch = w.channel("SWITCH");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  // Two publishers matched: the one of host A over UDP, and B's republisher, which B's bridge
+  // makes as soon as A's serves it the topic, before the topic is large.
+  auto& sub = w.sub(1, {ch}, {"--publishers", "2"});
+  auto& pub = w.pub(0, ch, 1000, "A");
+  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  REQUIRE(sub.expect("MATCHED", 15000ms));
+  pub.send(pub_cmd(5, 0));
+  REQUIRE(published_total(pub) == 5);
+  REQUIRE(wait_sub(sub, ch, [](const Summary& x) { return x.num("received") == 5; }, 5000ms).second);
+  pub.send("size 300000");  // over udp_limit (65000): message 5 makes the topic large
+  REQUIRE(pub.expect("SIZE 300000", 5000ms));
+  pub.send(pub_cmd(4, 50));
+  REQUIRE(published_total(pub) == 9);
+  auto [st, ok] = wait_sub(sub, ch, [](const Summary& x) { return x.num("received") >= 9; }, 10000ms);
+  CHECK(ok);
+  check_clean(st);
+  CHECK(st.num("received") == 9);
+  CHECK(st.num("min") == 0);
+  CHECK(st.num("last") == 8);
+  CHECK(st.num("gaps") == 0);
+  CHECK(st.str("paths").find("bridge") != std::string::npos);
+  pub.send("quit");
+}
+
+TEST_CASE("keep last N through the bridges: a late subscriber on host B gets the last N of a large topic of A once, then live",
+          "[bridge][multihost][history]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 45, {{.name = "eth"}});
+  const auto ch = w.channel("KEEP");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& pub = w.spawn(0, {LCMX_BRIDGE_PUB, "--channel", ch, "--size", "200000", "--id", "A", "--history", "3"});
+  REQUIRE(pub.expect("READY", 10000ms));
+  pub.send(pub_cmd(6, 0));  // nobody anywhere subscribes yet
+  REQUIRE(published_total(pub) == 6);
+  auto& sub = w.sub(1, {ch});
+  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  auto [kept, got] = wait_sub(sub, ch, [](const Summary& x) { return x.num("received") >= 3; }, 15000ms);
+  REQUIRE(got);
+  pub.send(pub_cmd(4, 50));
+  REQUIRE(published_total(pub) == 10);
+  auto [st, ok] = wait_sub(sub, ch, [](const Summary& x) { return x.num("received") >= 7; }, 10000ms);
+  CHECK(ok);
+  check_clean(st);
+  CHECK(st.num("received") == 7);  // 3, 4, 5 kept, then 6..9 live
+  CHECK(st.num("min") == 3);
+  CHECK(st.num("last") == 9);
+  CHECK(st.str("paths") == "bridge");
+  // A second late subscriber on B, while B's republisher exists: the last 3 from its ring.
+  auto& second = w.sub(1, {ch}, {"--expect", "3"});
+  const auto s2 = lcmx::it::of(second.read_summaries(15000ms), ch);
+  INFO("second subscriber:\n" << second.output());
+  check_clean(s2);
+  CHECK(s2.num("received") == 3);
+  CHECK(s2.num("min") == 7);
+  CHECK(s2.num("last") == 9);
+  pub.send("quit");
 }

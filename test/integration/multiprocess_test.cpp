@@ -476,3 +476,48 @@ TEST_CASE("segment growth mid-stream: messages are delivered or counted as drops
     CHECK(fin.num("received") + fin.num("drops") == 300);
   }
 }
+
+TEST_CASE("keep last N across processes (shm): late subscribers get the last N once, then every live message",
+          "[integration][history]") {
+  Session s(140);
+  const auto ch = unique_channel("KEEP_SHM", 140);
+  // 1000-byte messages in 256-byte first slots: the ring grows at once. Nobody listens yet.
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "bench", "--size", "1000", "--initial-slot", "256",
+                      "--count", "10", "--rate", "0", "--history", "4", "--hold", "--id", "A"});
+  REQUIRE(pub.expect("PUBLISHED 10"));
+  for (int k = 0; k < 2; ++k) {  // the second one finds the ring as the first left it
+    auto& sub = s.peer({"sub", "--channel", ch, "--type", "bench", "--publishers", "1", "--expect", "4"});
+    INFO("subscriber " << k << ":\n" << sub.output());
+    const auto st = of(sub.read_summaries(15000ms), ch);
+    CHECK(st.num("received") == 4);
+    CHECK(st.num("min") == 6);
+    CHECK(st.num("last") == 9);
+    CHECK(st.num("duplicates") == 0);
+    CHECK(st.num("out_of_order") == 0);
+    CHECK(st.num("drops") == 0);
+    CHECK(st.num("bad_content") == 0);
+    CHECK(st.str("paths") == "shm");
+    CHECK(sub.wait() == 0);
+  }
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+
+  // While a stream runs: the kept ones, then every live one, nothing twice.
+  const auto ch2 = unique_channel("KEEP_SHM_LIVE", 140);
+  auto& stream = s.peer({"pub", "--channel", ch2, "--type", "pose", "--count", "0", "--rate", "500", "--history", "6",
+                         "--id", "A"});
+  REQUIRE(stream.expect("READY"));
+  REQUIRE(wait_until([&] { return published(stream) >= 50; }, 10000ms, 20ms));
+  auto& sub = s.peer({"sub", "--channel", ch2, "--type", "pose", "--publishers", "1", "--expect", "300"});
+  INFO("stream subscriber:\n" << sub.output());
+  const auto st = of(sub.read_summaries(15000ms), ch2);
+  CHECK(st.num("duplicates") == 0);
+  CHECK(st.num("out_of_order") == 0);
+  CHECK(st.num("gaps") == 0);
+  CHECK(st.num("drops") == 0);
+  CHECK(st.num("received") >= 300);
+  CHECK(st.num("first") == st.num("min"));
+  CHECK(sub.wait() == 0);
+  stream.send("quit");
+  CHECK(stream.wait() == 0);
+}

@@ -1,7 +1,7 @@
 // lcmx_test_peer: the other processes of the integration tests.
 //
 //   pub  --channel C --type pose|image|bench --count N --rate HZ --size BYTES
-//        [--subscribers K] [--id NAME] [--local-sub] [--hold]
+//        [--subscribers K] [--id NAME] [--local-sub] [--hold] [--history N]
 //     Advertises, prints "READY", waits (deadline --timeout-ms) for K matched subscribers,
 //     prints "MATCHED <k>", publishes N messages (N = 0: until killed or told "quit"), prints
 //     "PUBLISHED <n>". With --hold it then waits for "quit" on stdin before exiting (so
@@ -17,7 +17,7 @@
 //        rounds of one 8-byte message per channel; "PUBLISHED <n>", wait for "quit".
 //
 // Summary, one line per channel, then "END":
-//   SUMMARY channel=C received=R first=F last=L duplicates=D out_of_order=O gaps=G drops=X
+//   SUMMARY channel=C received=R first=F last=L min=M duplicates=D out_of_order=O gaps=G drops=X
 //           decode_errors=E bad_content=B publishers=P paths=shm,intra sources=S errors=N
 // followed by N lines "ERROR <text>". Events of Runtime::on_event print as
 //   "EVENT <kind> <channel|-> <message>".
@@ -139,6 +139,7 @@ struct Config {
   bool hold = false;
   std::size_t queue_depth = 16;
   std::uint32_t shm_slots = 8;
+  std::uint32_t history = 0;  // pub: PublisherOptions::history (keep last N)
   std::size_t initial_slot = 4096;
   int topics = 1;
 };
@@ -153,7 +154,7 @@ struct Recorder {
   std::mutex mu;
   std::map<std::string, Source> sources;
   std::uint64_t received = 0, bad_content = 0;
-  std::int64_t first = -1, last = -1;
+  std::int64_t first = -1, last = -1, min = -1;
   std::int64_t first_gap = -1;  // first sequence number missing (any source), -1 if none
 
   void on(const std::string& source, std::int64_t seq, bool content_ok) {
@@ -162,6 +163,7 @@ struct Recorder {
     if (!content_ok) ++bad_content;
     if (first < 0) first = seq;
     last = seq;
+    if (min < 0 || seq < min) min = seq;
     auto& s = sources[source];
     ++s.received;
     if (!s.seen.insert(seq).second) ++s.duplicates;
@@ -206,6 +208,7 @@ void summary(Channel& c) {
   std::lock_guard lock(c.rec.mu);
   say("SUMMARY channel=" + (c.label.empty() ? c.name : c.label) + " received=" + std::to_string(c.rec.received) +
       " first=" + std::to_string(c.rec.first) + " last=" + std::to_string(c.rec.last) +
+      " min=" + std::to_string(c.rec.min) +
       " duplicates=" + std::to_string(dups) + " out_of_order=" + std::to_string(ooo) +
       " gaps=" + std::to_string(gaps) + " first_gap=" + std::to_string(c.rec.first_gap) + " drops=" + std::to_string(st.drops) +
       " decode_errors=" + std::to_string(st.decode_errors) +
@@ -330,6 +333,7 @@ int run_pub(const Config& cfg, lcmx::Runtime& rt, Stdin& in, Clock::time_point d
   auto node = rt.create_node(cfg.node);
   lcmx::PublisherOptions po;
   po.shm_slots = cfg.shm_slots;
+  po.history = cfg.history;
   po.shm_initial_slot_size = cfg.initial_slot;
   po.max_message_size = std::max<std::size_t>(16u << 20, cfg.size + 4096);
   const std::string& channel = cfg.channels.at(0);
@@ -518,6 +522,7 @@ int main(int argc, char** argv) {
   app.add_option("--timeout-ms", cfg.timeout_ms, "give up (exit 3) after this long");
   app.add_option("--queue-depth", cfg.queue_depth, "sub: intra-process queue depth");
   app.add_option("--shm-slots", cfg.shm_slots, "pub: shared-memory ring depth");
+  app.add_option("--history", cfg.history, "pub: keep last N for subscribers that match later");
   app.add_option("--initial-slot", cfg.initial_slot, "pub: first shared-memory slot size in bytes");
   app.add_flag("--local-sub", cfg.local_sub, "pub: also subscribe in this process (intra path)");
   app.add_flag("--hold", cfg.hold, "pub: after publishing, wait for quit");

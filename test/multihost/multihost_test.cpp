@@ -479,3 +479,52 @@ TEST_CASE("UDP loss across hosts is counted in the pair's drops: received + drop
   pub.send("quit");
   CHECK(pub.wait() == 0);
 }
+
+TEST_CASE("keep last N across hosts (udp): a late subscriber gets the last N once, also while the stream runs",
+          "[multihost][delivery][history]") {
+  LCMX_REQUIRE_NETNS();
+  Hosts h(2, 74);
+  // Published before anyone listens (on demand: nothing was sent over UDP at all).
+  const auto ch = h.channel("KEEP");
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "pose", "--count", "10", "--rate", "0", "--history", "4",
+                         "--hold", "--id", "A"});
+  REQUIRE(pub.expect("PUBLISHED 10"));
+  auto& late = h.peer(1, {"sub", "--channel", ch, "--type", "pose", "--publishers", "1", "--expect", "4"});
+  {
+    INFO("late subscriber:\n" << late.output());
+    const auto st = of(late.read_summaries(15000ms), ch);
+    CHECK(st.num("received") == 4);
+    CHECK(st.num("min") == 6);
+    CHECK(st.num("last") == 9);
+    CHECK(st.num("duplicates") == 0);
+    CHECK(st.str("paths") == "udp");
+    CHECK(late.wait() == 0);
+  }
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+
+  // A stream already flowing to another subscriber of host B: the late one gets what it did
+  // not receive live, each message once (the replay leaves out what came live, and live
+  // messages the replay delivered are dropped).
+  const auto ch2 = h.channel("KEEP_LIVE");
+  auto& early = h.peer(1, {"sub", "--channel", ch2, "--type", "pose", "--publishers", "1"});
+  REQUIRE(early.expect("READY"));
+  auto& stream = h.peer(0, {"pub", "--channel", ch2, "--type", "pose", "--count", "0", "--rate", "500", "--history", "8",
+                            "--subscribers", "1", "--id", "A"});
+  REQUIRE(stream.expect("MATCHED 1"));
+  REQUIRE(early.wait_seen("MATCHED", 10000ms));
+  for (int round = 0; round < 3; ++round) {
+    auto& joiner = h.peer(1, {"sub", "--channel", ch2, "--type", "pose", "--publishers", "1", "--expect", "300",
+                              "--queue-depth", "4096"});
+    const auto st = of(joiner.read_summaries(15000ms), ch2);
+    INFO("round " << round << ", joining subscriber:\n" << joiner.output());
+    CHECK(st.num("duplicates") == 0);
+    CHECK(st.num("received") == st.num("last") - st.num("min") + 1);  // contiguous: nothing lost between
+    CHECK(st.num("received") >= 300);
+    CHECK(joiner.wait() == 0);
+  }
+  stream.send("quit");
+  CHECK(stream.wait() == 0);
+  early.send("quit");
+  CHECK(early.wait() == 0);
+}

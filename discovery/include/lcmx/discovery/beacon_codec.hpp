@@ -12,7 +12,7 @@
 namespace lcmx::discovery {
 
 inline constexpr const char* kBeaconChannel = "LCMX_BEACON";
-inline constexpr int kBeaconVersion = 4;
+inline constexpr int kBeaconVersion = 5;
 
 // Encodes a beacon (lcm-gen encoding with its fingerprint, as LCM tools expect).
 std::vector<std::byte> encode_beacon(const lcmx_msgs::beacon_t& beacon);

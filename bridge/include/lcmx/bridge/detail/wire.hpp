@@ -22,7 +22,7 @@ namespace lcmx::bridge::wire {
 
 inline constexpr std::size_t kMaxControlFrame = 4u << 20;  // bytes
 inline constexpr std::size_t kMaxTopic = 63;                // LCM's channel limit
-inline constexpr std::size_t kDataHeader = 16;
+inline constexpr std::size_t kDataHeader = 24;
 // The catalogue ("have" lines): the large topics a bridge's host publishes, which peers with
 // pattern subscribers announce on their hosts. More in a frame is malformed.
 inline constexpr std::size_t kMaxCatalogue = 1024;
@@ -60,6 +60,9 @@ std::optional<Control> decode(std::string_view frame);
 struct DataHeader {
   std::uint64_t instance = 0;
   std::uint64_t seq = 0;
+  // Keep last N of the topic at its origin (PublisherOptions::history): the receiving
+  // bridge's republisher keeps as many (at most Control::kMaxKeep; more reads as that).
+  std::uint64_t keep = 0;
 };
 void encode_header(const DataHeader& h, unsigned char out[kDataHeader]);
 DataHeader decode_header(const unsigned char in[kDataHeader]);
