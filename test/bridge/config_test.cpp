@@ -428,3 +428,29 @@ TEST_CASE("control wire format: the catalogue (have) belongs to the demand state
   REQUIRE(dup);
   CHECK(dup->have == std::set<std::string>{"X"});
 }
+
+TEST_CASE("control wire format: keep lines (keep last N of offered topics) belong to the demand state and are bounded",
+          "[bridge][wire]") {
+  const std::string head = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nactive\n";
+  const std::string demand = head + "control 7700\ndemand\n";
+  CHECK_FALSE(wire::decode(head + "keep X 3\n"));     // keep without demand
+  CHECK_FALSE(wire::decode(demand + "keep X\n"));     // no count
+  CHECK_FALSE(wire::decode(demand + "keep X -1\n"));  // not a count
+  CHECK_FALSE(wire::decode(demand + "keep X 3x\n"));
+  CHECK_FALSE(wire::decode(demand + "keep X " + std::to_string(wire::Control::kMaxKeep + 1) + "\n"));
+  CHECK_FALSE(wire::decode(demand + "keep " + std::string(64, 'T') + " 3\n"));  // topic too long
+  const auto ok = wire::decode(demand + "offer X\nkeep X 3\noffer Y\nkeep Y 1000\n");
+  REQUIRE(ok);
+  CHECK(ok->keep == std::map<std::string, std::uint32_t>{{"X", 3}, {"Y", 1000}});
+  const auto back = wire::decode(wire::encode(*ok));
+  REQUIRE(back);
+  CHECK(back->keep == ok->keep);
+  CHECK(back->offer == ok->offer);
+  // The data header carries the keep too.
+  unsigned char h[wire::kDataHeader];
+  wire::encode_header({7, 8, 9}, h);
+  const auto d = wire::decode_header(h);
+  CHECK(d.instance == 7u);
+  CHECK(d.seq == 8u);
+  CHECK(d.keep == 9u);
+}

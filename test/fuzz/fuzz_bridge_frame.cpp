@@ -49,7 +49,7 @@ void check_control(std::string_view frame) {
   FUZZ_CHECK(valid_name(c->link));
   if (c->kind == wire::Control::Kind::pong) {
     FUZZ_CHECK(!c->active && !c->has_demand && c->channels.empty() && c->want.empty() && c->offer.empty() &&
-               c->have.empty());
+               c->have.empty() && c->keep.empty());
   }
   FUZZ_CHECK(c->channels.size() <= 256);
   for (const auto& [name, port] : c->channels) {
@@ -61,7 +61,9 @@ void check_control(std::string_view frame) {
   for (const auto& t : c->offer) FUZZ_CHECK(wire::valid_topic(t));
   for (const auto& t : c->have) FUZZ_CHECK(wire::valid_topic(t));
   FUZZ_CHECK(c->have.size() <= wire::kMaxCatalogue);
-  if (!c->has_demand) FUZZ_CHECK(c->want.empty() && c->offer.empty() && c->have.empty());
+  FUZZ_CHECK(c->keep.size() <= wire::kMaxCatalogue);
+  for (const auto& [t, n] : c->keep) FUZZ_CHECK(wire::valid_topic(t) && n <= wire::Control::kMaxKeep);
+  if (!c->has_demand) FUZZ_CHECK(c->want.empty() && c->offer.empty() && c->have.empty() && c->keep.empty());
 
   const std::string text = wire::encode(*c);
   const auto again = wire::decode(text);
@@ -84,6 +86,7 @@ void check_control(std::string_view frame) {
       FUZZ_CHECK(again->want == c->want);
       FUZZ_CHECK(again->offer == c->offer);
       FUZZ_CHECK(again->have == c->have);
+      FUZZ_CHECK(again->keep == c->keep);
     }
   }
 }
