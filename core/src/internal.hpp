@@ -58,6 +58,13 @@ struct SubscriberState {
   // what came live before).
   struct UdpSource {
     std::optional<std::uint32_t> first_live, replay_floor;
+    // The participant sending from that address (0: not known yet). Another one there (a
+    // restart on the same port, a stock program) starts the entry over.
+    std::uint64_t participant = 0;
+    void sender(std::uint64_t who) {
+      if (participant != 0 && participant != who) *this = {};
+      if (who != 0) participant = who;
+    }
   };
   std::map<std::string, UdpSource> udp_sources;
   static constexpr std::size_t kMaxUdpSources = 4096;

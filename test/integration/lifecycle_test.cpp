@@ -219,6 +219,31 @@ TEST_CASE("containers sharing the network namespace but not /dev/shm: no shm pat
   }
 }
 
+TEST_CASE("keep last N to a neighbour (a container with its own /dev/shm): the last N once over the host-local group",
+          "[integration][lifecycle][containers][history]") {
+  if (!can_unshare()) {
+    WARN("cannot create mount/pid namespaces here: skipped");
+    return;
+  }
+  Session s(141, 40000ms);
+  const auto ch = unique_channel("KEEP_NEIGHBOUR", 141);
+  auto& pub = s.spawn(in_container({"--mount", "--propagation", "private"}, true,
+                                   {"pub", "--channel", ch, "--type", "pose", "--count", "10", "--rate", "0",
+                                    "--history", "4", "--hold", "--id", "A"}));
+  REQUIRE(pub.expect("PUBLISHED 10", 10000ms));  // nobody listens yet: nothing was sent
+  auto& sub = s.peer({"sub", "--channel", ch, "--type", "pose", "--publishers", "1", "--expect", "4"});
+  const auto fin = of(sub.read_summaries(15000ms), ch);
+  INFO(sub.output());
+  CHECK(sub.wait() == 0);
+  CHECK(fin.str("paths") == "udp");
+  CHECK(fin.num("received") == 4);
+  CHECK(fin.num("min") == 6);
+  CHECK(fin.num("last") == 9);
+  CHECK(fin.num("duplicates") == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
+
 TEST_CASE("containers sharing /dev/shm but not the pid namespace: shm works, nobody is taken for dead",
           "[integration][lifecycle][containers]") {
   if (!can_unshare()) {
