@@ -352,6 +352,8 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
     std::chrono::steady_clock::time_point logged{};
   };
   std::map<std::pair<std::int8_t, std::string>, SourceLoss> source_loss;  // (scope, "ip:port")
+  static constexpr std::size_t kMaxSources = 4096;  // source_loss entries (see loss_of)
+  SourceLoss& loss_of(std::int8_t scope, const std::string& source);  // recv_mu held
   void settle_loss(std::int8_t scope, const std::string& source, const lcmx_msgs::beacon_t& b,
                    std::uint32_t lost_before);  // recv_mu held, mu not held
   void log_foreign_loss(std::int8_t scope, const std::string& source, std::uint32_t lost);  // recv_mu

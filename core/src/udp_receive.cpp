@@ -186,7 +186,7 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     if (m.lost_before > 0) {
       // A participant's gap is settled at its next beacon (some of it may be beacons); a stock
       // LCM sender has no channel list: its loss cannot be given to a pair.
-      if (participant != 0) source_loss[{scope, source}].pending += m.lost_before;
+      if (participant != 0) loss_of(scope, source).pending += m.lost_before;
       else foreign_lost = m.lost_before;
     }
     for (auto& [id, sub] : subs) {
@@ -344,7 +344,15 @@ void RuntimeImpl::on_history(const udpm::Message& m) {
 
 void RuntimeImpl::settle_loss(std::int8_t scope, const std::string& source, const lcmx_msgs::beacon_t& b,
                               std::uint32_t lost_before) {
-  auto& s = source_loss[{scope, source}];
+  auto& s = loss_of(scope, source);
+  struct ForgetOnGoodbye {  // at return: `s` is used until then
+    decltype(source_loss)& map;
+    std::pair<std::int8_t, std::string> key;
+    bool goodbye;
+    ~ForgetOnGoodbye() {
+      if (goodbye) map.erase(key);
+    }
+  } forget{source_loss, {scope, source}, (b.flags & lcmx_msgs::beacon_t::FLAG_GOODBYE) != 0};
   s.pending += lost_before;
   if (s.last_beacon >= 0 && b.sequence > s.last_beacon) s.beacon_credit += static_cast<std::uint64_t>(b.sequence - s.last_beacon - 1);
   s.last_beacon = b.sequence;
@@ -391,8 +399,16 @@ void RuntimeImpl::settle_loss(std::int8_t scope, const std::string& source, cons
                s.unattributed, list);
 }
 
+// Bounded: a sender that says goodbye is forgotten (settle_loss); one killed without a
+// goodbye, or a stock LCM sender, stays until kMaxSources senders were seen, then all start
+// over (their pending gaps, at most one beacon period's, and unattributed totals are lost).
+RuntimeImpl::SourceLoss& RuntimeImpl::loss_of(std::int8_t scope, const std::string& source) {
+  if (source_loss.size() >= kMaxSources && !source_loss.count({scope, source})) source_loss.clear();
+  return source_loss[{scope, source}];
+}
+
 void RuntimeImpl::log_foreign_loss(std::int8_t scope, const std::string& source, std::uint32_t lost) {
-  auto& s = source_loss[{scope, source}];
+  auto& s = loss_of(scope, source);
   s.unattributed += lost;
   const auto now = std::chrono::steady_clock::now();
   if (now - s.logged < std::chrono::seconds(5)) return;
