@@ -457,7 +457,7 @@ Gateway Gateway::start(Config cfg, RuntimeOptions options) {
   g.runtime.emplace(Runtime::create(options));
   NodeOptions no;
   if (g.cfg.spin.count() > 0) {
-    no.executor.wait = WaitStrategy::spin_then_block;
+    no.executor.wait = WaitStrategy::adaptive;
     no.executor.spin = g.cfg.spin;
   }
   g.node.emplace(g.runtime->create_node("dds_gateway_" + g.cfg.name, no));

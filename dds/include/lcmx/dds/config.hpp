@@ -64,9 +64,10 @@ struct Config {
   bool allow_multicast = true;      // with `interface` only
   std::vector<std::string> peers;   // unicast discovery peers (IPv4), with `interface` only
   std::chrono::milliseconds status_period{1000};
-  // How long the gateway's executor polls for the next lcmx message before it sleeps
-  // (WaitStrategy::spin_then_block; 0 = block at once). Saves the cross-CPU wake-up per export
-  // at the cost of CPU while traffic flows; idle it costs nothing.
+  // How long after the last lcmx message the gateway's executor keeps polling for the next
+  // one before it sleeps (WaitStrategy::adaptive: yields between polls, stops when a yield
+  // lets another thread run; 0 = block at once). Saves the cross-CPU wake-up per export while
+  // traffic is dense, at the cost of CPU then; idle it costs nothing.
   std::chrono::microseconds spin{50};
   std::vector<std::filesystem::path> type_paths;  // .lcm files/directories (absolute)
   std::shared_ptr<const types::TypeRegistry> types;  // loaded type_paths (never null)
