@@ -1187,3 +1187,30 @@ TEST_CASE("keep last N through the bridges: a late subscriber on host B gets the
   CHECK(s2.num("last") == 9);
   pub.send("quit");
 }
+
+TEST_CASE("service across hosts with a vehicle group and bridges, nothing carried: 6 MB responses arrive, each checked by content",
+          "[bridge][multihost][service][delivery]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 46, {{.name = "eth"}}, 60000ms);
+  w.use_vehicle_group("eth");
+  const auto name = w.channel("SVC_SWITCH");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& server = w.spawn(1, {LCMX_SERVICE_PEER, "server", "--name", name, "--timeout-ms", "55000"});
+  REQUIRE(server.expect("READY", 10000ms));
+  auto& client = w.spawn(0, {LCMX_SERVICE_PEER, "client", "--name", name, "--calls", "3", "--size",
+                             std::to_string(6 * 1024 * 1024), "--call-timeout-ms", "15000", "--timeout-ms", "55000"});
+  auto line = client.expect("CALLS", 50000ms);
+  INFO(client.output());
+  for (auto* c : {&ba, &bb, &server})
+    while (c->read_line(0ms)) {
+    }
+  INFO("bridge A:\n" << ba.output() << "bridge B:\n" << bb.output() << "server:\n" << server.output());
+  REQUIRE(line);
+  const auto kv = lcmx::it::parse_kv(*line);
+  CHECK(kv.at("ok") == "3");  // the first response too
+  CHECK(kv.at("failed") == "0");
+  CHECK(kv.at("wrong") == "0");
+  server.send("quit");
+  REQUIRE(server.expect("SERVED"));
+}
