@@ -73,11 +73,14 @@ class World {
   }
 
   // Participants started from now on also have a vehicle group on `link` (small topics cross
-  // hosts over LCM UDP, as on a vehicle with bridges); a group of this test's own.
+  // hosts over LCM UDP, as on a vehicle with bridges); a group of this test's own. Its port is
+  // above both the discovery groups' (unique_url: 20000-59999) and the ephemeral range
+  // (32768-60999): Linux hands a socket bound to a port the datagrams of every group joined on
+  // the host for that port (IP_MULTICAST_ALL), so an equal port would mix the two groups.
   void use_vehicle_group(const std::string& link) {
-    const int id = static_cast<int>(::getpid()) * 64 + index_;
-    vehicle_url_ = "udpm://239.253." + std::to_string((id >> 8) & 0xff) + "." + std::to_string(id & 0xff) + ":" +
-                   std::to_string(30000 + id % 30000) + "?ttl=1&iface=" + emu_.interface(0, link);
+    const unsigned id = static_cast<unsigned>(::getpid()) * 64u + static_cast<unsigned>(index_);
+    vehicle_url_ = "udpm://239.253." + std::to_string((id >> 8) & 0xffu) + "." + std::to_string(id & 0xffu) + ":" +
+                   std::to_string(61000 + id % 4000) + "?ttl=1&iface=" + emu_.interface(0, link);
   }
 
   Child& spawn(int host, std::vector<std::string> argv, bool merge_stderr = false) {
