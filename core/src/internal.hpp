@@ -68,6 +68,13 @@ struct SubscriberState {
   };
   std::map<std::string, UdpSource> udp_sources;
   static constexpr std::size_t kMaxUdpSources = 4096;
+  // The entry of `source` ("ip:port"), sent from by `participant` (0: unknown). `mu` held.
+  UdpSource& udp_source(const std::string& source, std::uint64_t participant) {
+    if (udp_sources.size() >= kMaxUdpSources && !udp_sources.count(source)) udp_sources.clear();
+    auto& s = udp_sources[source];
+    s.sender(participant);
+    return s;
+  }
   // !queue.empty(), written under `mu` (release), read by the executor without it (acquire),
   // so a wake-up with nothing queued and no match change takes no lock (NodeImpl::poll_one).
   std::atomic<bool> queued{false};

@@ -224,9 +224,7 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
                      source, vehicle ? "vehicle" : "host-local");
       }
       {  // keep last N: see on_history
-        if (st.udp_sources.size() >= SubscriberState::kMaxUdpSources) st.udp_sources.clear();
-        auto& src = st.udp_sources[source];
-        src.sender(static_cast<std::uint64_t>(participant));
+        auto& src = st.udp_source(source, static_cast<std::uint64_t>(participant));
         if (src.replay_floor && serial_before(m.sequence, *src.replay_floor)) continue;
         if (!src.first_live) src.first_live = m.sequence;
       }
@@ -325,9 +323,7 @@ void RuntimeImpl::on_history(const udpm::Message& m) {
     stats = match->stats;
     // Per socket: what came live before the publisher was known (its beacon not yet here)
     // went to a match of the socket as an unknown LCM sender.
-    if (st.udp_sources.size() >= SubscriberState::kMaxUdpSources) st.udp_sources.clear();
-    auto& src = st.udp_sources[udpm::to_string(m.source)];
-    src.sender(static_cast<std::uint64_t>(h.publisher_participant));
+    auto& src = st.udp_source(udpm::to_string(m.source), static_cast<std::uint64_t>(h.publisher_participant));
     for (const auto& x : h.messages) {
       const auto seq = static_cast<std::uint32_t>(x.sequence);
       if (x.sent && src.first_live && !serial_before(seq, *src.first_live)) continue;  // had it live
