@@ -1091,6 +1091,31 @@ TEST_CASE("lcmx hz, bw, monitor --once and graph on host B see a large topic of 
 // Issue 12: a service whose 6 MB responses cross hosts through the Message Bridges. These
 // hosts have no vehicle group: the bridges carry the service's small requests too (`carry`),
 // and its replies as large topics.
+// A service server on host B (1) and a client on host A (0) making `calls` calls with 6 MB
+// responses, each checked by content by the service peers. Returns the client's CALLS line as
+// key=values once the server has quit, and every output (the bridges' too) for INFO.
+struct ServiceCalls {
+  std::map<std::string, std::string> kv;
+  std::string outputs;
+};
+ServiceCalls six_mb_calls(World& w, const std::string& name, int calls, Child& ba, Child& bb) {
+  auto& server = w.spawn(1, {LCMX_SERVICE_PEER, "server", "--name", name, "--timeout-ms", "55000"});
+  REQUIRE(server.expect("READY", 10000ms));
+  auto& client = w.spawn(0, {LCMX_SERVICE_PEER, "client", "--name", name, "--calls", std::to_string(calls), "--size",
+                             std::to_string(6 * 1024 * 1024), "--call-timeout-ms", "15000", "--timeout-ms", "55000"});
+  auto line = client.expect("CALLS", 50000ms);
+  for (auto* c : {&ba, &bb, &server})
+    while (c->read_line(0ms)) {
+    }
+  const std::string outputs = client.output() + "\nbridge A:\n" + ba.output() + "bridge B:\n" + bb.output() +
+                              "server:\n" + server.output();
+  INFO(outputs);
+  REQUIRE(line);
+  server.send("quit");
+  REQUIRE(server.expect("SERVED"));
+  return {lcmx::it::parse_kv(*line), outputs};
+}
+
 TEST_CASE("service across hosts through the bridges: 6 MB responses, each checked by content",
           "[bridge][multihost][service]") {
   LCMX_REQUIRE_NETNS();
@@ -1099,24 +1124,12 @@ TEST_CASE("service across hosts through the bridges: 6 MB responses, each checke
   const BridgeOpts o{.extra = "carry = [\"" + name + "/*\"]\n"};
   auto& ba = w.bridge(0, {1}, o);
   auto& bb = w.bridge(1, {0}, o);
-  auto& server = w.spawn(1, {LCMX_SERVICE_PEER, "server", "--name", name, "--timeout-ms", "55000"});
-  REQUIRE(server.expect("READY", 10000ms));
-  auto& client = w.spawn(0, {LCMX_SERVICE_PEER, "client", "--name", name, "--calls", "5", "--size",
-                             std::to_string(6 * 1024 * 1024), "--call-timeout-ms", "15000", "--timeout-ms", "55000"});
-  auto line = client.expect("CALLS", 50000ms);
-  INFO(client.output());
-  for (auto* c : {&ba, &bb, &server})
-    while (c->read_line(0ms)) {
-    }
-  INFO("bridge A:\n" << ba.output() << "bridge B:\n" << bb.output() << "server:\n" << server.output());
-  REQUIRE(line);
-  const auto kv = lcmx::it::parse_kv(*line);
+  const auto [kv, outputs] = six_mb_calls(w, name, 5, ba, bb);
+  INFO(outputs);
   CHECK(kv.at("ok") == "5");
   CHECK(kv.at("failed") == "0");
   CHECK(kv.at("wrong") == "0");
   CHECK(kv.at("path") == "bridge");
-  server.send("quit");
-  REQUIRE(server.expect("SERVED"));
 }
 
 TEST_CASE("vehicle group and bridges: the message that makes a topic large, and every one after it, reach host B once",
@@ -1199,21 +1212,9 @@ TEST_CASE("service across hosts with a vehicle group and bridges, nothing carrie
   const auto name = w.channel("SVC_SWITCH");
   auto& ba = w.bridge(0, {1});
   auto& bb = w.bridge(1, {0});
-  auto& server = w.spawn(1, {LCMX_SERVICE_PEER, "server", "--name", name, "--timeout-ms", "55000"});
-  REQUIRE(server.expect("READY", 10000ms));
-  auto& client = w.spawn(0, {LCMX_SERVICE_PEER, "client", "--name", name, "--calls", "3", "--size",
-                             std::to_string(6 * 1024 * 1024), "--call-timeout-ms", "15000", "--timeout-ms", "55000"});
-  auto line = client.expect("CALLS", 50000ms);
-  INFO(client.output());
-  for (auto* c : {&ba, &bb, &server})
-    while (c->read_line(0ms)) {
-    }
-  INFO("bridge A:\n" << ba.output() << "bridge B:\n" << bb.output() << "server:\n" << server.output());
-  REQUIRE(line);
-  const auto kv = lcmx::it::parse_kv(*line);
+  const auto [kv, outputs] = six_mb_calls(w, name, 3, ba, bb);
+  INFO(outputs);
   CHECK(kv.at("ok") == "3");  // the first response too
   CHECK(kv.at("failed") == "0");
   CHECK(kv.at("wrong") == "0");
-  server.send("quit");
-  REQUIRE(server.expect("SERVED"));
 }
