@@ -4,8 +4,9 @@
 //   one host   lcmx service (shm)  |  two lcmx one-way shm messages (ping -> pong)  |
 //              ZeroMQ REQ/REP over ipc://  and  tcp://127.0.0.1
 //   two hosts  lcmx service (UDP, the vehicle group; a 1 MB response as UDP fragments)  |
-//              ZeroMQ REQ/REP over TCP on the same link. Not yet: the row through the Message
-//              Bridges (docs/services.md "Known limits").
+//              lcmx service, UDP + bridges (1 MB responses through the Message Bridges)  |
+//              lcmx service, bridges only (no vehicle group, `carry`)  |
+//              ZeroMQ REQ/REP over TCP on the same link.
 //
 // Every method runs a server process and a client process (this binary with a hidden --role);
 // the client measures each call's round trip with CLOCK_MONOTONIC and prints "rtt <case>
@@ -205,11 +206,34 @@ void throughput(int clients, double seconds, const std::function<CallFn(int)>& m
 }
 
 int client_lcmx(const std::string& url, const std::string& vehicle, const std::string& name,
-                const std::vector<Case>& cases, int clients, double seconds) {
+                const std::vector<Case>& cases, int clients, double seconds, bool settle_bridge) {
   auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
+  // --settle-bridge: measure the settled state of "UDP + bridges", where this client's reply
+  // channel is matched with this host's bridge republisher before it turns large (bridges
+  // serve and offer small topics too, docs/bridge.md). A reply that turns large before that
+  // is lost (docs/services.md "Known limits"); in a running system the bridges settle within
+  // a few heartbeats of a client's start, the benchmark's first calls come sooner.
+  std::mutex mu;
+  std::condition_variable cv;
+  bool bridged = false;
+  if (settle_bridge)
+    rt.on_event([&](const lcmx::Event& e) {
+      const std::string suffix = "(bridge)";
+      if (e.kind != lcmx::Event::Kind::publisher_matched || e.channel.rfind(name + "/rp/", 0) != 0 ||
+          e.message.size() < suffix.size() || e.message.compare(e.message.size() - suffix.size(), suffix.size(), suffix) != 0)
+        return;
+      std::lock_guard lock(mu);
+      bridged = true;
+      cv.notify_all();
+    });
   auto node = rt.create_node("bench_client");
   auto client = node.create_client_raw(name);
   if (!client.wait_for_service(20s)) return say("error no server"), 1;
+  if (settle_bridge) {
+    std::unique_lock lock(mu);
+    if (!cv.wait_for(lock, 20s, [&] { return bridged; }))
+      return say("error the reply channel was not matched through the bridges within 20 s"), 1;
+  }
   std::string path = lcmx::to_string(client.servers().front().path);
   say("note path " + path);
   measure(cases, [&](const Bytes& req) {
@@ -287,6 +311,16 @@ int client_zmq(const std::string& endpoint, const std::vector<Case>& cases, int 
 }
 
 // ---- orchestrator ----
+
+#ifdef LCMX_BENCH_WITH_NETNS
+// Reads `c`'s lines until one contains `needle` (returned); nullopt at the deadline or EOF.
+std::optional<std::string> line_with(lcmx::test::Child& c, const std::string& needle, std::chrono::milliseconds timeout) {
+  const auto deadline = Clock::now() + timeout;
+  while (auto line = c.read_line(deadline))
+    if (line->find(needle) != std::string::npos) return line;
+  return std::nullopt;
+}
+#endif
 
 struct Result {
   std::string method, path;
@@ -435,7 +469,7 @@ int main(int argc, char** argv) {
   std::string role, url, vehicle, name, endpoint, cases_text, markdown;
   int calls = 2000, big_calls = 200, clients = 8;
   double seconds = 3;
-  bool no_hosts = false;
+  bool no_hosts = false, settle_bridge = false;
   app.add_option("--calls", calls, "measured calls of 1 KB / 1 KB")->check(CLI::PositiveNumber)->capture_default_str();
   app.add_option("--big-calls", big_calls, "measured calls of 1 KB / 1 MB")->check(CLI::PositiveNumber)->capture_default_str();
   app.add_option("--clients", clients, "concurrent clients for calls/s (0: skip)")->check(CLI::Range(0, 64))->capture_default_str();
@@ -448,6 +482,7 @@ int main(int argc, char** argv) {
   app.add_option("--name", name)->group("");
   app.add_option("--endpoint", endpoint)->group("");
   app.add_option("--cases", cases_text)->group("");
+  app.add_flag("--settle-bridge", settle_bridge)->group("");
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::warn);
   struct sigaction sa {};
@@ -461,7 +496,7 @@ int main(int argc, char** argv) {
       if (role == "server-lcmx") return server_lcmx(url, vehicle, name);
       if (role == "server-echo") return server_echo(url, name);
       if (role == "server-zmq") return server_zmq(endpoint);
-      if (role == "client-lcmx") return client_lcmx(url, vehicle, name, cs, clients, seconds);
+      if (role == "client-lcmx") return client_lcmx(url, vehicle, name, cs, clients, seconds, settle_bridge);
       if (role == "client-echo") return client_echo(url, name, cs);
       if (role == "client-zmq") return client_zmq(endpoint, cs, clients, seconds);
       std::cerr << "unknown role " << role << "\n";
@@ -515,47 +550,78 @@ int main(int argc, char** argv) {
                              "--clients", n_clients, "--seconds", secs},
                             emu.ns_fd(1), emu.ns_fd(0));
 #ifdef LCMX_BENCH_LCMX_TOOL
-      // Through the Message Bridges: no vehicle group, a bridge on each host carrying the
-      // service's channels from the start (`carry`, docs/services.md "Known limits").
-      Result lxb;
-      lxb.method = "lcmx service (bridges)";
-      try {
-        const std::string local_b = "udpm://239.255.78.3:7669?ttl=0";
-        const std::string dir = "/tmp/lcmx_bench_service_" + tag;
-        std::filesystem::create_directories(dir);
-        const auto a = emu.address(0, "eth"), b = emu.address(1, "eth");
-        auto config = [&](const std::string& path, const std::string& me, const std::string& listen,
-                          const std::string& peer, const std::string& peer_addr) {
-          std::ofstream f(path);
-          f << "name = \"" << me << "\"\nlisten = [\"" << listen << "\"]\ncontrol_port = 7700\n"
-            << "carry = [\"svcbb/*\"]\n\n[[channel]]\nname = \"all\"\nport = 7702\ntopics = [\"*\"]\n\n"
-            << "[[peer]]\nname = \"" << peer << "\"\nendpoints = [ { link = \"eth\", address = \"" << peer_addr
-            << "\" } ]\n";
-          if (!f) throw std::runtime_error("cannot write " + path);
-        };
-        config(dir + "/a.toml", "svcA", a, "svcB", b);
-        config(dir + "/b.toml", "svcB", b, "svcA", a);
-        const lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "warn"}};
-        std::vector<lcmx::test::Child> bridges;
-        bridges.push_back(emu.spawn(0, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}, env));
-        bridges.push_back(emu.spawn(1, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}, env));
-        for (const char* n : {"A", "B"})
-          if (!bridges[n[0] == 'A' ? 0 : 1].expect(std::string("bridge svc") + n + ": ready", std::chrono::milliseconds(10000)))
-            throw std::runtime_error(std::string("bridge svc") + n + " did not start");
-        std::cerr << "two hosts: lcmx service through the bridges\n";
-        lxb = run_method("lcmx service (bridges)",
-                         {"--role", "server-lcmx", "--url", local_b, "--name", "svcbb"},
-                         {"--role", "client-lcmx", "--url", local_b, "--name", "svcbb", "--cases", cs, "--clients",
-                          n_clients, "--seconds", secs},
-                         emu.ns_fd(1), emu.ns_fd(0));
-        for (auto& br : bridges) {
-          br.kill(SIGTERM);
-          br.wait(std::chrono::milliseconds(5000));
+      // Through the Message Bridges, a bridge on each host. Two set-ups:
+      //  - "UDP + bridges" (the designed one, DESIGN.md "Delivery"): a vehicle group too, so
+      //    requests and 1 KB responses cross over UDP and the reply channel turns large at the
+      //    first 1 MB response, which the bridges then carry. Checked: bridge B (the server's
+      //    host) must report at least the measured 1 MB responses as sent, else the row fails.
+      //  - "bridges only": no vehicle group; the bridges carry the service's channels from the
+      //    start (`carry`, docs/services.md "Known limits"), so every call takes four
+      //    shared-memory/bridge hops.
+      auto bridged = [&](const std::string& method, const std::string& local_b, const std::string& veh_b,
+                         const std::string& svc, int hosts_id) {
+        Result r;
+        r.method = method;
+        try {
+          const std::string dir = "/tmp/lcmx_bench_service_" + tag + "_" + std::to_string(hosts_id);
+          std::filesystem::create_directories(dir);
+          const auto a = emu.address(0, "eth"), b = emu.address(1, "eth");
+          auto config = [&](const std::string& path, const std::string& me, const std::string& listen,
+                            const std::string& peer, const std::string& peer_addr) {
+            std::ofstream f(path);
+            f << "name = \"" << me << "\"\nlisten = [\"" << listen << "\"]\ncontrol_port = 7700\n";
+            if (veh_b.empty()) f << "carry = [\"" << svc << "/*\"]\n";
+            f << "\n[[channel]]\nname = \"all\"\nport = 7702\ntopics = [\"*\"]\n\n"
+              << "[[peer]]\nname = \"" << peer << "\"\nendpoints = [ { link = \"eth\", address = \"" << peer_addr
+              << "\" } ]\n";
+            if (!f) throw std::runtime_error("cannot write " + path);
+          };
+          config(dir + "/a.toml", "svcA", a, "svcB", b);
+          config(dir + "/b.toml", "svcB", b, "svcA", a);
+          lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "info"}};
+          if (!veh_b.empty()) env.push_back({"LCMX_VEHICLE_URL", veh_b});
+          std::vector<lcmx::test::Child> bridges;
+          bridges.push_back(emu.spawn(0, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}, env));
+          bridges.push_back(emu.spawn(1, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}, env));
+          // Ready, then linked to the other (its log line "bridge svcA: link eth to svcB ... is up").
+          for (const char* n : {"A", "B"}) {
+            auto& br = bridges[n[0] == 'A' ? 0 : 1];
+            if (!br.expect(std::string("bridge svc") + n + ": ready", std::chrono::milliseconds(10000)))
+              throw std::runtime_error(std::string("bridge svc") + n + " did not start");
+            if (!line_with(br, std::string("bridge svc") + n + ": link eth", std::chrono::milliseconds(10000)))
+              throw std::runtime_error(std::string("bridge svc") + n + " did not link to the other host");
+          }
+          std::cerr << "two hosts: " << method << "\n";
+          std::vector<std::string> server{"--role", "server-lcmx", "--url", local_b, "--name", svc};
+          std::vector<std::string> client{"--role", "client-lcmx", "--url", local_b, "--name", svc, "--cases", cs,
+                                          "--clients", n_clients, "--seconds", secs};
+          if (!veh_b.empty()) {
+            server.insert(server.end(), {"--vehicle", veh_b});
+            client.insert(client.end(), {"--vehicle", veh_b, "--settle-bridge"});
+          }
+          r = run_method(method, server, client, emu.ns_fd(1), emu.ns_fd(0));
+          for (auto& br : bridges) br.kill(SIGTERM);
+          // "[time] [info] bridge svcB: stopping; local messages sent zero-copy Z, copied C; ..."
+          const auto line = line_with(bridges[1], "bridge svcB: stopping", std::chrono::milliseconds(5000));
+          long long zc = -1, copied = -1;
+          if (line)
+            std::sscanf(line->c_str() + line->find("bridge svcB"),
+                        "bridge svcB: stopping; local messages sent zero-copy %lld, copied %lld", &zc, &copied);
+          for (auto& br : bridges) br.wait(std::chrono::milliseconds(5000));
+          std::filesystem::remove_all(dir);
+          if (!veh_b.empty() && r.error.empty() && (zc < 0 || zc + copied < big_calls))
+            r.error = zc < 0 ? std::string("bridge B did not report what it sent")
+                             : "bridge B sent " + std::to_string(zc + copied) + " messages, fewer than the " +
+                                   std::to_string(big_calls) + " measured 1 MB responses";
+          if (!veh_b.empty() && r.path == "udp") r.path = "udp, 1 MB replies: bridge";
+        } catch (const std::exception& e) {
+          r.error = e.what();
         }
-        std::filesystem::remove_all(dir);
-      } catch (const std::exception& e) {
-        lxb.error = e.what();
-      }
+        return r;
+      };
+      Result lxv = bridged("lcmx service (UDP + bridges)", "udpm://239.255.78.5:7671?ttl=0",
+                           "udpm://239.255.78.6:7672?ttl=1&iface=eth", "svcbv", 1);
+      Result lxb = bridged("lcmx service (bridges only)", "udpm://239.255.78.3:7669?ttl=0", "", "svcbb", 2);
 #endif
       const std::string tcp2 = "tcp://" + emu.address(1, "eth") + ":5599";
       std::cerr << "two hosts: ZeroMQ REQ/REP tcp\n";
@@ -565,6 +631,7 @@ int main(int argc, char** argv) {
                             emu.ns_fd(1), emu.ns_fd(0));
       std::vector<Result> rows{lx2};
 #ifdef LCMX_BENCH_LCMX_TOOL
+      rows.push_back(lxv);
       rows.push_back(lxb);
 #endif
       rows.push_back(zt2);

@@ -390,9 +390,15 @@ class PublisherImpl final : public PublisherCore {
   void add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_ptr<PairCounters> stats);
   void remove_intra(const SubscriberCore* sub);
   // Subscribers of other processes: shm (this host), udp (other hosts, vehicle group),
-  // local_udp (neighbours, host-local group).
-  void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp);
+  // local_udp (neighbours, host-local group); unbridged_udp: of the udp ones, those that have
+  // no bridge republisher of the topic matched yet (their beacon lists no "bridge" match).
+  void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp,
+                              std::size_t unbridged_udp);
   bool large() const { return large_.load(); }
+  // Large, a bridge of this host carries it, and every subscriber on other hosts is matched
+  // with a bridge republisher: other hosts reach it only through the bridges, so the vehicle
+  // beacon leaves it out (DESIGN.md "Discovery", scopes).
+  bool bridged_only() const;
   // Keep last N (options.history): the kept encodings for a UDP replay to one late subscriber
   // on the vehicle group (vehicle) or the host-local group (a neighbour), oldest first, with
   // the sequence number each was sent with on that group (if it was). Empty when nothing is
@@ -458,6 +464,7 @@ class PublisherImpl final : public PublisherCore {
   std::shared_ptr<const Targets> intra_ = std::make_shared<Targets>();
   std::size_t remote_subscribers_ = 0;  // same host (shm) + other hosts (udp)
   std::atomic<std::size_t> udp_subscribers_{0};
+  std::atomic<std::size_t> unbridged_udp_subscribers_{0};  // of udp_subscribers_ (set_remote_subscribers)
   std::atomic<std::size_t> local_udp_subscribers_{0};  // neighbours: sent on the host-local group
   std::atomic<bool> large_{false};
   const bool mirrored_;  // RuntimeOptions::mirror / mirror_channels select this channel

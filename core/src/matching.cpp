@@ -200,6 +200,7 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
 // segment), and reports remote subscribers of another type.
 void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& events) {
   std::size_t counts[3] = {0, 0, 0};  // shm (this host), udp (other hosts), neighbours
+  std::size_t unbridged = 0;          // of counts[1]: no bridge republisher matched yet
   std::set<std::pair<std::int64_t, std::int64_t>> seen;  // subscribers given a replay, still here
   for (const auto* scope_map : {&remotes, &vehicle_remotes, &neighbour_remotes})
   for (const auto& [pid, b] : *scope_map) {
@@ -221,6 +222,9 @@ void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& ev
         if (static_cast<std::uint64_t>(m.publisher_participant) == participant_id &&
             static_cast<std::uint64_t>(m.publisher_endpoint) == pub.id) {
           ++n;
+          if (scope_map == &vehicle_remotes &&
+              std::none_of(e.matches.begin(), e.matches.end(), [](const lcmx_msgs::match_t& o) { return o.path == "bridge"; }))
+            ++unbridged;
           if (pub.options.history > 0 && scope_map != &remotes) {
             const auto key = std::make_pair(b.participant_id, e.id);
             seen.insert(key);
@@ -232,7 +236,13 @@ void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& ev
   }
   // Sent after this (send_replays): the subscriber counts are set first, so every message
   // published after the replay's snapshot is sent live.
-  pub.set_remote_subscribers(counts[0], counts[1], counts[2]);
+  const bool was_bridged_only = pub.bridged_only();
+  pub.set_remote_subscribers(counts[0], counts[1], counts[2], unbridged);
+  // Leaving the vehicle beacon (bridged_only) is announced at once.
+  if (pub.bridged_only() != was_bridged_only) {
+    ++revision;
+    announce_pending = true;
+  }
   std::erase_if(pub.replayed, [&](const auto& k) { return !seen.count(k); });
 }
 

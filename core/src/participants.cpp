@@ -189,9 +189,8 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
     b.num_endpoints = 0;
     return b;
   }
-  const bool hide_large = vehicle && bridge_on_host();
   for (auto& [id, pub] : pubs) {
-    if (hide_large && pub->large()) continue;
+    if (vehicle && pub->bridged_only()) continue;
     lcmx_msgs::endpoint_t e{};
     e.id = static_cast<std::int64_t>(id);
     e.kind = lcmx_msgs::endpoint_t::KIND_PUBLISHER;

@@ -59,11 +59,21 @@ void PublisherImpl::deliver_intra(const Targets& t, std::shared_ptr<const void> 
   for (const auto& target : t) push_intra(*target.sub, IntraItem{object, &type, target.stats, bytes});
 }
 
+// A large topic that a bridge of this host carries goes to other hosts through the bridges,
+// except to subscribers not yet matched with their host's bridge republisher: while the
+// bridges set up (they serve and offer a topic a few heartbeats after a subscriber appears;
+// a topic may turn large before), those still get it over UDP, so the switch loses nothing.
+// A subscriber that meanwhile matched the republisher may get a message of that short
+// overlap twice (docs/bridge.md "Small and large on one topic").
 bool PublisherImpl::wants_vehicle() const {
   const auto& rt = *node->runtime;
   if (!rt.vehicle_group) return false;
-  if (large_.load() && rt.bridge_on_host()) return false;  // the Message Bridge carries it
+  if (large_.load() && rt.bridge_on_host()) return unbridged_udp_subscribers_.load() > 0;
   return udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always;
+}
+
+bool PublisherImpl::bridged_only() const {
+  return large_.load() && node->runtime->bridge_on_host() && unbridged_udp_subscribers_.load() == 0;
 }
 
 bool PublisherImpl::wants_udp() const {
@@ -113,7 +123,7 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
     }
   };
   if (wants_vehicle()) {
-    if (large_.load() && !warned_large_udp_) {
+    if (large_.load() && !rt.bridge_on_host() && !warned_large_udp_) {
       warned_large_udp_ = true;
       spdlog::warn("lcmx: topic '{}' is large and no Message Bridge runs on this host: sending it "
                    "to other hosts as UDP fragments (start `lcmx bridge` on every host)",
@@ -354,11 +364,13 @@ void PublisherImpl::remove_intra(const SubscriberCore* sub) {
   subs_cv.notify_all();
 }
 
-void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp) {
+void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp,
+                                           std::size_t unbridged_udp) {
   std::lock_guard lock(intra_mu);
   if (remote_subscribers_ != shm + udp + local_udp && interrupt_on_match.load()) node->interrupt();
   remote_subscribers_ = shm + udp + local_udp;
   udp_subscribers_.store(udp);
+  unbridged_udp_subscribers_.store(unbridged_udp);
   local_udp_subscribers_.store(local_udp);
   subs_cv.notify_all();
 }

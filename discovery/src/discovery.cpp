@@ -221,6 +221,14 @@ struct Discovery::Impl {
       spdlog::warn("lcmx discovery: {}", refused);
       return;
     }
+    // A newcomer learns of us at once, not up to a period later: we beacon now (one beacon
+    // per newcomer heard; the newcomer, hearing us for the first time, answers once more,
+    // and that answer is no news to anyone). Without this a process that starts beside a
+    // quiet participant (a bridge, a server nobody matched yet) would not know of it for up
+    // to one period: e.g. a publisher whose topic turns large would send it as UDP fragments
+    // though a bridge runs on its host.
+    // (deliver() and the discovery thread's loop send it.)
+    if (change == Change::joined && !options.observer) want_announce = true;
     // A new peer to watch, or a watch to close: the discovery thread does it.
     if (watching() && change != Change::updated) {
       want_watch_sync = true;
@@ -420,7 +428,8 @@ void Discovery::query() {
 void Discovery::deliver(const udpm::Message& message) {
   const bool wake = !impl_->options.observer && !impl_->want_announce.load();
   impl_->on_datagram(message);
-  // A query asks us to beacon now: wake the thread if on_datagram set want_announce.
+  // A query or a newcomer asks us to beacon now: wake the thread if on_datagram set
+  // want_announce.
   if (wake && impl_->want_announce.load()) impl_->wake();
 }
 

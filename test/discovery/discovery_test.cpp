@@ -418,3 +418,24 @@ TEST_CASE("on_change is told in the table's order: an update never lands after t
   std::lock_guard lock(mu);
   CHECK(known.empty());
 }
+
+TEST_CASE("a newcomer learns of a quiet participant at once, not a period later", "[discovery]") {
+  // Both beacon every 10 s: without the answer to a newcomer, b would learn of a only at a's
+  // next periodic beacon, 10 s after a's first one (which b, not yet started, missed).
+  lcmx::discovery::Options o;
+  o.group = test_group(5);
+  o.period = 10s;
+  o.lease = 30s;
+  lcmx::discovery::Discovery a(o, [] { return sample_beacon(11); }, nullptr);
+  REQUIRE(eventually([&] { return a.counters().beacons_sent >= 1; }));
+  lcmx::discovery::Discovery b(o, [] { return sample_beacon(12); }, nullptr);
+  REQUIRE(eventually([&] { return a.participants().size() == 1; }, 3000ms));
+  REQUIRE(eventually([&] { return b.participants().size() == 1; }, 3000ms));
+  CHECK(b.participants()[0].beacon.participant_id == 11);
+  // One answer each, no ping-pong: a sent its first beacon and one answer; b its first and
+  // one answer to a's answer (a was new to b); a hears both of b's.
+  REQUIRE(eventually([&] { return b.counters().beacons_sent >= 2 && a.counters().beacons_received >= 2; }, 3000ms));
+  CHECK(a.counters().beacons_sent == 2);
+  CHECK(b.counters().beacons_sent == 2);
+  CHECK(a.counters().beacons_received == 2);
+}
