@@ -439,6 +439,57 @@ std::string table(const std::string& title, const std::vector<Result>& rs, const
   return o.str();
 }
 
+double median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2;
+}
+
+// One row from several rounds of a method: the median of the rounds' p50s and of their p99s
+// per case (rounds that failed are left out; the first error is kept).
+Result median_of(const std::vector<Result>& rounds) {
+  Result out = rounds.front();
+  out.rtt.clear();
+  std::map<std::string, std::pair<std::vector<double>, std::vector<double>>> all;
+  std::vector<double> tputs;
+  for (const auto& r : rounds) {
+    if (out.error.empty() && !r.error.empty()) out.error = r.error;
+    if (out.path.empty()) out.path = r.path;
+    for (const auto& [k, v] : r.rtt) {
+      all[k].first.push_back(v.first);
+      all[k].second.push_back(v.second);
+    }
+    if (r.tput > 0) tputs.push_back(r.tput);
+  }
+  for (auto& [k, v] : all) out.rtt[k] = {median(v.first), median(v.second)};
+  out.tput = median(tputs);
+  return out;
+}
+
+// "method, case: per-round p50 ratios against the reference of the same round ...; median".
+std::string per_round_ratios(const std::vector<Result>& runs, const std::vector<Result>& ref,
+                             const std::vector<Case>& cases) {
+  std::ostringstream o;
+  for (const auto& c : cases) {
+    const auto key = std::to_string(c.request) + ":" + std::to_string(c.response);
+    std::vector<double> rs;
+    std::string list;
+    for (std::size_t i = 0; i < runs.size() && i < ref.size(); ++i) {
+      auto a = runs[i].rtt.find(key), b = ref[i].rtt.find(key);
+      if (a == runs[i].rtt.end() || b == ref[i].rtt.end() || b->second.first <= 0) {
+        list += (list.empty() ? "" : ", ") + std::string("-");
+        continue;
+      }
+      rs.push_back(a->second.first / b->second.first);
+      list += (list.empty() ? "" : ", ") + ratio(a->second.first, b->second.first);
+    }
+    o << "- " << runs.front().method << ", " << case_label(c) << ": per-round p50 vs ZeroMQ tcp " << list
+      << "; median " << (rs.empty() ? std::string("-") : ratio(median(rs), 1.0)) << "\n";
+  }
+  return o.str();
+}
+
 std::string cases_arg(const std::vector<Case>& cases) {
   std::string s;
   for (const auto& c : cases)
@@ -467,7 +518,7 @@ int main(int argc, char** argv) {
       "lcmx_bench_service: service round trip (p50/p99) and calls/s, lcmx vs ZeroMQ REQ/REP and two lcmx\n"
       "one-way shm messages, on one host and (root) between two emulated hosts. Markdown on stdout."};
   std::string role, url, vehicle, name, endpoint, cases_text, markdown;
-  int calls = 2000, big_calls = 200, clients = 8;
+  int calls = 2000, big_calls = 200, clients = 8, rounds = 1;
   double seconds = 3;
   bool no_hosts = false, settle_bridge = false;
   app.add_option("--calls", calls, "measured calls of 1 KB / 1 KB")->check(CLI::PositiveNumber)->capture_default_str();
@@ -475,6 +526,9 @@ int main(int argc, char** argv) {
   app.add_option("--clients", clients, "concurrent clients for calls/s (0: skip)")->check(CLI::Range(0, 64))->capture_default_str();
   app.add_option("--seconds", seconds, "duration of the calls/s run")->check(CLI::Range(0.5, 60.0))->capture_default_str();
   app.add_flag("--no-hosts", no_hosts, "skip the two-host part (it needs root for network namespaces)");
+  app.add_option("--rounds", rounds, "two hosts: run every method this many times, in turn; tables show medians")
+      ->check(CLI::Range(1, 20))
+      ->capture_default_str();
   app.add_option("--markdown", markdown, "also write the tables to this file");
   app.add_option("--role", role)->group("");  // hidden: the children
   app.add_option("--url", url)->group("");
@@ -544,11 +598,13 @@ int main(int argc, char** argv) {
       auto emu = lcmx::test::Emulation::create({.hosts = 2, .links = {lcmx::test::LinkSpec{.name = "eth"}}});
       const std::string local = "udpm://239.255.78.1:7667?ttl=0";
       const std::string veh = "udpm://239.255.78.2:7668?ttl=1&iface=eth";
-      std::cerr << "two hosts: lcmx service\n";
-      auto lx2 = run_method("lcmx service", {"--role", "server-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb"},
-                            {"--role", "client-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb", "--cases", cs,
-                             "--clients", n_clients, "--seconds", secs},
-                            emu.ns_fd(1), emu.ns_fd(0));
+      auto udp_row = [&] {
+        std::cerr << "two hosts: lcmx service\n";
+        return run_method("lcmx service", {"--role", "server-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb"},
+                          {"--role", "client-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb", "--cases", cs,
+                           "--clients", n_clients, "--seconds", secs},
+                          emu.ns_fd(1), emu.ns_fd(0));
+      };
 #ifdef LCMX_BENCH_LCMX_TOOL
       // Through the Message Bridges, a bridge on each host. Two set-ups:
       //  - "UDP + bridges" (the designed one, DESIGN.md "Delivery"): a vehicle group too, so
@@ -619,28 +675,43 @@ int main(int argc, char** argv) {
         }
         return r;
       };
-      Result lxv = bridged("lcmx service (UDP + bridges)", "udpm://239.255.78.5:7671?ttl=0",
-                           "udpm://239.255.78.6:7672?ttl=1&iface=eth", "svcbv", 1);
-      Result lxb = bridged("lcmx service (bridges only)", "udpm://239.255.78.3:7669?ttl=0", "", "svcbb", 2);
 #endif
       const std::string tcp2 = "tcp://" + emu.address(1, "eth") + ":5599";
-      std::cerr << "two hosts: ZeroMQ REQ/REP tcp\n";
-      auto zt2 = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp2},
-                            {"--role", "client-zmq", "--endpoint", tcp2, "--cases", cs, "--clients", n_clients,
-                             "--seconds", secs},
-                            emu.ns_fd(1), emu.ns_fd(0));
-      std::vector<Result> rows{lx2};
+      auto zmq_row = [&] {
+        std::cerr << "two hosts: ZeroMQ REQ/REP tcp\n";
+        return run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp2},
+                          {"--role", "client-zmq", "--endpoint", tcp2, "--cases", cs, "--clients", n_clients,
+                           "--seconds", secs},
+                          emu.ns_fd(1), emu.ns_fd(0));
+      };
+      // --rounds: every method once per round, in turn, so that the machine's drift between
+      // runs (ZeroMQ's own 1 MB time varies 3x from run to run here) falls on all alike.
+      std::vector<std::vector<Result>> runs(4);  // udp, UDP + bridges, bridges only, ZeroMQ
+      for (int round = 0; round < rounds && !g_stop.load(); ++round) {
+        if (rounds > 1) std::cerr << "two hosts: round " << round + 1 << " of " << rounds << "\n";
+        runs[0].push_back(udp_row());
 #ifdef LCMX_BENCH_LCMX_TOOL
-      rows.push_back(lxv);
-      rows.push_back(lxb);
+        runs[1].push_back(bridged("lcmx service (UDP + bridges)", "udpm://239.255.78.5:7671?ttl=0",
+                                  "udpm://239.255.78.6:7672?ttl=1&iface=eth", "svcbv", 1));
+        runs[2].push_back(bridged("lcmx service (bridges only)", "udpm://239.255.78.3:7669?ttl=0", "", "svcbb", 2));
 #endif
-      rows.push_back(zt2);
-      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)", rows, cases, zt2, "ZeroMQ tcp")
+        runs[3].push_back(zmq_row());
+      }
+      std::vector<Result> rows;
+      for (const auto& r : runs)
+        if (!r.empty()) rows.push_back(median_of(r));
+      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)" +
+                      (rounds > 1 ? " — medians of " + std::to_string(rounds) + " rounds" : std::string()),
+                  rows, cases, rows.back(), "ZeroMQ tcp")
          << "\n";
+      if (rounds > 1)
+        for (std::size_t m = 0; m + 1 < runs.size(); ++m)
+          if (!runs[m].empty()) md << per_round_ratios(runs[m], runs[3], cases) << "\n";
     }
   }
 #else
   (void)no_hosts;
+  (void)rounds;
   md << "Two hosts: not built (needs lcmx::test_netns, LCMX_BUILD_TESTS=ON)\n";
 #endif
   std::cout << md.str() << std::flush;
