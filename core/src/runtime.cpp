@@ -78,6 +78,15 @@ void RuntimeImpl::start_transports() {
       throw Error(Errc::invalid_argument, "vehicle_url '" + options.vehicle_url +
                                               "' names no interface: add &iface=<name>");
     vehicle_group = open_group("vehicle_url", options.vehicle_url);
+    // Our sockets hear only the groups they joined (IP_MULTICAST_ALL = 0), but liblcm's do not
+    // set that: a stock LCM program bound to this port hears every group joined on its host
+    // with it, the vehicle group's datagrams (beacons and messages of other hosts) included.
+    if (vehicle_group->config().port == local_group->config().port)
+      spdlog::warn("lcmx: vehicle_url '{}' uses the host-local group's port {}: stock LCM programs on this host "
+                   "listening on that port (liblcm sockets hear every group joined on the host for their port) "
+                   "will also receive the vehicle group's traffic; give the vehicle group a port of its own "
+                   "(e.g. 7668)",
+                   options.vehicle_url, local_group->config().port);
   }
   rx_wake_fd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
   if (rx_wake_fd < 0) throw Error(Errc::transport, "eventfd failed");

@@ -1,13 +1,17 @@
 // RuntimeOptions::from_env (core/src/runtime_options.cpp) on its own: defaults, each variable,
 // and a clear error naming a bad one.
 #include <catch2/catch.hpp>
+#include <spdlog/sinks/ringbuffer_sink.h>
+#include <spdlog/spdlog.h>
 #include <cstdlib>
 #include <functional>
 #include <optional>
 #include <string>
 #include <vector>
 
+#include "core_support.hpp"
 #include "lcmx/core.hpp"
+#include "lcmx/udpm/udpm.hpp"
 
 namespace {
 
@@ -106,4 +110,40 @@ TEST_CASE("RuntimeOptions::from_env: a bad value is an invalid_argument naming t
   bad("LCMX_VEHICLE_PUBLISH", "sometimes");
   bad("LCMX_MIRROR", "CAM_*,,POSE");
   bad("LCMX_LARGE_TOPICS", std::string(64, 'X').c_str());
+}
+
+// A stock LCM program (liblcm sets no IP_MULTICAST_ALL = 0) bound to the host-local group's
+// port hears every group joined on its host with that port: a vehicle group on it leaks the
+// other hosts' beacons and messages into such programs (seen with lcm-logger on 7667 beside a
+// vehicle group on 239.255.76.68:7667). Said at start; another port is not.
+TEST_CASE("a vehicle group on the host-local group's port is warned about, another port is not", "[core][options]") {
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(64);
+  auto old = spdlog::default_logger();
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture", sink));
+  struct Restore {
+    std::shared_ptr<spdlog::logger> l;
+    ~Restore() { spdlog::set_default_logger(l); }
+  } restore{old};
+  auto warned = [&] {
+    for (const auto& line : sink->last_formatted())
+      if (line.find("uses the host-local group's port") != std::string::npos) return true;
+    return false;
+  };
+  auto o = lcmx::core_test::test_options();
+  const auto port = lcmx::udpm::parse_url(o.discovery_url).port;
+  {
+    auto same = o;
+    same.vehicle_url = "udpm://239.253.250.1:" + std::to_string(port) + "?ttl=0&iface=lo";
+    auto rt = lcmx::Runtime::create(same);
+    CHECK(warned());
+  }
+  sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(64);
+  spdlog::set_default_logger(std::make_shared<spdlog::logger>("capture2", sink));
+  {
+    auto other = lcmx::core_test::test_options();
+    const auto p2 = lcmx::udpm::parse_url(other.discovery_url).port;
+    other.vehicle_url = "udpm://239.253.250.1:" + std::to_string(p2 == 65000 ? 64999 : p2 + 1) + "?ttl=0&iface=lo";
+    auto rt = lcmx::Runtime::create(other);
+    CHECK_FALSE(warned());
+  }
 }
