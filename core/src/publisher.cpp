@@ -63,8 +63,8 @@ void PublisherImpl::deliver_intra(const Targets& t, std::shared_ptr<const void> 
 // except to subscribers not yet matched with their host's bridge republisher: while the
 // bridges set up (they serve and offer a topic a few heartbeats after a subscriber appears;
 // a topic may turn large before), those still get it over UDP, so the switch loses nothing.
-// A subscriber that meanwhile matched the republisher may get a message of that short
-// overlap twice (docs/bridge.md "Small and large on one topic").
+// Messages still on their way through the bridges when a subscriber matches the republisher
+// reach it a second time (docs/bridge.md "From UDP to the bridges without a loss").
 bool PublisherImpl::wants_vehicle() const {
   const auto& rt = *node->runtime;
   if (!rt.vehicle_group) return false;
