@@ -1218,6 +1218,35 @@ TEST_CASE("vehicle group and bridges, not yet settled: a large topic loses nothi
   pub.send("quit");
 }
 
+// A host where no bridge runs: its subscriber never matches a bridge republisher, so the
+// publisher of a large topic keeps sending it there as UDP fragments (before, once the topic
+// was large and a bridge ran on the publisher's host, that subscriber got nothing).
+TEST_CASE("vehicle group, a bridge on the publisher's host only: a large topic still reaches a subscriber on a host without a bridge",
+          "[bridge][multihost][delivery]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 48, {{.name = "eth"}});
+  w.use_vehicle_group("eth");
+  const auto ch = w.channel("NOBRIDGE");
+  auto& ba = w.bridge(0, {1});  // its peer B runs no bridge: the link stays down
+  auto& sub = w.sub(1, {ch}, {"--publishers", "1"});
+  auto& pub = w.spawn(0, {LCMX_BRIDGE_PUB, "--channel", ch, "--size", "300000", "--id", "A"});
+  REQUIRE(pub.expect("READY", 10000ms));
+  const bool matched = static_cast<bool>(sub.expect("MATCHED", 15000ms));
+  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.output());
+  REQUIRE(matched);
+  const long long warm = warm_up(pub, {&sub}, ch);
+  pub.send(pub_cmd(10, 50));
+  const long long total = published_total(pub);
+  REQUIRE(total == warm + 10);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == total - 1; }, 15000ms);
+  CHECK(ok);
+  check_clean(st);
+  CHECK(st.num("gaps") == 0);
+  CHECK(st.num("received") == st.num("last") - st.num("min") + 1);
+  CHECK(st.str("paths") == "udp");
+  pub.send("quit");
+}
+
 TEST_CASE("keep last N through the bridges: a late subscriber on host B gets the last N of a large topic of A once, then live",
           "[bridge][multihost][history]") {
   LCMX_REQUIRE_NETNS();
