@@ -433,17 +433,24 @@ class PublisherImpl final : public PublisherCore {
   std::shared_ptr<const Targets> targets() const;
   void deliver_intra(const Targets& t, std::shared_ptr<const void> object);
   void check_size(std::size_t size) const;
-  std::shared_ptr<const Bytes> write_encoded(const void* object, bool shm, bool udp);
+  // What send_udp() sent: the LCM sequence number used on each group, if it sent there.
+  struct UdpSent {
+    std::optional<std::uint32_t> vehicle, local;
+  };
+  struct Written {
+    std::shared_ptr<const Bytes> kept;  // the encoding, when kept for UDP replays (keeps_encoding)
+    UdpSent sent;
+  };
+  Written write_encoded(const void* object, bool shm, bool udp);
   void note_generation();  // publish_mu held
 
   std::unique_lock<std::mutex> lock_no_loan(const char* what);
   // Keep last N: remembers a published message (publish_mu held). `object`: what the intra
-  // path hands over; `encoded`: its encoding when it is kept for UDP replays (else null).
-  void keep(std::shared_ptr<const void> object, std::shared_ptr<const Bytes> encoded);
+  // path hands over; `encoded`: its encoding when it is kept for UDP replays (else null);
+  // `sent`: the sequence numbers it went out with over UDP.
+  void keep(std::shared_ptr<const void> object, std::shared_ptr<const Bytes> encoded, UdpSent sent);
   // Whether a message of this size is kept as a private encoding (for UDP replays).
   bool keeps_encoding() const;
-  // The sequence numbers send_udp() last used (publish_mu held; reset by each send_udp).
-  std::optional<std::uint32_t> sent_vehicle_, sent_local_;
   struct Kept {
     std::shared_ptr<const void> object;
     std::shared_ptr<const Bytes> encoded;
@@ -473,7 +480,7 @@ class PublisherImpl final : public PublisherCore {
   std::chrono::steady_clock::time_point last_udp_failure_log_{};  // guarded by publish_mu
   std::vector<std::byte> udp_buf_;       // guarded by publish_mu
   // Sends encoded bytes on the vehicle group (and host-local mirror) when wanted.
-  void send_udp(std::span<const std::byte> encoded);
+  UdpSent send_udp(std::span<const std::byte> encoded);
   bool wants_udp() const;      // vehicle or mirror
   bool wants_vehicle() const;  // other hosts, over UDP (not while a bridge carries the topic)
   void note_size(std::size_t size);

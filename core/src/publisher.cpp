@@ -104,8 +104,9 @@ void PublisherImpl::note_size(std::size_t size) {
 // local paths already delivered; the message is counted lost on UDP and logged (at most
 // once per 5 s per publisher), and sending resumes when the network is back.
 // publish_mu held.
-void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
+PublisherImpl::UdpSent PublisherImpl::send_udp(std::span<const std::byte> encoded) {
   auto& rt = *node->runtime;
+  UdpSent sent;
   auto send = [&](udpm::Group& group, const char* which) -> std::optional<std::uint32_t> {
     try {
       if (&group == rt.local_group.get()) return group.publish_routed(channel_, encoded);
@@ -129,28 +130,29 @@ void PublisherImpl::send_udp(std::span<const std::byte> encoded) {
                    "to other hosts as UDP fragments (start `lcmx bridge` on every host)",
                    channel_);
     }
-    sent_vehicle_ = send(*rt.vehicle_group, "vehicle");
+    sent.vehicle = send(*rt.vehicle_group, "vehicle");
   }
   // The mirror, and subscribers of neighbours (this network namespace, another /dev/shm).
   if ((mirrored_ && !large_.load()) || local_udp_subscribers_.load() > 0)
-    sent_local_ = send(*rt.local_group, "host-local");
+    sent.local = send(*rt.local_group, "host-local");
+  return sent;
 }
 
 // Encodes once: straight into a shm slot when shm readers exist or messages are kept (UDP is
 // sent from the same bytes before the commit), else into a reused buffer for UDP. Returns a
-// copy of the encoding when keep last N keeps it for UDP replays (keeps_encoding), else null.
-// publish_mu held.
-std::shared_ptr<const Bytes> PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
+// copy of the encoding when keep last N keeps it for UDP replays (keeps_encoding), else null,
+// and what went out over UDP. publish_mu held.
+PublisherImpl::Written PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
   const std::size_t size = type.encoded_size(object);
   check_size(size);
   note_size(size);
-  std::shared_ptr<const Bytes> kept;
+  Written out;
   if (shm) {
     try {
       auto loan = writer_->loan(size);
       type.encode(object, loan.data(), size);
-      if (udp) send_udp({loan.data(), size});
-      if (keeps_encoding()) kept = make_bytes({loan.data(), size});
+      if (udp) out.sent = send_udp({loan.data(), size});
+      if (keeps_encoding()) out.kept = make_bytes({loan.data(), size});
       writer_->commit(std::move(loan), size);
     } catch (const shm::Error& e) {
       throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
@@ -159,19 +161,18 @@ std::shared_ptr<const Bytes> PublisherImpl::write_encoded(const void* object, bo
   } else if (udp) {
     udp_buf_.resize(size);
     type.encode(object, udp_buf_.data(), size);
-    send_udp(udp_buf_);
+    out.sent = send_udp(udp_buf_);
   }
-  return kept;
+  return out;
 }
 
 bool PublisherImpl::keeps_encoding() const {
   return options.history > 0 && !(large_.load() && node->runtime->bridge_on_host());
 }
 
-void PublisherImpl::keep(std::shared_ptr<const void> object, std::shared_ptr<const Bytes> encoded) {
-  kept_.push_back({std::move(object), std::move(encoded), sent_vehicle_, sent_local_});
-  sent_vehicle_.reset();
-  sent_local_.reset();
+void PublisherImpl::keep(std::shared_ptr<const void> object, std::shared_ptr<const Bytes> encoded,
+                         UdpSent sent) {
+  kept_.push_back({std::move(object), std::move(encoded), sent.vehicle, sent.local});
   while (kept_.size() > options.history) kept_.pop_front();
 }
 
@@ -213,9 +214,9 @@ void PublisherImpl::publish_ref(const void* object,
   std::shared_ptr<const void> shared;
   if (!t->empty() || history) shared = copy(object);
   if (!t->empty()) deliver_intra(*t, shared);
-  std::shared_ptr<const Bytes> encoded;
-  if (shm || udp) encoded = write_encoded(object, shm, udp);
-  if (history) keep(std::move(shared), std::move(encoded));
+  Written w;
+  if (shm || udp) w = write_encoded(object, shm, udp);
+  if (history) keep(std::move(shared), std::move(w.kept), w.sent);
   published_.fetch_add(1);
 }
 
@@ -232,9 +233,9 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
     note_size(size);
   }
   if (!t->empty()) deliver_intra(*t, object);
-  std::shared_ptr<const Bytes> encoded;
-  if (shm || udp) encoded = write_encoded(object.get(), shm, udp);
-  if (history) keep(std::move(object), std::move(encoded));
+  Written w;
+  if (shm || udp) w = write_encoded(object.get(), shm, udp);
+  if (history) keep(std::move(object), std::move(w.kept), w.sent);
   published_.fetch_add(1);
 }
 
@@ -252,11 +253,12 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
     }
     note_generation();
   }
-  if (wants_udp()) send_udp(data);
+  UdpSent sent;
+  if (wants_udp()) sent = send_udp(data);
   std::shared_ptr<const Bytes> copy;
   if (!t->empty() || history) copy = make_bytes(data);
   if (!t->empty()) deliver_intra(*t, copy);
-  if (history) keep(copy, keeps_encoding() ? copy : nullptr);
+  if (history) keep(copy, keeps_encoding() ? copy : nullptr, sent);
   published_.fetch_add(1);
 }
 
@@ -299,8 +301,9 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
   std::shared_ptr<const Bytes> copy;
   if (!t->empty() || history) copy = make_bytes({loan.data(), size});
   if (!t->empty()) deliver_intra(*t, copy);
-  if (wants_udp()) send_udp({loan.data(), size});
-  if (history) keep(copy, keeps_encoding() ? copy : nullptr);
+  UdpSent sent;
+  if (wants_udp()) sent = send_udp({loan.data(), size});
+  if (history) keep(copy, keeps_encoding() ? copy : nullptr, sent);
   auto end = [&] {  // committed or refused: the loan is over, waiting publishers go on
     loan_out_ = false;
     loan_cv_.notify_all();
