@@ -55,12 +55,9 @@ Verb add_bridge(CLI::App& app, const Globals& g) {
   bridge->add_option("--config", st->config, "bridge config file (TOML, see docs/bridge.md)");
   bridge->add_flag("--check", st->check, "validate the config file and exit (0 ok, 2 bad)");
   bridge->add_flag("--json", st->json, "--check, status, keygen: print the result as JSON");
-  auto* status = bridge->add_subcommand(
-      "status", "per bridge on this host: peers, active link, bytes per link, messages/bytes/drops per channel");
-  status->add_option("--url", st->status_url, "host-local discovery group (default: lcmx --url, LCMX_DISCOVERY_URL)");
-  status->add_option("--wait", st->status_wait, "wait up to this long for bridges' status, in milliseconds")
-      ->check(CLI::Range(50, 60000))
-      ->capture_default_str();
+  auto* status = add_status_subcommand(
+      *bridge, "per bridge on this host: peers, active link, bytes per link, messages/bytes/drops per channel",
+      "bridges", st->status_url, st->status_wait);
   auto* keygen = bridge->add_subcommand("keygen", "write a CURVE key pair: PREFIX.key (secret, 0600), PREFIX.pub");
   keygen->add_option("--out", st->key_prefix, "file name prefix")->required();
   keygen->add_flag("--force", st->key_force, "overwrite existing files");
@@ -200,27 +197,8 @@ std::string bridge_status_json(const lcmx_msgs::bridge_status_t& s) {
 }
 
 int bridge_status(const std::string& url, int wait_ms, bool json) {
-  spdlog::set_level(spdlog::level::warn);
-  try {
-    const auto seen = collect_statuses<lcmx_msgs::bridge_status_t>(url, bridge::kStatusChannel, "bridge_status", wait_ms);
-    if (json) {
-      std::cout << "{\"bridges\":[";
-      bool first = true;
-      for (const auto& [pid, s] : seen) std::cout << (std::exchange(first, false) ? "" : ",") << bridge_status_json(s);
-      std::cout << "]}" << std::endl;
-      if (seen.empty()) std::cerr << "no bridge found on this host within " << wait_ms << " ms\n";
-      return seen.empty() ? 1 : 0;
-    }
-    if (seen.empty()) {
-      std::cout << "no bridge found on this host within " << wait_ms << " ms\n";
-      return 1;
-    }
-    for (const auto& [pid, s] : seen) print_bridge_status(std::cout, s);
-  } catch (const std::exception& e) {
-    std::cerr << "lcmx bridge status: " << e.what() << "\n";
-    return 1;
-  }
-  return 0;
+  return show_statuses<lcmx_msgs::bridge_status_t>("bridge", "bridges", url, bridge::kStatusChannel, wait_ms, json,
+                                                   print_bridge_status, bridge_status_json);
 }
 
 int bridge_keygen(const std::string& prefix, bool force, bool json) {

@@ -122,26 +122,8 @@ int gateway_run(const std::string& path, bool check_only, bool json) {
 }
 
 int gateway_status(const std::string& url, int wait_ms, bool json) {
-  spdlog::set_level(spdlog::level::warn);
-  try {
-    const auto seen = collect_statuses<lcmx_msgs::dds_gateway_status_t>(url, dds::kStatusChannel, "dds_gateway_status", wait_ms);
-    if (json) {
-      std::cout << "{\"gateways\":[";
-      bool first = true;
-      for (const auto& [pid, s] : seen) std::cout << (std::exchange(first, false) ? "" : ",") << status_json(s);
-      std::cout << "]}" << std::endl;
-    } else {
-      for (const auto& [pid, s] : seen) print_status(std::cout, s);
-    }
-    if (seen.empty()) {
-      std::cerr << "no dds-gateway found on this host within " << wait_ms << " ms\n";
-      return 1;
-    }
-  } catch (const std::exception& e) {
-    std::cerr << "lcmx dds-gateway status: " << e.what() << "\n";
-    return 1;
-  }
-  return 0;
+  return show_statuses<lcmx_msgs::dds_gateway_status_t>("dds-gateway", "gateways", url, dds::kStatusChannel, wait_ms,
+                                                        json, print_status, status_json);
 }
 
 }  // namespace
@@ -159,12 +141,9 @@ Verb add_dds_gateway(CLI::App& app, const Globals& g) {
   cmd->add_option("--config", st->config, "gateway config file (TOML, see docs/dds.md)");
   cmd->add_flag("--check", st->check, "validate the config file and exit (0 ok, 2 bad)");
   cmd->add_flag("--json", st->json, "--check, status: print the result as JSON");
-  auto* status = cmd->add_subcommand(
-      "status", "per gateway on this host and per mapping: state, messages/bytes/drops each way, loops refused, errors");
-  status->add_option("--url", st->status_url, "host-local discovery group (default: lcmx --url, LCMX_DISCOVERY_URL)");
-  status->add_option("--wait", st->status_wait, "wait up to this long for gateways' status, in milliseconds")
-      ->check(CLI::Range(50, 60000))
-      ->capture_default_str();
+  auto* status = add_status_subcommand(
+      *cmd, "per gateway on this host and per mapping: state, messages/bytes/drops each way, loops refused, errors",
+      "gateways", st->status_url, st->status_wait);
   return {cmd, [st, status, &g] {
             if (status->parsed())
               return gateway_status(st->status_url.empty() ? g.url : st->status_url, st->status_wait, st->json);

@@ -6,13 +6,19 @@
 // Errors: throws what Runtime::create / subscribe throw. Thread: the caller's, blocking.
 #pragma once
 
+#include <CLI/CLI.hpp>
+#include <spdlog/spdlog.h>
+
 #include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <exception>
+#include <iostream>
 #include <map>
 #include <mutex>
 #include <string>
+#include <utility>
 
 #include "lcmx/core.hpp"
 
@@ -41,6 +47,49 @@ std::map<std::int32_t, Status> collect_statuses(const std::string& url, const st
     cv.wait_until(lock, more, [] { return false; });
   }
   return seen;  // copied under the lock; the subscription ends after
+}
+
+// The `status` subcommand of `parent` with its options (--url, --wait); `what`: the help line,
+// `daemons`: "bridges", "gateways". `url` and `wait_ms` must outlive the parse.
+inline CLI::App* add_status_subcommand(CLI::App& parent, const std::string& what, const std::string& daemons,
+                                       std::string& url, int& wait_ms) {
+  auto* status = parent.add_subcommand("status", what);
+  status->add_option("--url", url, "host-local discovery group (default: lcmx --url, LCMX_DISCOVERY_URL)");
+  status->add_option("--wait", wait_ms, "wait up to this long for " + daemons + "' status, in milliseconds")
+      ->check(CLI::Range(50, 60000))
+      ->capture_default_str();
+  return status;
+}
+
+// The whole `lcmx <daemon> status` verb: collects the statuses (above), then prints each with
+// `print(out, status)`, or with --json one object {"<json_key>":[to_json(status), ...]}.
+// None within `wait_ms`: "no <daemon> found on this host within N ms" on stderr, exit status
+// 1; an error (bad URL, ...): "lcmx <daemon> status: <what>" on stderr, 1.
+template <class Status, class Print, class ToJson>
+int show_statuses(const std::string& daemon, const std::string& json_key, const std::string& url,
+                  const std::string& channel, int wait_ms, bool json, Print print, ToJson to_json) {
+  spdlog::set_level(spdlog::level::warn);
+  try {
+    std::string node = daemon + "_status";  // "bridge_status", "dds_gateway_status"
+    std::replace(node.begin(), node.end(), '-', '_');
+    const auto seen = collect_statuses<Status>(url, channel, node, wait_ms);
+    if (json) {
+      std::cout << "{\"" << json_key << "\":[";
+      bool first = true;
+      for (const auto& [pid, s] : seen) std::cout << (std::exchange(first, false) ? "" : ",") << to_json(s);
+      std::cout << "]}" << std::endl;
+    } else {
+      for (const auto& [pid, s] : seen) print(std::cout, s);
+    }
+    if (seen.empty()) {
+      std::cerr << "no " << daemon << " found on this host within " << wait_ms << " ms\n";
+      return 1;
+    }
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx " << daemon << " status: " << e.what() << "\n";
+    return 1;
+  }
+  return 0;
 }
 
 }  // namespace lcmx::cli
