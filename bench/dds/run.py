@@ -9,9 +9,13 @@
 2. 6 MB throughput (Mbit/s at the reader): DDS writer -> reader, lcmx -> gateway -> reader, and
    ddsperf pub/sub (Cyclone's own tool, size 6 MB) on the same host.
 Cyclone runs on loopback only (unicast to 127.0.0.1, no multicast); lcmx on a group of its own
-pinned to lo.
+pinned to lo. The DDS programs (source, sink, ddsperf) ask Cyclone for a socket receive buffer of
+--rcvbuf (default 4MB, Cyclone's own default is 1 MiB) and take what the kernel allows
+(net.core.rmem_max): with 1 MiB a 2 MB sample overruns the reader's buffer and stalls on
+retransmission for ~50 ms in some runs, whichever path sent it. The gateway (a writer here) keeps
+its own config.
 
-usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--csv FILE]
+usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--csv FILE] [--rcvbuf SIZE]
 """
 import argparse, os, re, subprocess, sys, tempfile, time
 
@@ -20,6 +24,8 @@ p.add_argument("build")
 p.add_argument("--pin", default="", help="taskset CPU list for every process (e.g. 0), default none")
 p.add_argument("--quick", action="store_true", help="fewer samples")
 p.add_argument("--csv", default="")
+p.add_argument("--rcvbuf", default="4MB",
+               help="Cyclone SocketReceiveBufferSize max for the DDS programs, e.g. 4MB; '' = Cyclone's default (1 MiB)")
 a = p.parse_args()
 bench = os.path.join(a.build, "bench/dds/lcmx_bench_dds")
 tool = os.path.join(a.build, "apps/lcmx")
@@ -28,7 +34,8 @@ env = dict(os.environ)
 env["CYCLONEDDS_URI"] = ("<General><Interfaces><NetworkInterface address=\"127.0.0.1\"/></Interfaces>"
                          "<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto"
                          "</ParticipantIndex><MaxAutoParticipantIndex>60</MaxAutoParticipantIndex><Peers>"
-                         "<Peer address=\"127.0.0.1\"/></Peers></Discovery>")
+                         "<Peer address=\"127.0.0.1\"/></Peers></Discovery>" +
+                         ("<Internal><SocketReceiveBufferSize max=\"%s\"/></Internal>" % a.rcvbuf if a.rcvbuf else ""))
 env["BENCH_DDS_DOMAIN"] = str(domain)
 g = os.getpid()
 env["LCMX_DISCOVERY_URL"] = "udpm://239.255.%d.%d:%d?ttl=0&iface=lo" % (1 + g // 250 % 250, 1 + g % 250, 30000 + g % 20000)
@@ -119,7 +126,13 @@ finally:
     import shutil
     shutil.rmtree(tmp, ignore_errors=True)
 
-print("\n### One-way latency, us (%s; %s)\n" % ("pinned to CPU " + a.pin if a.pin else "unpinned", time.strftime("%Y-%m-%d %H:%M")))
+try:
+    rmem_max = open("/proc/sys/net/core/rmem_max").read().strip()
+except OSError:
+    rmem_max = "?"
+print("\n### One-way latency, us (%s; %s; DDS programs' receive buffer %s, rmem_max %s)\n" % (
+    "pinned to CPU " + a.pin if a.pin else "unpinned", time.strftime("%Y-%m-%d %H:%M"),
+    a.rcvbuf or "Cyclone's default", rmem_max))
 print("| size | direct p50 | direct p99 | gateway p50 | gateway p99 | ratio p50 | ratio p99 |")
 print("|---:|---:|---:|---:|---:|---:|---:|")
 for s, d, gg in rows:
