@@ -81,7 +81,10 @@ std::string Config::cyclone_xml() const {
     for (const auto& p : peers) x += "<Peer address=\"" + xml_escape(p) + "\"/>";
     x += "</Peers>";
   }
-  x += "</Discovery></Domain></CycloneDDS>";
+  x += "</Discovery>";
+  if (receive_buffer_kb > 0)
+    x += "<Internal><SocketReceiveBufferSize max=\"" + std::to_string(receive_buffer_kb) + "KiB\"/></Internal>";
+  x += "</Domain></CycloneDDS>";
   return x;
 }
 
@@ -89,8 +92,8 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
   Checker c(file);
   // The pre-scan against toml++ 3.3.0's non-ASCII bug, then the parse (as the bridge's).
   const toml::table root = bridge::detail::parse_toml(text, file);
-  c.only(root, "", {"name", "domain", "partition", "interface", "allow_multicast", "peers", "types",
-                    "status_period_ms", "spin_us", "ros2", "map"});
+  c.only(root, "", {"name", "domain", "partition", "interface", "allow_multicast", "peers", "receive_buffer_kb",
+                    "types", "status_period_ms", "spin_us", "ros2", "map"});
   Config cfg;
   cfg.file = file;
   cfg.name = c.string(root, "", "name", true);
@@ -115,7 +118,12 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
              root.get("allow_multicast"));
     if (root.get("peers"))
       c.fail("peers", "needs interface (without it Cyclone's defaults or CYCLONEDDS_URI apply)", root.get("peers"));
+    if (root.get("receive_buffer_kb"))
+      c.fail("receive_buffer_kb", "needs interface (without it Cyclone's defaults or CYCLONEDDS_URI apply)",
+             root.get("receive_buffer_kb"));
   }
+  cfg.receive_buffer_kb =
+      static_cast<std::uint32_t>(c.integer(root, "", "receive_buffer_kb", false, 4096, 0, 1024 * 1024));
   if (!cfg.allow_multicast && cfg.peers.empty())
     c.fail("peers", "allow_multicast = false needs at least one peer (else nothing is discovered)",
            root.get("allow_multicast"));

@@ -60,6 +60,12 @@ TEST_CASE("dds config: defaults, ROS 2 naming and Cyclone's network config", "[d
   CHECK(xml.find("<NetworkInterface address=\"127.0.0.1\"/>") != std::string::npos);
   CHECK(xml.find("<AllowMulticast>false</AllowMulticast>") != std::string::npos);
   CHECK(xml.find("<Peer address=\"127.0.0.1\"/>") != std::string::npos);
+  // Large imports: a receive buffer above Cyclone's 1 MiB by default; 0 leaves Cyclone's.
+  CHECK(net.receive_buffer_kb == 4096);
+  CHECK(xml.find("<Internal><SocketReceiveBufferSize max=\"4096KiB\"/></Internal>") != std::string::npos);
+  const auto own = parse_config("name = \"gw\"\ninterface = \"127.0.0.1\"\nreceive_buffer_kb = 0\n[[map]]\nchannel = \"X\"\n"
+                                "direction = \"both\"\n", "gw.toml");
+  CHECK(own.cyclone_xml().find("SocketReceiveBufferSize") == std::string::npos);
   const auto byname = parse_config("name = \"gw\"\ninterface = \"veth0\"\n[[map]]\nchannel = \"X\"\ndirection = \"both\"\n",
                                    "gw.toml");
   CHECK(byname.cyclone_xml().find("<NetworkInterface name=\"veth0\"/>") != std::string::npos);
@@ -75,6 +81,9 @@ TEST_CASE("dds config: bad configs are refused naming the key", "[dds][config]")
   CHECK_THAT(error_of(head + "domian = 1\n" + map), Catch::Contains("domian: unknown key"));
   CHECK_THAT(error_of(head + "interface = \"not an iface\"\n" + map), Catch::Contains("interface: must be"));
   CHECK_THAT(error_of(head + "peers = [\"127.0.0.1\"]\n" + map), Catch::Contains("peers: needs interface"));
+  CHECK_THAT(error_of(head + "receive_buffer_kb = 8192\n" + map), Catch::Contains("receive_buffer_kb: needs interface"));
+  CHECK_THAT(error_of(head + "interface = \"lo\"\nreceive_buffer_kb = -1\n" + map),
+             Catch::Contains("receive_buffer_kb: must be an integer from 0 to 1048576"));
   CHECK_THAT(error_of(head + "interface = \"lo\"\npeers = [\"x\"]\n" + map), Catch::Contains("peers[0]: not an IPv4"));
   CHECK_THAT(error_of(head + "interface = \"lo\"\nallow_multicast = false\n" + map),
              Catch::Contains("needs at least one peer"));

@@ -63,6 +63,10 @@ struct Config {
   std::string interface;            // an interface name ("eth0") or IPv4 address ("127.0.0.1")
   bool allow_multicast = true;      // with `interface` only
   std::vector<std::string> peers;   // unicast discovery peers (IPv4), with `interface` only
+  // With `interface` only: the socket receive buffer Cyclone asks for, in KiB (it takes what
+  // net.core.rmem_max allows); 0 = Cyclone's own default (1 MiB). Large samples imported from
+  // DDS overrun 1 MiB and wait for a retransmission (~50 ms for 2 MB on loopback).
+  std::uint32_t receive_buffer_kb = 4096;
   std::chrono::milliseconds status_period{1000};
   // How long after the last lcmx message the gateway's executor keeps polling for the next
   // one before it sleeps (WaitStrategy::adaptive: yields between polls, stops when a yield
