@@ -621,6 +621,13 @@ int main(int argc, char** argv) {
         try {
           const std::string dir = "/tmp/lcmx_bench_service_" + tag + "_" + std::to_string(hosts_id);
           std::filesystem::create_directories(dir);
+          struct RemoveDir {  // the configs go on every path out, a failed set-up too
+            std::string path;
+            ~RemoveDir() {
+              std::error_code ec;
+              std::filesystem::remove_all(path, ec);
+            }
+          } remove_dir{dir};
           const auto a = emu.address(0, "eth"), b = emu.address(1, "eth");
           auto config = [&](const std::string& path, const std::string& me, const std::string& listen,
                             const std::string& peer, const std::string& peer_addr) {
@@ -664,7 +671,6 @@ int main(int argc, char** argv) {
             std::sscanf(line->c_str() + line->find("bridge svcB"),
                         "bridge svcB: stopping; local messages sent zero-copy %lld, copied %lld", &zc, &copied);
           for (auto& br : bridges) br.wait(std::chrono::milliseconds(5000));
-          std::filesystem::remove_all(dir);
           if (!veh_b.empty() && r.error.empty() && (zc < 0 || zc + copied < big_calls))
             r.error = zc < 0 ? std::string("bridge B did not report what it sent")
                              : "bridge B sent " + std::to_string(zc + copied) + " messages, fewer than the " +

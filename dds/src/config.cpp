@@ -112,16 +112,10 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
   for (std::size_t i = 0; i < cfg.peers.size(); ++i)
     if (!bridge::detail::valid_ipv4(cfg.peers[i]))
       c.fail("peers[" + std::to_string(i) + "]", "not an IPv4 address: \"" + cfg.peers[i] + "\"", root.get("peers"));
-  if (cfg.interface.empty()) {
-    if (root.get("allow_multicast"))
-      c.fail("allow_multicast", "needs interface (without it Cyclone's defaults or CYCLONEDDS_URI apply)",
-             root.get("allow_multicast"));
-    if (root.get("peers"))
-      c.fail("peers", "needs interface (without it Cyclone's defaults or CYCLONEDDS_URI apply)", root.get("peers"));
-    if (root.get("receive_buffer_kb"))
-      c.fail("receive_buffer_kb", "needs interface (without it Cyclone's defaults or CYCLONEDDS_URI apply)",
-             root.get("receive_buffer_kb"));
-  }
+  if (cfg.interface.empty())  // these only shape the Cyclone config built from `interface`
+    for (const char* key : {"allow_multicast", "peers", "receive_buffer_kb"})
+      if (root.get(key))
+        c.fail(key, "needs interface (without it Cyclone's defaults or CYCLONEDDS_URI apply)", root.get(key));
   cfg.receive_buffer_kb =
       static_cast<std::uint32_t>(c.integer(root, "", "receive_buffer_kb", false, 4096, 0, 1024 * 1024));
   if (!cfg.allow_multicast && cfg.peers.empty())

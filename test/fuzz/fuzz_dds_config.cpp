@@ -2,7 +2,7 @@
 // lcmx::dds::parse_config) on hostile text. Needs no Cyclone DDS (the parser does not).
 //
 // Checks: parse_config either returns a Config that satisfies what docs/dds.md promises (name,
-// domain, status period, spin and every mapping's channel, topic, history in range; at most
+// domain, status period, spin, receive buffer and every mapping's channel, topic, history in range; at most
 // kMaxMappings mappings; one mapping per topic and per channel and direction; a typed mapping
 // has its type) or throws ConfigError with a message naming the file; nothing else escapes
 // (another exception type, a crash, a hang, unbounded memory). Type paths are named relative
@@ -40,6 +40,8 @@ void check(const lcmx::dds::Config& c) {
   FUZZ_CHECK(c.types != nullptr);
   FUZZ_CHECK(c.mappings.size() <= lcmx::dds::kMaxMappings);
   FUZZ_CHECK(c.peers.empty() || !c.interface.empty());
+  FUZZ_CHECK(c.receive_buffer_kb <= 1024 * 1024);
+  FUZZ_CHECK(!c.interface.empty() || c.receive_buffer_kb == 4096);  // with interface only
   std::set<std::string> topics;
   std::set<std::pair<std::string, bool>> channels;  // (channel, exports)
   for (const auto& m : c.mappings) {
