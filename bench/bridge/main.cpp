@@ -250,6 +250,7 @@ struct Options {
   std::vector<std::string> methods{"zmq", "bridge", "floor"};
   std::string only;  // exp2 | exp3 | throughput ("" = all)
   std::string link_rate = "2gbit";
+  std::string tcp_cc = "cubic";  // the hosts' TCP congestion control ("" = this machine's)
   std::string pin = "none";
   std::string wait = "block";  // the library default (ExecutorOptions)
   double tput_seconds = 3;
@@ -945,7 +946,8 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
      << " CPUs online; pinning `--pin " << o.pin << "`"
      << (o.pin == "split" ? " (host A's processes on CPU 0, host B's on CPU 1)" : " (none)") << "\n";
   md << "- 2 network namespaces (hosts A, B) joined by one veth link through a Linux bridge, "
-     << (o.link_rate.empty() ? "not rate-limited" : "shaped to " + o.link_rate + " (tc tbf at each sender)") << "\n";
+     << (o.link_rate.empty() ? "not rate-limited" : "shaped to " + o.link_rate + " (tc tbf at each sender)")
+     << "; TCP congestion control " << (o.tcp_cc.empty() ? "this machine's" : o.tcp_cc) << "\n";
   md << "- exp2/3: publisher on A, subscribers on B; sizes ";
   for (std::size_t i = 0; i < run.plan.size(); ++i) md << (i ? ", " : "") << size_label(run.plan[i].size);
   md << " (K = 1024); per size " << o.warmup << " warm-up + " << o.count << " measured messages, one every "
@@ -1247,7 +1249,7 @@ int orchestrate(const Options& opt, const std::string& command) {
     if (!opt.link_rate.empty()) link.rate = opt.link_rate;
     std::optional<lcmx::test::Emulation> emu;
     try {
-      emu.emplace(lcmx::test::Emulation::create({.hosts = 2, .links = {link}}));
+      emu.emplace(lcmx::test::Emulation::create({.hosts = 2, .links = {link}, .tcp_congestion = opt.tcp_cc}));
     } catch (const std::exception& e) {
       std::cerr << "lcmx_bench_bridge: " << e.what() << "\n";
       return 1;
@@ -1312,6 +1314,9 @@ int main(int argc, char** argv) {
   app.add_option("--only", opt.only, "run only exp2, exp3 (both run the same fan-out; only the tables differ) or throughput")
       ->check(CLI::IsMember({"exp2", "exp3", "throughput"}));
   app.add_option("--link-rate", opt.link_rate, "tc tbf rate of the link (e.g. 1gbit, 2gbit); \"\" = unlimited")->capture_default_str();
+  app.add_option("--tcp-congestion", opt.tcp_cc,
+                 "the hosts' TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. bbr)")
+      ->capture_default_str();
   app.add_option("--pin", opt.pin, "none, or split: host A's processes on CPU 0, host B's on CPU 1")
       ->check(CLI::IsMember({"none", "split"}))->capture_default_str();
   app.add_option("--wait", opt.wait, "lcmx subscribers' executor wait: block, spin (spin_then_block), adaptive, busy")

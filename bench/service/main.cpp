@@ -517,7 +517,7 @@ int main(int argc, char** argv) {
   CLI::App app{
       "lcmx_bench_service: service round trip (p50/p99) and calls/s, lcmx vs ZeroMQ REQ/REP and two lcmx\n"
       "one-way shm messages, on one host and (root) between two emulated hosts. Markdown on stdout."};
-  std::string role, url, vehicle, name, endpoint, cases_text, markdown;
+  std::string role, url, vehicle, name, endpoint, cases_text, markdown, tcp_cc = "cubic";
   int calls = 2000, big_calls = 200, clients = 8, rounds = 1;
   double seconds = 3;
   bool no_hosts = false, settle_bridge = false;
@@ -530,6 +530,10 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 20))
       ->capture_default_str();
   app.add_option("--markdown", markdown, "also write the tables to this file");
+  app.add_option("--tcp-congestion", tcp_cc,
+                 "two hosts: their TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. "
+                 "bbr, whose pacing slows 1 MB bursts; bench/README.md)")
+      ->capture_default_str();
   app.add_option("--role", role)->group("");  // hidden: the children
   app.add_option("--url", url)->group("");
   app.add_option("--vehicle", vehicle)->group("");
@@ -595,7 +599,8 @@ int main(int argc, char** argv) {
     if (!lcmx::test::netns_available(&why)) {
       md << "Two hosts: skipped (" << why << ")\n";
     } else {
-      auto emu = lcmx::test::Emulation::create({.hosts = 2, .links = {lcmx::test::LinkSpec{.name = "eth"}}});
+      auto emu = lcmx::test::Emulation::create(
+          {.hosts = 2, .links = {lcmx::test::LinkSpec{.name = "eth"}}, .tcp_congestion = tcp_cc});
       const std::string local = "udpm://239.255.78.1:7667?ttl=0";
       const std::string veh = "udpm://239.255.78.2:7668?ttl=1&iface=eth";
       auto udp_row = [&] {
@@ -706,7 +711,10 @@ int main(int argc, char** argv) {
       std::vector<Result> rows;
       for (const auto& r : runs)
         if (!r.empty()) rows.push_back(median_of(r));
-      md << table("Two emulated hosts, one veth link (ratios against ZeroMQ tcp)" +
+      std::string cc;
+      emu.run_in(0, [&] { std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> cc; });
+      md << table("Two emulated hosts, one veth link, TCP congestion control " + cc +
+                      " (ratios against ZeroMQ tcp)" +
                       (rounds > 1 ? " — medians of " + std::to_string(rounds) + " rounds" : std::string()),
                   rows, cases, rows.back(), "ZeroMQ tcp")
          << "\n";
@@ -718,6 +726,7 @@ int main(int argc, char** argv) {
 #else
   (void)no_hosts;
   (void)rounds;
+  (void)tcp_cc;
   md << "Two hosts: not built (needs lcmx::test_netns, LCMX_BUILD_TESTS=ON)\n";
 #endif
   std::cout << md.str() << std::flush;

@@ -13,6 +13,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
 #include <set>
 #include <string>
 #include <thread>
@@ -427,6 +428,38 @@ TEST_CASE("link delay: netem when the kernel has it or a clear error otherwise",
     best = std::min(best, std::chrono::duration<double>(Clock::now() - t0).count());
   }
   CHECK(best >= 0.0019);  // one way, one delay
+}
+
+TEST_CASE("every host uses cubic TCP congestion control unless told otherwise, whatever the machine uses",
+          "[multihost]") {
+  LCMX_REQUIRE_NETNS();
+  auto wd = watchdog();
+  auto cc_of = [](const Emulation& emu, int host) {
+    Child c = emu.spawn(host, {"cat", "/proc/sys/net/ipv4/tcp_congestion_control"});
+    auto line = c.read_line(5s);
+    CHECK(c.wait(5s) == 0);
+    return line.value_or("");
+  };
+  {
+    auto emu = Emulation::create({.hosts = 2});
+    CHECK(cc_of(emu, 0) == "cubic");
+    CHECK(cc_of(emu, 1) == "cubic");
+  }
+  {
+    // Empty: what a new namespace inherits from the machine.
+    std::string machine;
+    std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> machine;
+    auto emu = Emulation::create({.hosts = 1, .tcp_congestion = ""});
+    CHECK(cc_of(emu, 0) == machine);
+  }
+  {
+    auto emu = Emulation::create({.hosts = 1, .tcp_congestion = "reno"});  // built into every kernel
+    CHECK(cc_of(emu, 0) == "reno");
+  }
+  CHECK_THROWS_WITH(Emulation::create({.hosts = 1, .tcp_congestion = "nosuchcc"}),
+                    Catch::Contains("nosuchcc") && Catch::Contains("this kernel offers"));
+  const std::string mine = "lx" + std::to_string(::getpid()) + "_";
+  for (const auto& n : netns_names()) CHECK(n.rfind(mine, 0) != 0);
 }
 
 TEST_CASE("destruction removes namespaces and kills processes left inside", "[multihost]") {

@@ -228,6 +228,21 @@ void write_file(const std::string& path, const std::string& value) {
   if (n != static_cast<ssize_t>(value.size())) throw SetupError(errno_text("write " + path, e));
 }
 
+// Sets the calling thread's namespace's TCP congestion control (EmulationSpec::tcp_congestion);
+// throws SetupError naming what the kernel offers when it refuses.
+void set_tcp_congestion(const std::string& name, const std::string& ns) {
+  const std::string path = "/proc/sys/net/ipv4/tcp_congestion_control";
+  try {
+    write_file(path, name);
+  } catch (const SetupError& e) {
+    std::string offered;
+    std::ifstream in("/proc/sys/net/ipv4/tcp_available_congestion_control");
+    std::getline(in, offered);
+    throw SetupError("EmulationSpec::tcp_congestion '" + name + "' in " + ns + ": " + e.what() +
+                     " (this kernel offers: " + offered + ")");
+  }
+}
+
 // Runs body on a fresh thread after setns(fd); throws SetupError if setns fails.
 void on_thread_in(int fd, const std::function<void()>& body) {
   int err = 0;
@@ -568,6 +583,7 @@ Emulation Emulation::create(const EmulationSpec& spec) {
         write_file("/proc/sys/net/ipv6/conf/all/disable_ipv6", "1");
         write_file("/proc/sys/net/ipv6/conf/default/disable_ipv6", "1");
         if (h == &s->sw) continue;
+        if (!spec.tcp_congestion.empty()) set_tcp_congestion(spec.tcp_congestion, h->name);
         h->stats = ::open("/proc/thread-self/net/dev", O_RDONLY | O_CLOEXEC);
         if (h->stats < 0) throw SetupError(errno_text("open net/dev in " + h->name, errno));
         h->ctl = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);

@@ -76,6 +76,14 @@ struct EmulationSpec {
   int hosts = 2;                          // 1..250
   std::vector<LinkSpec> links = {LinkSpec{}};  // 1..8 links; one bridge per link
   MulticastRoute routes = MulticastRoute::first_link;
+  // TCP congestion control of every host (net.ipv4.tcp_congestion_control in its namespace).
+  // Default: Linux's own default, cubic, which Debian, Ubuntu and Jetson L4T ship, whatever
+  // the machine running the emulation uses: a new namespace inherits the machine's choice, and
+  // some VM images (this project's CI runners) pick bbr, whose pacing spreads a 1 MB burst at
+  // its bandwidth estimate (2-3x the time of the same burst under cubic on a veth; bench/README
+  // "TCP congestion control"). Empty: inherit the machine's. create() throws SetupError when
+  // the kernel does not offer the one named.
+  std::string tcp_congestion = "cubic";
 };
 
 // Moves the calling thread into a network namespace; moves it back on destruction (aborts if
