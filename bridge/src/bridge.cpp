@@ -190,8 +190,11 @@ void Bridge::Impl::stop() {
     if (ch->thread.joinable()) ch->thread.join();
   if (zap_thread.joinable()) zap_thread.join();
   if (observer) observer->stop();
-  spdlog::info("bridge {}: stopping; local messages sent zero-copy {}, copied {}; waited for a pin {} times", cfg.name,
-               zero_copy_msgs.load(), copied_msgs.load(), pin_waits.load());
+  spdlog::info(
+      "bridge {}: stopping; local messages sent zero-copy {}, copied {}; waited for a pin {} times; "
+      "handed to peers' sockets by the shm callback {}, from the queues {}",
+      cfg.name, zero_copy_msgs.load(), copied_msgs.load(), pin_waits.load(), sent_from_callback.load(),
+      sent_from_queue.load());
   // Subscriptions first (their callbacks touch peers' queues), then publishers, then the
   // runtime (goodbye).
   for (auto& [t, s] : served) s->sub.reset();

@@ -143,28 +143,41 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
     Pushing() { t_pushing = true; }
     ~Pushing() { t_pushing = false; }
   } pushing;
+  bool queued = false;
   for (std::size_t i = 0; i < n; ++i) {
-    PeerChannel& pc = *peers[targets[i]]->chans[s.channel];
+    Peer& p = *peers[targets[i]];
+    PeerChannel& pc = *p.chans[s.channel];
     Outgoing out{s.topic_ptr, zmq::message_t(), s.keep.load(std::memory_order_relaxed)};
     out.payload.copy(payload);  // zmq_msg_copy: shares the buffer (refcount), no byte copy
     std::lock_guard lock(pc.mu);
+    // Nothing queued before it: send it from here, saving the channel thread's wake-up (~20 µs
+    // on a 2-vCPU host). The channel thread may hold sock_mu (flushing, reconnecting): then
+    // queue it, and its flush, which loops until the queue is empty, sends it next.
+    if (pc.queue.empty()) {
+      std::unique_lock sock(pc.sock_mu, std::try_to_lock);
+      if (sock.owns_lock() && pc.dealer && send_now(ch, p, pc, out)) {
+        sent_from_callback.fetch_add(1, std::memory_order_relaxed);
+        continue;
+      }
+    }
     if (datapath::push_bounded(pc.queue, std::move(out), ch.cfg.hwm, ch.cfg.drop))
       pc.drops.fetch_add(1, std::memory_order_relaxed);
     pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
+    queued = true;
   }
   payload.rebuild();  // our reference goes while t_pushing (a message every queue refused)
-  ch.wake->ring();
+  if (queued) ch.wake->ring();
 }
 
 void Bridge::Impl::channel_loop(Channel& ch) {
   set_thread_nice(ch.nice);
   std::vector<zmq::pollitem_t> items;
-  std::vector<PeerChannel*> polled;
   while (!stopping.load()) {
     // Follow the active links.
     for (auto& p : peers) {
       PeerChannel& pc = *p->chans[ch.index];
       const int want = p->active.load();
+      std::lock_guard sock(pc.sock_mu);
       if (want >= 0 && want != pc.connected_link) {
         try {
           pc.dealer = make_data_dealer(*p, ch, *p->links[static_cast<std::size_t>(want)]);
@@ -175,14 +188,12 @@ void Bridge::Impl::channel_loop(Channel& ch) {
       }
     }
     items.clear();
-    polled.clear();
     items.push_back({ch.router->handle(), 0, ZMQ_POLLIN, 0});
     items.push_back({nullptr, ch.wake->fd(), ZMQ_POLLIN, 0});
     for (auto& p : peers) {
       PeerChannel& pc = *p->chans[ch.index];
       if (pc.dealer && pc.queued.load(std::memory_order_relaxed) > 0) {
-        items.push_back({pc.dealer->handle(), 0, ZMQ_POLLOUT, 0});
-        polled.push_back(&pc);
+        items.push_back({pc.dealer->handle(), 0, ZMQ_POLLOUT, 0});  // see PeerChannel::sock_mu
       }
     }
     try {
@@ -199,42 +210,26 @@ void Bridge::Impl::channel_loop(Channel& ch) {
 
 void Bridge::Impl::flush(Channel& ch, Peer& p) {
   PeerChannel& pc = *p.chans[ch.index];
-  if (!pc.dealer) return;
-  const int link = pc.connected_link;
-  for (;;) {
-    Outgoing out;
-    {
-      std::lock_guard lock(pc.mu);
-      if (pc.queue.empty()) break;
-      out = std::move(pc.queue.front());
-      pc.queue.pop_front();
-      pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
-    }
-    unsigned char hdr[wire::kDataHeader];
-    wire::encode_header({instance, pc.seq + 1, out.keep}, hdr);
-    const std::size_t bytes = out.topic->size() + out.payload.size();
-    bool sent = false;
-    try {
-      // All parts of a message are queued together once the first is accepted.
-      if (pc.dealer->send(zmq::buffer(*out.topic), zmq::send_flags::sndmore | zmq::send_flags::dontwait)) {
-        pc.dealer->send(zmq::buffer(hdr, sizeof hdr), zmq::send_flags::sndmore);
-        pc.dealer->send(out.payload, zmq::send_flags::none);
-        sent = true;
+  {
+    std::lock_guard sock(pc.sock_mu);  // held from pop to send: a direct send cannot overtake
+    if (!pc.dealer) return;
+    for (;;) {
+      Outgoing out;
+      {
+        std::lock_guard lock(pc.mu);
+        if (pc.queue.empty()) break;
+        out = std::move(pc.queue.front());
+        pc.queue.pop_front();
+        pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
       }
-    } catch (const zmq::error_t& e) {
-      spdlog::warn("bridge {}: channel {}: send to {} failed: {}", cfg.name, ch.cfg.name, p.cfg.name, e.what());
+      if (!send_now(ch, p, pc, out)) {  // would block: put it back at the front, try again when writable
+        std::lock_guard lock(pc.mu);
+        pc.queue.push_front(std::move(out));
+        pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
+        break;
+      }
+      sent_from_queue.fetch_add(1, std::memory_order_relaxed);
     }
-    if (!sent) {  // would block: put it back at the front, try again when writable
-      std::lock_guard lock(pc.mu);
-      pc.queue.push_front(std::move(out));
-      pc.queued.store(static_cast<std::int32_t>(pc.queue.size()), std::memory_order_relaxed);
-      break;
-    }
-    ++pc.seq;
-    pc.last_sent_ns.store(std::chrono::steady_clock::now().time_since_epoch().count(), std::memory_order_relaxed);
-    pc.sent_msgs.fetch_add(1, std::memory_order_relaxed);
-    pc.sent_bytes.fetch_add(bytes, std::memory_order_relaxed);
-    if (link >= 0) p.links[static_cast<std::size_t>(link)]->bytes_sent.fetch_add(bytes, std::memory_order_relaxed);
   }
   const auto d = pc.drops.load(std::memory_order_relaxed);
   if (d != pc.drops_logged && pc.drop_log.allow()) {
@@ -243,6 +238,29 @@ void Bridge::Impl::flush(Channel& ch, Peer& p) {
                  ch.cfg.drop == DropPolicy::oldest ? "oldest" : "newest", d);
     pc.drops_logged = d;
   }
+}
+
+bool Bridge::Impl::send_now(Channel& ch, Peer& p, PeerChannel& pc, Outgoing& out) {
+  unsigned char hdr[wire::kDataHeader];
+  wire::encode_header({instance, pc.seq + 1, out.keep}, hdr);
+  const std::size_t bytes = out.topic->size() + out.payload.size();
+  try {
+    // All parts of a message are queued together once the first is accepted.
+    if (!pc.dealer->send(zmq::buffer(*out.topic), zmq::send_flags::sndmore | zmq::send_flags::dontwait))
+      return false;
+    pc.dealer->send(zmq::buffer(hdr, sizeof hdr), zmq::send_flags::sndmore);
+    pc.dealer->send(out.payload, zmq::send_flags::none);
+  } catch (const zmq::error_t& e) {
+    spdlog::warn("bridge {}: channel {}: send to {} failed: {}", cfg.name, ch.cfg.name, p.cfg.name, e.what());
+    return false;
+  }
+  ++pc.seq;
+  pc.last_sent_ns.store(std::chrono::steady_clock::now().time_since_epoch().count(), std::memory_order_relaxed);
+  pc.sent_msgs.fetch_add(1, std::memory_order_relaxed);
+  pc.sent_bytes.fetch_add(bytes, std::memory_order_relaxed);
+  if (pc.connected_link >= 0)
+    p.links[static_cast<std::size_t>(pc.connected_link)]->bytes_sent.fetch_add(bytes, std::memory_order_relaxed);
+  return true;
 }
 
 void Bridge::Impl::receive_data(Channel& ch) {

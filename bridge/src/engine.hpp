@@ -21,11 +21,14 @@
 //                     shm) and one DEALER per peer connected to the peer's active link (data to
 //                     peers, from the bounded per-peer queues).
 //   node executors  : one Node per channel runs that channel's shm subscriptions: the callback
-//                     copies the slot once into a zmq::message_t and queues a refcounted copy
-//                     per wanting peer (drop policy, counted), then wakes the channel thread.
+//                     makes one zmq::message_t of the slot (zero-copy, or one copy) and, per
+//                     wanting peer, sends a refcounted copy on the peer's dealer itself when
+//                     nothing is queued for it, or queues it (drop policy, counted) and wakes
+//                     the channel thread (PeerChannel::sock_mu has the rule).
 //
-// Lock order: Served::mu and PeerChannel::mu are leaves; Impl::view_mu -> repub_mu.
-// A Served's callback takes only Served::mu, PeerChannel::mu and nothing else, so the
+// Lock order: Served::mu is a leaf; PeerChannel::sock_mu -> PeerChannel::mu (the other way
+// by try_lock only); Impl::view_mu -> repub_mu.
+// A Served's callback takes only Served::mu, PeerChannel::mu and sock_mu, so the
 // control thread may destroy a subscription (which waits for its running callback) while
 // holding no lock.
 #pragma once
@@ -162,16 +165,26 @@ struct Bridge::Impl {
     std::atomic<std::uint64_t> bytes_sent{0}, bytes_received{0};
   };
 
+  // One peer on one channel. Sending (channels.cpp): a message goes straight to the dealer
+  // from the shm callback (node executor thread) when nothing is queued before it, else into
+  // `queue`, which the channel thread sends in order when the dealer is writable.
   struct PeerChannel {
     std::mutex mu;  // guards queue
     std::deque<Outgoing> queue;
     std::atomic<std::uint64_t> sent_msgs{0}, sent_bytes{0}, drops{0}, recv_msgs{0}, recv_bytes{0}, lost{0};
     std::atomic<std::int32_t> queued{0};
     std::atomic<std::int64_t> last_sent_ns{0};  // steady clock of the last message the socket took; 0: never
-    // channel thread:
+    // Guards dealer, connected_link and seq: held by the channel thread while it (re)connects
+    // and flushes, and taken with try_lock by on_local_message (under mu, with the queue
+    // empty) to send directly. The only use of the dealer without it is the channel thread's
+    // zmq::poll for POLLOUT, which it makes only while the queue is not empty, and only the
+    // channel thread empties the queue: then on_local_message queues and never touches it.
+    // Lock order: mu -> sock_mu by try_lock only; the channel thread takes sock_mu -> mu.
+    std::mutex sock_mu;
     std::unique_ptr<zmq::socket_t> dealer;
     int connected_link = -1;
     std::uint64_t seq = 0;
+    // channel thread:
     datapath::RxSequence rx;
     std::uint64_t drops_logged = 0;
     RateLimit drop_log;
@@ -238,6 +251,9 @@ struct Bridge::Impl {
   // Local messages queued for peers: sent straight from their pinned slot / copied out of it.
   std::atomic<std::uint64_t> zero_copy_msgs{0}, copied_msgs{0};
   std::atomic<std::uint64_t> pin_waits{0};  // on_local_message waited for a pin (link moving)
+  // Messages to peers handed to ZeroMQ by the shm callback itself / by the channel thread
+  // from a peer's queue (PeerChannel).
+  std::atomic<std::uint64_t> sent_from_callback{0}, sent_from_queue{0};
   RateLimit bad_log;
 
   zmq::context_t ctx;
@@ -301,6 +317,9 @@ struct Bridge::Impl {
   std::optional<RetainedBytes> wait_for_pin(PinWatch& w, const RawMessage& m);
   void channel_loop(Channel& ch);
   void flush(Channel& ch, Peer& p);
+  // Sends one message on pc's dealer without blocking (pc.sock_mu held, dealer set). Returns
+  // false when the socket would block or failed (logged): the caller queues it again.
+  bool send_now(Channel& ch, Peer& p, PeerChannel& pc, Outgoing& out);
   void receive_data(Channel& ch);
   // Channel threads: into this host's shared memory.
   void republish(const std::string& topic, const zmq::message_t& payload, std::uint32_t keep);

@@ -1296,3 +1296,52 @@ TEST_CASE("service across hosts with a vehicle group and bridges, nothing carrie
   CHECK(kv.at("failed") == "0");
   CHECK(kv.at("wrong") == "0");
 }
+
+TEST_CASE("a burst faster than the link: messages sent from the shm callback and those queued behind a busy socket arrive in order, none twice",
+          "[bridge][multihost][delivery]") {
+  LCMX_REQUIRE_NETNS();
+  // 1 MB messages on a 200 Mbit/s link (40 ms each): a burst fills TCP's buffers, the socket
+  // (sndhwm 2) and the peer's queue (hwm 16, drop oldest), so the callback queues behind the
+  // channel thread; before and after it, with nothing queued, it sends on the socket itself.
+  World w(2, 49, {{.name = "eth", .rate = "200mbit"}});
+  const auto ch = w.channel("BURST");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  constexpr std::size_t kSize = 1000000;
+  auto& pub = w.pub(0, ch, kSize, "A");
+  const long long warm = warm_up(pub, {&sub}, ch);
+  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  REQUIRE(wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms).second);
+
+  constexpr long kBurst = 40;
+  pub.send(pub_cmd(kBurst, 0));  // as fast as the publisher can
+  REQUIRE(published_total(pub) == warm + kBurst);
+  // The newest message is never the one dropped (drop oldest, and a ring keeps the newest).
+  auto [burst, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm + kBurst - 1; }, 15000ms);
+  REQUIRE(ok);
+  check_clean(burst);
+  CHECK(burst.num("received") <= warm + kBurst);
+
+  // Idle again: each of these goes out from the callback, after everything of the burst.
+  constexpr long kAfter = 10;
+  const auto before = burst.num("received");
+  pub.send(pub_cmd(kAfter, 50));
+  REQUIRE(published_total(pub) == warm + kBurst + kAfter);
+  auto [fin, ok2] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= before + kAfter; }, 10000ms);
+  REQUIRE(ok2);
+  check_clean(fin);
+  CHECK(fin.num("received") == before + kAfter);
+  CHECK(fin.num("last") == warm + kBurst + kAfter - 1);
+  CHECK(fin.str("paths") == "bridge");
+  pub.send("quit");
+  // Both ways were taken: "... handed to peers' sockets by the shm callback N, from the queues M".
+  ba.signal(SIGTERM);
+  REQUIRE_LOG(ba, "from the queues", 10000ms);
+  const std::string log = ba.text();
+  const auto cb = log.find("by the shm callback "), q = log.find("from the queues ");
+  REQUIRE(cb != std::string::npos);
+  REQUIRE(q != std::string::npos);
+  CHECK(std::stoll(log.substr(cb + 20)) >= kAfter);
+  CHECK(std::stoll(log.substr(q + 16)) > 0);
+}
