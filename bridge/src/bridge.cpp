@@ -154,11 +154,11 @@ void Bridge::Impl::start() {
   discovery::Options d;
   d.group = udpm::parse_url(rt_options.discovery_url);
   d.observer = true;
+  ctl_wake = std::make_unique<Wake>();  // before the observer: its thread rings it at once
   observer = std::make_unique<discovery::Discovery>(d, nullptr, [this](discovery::Change, const discovery::Participant&) {
     view_dirty = true;
-    if (ctl_wake) ctl_wake->ring();
+    ctl_wake->ring();
   });
-  ctl_wake = std::make_unique<Wake>();
   observer->query();
 
   for (auto& ch : channels) {
