@@ -684,7 +684,7 @@ CallResult<Resp> ActionClientCore::call(ClientCore& c, const Bytes& request, ms 
       c, request.size(), [&request](std::span<std::byte> out) { std::copy(request.begin(), request.end(), out.begin()); },
       timeout,
       [&promise](std::span<const std::byte> bytes, CallErrc error, bool ok, const std::string& message,
-                 const ServerInfo& server) {
+                 const ServerInfo& server, const RawMessage*) {
         if (!ok) return promise.set_value(CallResult<Resp>::failure(error, message, server));
         Resp r;
         if (!decode(bytes, r))

@@ -538,7 +538,7 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
     return h;
   }
   void loop();
-  void on_reply(std::span<const std::byte> bytes);  // client thread
+  void on_reply(const RawMessage& m);  // client thread, in the reply subscriber's callback
   // Under mu: drop servers whose reply publisher is no longer matched, fail calls over.
   void refresh_servers_locked(std::vector<Finished>& finished, std::vector<ServerInfo>& gone_servers);
   const Known* best_locked() const;
@@ -589,7 +589,7 @@ void ClientCore::start(const std::string& node_name) {
   std::weak_ptr<ClientCore> weak = weak_from_this();
   reply_sub = std::make_shared<RawSubscriberCore>(
       reply_channel, SubscriberOptions{.queue_depth = 64},
-      [this](const RawMessage& m) { on_reply(m.data); }, reply_type_info());
+      [this](const RawMessage& m) { on_reply(m); }, reply_type_info());
   add_subscriber(*node, reply_sub);
   // Our reply channel's publishers come and go (a server leaves): re-check at once.
   tap = runtime->add_event_tap([weak, channel = reply_channel](const Event& e) {
@@ -636,7 +636,7 @@ void ClientCore::close() {
 void ClientCore::finish(std::vector<Finished>& finished) {
   for (auto& f : finished) {
     try {
-      f.done({}, f.error, false, f.message, f.server);
+      f.done({}, f.error, false, f.message, f.server, nullptr);
     } catch (const std::exception& e) {
       spdlog::error("lcmx: a service call's completion threw: {}", e.what());
     }
@@ -827,7 +827,8 @@ void ClientCore::expire_locked(Clock::time_point now, std::vector<Finished>& fin
   }
 }
 
-void ClientCore::on_reply(std::span<const std::byte> bytes) {
+void ClientCore::on_reply(const RawMessage& m) {
+  const std::span<const std::byte> bytes = m.data;
   ReplyHeader h;
   std::span<const std::byte> payload;
   if (!parse_reply(bytes, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id) return;
@@ -900,7 +901,7 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
   }
   const bool ok = h.status == lcmx_msgs::service_reply_t::OK;
   try {
-    done(payload, error, ok, ok ? std::string() : "service '" + name + "': " + h.error, server);
+    done(payload, error, ok, ok ? std::string() : "service '" + name + "': " + h.error, server, &m);
   } catch (const std::exception& e) {
     spdlog::error("lcmx: service '{}': a call's completion threw: {}", name, e.what());
   }
@@ -909,7 +910,7 @@ void ClientCore::on_reply(std::span<const std::byte> bytes) {
 void ClientCore::call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
                       std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin) {
   if (size > static_cast<std::size_t>(INT32_MAX))
-    return done({}, CallErrc::bad_request, false, "a service request is limited to 2 GiB", {});
+    return done({}, CallErrc::bad_request, false, "a service request is limited to 2 GiB", {}, nullptr);
   RequestHeader h = request_header();
   Pending p;
   p.timeout = timeout;
@@ -919,7 +920,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
   std::unique_lock lock(mu);
   if (closed) {
     lock.unlock();
-    return p.done({}, CallErrc::shutdown, false, "service '" + name + "': the client was closed", {});
+    return p.done({}, CallErrc::shutdown, false, "service '" + name + "': the client was closed", {}, nullptr);
   }
   h.request_id = static_cast<std::int64_t>(next_request++);
   const auto hs = request_header_size(h);

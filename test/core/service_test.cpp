@@ -187,6 +187,15 @@ TEST_CASE("service: a raw server and client", "[service]") {
   auto empty = client.call({}, 5s);
   REQUIRE(empty.ok());
   CHECK(empty.value().empty());
+  // The zero-copy form: in one process the reply's own buffer, valid after the call.
+  auto retained = client.call_retained(req, 5s);
+  REQUIRE(retained.ok());
+  CHECK(retained.value().zero_copy);
+  CHECK(lcmx::Bytes(retained.value().data.begin(), retained.value().data.end()) ==
+        lcmx::Bytes{std::byte{3}, std::byte{2}, std::byte{1}});
+  auto retained_empty = client.call_retained({}, 5s);
+  REQUIRE(retained_empty.ok());
+  CHECK(retained_empty.value().data.empty());
 
   // A handler that writes its response in place; one that writes nothing answers empty.
   auto in_place = sn.create_service_raw("svc_raw2", [](std::span<const std::byte> in, lcmx::ResponseWriter& out) {

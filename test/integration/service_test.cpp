@@ -279,3 +279,58 @@ TEST_CASE("service across processes: a SIGSTOPped server: a call times out, past
   CHECK(again.value().seq == 4);
   CHECK(client.stats().pending == 0);
 }
+
+TEST_CASE("service across processes: call_retained keeps a 1 MB response in its shared-memory slot, valid while held",
+          "[integration][service]") {
+  Session s(142);
+  const auto name = unique_channel("SVC_RETAIN", 142);
+  auto& server = server_peer(s, name);
+  REQUIRE(server.expect("READY"));
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("client");
+  auto client = node.create_client_raw(name);  // raw bytes: it takes the server's types
+  REQUIRE(client.wait_for_service(10000ms));
+  REQUIRE(client.servers().at(0).path == lcmx::Path::shm);
+  auto call = [&](double x, double size) {
+    const Pose p = request(x, size);
+    lcmx::Bytes req(static_cast<std::size_t>(p.getEncodedSize()));
+    p.encode(req.data(), 0, static_cast<int>(req.size()));
+    return client.call_retained(req, 10000ms);
+  };
+  auto decoded = [](const lcmx::RetainedBytes& r) {
+    Bench b;
+    REQUIRE(b.decode(r.data.data(), 0, static_cast<int>(r.data.size())) == static_cast<int>(r.data.size()));
+    return b;
+  };
+  // Held responses stay intact while later calls answer through the same reply publisher:
+  // their slots stay pinned. Beyond shm::Reader::kMaxDetached held at once they are copies.
+  std::vector<lcmx::RetainedBytes> held;
+  for (int i = 0; i < lcmx::shm::Reader::kMaxDetached + 2; ++i) {
+    auto r = call(i, 1 << 20);
+    REQUIRE(r.ok());
+    INFO("response " << i);
+    CHECK(r.value().zero_copy == (i < lcmx::shm::Reader::kMaxDetached));
+    held.push_back(std::move(r).value());
+  }
+  for (int i = 0; i < 20; ++i) REQUIRE(call(100 + i, 1 << 20).ok());  // the ring goes round
+  for (std::size_t i = 0; i < held.size(); ++i) {
+    const Bench b = decoded(held[i]);
+    INFO("held response " << i);
+    CHECK(b.seq == static_cast<std::int64_t>(i));
+    CHECK(b.data.size() == (1u << 20));
+    CHECK(content_ok(b));
+  }
+  held.clear();  // releases the pins: zero-copy again
+  auto again = call(7, 4096);
+  REQUIRE(again.ok());
+  CHECK(again.value().zero_copy);
+  CHECK(content_ok(decoded(again.value())));
+  // Errors are the same as call()'s.
+  auto unknown = node.create_client_raw(name + "_none");
+  auto none = unknown.call_retained({}, 300ms);
+  CHECK_FALSE(none.ok());
+  CHECK(none.error() == lcmx::CallErrc::no_server);
+  server.send("quit");
+  REQUIRE(server.expect("SERVED"));
+  CHECK(server.wait() == 0);
+}

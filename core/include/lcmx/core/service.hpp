@@ -40,6 +40,7 @@
 
 #include "lcmx/core/error.hpp"
 #include "lcmx/core/stats.hpp"
+#include "lcmx/core/subscriber.hpp"
 
 namespace lcmx {
 
@@ -180,12 +181,14 @@ std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, Serv
 void close_client(const std::shared_ptr<ClientCore>& client);
 // `encode` writes the request payload into a span of `size` bytes. `done` gets the response
 // payload (a view valid during the call) or an error; it is called exactly once, on the
-// client's thread (or on the caller's, for an error found at once). With `pin`, only that
-// server (participant, id) executes the call: it waits for that server's probe answer, and
-// fails with server_gone, never over, if the server goes away.
+// client's thread (or on the caller's, for an error found at once). `reply` is the reply
+// message `response` lies in (for RawMessage::retain(), during the call only), or nullptr
+// when no reply came (an error the client found itself). With `pin`, only that server
+// (participant, id) executes the call: it waits for that server's probe answer, and fails
+// with server_gone, never over, if the server goes away.
 using ReplyHandler =
     std::function<void(std::span<const std::byte> response, CallErrc error, bool ok,
-                       const std::string& message, const ServerInfo& server)>;
+                       const std::string& message, const ServerInfo& server, const RawMessage* reply)>;
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
                  std::chrono::milliseconds timeout, ReplyHandler done,
@@ -290,7 +293,7 @@ class Client : public detail::ClientHandle {
         },
         timeout,
         [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
-                                 const std::string& message, const ServerInfo& server) {
+                                 const std::string& message, const ServerInfo& server, const RawMessage*) {
           if (!ok) return done(Result::failure(error, message, server));
           Resp response;
           if (bytes.size() > static_cast<std::size_t>(INT32_MAX) ||
@@ -333,9 +336,46 @@ class RawClient : public detail::ClientHandle {
         },
         timeout,
         [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
-                                 const std::string& message, const ServerInfo& server) {
+                                 const std::string& message, const ServerInfo& server, const RawMessage*) {
           if (!ok) return done(Result::failure(error, message, server));
           done(Result::success(Bytes(bytes.begin(), bytes.end()), server));
+        });
+  }
+
+  // Zero-copy forms of call(): the response stays where it arrived - the reply's pinned
+  // shared-memory slot, or the in-process or UDP message's buffer - instead of being copied
+  // into a byte vector (RawMessage::retain()). It stays valid while the RetainedBytes (or a
+  // copy of its owner) lives, on any thread. A shared-memory response held this way keeps its
+  // slot pinned (the server's reply publisher skips it); at most shm::Reader::kMaxDetached
+  // responses per server are held at once, and beyond that the response is copied
+  // (RetainedBytes::zero_copy says which). For large responses: it saves a copy of every byte
+  // (docs/services.md).
+  using RetainedResult = CallResult<RetainedBytes>;
+  RetainedResult call_retained(std::span<const std::byte> request, std::chrono::milliseconds timeout) {
+    auto promise = std::make_shared<std::promise<RetainedResult>>();
+    auto future = promise->get_future();
+    call_retained_async(request, timeout, [promise](RetainedResult r) { promise->set_value(std::move(r)); });
+    return future.get();
+  }
+  // `done` runs once with the result, on the client's thread (see the file comment).
+  void call_retained_async(std::span<const std::byte> request, std::chrono::milliseconds timeout,
+                           std::function<void(RetainedResult)> done) {
+    detail::client_call(
+        *core_, request.size(),
+        [request](std::span<std::byte> out) {
+          std::copy(request.begin(), request.end(), out.begin());
+        },
+        timeout,
+        [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
+                                 const std::string& message, const ServerInfo& server,
+                                 const RawMessage* reply) {
+          if (!ok || reply == nullptr) return done(RetainedResult::failure(error, message, server));
+          RetainedBytes whole = reply->retain();
+          // The payload lies after the reply envelope's header, at the same offset in the
+          // retained message as in the reply.
+          const auto offset = static_cast<std::size_t>(bytes.data() - reply->data.data());
+          RetainedBytes r{whole.data.subspan(offset, bytes.size()), std::move(whole.owner), whole.zero_copy};
+          done(RetainedResult::success(std::move(r), server));
         });
   }
 
