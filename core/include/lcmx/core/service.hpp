@@ -331,10 +331,7 @@ class RawClient : public detail::ClientHandle {
                   std::function<void(Result)> done) {
     detail::client_call(
         *core_, request.size(),
-        [request](std::span<std::byte> out) {
-          std::copy(request.begin(), request.end(), out.begin());
-        },
-        timeout,
+        copy_of(request), timeout,
         [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
                                  const std::string& message, const ServerInfo& server, const RawMessage*) {
           if (!ok) return done(Result::failure(error, message, server));
@@ -362,10 +359,7 @@ class RawClient : public detail::ClientHandle {
                            std::function<void(RetainedResult)> done) {
     detail::client_call(
         *core_, request.size(),
-        [request](std::span<std::byte> out) {
-          std::copy(request.begin(), request.end(), out.begin());
-        },
-        timeout,
+        copy_of(request), timeout,
         [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
                                  const std::string& message, const ServerInfo& server,
                                  const RawMessage* reply) {
@@ -380,6 +374,10 @@ class RawClient : public detail::ClientHandle {
   }
 
  private:
+  // Writes the request bytes into the envelope.
+  static std::function<void(std::span<std::byte>)> copy_of(std::span<const std::byte> request) {
+    return [request](std::span<std::byte> out) { std::copy(request.begin(), request.end(), out.begin()); };
+  }
   friend class Node;
   explicit RawClient(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
 };
