@@ -681,8 +681,7 @@ CallResult<Resp> ActionClientCore::call(ClientCore& c, const Bytes& request, ms 
   std::promise<CallResult<Resp>> promise;
   auto future = promise.get_future();
   client_call(
-      c, request.size(), [&request](std::span<std::byte> out) { std::copy(request.begin(), request.end(), out.begin()); },
-      timeout,
+      c, request.size(), copy_request(request), timeout,
       [&promise](std::span<const std::byte> bytes, CallErrc error, bool ok, const std::string& message,
                  const ServerInfo& server, const RawMessage*) {
         if (!ok) return promise.set_value(CallResult<Resp>::failure(error, message, server));

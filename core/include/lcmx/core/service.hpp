@@ -26,6 +26,7 @@
 // calls never throw for call errors - they return them in CallResult.
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
 #include <functional>
@@ -189,6 +190,10 @@ void close_client(const std::shared_ptr<ClientCore>& client);
 using ReplyHandler =
     std::function<void(std::span<const std::byte> response, CallErrc error, bool ok,
                        const std::string& message, const ServerInfo& server, const RawMessage* reply)>;
+// An `encode` for client_call that copies `request` (which must outlive the client_call).
+inline std::function<void(std::span<std::byte>)> copy_request(std::span<const std::byte> request) {
+  return [request](std::span<std::byte> out) { std::copy(request.begin(), request.end(), out.begin()); };
+}
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
                  std::chrono::milliseconds timeout, ReplyHandler done,
@@ -331,7 +336,7 @@ class RawClient : public detail::ClientHandle {
                   std::function<void(Result)> done) {
     detail::client_call(
         *core_, request.size(),
-        copy_of(request), timeout,
+        detail::copy_request(request), timeout,
         [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
                                  const std::string& message, const ServerInfo& server, const RawMessage*) {
           if (!ok) return done(Result::failure(error, message, server));
@@ -359,7 +364,7 @@ class RawClient : public detail::ClientHandle {
                            std::function<void(RetainedResult)> done) {
     detail::client_call(
         *core_, request.size(),
-        copy_of(request), timeout,
+        detail::copy_request(request), timeout,
         [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
                                  const std::string& message, const ServerInfo& server,
                                  const RawMessage* reply) {
@@ -374,10 +379,6 @@ class RawClient : public detail::ClientHandle {
   }
 
  private:
-  // Writes the request bytes into the envelope.
-  static std::function<void(std::span<std::byte>)> copy_of(std::span<const std::byte> request) {
-    return [request](std::span<std::byte> out) { std::copy(request.begin(), request.end(), out.begin()); };
-  }
   friend class Node;
   explicit RawClient(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
 };
