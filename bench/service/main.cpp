@@ -332,16 +332,18 @@ struct Result {
   std::string error;
 };
 
-// Runs the server role, then the client role; collects the client's lines.
+// Runs the server role, then the client role; collects the client's lines. A role runs in
+// network namespace `*_ns` (-1: ours) and, with `*_cpu` >= 0, on that CPU only (--pin split).
 Result run_method(const std::string& method, const std::vector<std::string>& server_args,
-                  const std::vector<std::string>& client_args, int server_ns = -1, int client_ns = -1) {
+                  const std::vector<std::string>& client_args, int server_ns = -1, int client_ns = -1,
+                  int server_cpu = -1, int client_cpu = -1) {
   Result res;
   res.method = method;
   const auto exe = lcmxbench::self_exe();
   lcmxbench::Pipe s_out, s_in, c_out;
   // fork + exec of a role with its stdout on `out_w` and stdin on `in_r` (-1: inherited), in
-  // network namespace `ns` (-1: ours).
-  auto fork_role = [&](std::vector<std::string> args, int out_w, int in_r, int ns) -> pid_t {
+  // network namespace `ns` (-1: ours), on CPU `cpu` (-1: any).
+  auto fork_role = [&](std::vector<std::string> args, int out_w, int in_r, int ns, int cpu) -> pid_t {
     std::vector<std::string> argv{exe};
     argv.insert(argv.end(), args.begin(), args.end());
     const pid_t pid = ::fork();
@@ -351,6 +353,12 @@ Result run_method(const std::string& method, const std::vector<std::string>& ser
 #else
       (void)ns;
 #endif
+      if (cpu >= 0) {
+        cpu_set_t set;
+        CPU_ZERO(&set);
+        CPU_SET(cpu, &set);
+        if (::sched_setaffinity(0, sizeof set, &set) != 0) std::_Exit(124);
+      }
       if (in_r >= 0) ::dup2(in_r, STDIN_FILENO);
       ::dup2(out_w, STDOUT_FILENO);
       std::vector<char*> a;
@@ -361,7 +369,7 @@ Result run_method(const std::string& method, const std::vector<std::string>& ser
     }
     return pid;
   };
-  const pid_t server = fork_role(server_args, s_out.w, s_in.r, server_ns);
+  const pid_t server = fork_role(server_args, s_out.w, s_in.r, server_ns, server_cpu);
   s_out.close_w();
   s_in.close_r();
   lcmxbench::LineReader sr{s_out.r};
@@ -370,7 +378,7 @@ Result run_method(const std::string& method, const std::vector<std::string>& ser
   if (!lcmxbench::pump_until({&sr}, deadline, [&] { return sr.has("ready"); }, stop)) {
     res.error = "the server did not start";
   } else {
-    const pid_t client = fork_role(client_args, c_out.w, -1, client_ns);
+    const pid_t client = fork_role(client_args, c_out.w, -1, client_ns, client_cpu);
     c_out.close_w();
     lcmxbench::LineReader cr{c_out.r};
     lcmxbench::pump_until({&cr}, lcmxbench::now_ns() + 180'000'000'000LL, [] { return false; }, stop);
@@ -520,7 +528,7 @@ int main(int argc, char** argv) {
   CLI::App app{
       "lcmx_bench_service: service round trip (p50/p99) and calls/s, lcmx vs ZeroMQ REQ/REP and two lcmx\n"
       "one-way shm messages, on one host and (root) between two emulated hosts. Markdown on stdout."};
-  std::string role, url, vehicle, name, endpoint, cases_text, markdown, tcp_cc = "cubic";
+  std::string role, url, vehicle, name, endpoint, cases_text, markdown, tcp_cc = "cubic", pin = "none";
   int calls = 2000, big_calls = 200, clients = 8, rounds = 1;
   double seconds = 3;
   bool no_hosts = false, settle_bridge = false;
@@ -536,6 +544,11 @@ int main(int argc, char** argv) {
   app.add_option("--tcp-congestion", tcp_cc,
                  "two hosts: their TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. "
                  "bbr, whose pacing slows 1 MB bursts; bench/README.md)")
+      ->capture_default_str();
+  app.add_option("--pin", pin,
+                 "two hosts: none, or split: host A's processes (client, its bridge) on CPU 0, host B's "
+                 "(server, its bridge) on CPU 1, as if each host had its own CPU (bench/README.md)")
+      ->check(CLI::IsMember({"none", "split"}))
       ->capture_default_str();
   app.add_option("--role", role)->group("");  // hidden: the children
   app.add_option("--url", url)->group("");
@@ -568,6 +581,13 @@ int main(int argc, char** argv) {
     return 1;
   }
 
+  if (pin == "split") {
+    cpu_set_t mine;
+    if (::sched_getaffinity(0, sizeof mine, &mine) != 0 || !CPU_ISSET(0, &mine) || !CPU_ISSET(1, &mine)) {
+      std::cerr << "--pin split needs CPUs 0 and 1, and this process may not use both (taskset, cgroup)\n";
+      return 2;
+    }
+  }
   const std::vector<Case> cases{{1024, 1024, calls}, {1024, 1u << 20, big_calls}};
   const std::string tag = std::to_string(::getpid());
   const std::string url1 = "udpm://239.255.79." + std::to_string(1 + ::getpid() % 250) + ":" +
@@ -604,6 +624,13 @@ int main(int argc, char** argv) {
     } else {
       auto emu = lcmx::test::Emulation::create(
           {.hosts = 2, .links = {lcmx::test::LinkSpec{.name = "eth"}}, .tcp_congestion = tcp_cc});
+      // --pin split: host A (index 0: the clients, bridge svcA) on CPU 0, host B (index 1: the
+      // servers, bridge svcB) on CPU 1. The orchestrator (this process) stays unpinned.
+      const int cpu_a = pin == "split" ? 0 : -1, cpu_b = pin == "split" ? 1 : -1;
+      auto on_cpu = [](int cpu, std::vector<std::string> argv) {
+        if (cpu >= 0) argv.insert(argv.begin(), {"taskset", "-c", std::to_string(cpu)});
+        return argv;
+      };
       const std::string local = "udpm://239.255.78.1:7667?ttl=0";
       const std::string veh = "udpm://239.255.78.2:7668?ttl=1&iface=eth";
       auto udp_row = [&] {
@@ -611,7 +638,7 @@ int main(int argc, char** argv) {
         return run_method("lcmx service", {"--role", "server-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb"},
                           {"--role", "client-lcmx", "--url", local, "--vehicle", veh, "--name", "svcb", "--cases", cs,
                            "--clients", n_clients, "--seconds", secs},
-                          emu.ns_fd(1), emu.ns_fd(0));
+                          emu.ns_fd(1), emu.ns_fd(0), cpu_b, cpu_a);
       };
 #ifdef LCMX_BENCH_LCMX_TOOL
       // Through the Message Bridges, a bridge on each host. Two set-ups:
@@ -652,8 +679,8 @@ int main(int argc, char** argv) {
           lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "info"}};
           if (!veh_b.empty()) env.push_back({"LCMX_VEHICLE_URL", veh_b});
           std::vector<lcmx::test::Child> bridges;
-          bridges.push_back(emu.spawn(0, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}, env));
-          bridges.push_back(emu.spawn(1, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}, env));
+          bridges.push_back(emu.spawn(0, on_cpu(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}), env));
+          bridges.push_back(emu.spawn(1, on_cpu(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}), env));
           // Ready, then linked to the other (its log line "bridge svcA: link eth to svcB ... is up").
           for (const char* n : {"A", "B"}) {
             auto& br = bridges[n[0] == 'A' ? 0 : 1];
@@ -670,7 +697,7 @@ int main(int argc, char** argv) {
             server.insert(server.end(), {"--vehicle", veh_b});
             client.insert(client.end(), {"--vehicle", veh_b, "--settle-bridge"});
           }
-          r = run_method(method, server, client, emu.ns_fd(1), emu.ns_fd(0));
+          r = run_method(method, server, client, emu.ns_fd(1), emu.ns_fd(0), cpu_b, cpu_a);
           for (auto& br : bridges) br.kill(SIGTERM);
           // "[time] [info] bridge svcB: stopping; local messages sent zero-copy Z, copied C; ..."
           const auto line = line_with(bridges[1], "bridge svcB: stopping", std::chrono::milliseconds(5000));
@@ -696,7 +723,7 @@ int main(int argc, char** argv) {
         return run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp2},
                           {"--role", "client-zmq", "--endpoint", tcp2, "--cases", cs, "--clients", n_clients,
                            "--seconds", secs},
-                          emu.ns_fd(1), emu.ns_fd(0));
+                          emu.ns_fd(1), emu.ns_fd(0), cpu_b, cpu_a);
       };
       // --rounds: every method once per round, in turn, so that the machine's drift between
       // runs (ZeroMQ's own 1 MB time varies 3x from run to run here) falls on all alike.
@@ -717,6 +744,7 @@ int main(int argc, char** argv) {
       std::string cc;
       emu.run_in(0, [&] { std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> cc; });
       md << table("Two emulated hosts, one veth link, TCP congestion control " + cc +
+                      (pin == "split" ? ", host A on CPU 0 and host B on CPU 1 (--pin split)" : "") +
                       " (ratios against ZeroMQ tcp)" +
                       (rounds > 1 ? " — medians of " + std::to_string(rounds) + " rounds" : std::string()),
                   rows, cases, rows.back(), "ZeroMQ tcp")
