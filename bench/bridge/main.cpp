@@ -277,12 +277,6 @@ struct Run {
   std::int64_t last_drain = 0;
 };
 
-std::vector<std::string> taskset(int cpu, std::vector<std::string> argv) {
-  if (cpu < 0) return argv;
-  argv.insert(argv.begin(), {"taskset", "-c", std::to_string(cpu)});
-  return argv;
-}
-
 // Bridges' stdout is a pipe: drain it now and then (echoed on stderr) so they never block on it.
 void drain_bridges(Run& run, bool force = false) {
   if (!force && now_ns() - run.last_drain < 50'000'000) return;

@@ -102,6 +102,12 @@ int reap_child(pid_t pid, int timeout_ms, const std::atomic<int>& stop, bool* ki
   }
 }
 
+std::vector<std::string> taskset(int cpu, std::vector<std::string> argv) {
+  if (cpu < 0) return argv;
+  argv.insert(argv.begin(), {"taskset", "-c", std::to_string(cpu)});
+  return argv;
+}
+
 std::string self_exe() {
   char buf[4096];
   const ssize_t n = ::readlink("/proc/self/exe", buf, sizeof buf - 1);

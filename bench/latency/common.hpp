@@ -43,6 +43,10 @@ struct Pipe {
 pid_t spawn_child(const std::vector<std::string>& argv, const std::vector<int>& fds, int cpu,
                   int netns_fd = -1);
 
+// `argv` run under `taskset -c cpu` (for starters that take an argv, e.g. Emulation::spawn);
+// unchanged when cpu < 0.
+std::vector<std::string> taskset(int cpu, std::vector<std::string> argv);
+
 // Lines a child writes to a pipe (its report fd), read without blocking: call pump() when
 // poll() says `fd` is readable. Complete lines go to `lines`; `eof` once the child closed it.
 struct LineReader {

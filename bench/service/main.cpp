@@ -57,6 +57,9 @@ std::string case_label(const Case& c) {
   return lcmxbench::size_label(c.request) + " / " + lcmxbench::size_label(c.response);
 }
 
+// A case's key in the clients' "rtt" lines and in Result::rtt: "<request>:<response>".
+std::string case_key(const Case& c) { return std::to_string(c.request) + ":" + std::to_string(c.response); }
+
 Bytes make_request(std::size_t size, std::size_t response) {
   Bytes b(std::max<std::size_t>(size, 8), std::byte{0x5a});
   const std::uint64_t r = response;
@@ -155,7 +158,7 @@ struct Rtts {
 
 void report_rtt(const Case& c, const Rtts& r) {
   std::ostringstream o;
-  o << "rtt " << c.request << ":" << c.response << " " << r.pct(0.5) << " " << r.pct(0.99) << " " << r.us.size();
+  o << "rtt " << case_key(c) << " " << r.pct(0.5) << " " << r.pct(0.99) << " " << r.us.size();
   say(o.str());
 }
 
@@ -433,7 +436,7 @@ std::string table(const std::string& title, const std::vector<Result>& rs, const
   for (const auto& r : rs) {
     o << "| " << r.method << " | " << (r.path.empty() ? "-" : r.path) << " |";
     for (const auto& c : cases) {
-      const auto key = std::to_string(c.request) + ":" + std::to_string(c.response);
+      const auto key = case_key(c);
       auto it = r.rtt.find(key);
       auto ref = reference.rtt.find(key);
       if (it == r.rtt.end()) {
@@ -478,29 +481,6 @@ Result median_of(const std::vector<Result>& rounds) {
   return out;
 }
 
-// "method, case: per-round p50 ratios against the reference of the same round ...; median".
-std::string per_round_ratios(const std::vector<Result>& runs, const std::vector<Result>& ref,
-                             const std::vector<Case>& cases) {
-  std::ostringstream o;
-  for (const auto& c : cases) {
-    const auto key = std::to_string(c.request) + ":" + std::to_string(c.response);
-    std::vector<double> rs;
-    std::string list;
-    for (std::size_t i = 0; i < runs.size() && i < ref.size(); ++i) {
-      auto a = runs[i].rtt.find(key), b = ref[i].rtt.find(key);
-      if (a == runs[i].rtt.end() || b == ref[i].rtt.end() || b->second.first <= 0) {
-        list += (list.empty() ? "" : ", ") + std::string("-");
-        continue;
-      }
-      rs.push_back(a->second.first / b->second.first);
-      list += (list.empty() ? "" : ", ") + ratio(a->second.first, b->second.first);
-    }
-    o << "- " << runs.front().method << ", " << case_label(c) << ": per-round p50 vs ZeroMQ tcp " << list
-      << "; median " << (rs.empty() ? std::string("-") : ratio(median(rs), 1.0)) << "\n";
-  }
-  return o.str();
-}
-
 // The p50 of `r` over that of `ref` for case `key`; 0 when either is missing.
 double p50_ratio(const Result& r, const Result& ref, const std::string& key) {
   auto a = r.rtt.find(key), b = ref.rtt.find(key);
@@ -516,6 +496,24 @@ double median_round_ratio(const std::vector<Result>& runs, const std::vector<Res
   return median(rs);
 }
 
+// "method, case: per-round p50 ratios against the reference of the same round ...; median".
+std::string per_round_ratios(const std::vector<Result>& runs, const std::vector<Result>& ref,
+                             const std::vector<Case>& cases) {
+  std::ostringstream o;
+  for (const auto& c : cases) {
+    const auto key = case_key(c);
+    std::string list;
+    for (std::size_t i = 0; i < runs.size() && i < ref.size(); ++i) {
+      const double x = p50_ratio(runs[i], ref[i], key);
+      list += (list.empty() ? "" : ", ") + (x > 0 ? ratio(x, 1.0) : std::string("-"));
+    }
+    const double m = median_round_ratio(runs, ref, key);
+    o << "- " << runs.front().method << ", " << case_label(c) << ": per-round p50 vs ZeroMQ tcp " << list
+      << "; median " << (m > 0 ? ratio(m, 1.0) : std::string("-")) << "\n";
+  }
+  return o.str();
+}
+
 // "- what: **holds** (0.97x ≤ 1.2x)"; `strict`: the ratio must be below the limit.
 std::string target_line(const std::string& what, double ratio_value, double limit, bool strict) {
   char b[96];
@@ -529,8 +527,7 @@ std::string target_line(const std::string& what, double ratio_value, double limi
 std::string cases_arg(const std::vector<Case>& cases) {
   std::string s;
   for (const auto& c : cases)
-    s += (s.empty() ? "" : ",") + std::to_string(c.request) + ":" + std::to_string(c.response) + ":" +
-         std::to_string(c.calls);
+    s += (s.empty() ? "" : ",") + case_key(c) + ":" + std::to_string(c.calls);
   return s;
 }
 
@@ -644,7 +641,7 @@ int main(int argc, char** argv) {
   // the median of the rounds' ratios).
   std::string targets;
   for (const auto& c : cases) {
-    const auto key = std::to_string(c.request) + ":" + std::to_string(c.response);
+    const auto key = case_key(c);
     targets += target_line("one host, " + case_label(c) + ": service ≤ 1.5x two one-way shm messages",
                            p50_ratio(lx, echo, key), 1.5, false);
     targets += target_line("one host, " + case_label(c) + ": service faster than ZeroMQ REQ/REP ipc",
@@ -662,10 +659,6 @@ int main(int argc, char** argv) {
       // --pin split: host A (index 0: the clients, bridge svcA) on CPU 0, host B (index 1: the
       // servers, bridge svcB) on CPU 1. The orchestrator (this process) stays unpinned.
       const int cpu_a = pin == "split" ? 0 : -1, cpu_b = pin == "split" ? 1 : -1;
-      auto on_cpu = [](int cpu, std::vector<std::string> argv) {
-        if (cpu >= 0) argv.insert(argv.begin(), {"taskset", "-c", std::to_string(cpu)});
-        return argv;
-      };
       const std::string local = "udpm://239.255.78.1:7667?ttl=0";
       const std::string veh = "udpm://239.255.78.2:7668?ttl=1&iface=eth";
       auto udp_row = [&] {
@@ -714,8 +707,8 @@ int main(int argc, char** argv) {
           lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "info"}};
           if (!veh_b.empty()) env.push_back({"LCMX_VEHICLE_URL", veh_b});
           std::vector<lcmx::test::Child> bridges;
-          bridges.push_back(emu.spawn(0, on_cpu(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}), env));
-          bridges.push_back(emu.spawn(1, on_cpu(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}), env));
+          bridges.push_back(emu.spawn(0, lcmxbench::taskset(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}), env));
+          bridges.push_back(emu.spawn(1, lcmxbench::taskset(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}), env));
           // Ready, then linked to the other (its log line "bridge svcA: link eth to svcB ... is up").
           for (const char* n : {"A", "B"}) {
             auto& br = bridges[n[0] == 'A' ? 0 : 1];
@@ -790,7 +783,7 @@ int main(int argc, char** argv) {
       for (std::size_t m = 0; m + 1 < runs.size(); ++m) {
         if (runs[m].empty()) continue;
         for (const auto& c : cases) {
-          const auto key = std::to_string(c.request) + ":" + std::to_string(c.response);
+          const auto key = case_key(c);
           targets += target_line("two hosts" + std::string(pin == "split" ? " (split)" : "") + ", " + case_label(c) +
                                      ": " + runs[m].front().method + " ≤ 1.2x ZeroMQ REQ/REP tcp",
                                  median_round_ratio(runs[m], runs[3], key), 1.2, false);
