@@ -412,7 +412,10 @@ TEST_CASE("adaptive wait: polls for its window after messages, then sleeps", "[c
     start("ADAPTIVE_B");
     pub.publish(lcmx_examples::pose_t{});
     REQUIRE(eventually([&] { return got.load() == 1; }));
-    CHECK(runnable_samples(tid.load(), 100) > 80);
+    // Polling shows ~100 of 100, sleeping < 10 (the other sections). Not > 80: a poll pass
+    // can wait on a subscriber's mutex, which the runtime's threads take too, and one loaded
+    // run (ctest -j2) once counted fewer than 80 here. Half still tells polling from sleeping.
+    CHECK(runnable_samples(tid.load(), 100) > 50);
   }
   SECTION("block never polls") {
     no.executor.wait = lcmx::WaitStrategy::block;
