@@ -264,7 +264,7 @@ Verb add_pub(CLI::App& app, const Globals& g) {
   c->add_flag("--no-wait", g_pub.no_wait, "publish at once, without waiting for subscribers");
   c->add_flag("--udp", g_pub.udp,
               "also send on the UDP groups, for stock LCM subscribers (host-local group; the vehicle group too "
-              "when configured)");
+              "when configured); on the host-local group small messages only (<= LCMX_UDP_LIMIT)");
   c->add_flag("-q,--quiet", g_pub.quiet, "no messages on stderr but errors");
   c->add_flag("--json", g_pub.json_summary,
               "at the end, one JSON line on stdout: {channel, type, fingerprint (hex), published, "

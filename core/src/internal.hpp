@@ -441,7 +441,7 @@ class PublisherImpl final : public PublisherCore {
     std::shared_ptr<const Bytes> kept;  // the encoding, when kept for UDP replays (keeps_encoding)
     UdpSent sent;
   };
-  Written write_encoded(const void* object, bool shm, bool udp);
+  Written write_encoded(const void* object, std::size_t size, bool shm, bool udp);  // size: encoded_size
   void note_generation();  // publish_mu held
 
   std::unique_lock<std::mutex> lock_no_loan(const char* what);
@@ -476,12 +476,14 @@ class PublisherImpl final : public PublisherCore {
   std::atomic<bool> large_{false};
   const bool mirrored_;  // RuntimeOptions::mirror / mirror_channels select this channel
   bool warned_large_udp_ = false;        // guarded by publish_mu
+  bool warned_mirror_size_ = false;      // guarded by publish_mu
   std::uint64_t udp_send_failures_ = 0;  // guarded by publish_mu
   std::chrono::steady_clock::time_point last_udp_failure_log_{};  // guarded by publish_mu
   std::vector<std::byte> udp_buf_;       // guarded by publish_mu
   // Sends encoded bytes on the vehicle group (and host-local mirror) when wanted.
   UdpSent send_udp(std::span<const std::byte> encoded);
-  bool wants_udp() const;      // vehicle or mirror
+  bool wants_udp(std::size_t size);  // vehicle, mirror or neighbours; publish_mu held
+  bool mirrors(std::size_t size);    // the mirror takes a message of this size; publish_mu held
   bool wants_vehicle() const;  // other hosts, over UDP (not while a bridge carries the topic)
   void note_size(std::size_t size);
   std::atomic<std::uint64_t> published_{0};

@@ -76,8 +76,24 @@ bool PublisherImpl::bridged_only() const {
   return large_.load() && node->runtime->bridge_on_host() && unbridged_udp_subscribers_.load() == 0;
 }
 
-bool PublisherImpl::wants_udp() const {
-  return wants_vehicle() || (mirrored_ && !large_.load()) || local_udp_subscribers_.load() > 0;
+bool PublisherImpl::wants_udp(std::size_t size) {
+  return wants_vehicle() || mirrors(size) || local_udp_subscribers_.load() > 0;
+}
+
+// The mirror takes small messages (<= udp_limit), judged message by message: a channel whose
+// images turned it large still mirrors its small messages. A larger one is not mirrored
+// (stock LCM programs on this host do not get it), logged once per publisher. publish_mu held.
+bool PublisherImpl::mirrors(std::size_t size) {
+  if (!mirrored_) return false;
+  const std::size_t limit = node->runtime->options.udp_limit;
+  if (size <= limit) return true;
+  if (!warned_mirror_size_) {
+    warned_mirror_size_ = true;
+    spdlog::warn("lcmx: topic '{}': a {}-byte message is over udp_limit ({}): the mirror sends only "
+                 "smaller ones, so stock LCM programs on this host do not get it (logged once)",
+                 channel_, size, limit);
+  }
+  return false;
 }
 
 void PublisherImpl::mark_large() {
@@ -133,7 +149,7 @@ PublisherImpl::UdpSent PublisherImpl::send_udp(std::span<const std::byte> encode
     sent.vehicle = send(*rt.vehicle_group, "vehicle");
   }
   // The mirror, and subscribers of neighbours (this network namespace, another /dev/shm).
-  if ((mirrored_ && !large_.load()) || local_udp_subscribers_.load() > 0)
+  if (mirrors(encoded.size()) || local_udp_subscribers_.load() > 0)
     sent.local = send(*rt.local_group, "host-local");
   return sent;
 }
@@ -142,8 +158,7 @@ PublisherImpl::UdpSent PublisherImpl::send_udp(std::span<const std::byte> encode
 // sent from the same bytes before the commit), else into a reused buffer for UDP. Returns a
 // copy of the encoding when keep last N keeps it for UDP replays (keeps_encoding), else null,
 // and what went out over UDP. publish_mu held.
-PublisherImpl::Written PublisherImpl::write_encoded(const void* object, bool shm, bool udp) {
-  const std::size_t size = type.encoded_size(object);
+PublisherImpl::Written PublisherImpl::write_encoded(const void* object, std::size_t size, bool shm, bool udp) {
   check_size(size);
   note_size(size);
   Written out;
@@ -201,12 +216,12 @@ void PublisherImpl::publish_ref(const void* object,
   auto t = targets();
   const bool history = options.history > 0;
   const bool shm = history || writer_->registered_readers() > 0;
-  const bool udp = wants_udp();
+  const std::size_t size = type.encoded_size(object);
+  const bool udp = wants_udp(size);
   // Not encoded when nobody reads through shm or UDP (in-process subscribers only, or none), but
   // checked and classified all the same: a Message Bridge lists the large topics of its host
   // for its peers' pattern subscribers (docs/bridge.md "Pattern subscribers").
   if (!shm && !udp) {
-    const std::size_t size = type.encoded_size(object);
     check_size(size);
     note_size(size);
   }
@@ -215,7 +230,7 @@ void PublisherImpl::publish_ref(const void* object,
   if (!t->empty() || history) shared = copy(object);
   if (!t->empty()) deliver_intra(*t, shared);
   Written w;
-  if (shm || udp) w = write_encoded(object, shm, udp);
+  if (shm || udp) w = write_encoded(object, size, shm, udp);
   if (history) keep(std::move(shared), std::move(w.kept), w.sent);
   published_.fetch_add(1);
 }
@@ -226,15 +241,15 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   auto t = targets();
   const bool history = options.history > 0;
   const bool shm = history || writer_->registered_readers() > 0;
-  const bool udp = wants_udp();
+  const std::size_t size = type.encoded_size(object.get());
+  const bool udp = wants_udp(size);
   if (!shm && !udp) {  // as publish_ref
-    const std::size_t size = type.encoded_size(object.get());
     check_size(size);
     note_size(size);
   }
   if (!t->empty()) deliver_intra(*t, object);
   Written w;
-  if (shm || udp) w = write_encoded(object.get(), shm, udp);
+  if (shm || udp) w = write_encoded(object.get(), size, shm, udp);
   if (history) keep(std::move(object), std::move(w.kept), w.sent);
   published_.fetch_add(1);
 }
@@ -254,7 +269,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
     note_generation();
   }
   UdpSent sent;
-  if (wants_udp()) sent = send_udp(data);
+  if (wants_udp(data.size())) sent = send_udp(data);
   std::shared_ptr<const Bytes> copy;
   if (!t->empty() || history) copy = make_bytes(data);
   if (!t->empty()) deliver_intra(*t, copy);
@@ -302,7 +317,7 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
   if (!t->empty() || history) copy = make_bytes({loan.data(), size});
   if (!t->empty()) deliver_intra(*t, copy);
   UdpSent sent;
-  if (wants_udp()) sent = send_udp({loan.data(), size});
+  if (wants_udp(size)) sent = send_udp({loan.data(), size});
   if (history) keep(copy, keeps_encoding() ? copy : nullptr, sent);
   auto end = [&] {  // committed or refused: the loan is over, waiting publishers go on
     loan_out_ = false;

@@ -20,6 +20,7 @@
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/udpm/udpm.hpp"
+#include "lcmx_examples/bench_t.hpp"
 #include "lcmx_examples/image_t.hpp"
 #include "lcmx_examples/pose_t.hpp"
 
@@ -608,6 +609,44 @@ TEST_CASE("mirror_channels: only the matching channels are mirrored on the host-
   // have arrived first.
   CHECK(got.count("ODOM") == 0);
   CHECK(got.count("POSE_X") == 0);
+}
+
+// The mirror takes small messages judged one by one: a message over udp_limit turns the topic
+// large, but the small ones after it still reach stock LCM programs (raw and typed publishers).
+TEST_CASE("mirror: small messages after a large one are still mirrored", "[core][mirror]") {
+  auto opts = test_options();
+  opts.mirror = true;
+  opts.udp_limit = 2000;
+  auto rt = lcmx::Runtime::create(opts);
+  auto stock = lcmx::udpm::Group::open(lcmx::udpm::parse_url(opts.discovery_url));
+  auto node = rt.create_node("mirror_sizes", manual());
+  auto raw = node.advertise_raw("MIRROR_SIZES_RAW");
+  auto typed = node.advertise<lcmx_examples::bench_t>("MIRROR_SIZES_TYPED");
+  auto bench = [](std::int64_t seq, int size) {
+    lcmx_examples::bench_t b{};
+    b.seq = seq;
+    b.size = size;
+    b.data.assign(static_cast<std::size_t>(size), 7);
+    return b;
+  };
+  const std::vector<std::byte> small(100, std::byte{1}), big(5000, std::byte{2});
+  raw.publish(small);
+  raw.publish(big);
+  raw.publish(small);
+  typed.publish(bench(1, 100));
+  typed.publish(bench(2, 5000));
+  typed.publish(bench(3, 100));
+  typed.publish(bench(4, 100));
+  std::map<std::string, std::vector<std::size_t>> got;  // channel -> sizes, in arrival order
+  CHECK(eventually([&] {
+    stock.poll(5ms, [&](const lcmx::udpm::Message& m) {
+      if (m.channel != lcmx::discovery::kBeaconChannel) got[std::string(m.channel)].push_back(m.data.size());
+    });
+    return got["MIRROR_SIZES_RAW"].size() == 2 && got["MIRROR_SIZES_TYPED"].size() == 3;
+  }));
+  CHECK(got["MIRROR_SIZES_RAW"] == std::vector<std::size_t>{100, 100});
+  const std::size_t small_typed = bench(0, 100).getEncodedSize();
+  CHECK(got["MIRROR_SIZES_TYPED"] == std::vector<std::size_t>{small_typed, small_typed, small_typed});
 }
 
 TEST_CASE("LCMX_MIRROR: 0 or 1 or channel patterns - a bad one names the variable", "[core][mirror][errors]") {
