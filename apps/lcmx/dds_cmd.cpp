@@ -164,7 +164,8 @@ Verb add_idl(CLI::App& app, const Globals&) {
   auto st = std::make_shared<State>();
   auto* cmd = app.add_subcommand("idl", "write OMG IDL for .lcm types (for idlc and DDS programs; docs/dds.md)");
   cmd->add_option("paths", st->paths, ".lcm files or directories (searched recursively)")->required();
-  cmd->add_option("--type", st->type_names, "only this type, package-qualified (repeatable; default: every type)");
+  cmd->add_option("--type", st->type_names, "only this type, package-qualified (repeatable; default: every type)")
+      ->allow_extra_args(false);
   cmd->add_flag("--ros2", st->ros2, "ROS 2 naming: modules pkg::msg::dds_, types T_ (as rmw_cyclonedds)");
   cmd->add_option("-o,--output", st->out, "write to this file (default: standard output)");
   return {cmd, [st] {

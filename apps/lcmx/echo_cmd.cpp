@@ -231,7 +231,8 @@ Verb add_echo(CLI::App& app, const Globals& g) {
       ->required();
   c->add_flag("--regex", g_echo.regex, "CHANNEL arguments are regular expressions (ECMAScript, whole name)");
   c->add_option("-t,--types", g_echo.types,
-                ".lcm file or directory (searched recursively; repeatable, or a ':' list); default LCMX_TYPES_PATH");
+                ".lcm file or directory (searched recursively; repeatable, or a ':' list); default LCMX_TYPES_PATH")
+      ->allow_extra_args(false);
   c->add_flag("--json", g_echo.json,
               "one JSON object per message and line: {\"channel\", \"recv_us\" (receive time, µs since the "
               "epoch), \"size\", \"fingerprint\", \"type\", \"data\" (the message, complete) or \"error\"}");

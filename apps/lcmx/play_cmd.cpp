@@ -193,7 +193,8 @@ Verb add_play(CLI::App& app, const Globals& g) {
   c->add_flag("--loop", g_play.loop, "start over at the end, until stopped");
   c->add_option("-c,--channel", g_play.channel, "play channels whose whole name matches this regular expression")
       ->capture_default_str();
-  c->add_option("-x,--exclude", g_play.exclude, "leave out channels matching this expression (repeatable)");
+  c->add_option("-x,--exclude", g_play.exclude, "leave out channels matching this expression (repeatable)")
+      ->allow_extra_args(false);
   c->add_option("--start", g_play.start_s, "begin this many seconds after the log's first event")
       ->check(CLI::NonNegativeNumber);
   c->add_option("--end", g_play.end_s, "stop this many seconds after the log's first event")
@@ -204,7 +205,8 @@ Verb add_play(CLI::App& app, const Globals& g) {
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
   c->add_flag("--paused", g_play.paused, "start paused (space bar, or \"resume\" on stdin, to start)");
-  c->add_option("--remap", g_play.remap, "publish channel FROM as TO: FROM=TO (repeatable)");
+  c->add_option("--remap", g_play.remap, "publish channel FROM as TO: FROM=TO (repeatable)")
+      ->allow_extra_args(false);
   c->add_flag("--udp", g_play.udp,
               "also send on the UDP groups for stock LCM programs (host-local group; the "
               "vehicle group too when configured); small messages only (<= LCMX_UDP_LIMIT)");

@@ -246,7 +246,8 @@ Verb add_pub(CLI::App& app, const Globals& g) {
                 "the message as JSON, e.g. '{\"position\": [1, 2, 3]}'; fields not given are zero, variable arrays "
                 "set their size fields; '-' or none: one message per line of stdin");
   c->add_option("-t,--types", g_pub.types,
-                ".lcm file or directory (searched recursively; repeatable, or a ':' list); default LCMX_TYPES_PATH");
+                ".lcm file or directory (searched recursively; repeatable, or a ':' list); default LCMX_TYPES_PATH")
+      ->allow_extra_args(false);
   c->add_option("-r,--rate", g_pub.rate,
                 "messages per second, on absolute deadlines (default: 1 for a JSON argument; stdin lines as they come)")
       ->check(CLI::Range(0.001, 1e6));

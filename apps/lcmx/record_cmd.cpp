@@ -320,7 +320,8 @@ Verb add_record(CLI::App& app, const Globals& g) {
   c->add_option("-c,--channel", g_rec.channel,
                 "record channels whose whole name matches this regular expression")
       ->capture_default_str();
-  c->add_option("-x,--exclude", g_rec.exclude, "leave out channels matching this expression (repeatable)");
+  c->add_option("-x,--exclude", g_rec.exclude, "leave out channels matching this expression (repeatable)")
+      ->allow_extra_args(false);
   c->add_flag("-i,--increment", g_rec.increment, "add a suffix .NN to FILE so that no file is overwritten");
   c->add_flag("-f,--force", g_rec.force, "overwrite an existing FILE");
   c->add_flag("-a,--append", g_rec.append, "append to FILE (event numbers continue)");

@@ -441,6 +441,16 @@ TEST_CASE("record/play/log: --help for each verb, clear errors for bad options",
   const auto remap = s.run({LCMX_TOOL, "play", d.file("exists.lcmlog"), "--remap", "NOEQUALS"});
   CHECK(remap.rc == 2);
   CHECK(remap.out.find("expected FROM=TO") != std::string::npos);
+  // A repeatable option takes one value: FILE after it is still FILE, not a second value.
+  const auto remap_first = s.run({LCMX_TOOL, "play", "--remap", "A=B", d.file("exists.lcmlog")});
+  INFO(remap_first.out);
+  CHECK(remap_first.rc == 1);
+  CHECK(remap_first.out.find("no readable event") != std::string::npos);
+  const auto exclude_first =
+      s.run({LCMX_TOOL, "record", "-x", "POSE", d.file("exists.lcmlog"), "--max-duration", "1"});
+  INFO(exclude_first.out);
+  CHECK(exclude_first.rc == 1);
+  CHECK(exclude_first.out.find("exists: give --force") != std::string::npos);
 }
 
 TEST_CASE("on a terminal (tmux): play shows a progress bar, starts paused, space resumes, record shows a status line",
