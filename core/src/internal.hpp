@@ -317,6 +317,15 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   // Receive thread (recv_mu held): follows the host-local group's route, re-reads host_addresses.
   void refresh_routes();
   std::chrono::steady_clock::time_point routes_checked{};
+  // Receive thread (recv_mu held), with refresh_routes: warns when a group dropped messages
+  // that no sequence gap reports yet - incomplete (fragments lost) or over the reassembly
+  // limit - e.g. a stock sender's large messages that never complete.
+  struct GroupDrops {
+    std::uint64_t incomplete = 0, oversize = 0;  // last logged counters
+    std::chrono::steady_clock::time_point logged{};
+  };
+  GroupDrops local_drops, vehicle_drops;
+  void check_group_drops(const udpm::Group& group, GroupDrops& last, const char* which);
   std::set<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>> mismatches_reported;
   struct RateState { std::uint64_t count = 0; std::chrono::steady_clock::time_point when{}; };
   std::map<std::uint64_t, RateState> rates;

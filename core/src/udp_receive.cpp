@@ -50,6 +50,11 @@ void RuntimeImpl::receive_loop() {
     if (std::chrono::steady_clock::now() - routes_checked >= std::chrono::seconds(1)) {
       std::lock_guard lock(recv_mu);
       refresh_routes();
+      // A drain also expires partial messages past their reassembly timeout: with no datagram
+      // arriving after them (a sender whose large messages never complete), nothing else would.
+      drain_locked(true);
+      check_group_drops(*local_group, local_drops, "host-local");
+      if (vehicle_group) check_group_drops(*vehicle_group, vehicle_drops, "vehicle");
     }
     if (n <= 0) continue;
     bool owner_event = false;
@@ -401,6 +406,21 @@ void RuntimeImpl::settle_loss(std::int8_t scope, const std::string& source, cons
 RuntimeImpl::SourceLoss& RuntimeImpl::loss_of(std::int8_t scope, const std::string& source) {
   if (source_loss.size() >= kMaxSources && !source_loss.count({scope, source})) source_loss.clear();
   return source_loss[{scope, source}];
+}
+
+void RuntimeImpl::check_group_drops(const udpm::Group& group, GroupDrops& last, const char* which) {
+  // Not kernel_dropped: the socket's drop count includes this participant's own datagrams,
+  // which its socket filter drops by design (udpm/group.cpp drop_own_datagrams).
+  const auto& c = group.counters();
+  if (c.incomplete_dropped == last.incomplete && c.oversize_dropped == last.oversize) return;
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last.logged < std::chrono::seconds(5)) return;  // a later check reports the sum
+  spdlog::warn("lcmx: {} UDP group: {} incomplete message(s) dropped (fragments lost, e.g. a receive buffer too "
+               "small: net.core.rmem_max) and {} over the reassembly limit ({} bytes) since the last report ({} / {} "
+               "in all). A subscription counts such a loss only when its sender's next message arrives",
+               which, c.incomplete_dropped - last.incomplete, c.oversize_dropped - last.oversize,
+               group.config().max_reassembly_bytes, c.incomplete_dropped, c.oversize_dropped);
+  last = {c.incomplete_dropped, c.oversize_dropped, now};
 }
 
 void RuntimeImpl::log_foreign_loss(std::int8_t scope, const std::string& source, std::uint32_t lost) {

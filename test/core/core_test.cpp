@@ -1,6 +1,11 @@
 // Unit tests of the core API inside one process: intra-process path, executor, errors.
 // Each test uses its own discovery group (derived from the pid) so tests run in parallel.
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <spdlog/sinks/ringbuffer_sink.h>
+#include <spdlog/spdlog.h>
 #include <sys/resource.h>
+#include <sys/socket.h>
 #include <sys/syscall.h>
 #include <unistd.h>
 
@@ -647,6 +652,57 @@ TEST_CASE("mirror: small messages after a large one are still mirrored", "[core]
   CHECK(got["MIRROR_SIZES_RAW"] == std::vector<std::size_t>{100, 100});
   const std::size_t small_typed = bench(0, 100).getEncodedSize();
   CHECK(got["MIRROR_SIZES_TYPED"] == std::vector<std::size_t>{small_typed, small_typed, small_typed});
+}
+
+// A stock sender's large message whose fragments never all arrive (a receive buffer too small)
+// leaves no sequence gap until that sender's next message: the runtime says so in the log.
+TEST_CASE("an incomplete fragmented message from a stock sender is reported in the log", "[core][udp][errors]") {
+  auto opts = test_options();
+  auto rt = lcmx::Runtime::create(opts);
+  auto node = rt.create_node("drops", manual());
+  auto sub = node.subscribe_raw("DROPS_INCOMPLETE", [](const lcmx::RawMessage&) {});
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(64);
+  spdlog::default_logger()->sinks().push_back(sink);
+  struct Unhook {
+    std::shared_ptr<spdlog::sinks::sink> s;
+    ~Unhook() { std::erase(spdlog::default_logger()->sinks(), s); }
+  } unhook{sink};
+
+  // Fragment 0 of 2 (LC03, big-endian, udpm/wire.hpp) of a 100000-byte message; never fragment 1.
+  const auto cfg = lcmx::udpm::parse_url(opts.discovery_url);
+  std::vector<std::uint8_t> d;
+  auto u32 = [&](std::uint32_t v) { for (int i = 3; i >= 0; --i) d.push_back(static_cast<std::uint8_t>(v >> (8 * i))); };
+  auto u16 = [&](std::uint16_t v) { d.push_back(static_cast<std::uint8_t>(v >> 8)); d.push_back(static_cast<std::uint8_t>(v)); };
+  u32(lcmx::udpm::kMagicLong);
+  u32(7);       // sequence
+  u32(100000);  // total payload
+  u32(0);       // offset
+  u16(0);       // fragment number
+  u16(2);       // fragments
+  for (char c : std::string("DROPS_INCOMPLETE")) d.push_back(static_cast<std::uint8_t>(c));
+  d.push_back(0);
+  d.resize(d.size() + 1000, 0x5a);
+  const int fd = ::socket(AF_INET, SOCK_DGRAM, 0);
+  REQUIRE(fd >= 0);
+  in_addr lo{};
+  lo.s_addr = htonl(INADDR_LOOPBACK);
+  const unsigned char ttl = 0;
+  ::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_IF, &lo, sizeof lo);
+  ::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_TTL, &ttl, sizeof ttl);
+  sockaddr_in to{};
+  to.sin_family = AF_INET;
+  to.sin_port = htons(cfg.port);
+  REQUIRE(::inet_pton(AF_INET, cfg.address.c_str(), &to.sin_addr) == 1);
+  CHECK(::sendto(fd, d.data(), d.size(), 0, reinterpret_cast<const sockaddr*>(&to), sizeof to) ==
+        static_cast<ssize_t>(d.size()));
+  ::close(fd);
+
+  // The partial message expires after reassembly_timeout (1 s); the receive thread looks once a second.
+  CHECK(eventually([&] {
+    for (const auto& line : sink->last_formatted())
+      if (line.find("host-local UDP group: 1 incomplete message(s) dropped") != std::string::npos) return true;
+    return false;
+  }, 10s));
 }
 
 TEST_CASE("LCMX_MIRROR: 0 or 1 or channel patterns - a bad one names the variable", "[core][mirror][errors]") {

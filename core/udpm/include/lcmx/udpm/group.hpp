@@ -50,7 +50,9 @@ struct Counters {
   std::uint64_t bytes_sent = 0;          // UDP payload bytes sent
   std::uint64_t duplicate_fragments = 0;  // LC03 fragments received twice (ignored)
   std::uint64_t oversize_dropped = 0;    // messages larger than max_reassembly_bytes
-  std::uint64_t kernel_dropped = 0;      // datagrams the kernel dropped (SO_RXQ_OVFL), cumulative
+  // Datagrams the kernel dropped (SO_RXQ_OVFL), cumulative: a full receive buffer, and also
+  // this Group's own datagrams, which its socket filter drops by design.
+  std::uint64_t kernel_dropped = 0;
   std::uint64_t duplicates_dropped = 0;  // messages whose (source, sequence) was delivered already
 };
 
