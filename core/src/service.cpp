@@ -564,6 +564,12 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   std::atomic<bool> matches_changed{true};
   std::map<std::pair<std::uint64_t, std::uint64_t>, Known> servers;  // (participant, id)
   std::map<std::uint64_t, Pending> pending;
+  // Calls sent and not yet answered, expired or failed. At most kMaxInFlight: the rest wait in
+  // `pending` (unsent, in call order) and go as earlier ones end. A burst of calls from many
+  // threads would otherwise overrun the request ring (PublisherOptions::shm_slots, 8) before
+  // the server's executor reads it, losing requests that then time out; probes need room too.
+  std::size_t in_flight = 0;
+  static constexpr std::size_t kMaxInFlight = 6;
   std::uint64_t next_request = 1;
   int waiters = 0;  // threads in wait_for_service()
   Clock::time_point next_probe{};
@@ -626,6 +632,7 @@ void ClientCore::close() {
       finished.push_back({std::move(p.done), CallErrc::shutdown,
                           "service '" + name + "': the client was closed", p.target});
     pending.clear();
+    in_flight = 0;
   }
   finish(finished);
   remove_subscriber(reply_sub);
@@ -669,8 +676,8 @@ void ClientCore::loop() {
         probe_interval = std::chrono::milliseconds(2);
         next_probe = now;
       }
-      bool waiting = waiters > 0;
-      for (const auto& [id, p] : pending) waiting = waiting || !p.sent;
+      bool waiting = waiters > 0;  // for a server (not for a free place in flight)
+      for (const auto& [id, p] : pending) waiting = waiting || (!p.sent && target_locked(p) == nullptr);
       const bool unanswered = subscribers > servers.size();
       if ((waiting || unanswered) && subscribers > 0) {
         if (now >= next_probe) probe_locked(now);
@@ -686,6 +693,7 @@ void ClientCore::loop() {
           finished.push_back({std::move(p.done), CallErrc::shutdown,
                               "service '" + name + "': the runtime shut down", p.target});
         pending.clear();
+        in_flight = 0;
       }
     }
     finish(finished);
@@ -763,9 +771,11 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished,
                                       "and no other server is known",
                                       name),
                           p.target});
+      --in_flight;  // it was sent
       it = pending.erase(it);
     }
   }
+  dispatch_waiting_locked();
 }
 
 const ClientCore::Known* ClientCore::best_locked() const {
@@ -786,15 +796,19 @@ const ClientCore::Known* ClientCore::target_locked(const Pending& p) const {
 
 void ClientCore::send_locked(Pending& p, const Known& server) {
   p.target = server.info;
+  if (!p.sent) ++in_flight;  // a fail-over re-sends a call already in flight
   p.sent = true;
   patch_target(p.message, server.info.participant, server.info.id);
   request_pub->publish_bytes(p.message);
 }
 
+// Sends waiting calls, oldest first, while fewer than kMaxInFlight are in flight.
 void ClientCore::dispatch_waiting_locked() {
-  for (auto& [id, p] : pending)
+  for (auto& [id, p] : pending) {
+    if (in_flight >= kMaxInFlight) return;
     if (!p.sent)
       if (const Known* target = target_locked(p)) send_locked(p, *target);
+  }
 }
 
 std::string ClientCore::mismatch_text_locked() const {
@@ -815,6 +829,14 @@ void ClientCore::expire_locked(Clock::time_point now, std::vector<Finished>& fin
       finished.push_back({std::move(p.done), CallErrc::timeout,
                           fmt::format("service '{}': no reply within {} ms", name, p.timeout.count()),
                           p.target});
+      --in_flight;
+    } else if (target_locked(p) != nullptr) {  // never sent: it waited behind calls in flight
+      ++counters.timeouts;
+      finished.push_back({std::move(p.done), CallErrc::timeout,
+                          fmt::format("service '{}': no reply within {} ms (the call waited behind {} "
+                                      "calls of this client in flight and was never sent)",
+                                      name, p.timeout.count(), in_flight),
+                          {}});
     } else if (auto text = mismatch_text_locked(); !text.empty()) {
       finished.push_back({std::move(p.done), CallErrc::type_mismatch, text, {}});
     } else {
@@ -825,6 +847,7 @@ void ClientCore::expire_locked(Clock::time_point now, std::vector<Finished>& fin
     }
     it = pending.erase(it);
   }
+  dispatch_waiting_locked();
 }
 
 void ClientCore::on_reply(const RawMessage& m) {
@@ -889,8 +912,10 @@ void ClientCore::on_reply(const RawMessage& m) {
   auto done = std::move(it->second.done);
   ServerInfo server = from;
   if (auto s = servers.find({from.participant, from.id}); s != servers.end()) server = s->second.info;
+  if (it->second.sent) --in_flight;
   pending.erase(it);
   ++counters.replies;
+  dispatch_waiting_locked();
   lock.unlock();
   CallErrc error = CallErrc::handler_failed;
   switch (h.status) {
@@ -931,7 +956,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
   auto& slot = pending[static_cast<std::uint64_t>(h.request_id)] = std::move(p);
   bool wake = true;  // no server yet: probe now
   if (const Known* target = target_locked(slot)) {
-    send_locked(slot, *target);
+    if (in_flight < kMaxInFlight) send_locked(slot, *target);  // else it goes when one ends
     wake = slot.deadline < wake_at;  // the client thread must time it out earlier than planned
   }
   lock.unlock();
