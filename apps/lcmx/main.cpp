@@ -150,7 +150,10 @@ int main(int argc, char** argv) {
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    // --help and friends exit 0; every bad argument exits 2, as each verb's --help says
+    // (CLI11's own codes, 105-109, mean nothing to a script).
+    const int rc = app.exit(e);
+    return rc == 0 ? 0 : 2;
   }
   for (auto& v : verbs)
     if (v.command->parsed()) return v.run();

@@ -441,6 +441,9 @@ TEST_CASE("record/play/log: --help for each verb, clear errors for bad options",
   const auto remap = s.run({LCMX_TOOL, "play", d.file("exists.lcmlog"), "--remap", "NOEQUALS"});
   CHECK(remap.rc == 2);
   CHECK(remap.out.find("expected FROM=TO") != std::string::npos);
+  // A missing or unknown argument exits 2, as --help says (not CLI11's own 105-109).
+  CHECK(s.run({LCMX_TOOL, "play"}).rc == 2);
+  CHECK(s.run({LCMX_TOOL, "record", "--no-such-option"}).rc == 2);
   // A repeatable option takes one value: FILE after it is still FILE, not a second value.
   const auto remap_first = s.run({LCMX_TOOL, "play", "--remap", "A=B", d.file("exists.lcmlog")});
   INFO(remap_first.out);
