@@ -125,7 +125,8 @@ struct Item {
 };
 
 struct ChannelCount {
-  std::uint64_t messages = 0, bytes = 0, recorder_drops = 0;
+  std::uint64_t messages = 0, bytes = 0, recorder_drops = 0;  // messages, bytes: in the file
+  std::uint64_t unwritten = 0;  // received, then lost to a failed write (disk full...)
 };
 
 class Recorder {
@@ -221,7 +222,9 @@ class Recorder {
   void rotate() {
     const std::string current = writer_->path();
     writer_->close();
+    confirm();  // all of it
     writer_.reset();
+    confirmed_out_ = 0;
     if (namer_.increment())
       writer_.emplace(eventlog::Writer::open(namer_.next(), eventlog::OpenMode::create));
     else
@@ -248,10 +251,13 @@ class Recorder {
         used.clear();
       }
       try {
-        if (!writer_) {
+        if (!writer_) {  // a write failed earlier: the rest is lost
+          for (auto& it : batch) unconfirmed_.push_back({it.channel, it.data.size()});
+          count_unwritten();
           batch.clear();
           continue;
         }
+        for (auto& it : batch) unconfirmed_.push_back({it.channel, it.data.size()});
         for (auto& it : batch) {
           writer_->write(it.ts, *it.channel, it.data);
           used.push_back(std::move(it.data));
@@ -259,6 +265,7 @@ class Recorder {
         }
         batch.clear();
         writer_->flush();
+        confirm();
         if (g_rotate.exchange(false) ||
             (o_.split_s > 0 && std::chrono::steady_clock::now() - file_start_ >=
                                    std::chrono::duration<double>(o_.split_s)))
@@ -267,6 +274,8 @@ class Recorder {
         written_bytes_ = written_total_ + writer_->bytes();
         if (last) written_total_ = written_bytes_;
       } catch (const std::exception& e) {
+        if (writer_) confirm();  // what reached the file before the failure
+        count_unwritten();
         std::lock_guard lock(mu_);
         if (error_.empty()) error_ = e.what();
         g_stop.store(true);
@@ -277,14 +286,39 @@ class Recorder {
     try {
       if (writer_) writer_->close();
     } catch (const std::exception& e) {
+      confirm();
+      count_unwritten();
       std::lock_guard lock(mu_);
       if (error_.empty()) error_ = e.what();
     }
   }
 
+  // Writer thread. Events the writer has handed to the kernel leave `unconfirmed_` (in order).
+  void confirm() {
+    while (writer_->events_out() > confirmed_out_ && !unconfirmed_.empty()) {
+      unconfirmed_.pop_front();
+      ++confirmed_out_;
+    }
+  }
+  // Writer thread, after a failed write: what is still unconfirmed never reached the file.
+  void count_unwritten() {
+    std::lock_guard lock(mu_);
+    for (const auto& [channel, size] : unconfirmed_) {
+      auto& c = counts_[*channel];
+      --c.messages;
+      c.bytes -= size;
+      ++c.unwritten;
+    }
+    unconfirmed_.clear();
+  }
+
   const RecordOptions& o_;
   Namer namer_;
   std::optional<eventlog::Writer> writer_;  // writer thread only (after open_first)
+  // Writer thread only: events given to writer_ and not yet known to be in the file (channel,
+  // size), oldest first; confirmed_out_: writer_->events_out() already taken off it.
+  std::deque<std::pair<const std::string*, std::size_t>> unconfirmed_;
+  std::int64_t confirmed_out_ = 0;
   std::chrono::steady_clock::time_point file_start_;
   std::thread thread_;
 
@@ -441,7 +475,7 @@ int run_record() {
   auto drops_of = [&](const std::map<std::string, SubscriberStats>& st, const std::string& ch,
                       const ChannelCount& c) {
     auto it = st.find(ch);
-    return c.recorder_drops + (it == st.end() ? 0 : it->second.drops);
+    return c.recorder_drops + c.unwritten + (it == st.end() ? 0 : it->second.drops);
   };
   while (!g_stop.load()) {
     std::this_thread::sleep_for(std::chrono::milliseconds(tty ? 250 : 50));
@@ -507,7 +541,8 @@ int run_record() {
       const std::uint64_t td = it == st.end() ? 0 : it->second.drops;
       j << (first ? "" : ",") << "{\"channel\":" << json_str(ch) << ",\"messages\":" << c.messages
         << ",\"bytes\":" << c.bytes << ",\"transport_drops\":" << td
-        << ",\"recorder_drops\":" << c.recorder_drops << ",\"lost\":" << td + c.recorder_drops << "}";
+        << ",\"recorder_drops\":" << c.recorder_drops << ",\"unwritten\":" << c.unwritten
+        << ",\"lost\":" << td + c.recorder_drops + c.unwritten << "}";
       first = false;
     }
     j << "]";

@@ -282,7 +282,8 @@ Writer::Writer(int fd, std::string path, std::uint64_t size, std::int64_t next_n
 
 Writer::Writer(Writer&& o) noexcept
     : fd_(std::exchange(o.fd_, -1)), path_(std::move(o.path_)), buf_(std::move(o.buf_)),
-      bytes_(o.bytes_), next_number_(o.next_number_), first_number_(o.first_number_) {}
+      bytes_(o.bytes_), next_number_(o.next_number_), first_number_(o.first_number_),
+      buf_ends_(std::move(o.buf_ends_)), events_out_(o.events_out_) {}
 
 Writer& Writer::operator=(Writer&& o) noexcept {
   if (this != &o) {
@@ -296,6 +297,8 @@ Writer& Writer::operator=(Writer&& o) noexcept {
     bytes_ = o.bytes_;
     next_number_ = o.next_number_;
     first_number_ = o.first_number_;
+    buf_ends_ = std::move(o.buf_ends_);
+    events_out_ = o.events_out_;
   }
   return *this;
 }
@@ -307,7 +310,7 @@ Writer::~Writer() {
   }
 }
 
-void Writer::write_all(const void* p, std::size_t n) {
+void Writer::write_all(const void* p, std::size_t n, std::size_t* done) {
   const auto* b = static_cast<const std::byte*>(p);
   while (n > 0) {
     const ssize_t r = ::write(fd_, b, n);
@@ -317,6 +320,7 @@ void Writer::write_all(const void* p, std::size_t n) {
     }
     b += r;
     n -= static_cast<std::size_t>(r);
+    if (done != nullptr) *done += static_cast<std::size_t>(r);
   }
 }
 
@@ -351,11 +355,13 @@ void Writer::write(std::int64_t timestamp_us, std::string_view channel,
         iov[first].iov_len -= done;
       }
     }
+    ++events_out_;
   } else {
     const auto* c = reinterpret_cast<const std::byte*>(channel.data());
     buf_.insert(buf_.end(), h, h + kHeaderSize);
     buf_.insert(buf_.end(), c, c + channel.size());
     buf_.insert(buf_.end(), data.begin(), data.end());
+    buf_ends_.push_back(buf_.size());
     if (buf_.size() >= kWriteBuffer) flush();
   }
   bytes_ += kHeaderSize + channel.size() + data.size();
@@ -369,7 +375,16 @@ void Writer::flush() {
   std::vector<std::byte> b;
   b.swap(buf_);
   buf_.reserve(kWriteBuffer + 4096);
-  write_all(b.data(), b.size());
+  std::vector<std::size_t> ends;
+  ends.swap(buf_ends_);
+  std::size_t done = 0;
+  try {
+    write_all(b.data(), b.size(), &done);
+  } catch (...) {  // the events wholly written before the failure are in the file
+    events_out_ += std::upper_bound(ends.begin(), ends.end(), done) - ends.begin();
+    throw;
+  }
+  events_out_ += static_cast<std::int64_t>(ends.size());
 }
 
 void Writer::close() {

@@ -240,3 +240,27 @@ TEST_CASE("Reader: data_prefix reads headers and a prefix only, errors are typed
   CHECK_THROWS_AS(el::Reader::open(d.file("missing.log")), el::Error);
   CHECK_THROWS_AS(el::Reader::open(d.path), el::Error);  // a directory
 }
+
+TEST_CASE("Writer: events_out counts only events that reached the file, on a full disk too") {
+  // /dev/full: every write fails with ENOSPC, like a full disk.
+  auto w = lcmx::eventlog::Writer::open("/dev/full", lcmx::eventlog::OpenMode::overwrite);
+  const std::vector<std::byte> small(100, std::byte{1}), big(1 << 20, std::byte{2});
+  w.write(1, "SMALL", small);  // buffered: accepted, not out yet
+  w.write(2, "SMALL", small);
+  CHECK(w.events() == 2);
+  CHECK(w.events_out() == 0);
+  CHECK_THROWS_AS(w.flush(), lcmx::eventlog::Error);
+  CHECK(w.events_out() == 0);
+  CHECK_THROWS_AS(w.write(3, "BIG", big), lcmx::eventlog::Error);  // written directly, fails
+  CHECK(w.events_out() == 0);
+
+  TmpDir d;
+  auto w2 = lcmx::eventlog::Writer::open(d.file("ok.lcmlog"), lcmx::eventlog::OpenMode::overwrite);
+  w2.write(1, "SMALL", small);
+  CHECK(w2.events_out() == 0);
+  w2.write(2, "BIG", big);  // flushes the small one, then writes itself
+  CHECK(w2.events_out() == 2);
+  w2.write(3, "SMALL", small);
+  w2.flush();
+  CHECK(w2.events_out() == 3);
+}

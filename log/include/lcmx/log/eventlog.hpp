@@ -144,10 +144,14 @@ class Writer {
   const std::string& path() const { return path_; }
   std::uint64_t bytes() const { return bytes_; }    // file size including buffered events
   std::int64_t events() const { return next_number_ - first_number_; }  // written by this Writer
+  // Of events(): those wholly handed to the kernel (not in the buffer, not cut off by a failed
+  // write). After a write error, the events written after the first events_out() are lost.
+  std::int64_t events_out() const { return events_out_; }
 
  private:
   Writer(int fd, std::string path, std::uint64_t size, std::int64_t next_number);
-  void write_all(const void* p, std::size_t n);
+  // Writes all n bytes or throws Error; *done (if given) grows by what was written.
+  void write_all(const void* p, std::size_t n, std::size_t* done = nullptr);
 
   int fd_ = -1;
   std::string path_;
@@ -155,6 +159,8 @@ class Writer {
   std::uint64_t bytes_ = 0;
   std::int64_t next_number_ = 0;
   std::int64_t first_number_ = 0;
+  std::vector<std::size_t> buf_ends_;  // where each event in buf_ ends
+  std::int64_t events_out_ = 0;
 };
 
 }  // namespace lcmx::eventlog
