@@ -344,10 +344,10 @@ Verb add_action(CLI::App& app, const Globals& g) {
       ->allow_extra_args(false);
   s->add_option("--hex", g_send.hex, "the goal as hex bytes (raw actions, or to send exact bytes)");
   s->add_option("--find-timeout", g_send.find_s, "seconds to find the server and get the goal accepted")
-      ->check(CLI::PositiveNumber)
+      ->check(positive_number())
       ->capture_default_str();
   s->add_option("--timeout", g_send.timeout_s, "cancel the goal if it has not ended after this many seconds (0: never)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(non_negative_number())
       ->capture_default_str();
   s->add_flag("--json", g_send.json_out, "JSON lines: {goal, state}, {feedback: ...}, {result: ...}, {goal, state, message}");
   s->add_flag("-q,--quiet", g_send.quiet, "do not print feedback");

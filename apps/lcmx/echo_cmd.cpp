@@ -237,7 +237,7 @@ Verb add_echo(CLI::App& app, const Globals& g) {
               "one JSON object per message and line: {\"channel\", \"recv_us\" (receive time, µs since the "
               "epoch), \"size\", \"fingerprint\", \"type\", \"data\" (the message, complete) or \"error\"}");
   c->add_option("-n,--count", g_echo.count, "exit after this many messages (0: until SIGINT/SIGTERM)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--field", g_echo.field, "print only this part of each message, e.g. pose.position[2] or points[0]");
   c->add_flag("--raw", g_echo.raw, "print the bytes in hex instead of decoding (no type path needed)");
   c->add_option("--max-array", g_echo.max_array, "text: elements shown per array before '... (N more)'; 0: all")

@@ -248,7 +248,7 @@ Verb add_graph(CLI::App& app, const Globals& g) {
   c->add_flag("--watch", g_graph.watch,
               "keep observing and rewrite FILE whenever the topology changes (until SIGINT/SIGTERM)");
   c->add_option("--duration", g_graph.duration_s, "with --watch: stop after this many seconds (0: until SIGINT)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--types", g_graph.types,
                 "'.lcm' files or directories for package-qualified type names (by fingerprint); "
                 "default LCMX_TYPES_PATH")

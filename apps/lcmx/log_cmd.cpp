@@ -102,6 +102,8 @@ int run_info() {
   std::cout << "duration:   " << fmt("%.3f", duration) << " s\n"
             << "channels:   " << ch.size() << "\n";
   if (backwards) std::cout << "note:       " << backwards << " events have an earlier timestamp than the one before\n";
+  if (events == 0 && size > 0 && damaged_bytes == size)
+    std::cout << "note:       no LCM event anywhere in it: not an LCM log (or wholly damaged)\n";
   if (!ch.empty()) {
     char line[256];
     std::snprintf(line, sizeof line, "  %-40s %10s %10s %10s %12s %10s\n", "channel", "count", "rate Hz",

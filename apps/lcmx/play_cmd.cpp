@@ -187,7 +187,7 @@ Verb add_play(CLI::App& app, const Globals& g) {
       "also for stock LCM programs)");
   c->add_option("file", g_play.file, "LCM log file (lcm-logger or lcmx record)")->required();
   c->add_option("--speed", g_play.speed, "playback speed factor (2: twice as fast)")
-      ->check(CLI::PositiveNumber)
+      ->check(positive_number())
       ->capture_default_str();
   c->add_flag("--fast", g_play.fast, "publish as fast as possible (ignore timestamps)");
   c->add_flag("--loop", g_play.loop, "start over at the end, until stopped");
@@ -196,13 +196,13 @@ Verb add_play(CLI::App& app, const Globals& g) {
   c->add_option("-x,--exclude", g_play.exclude, "leave out channels matching this expression (repeatable)")
       ->allow_extra_args(false);
   c->add_option("--start", g_play.start_s, "begin this many seconds after the log's first event")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--end", g_play.end_s, "stop this many seconds after the log's first event")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--delay", g_play.delay_s,
                 "seconds between advertising the channels and the first message (lets running "
                 "subscribers connect)")
-      ->check(CLI::NonNegativeNumber)
+      ->check(non_negative_number())
       ->capture_default_str();
   c->add_flag("--paused", g_play.paused, "start paused (space bar, or \"resume\" on stdin, to start)");
   c->add_option("--remap", g_play.remap, "publish channel FROM as TO: FROM=TO (repeatable)")
@@ -213,9 +213,9 @@ Verb add_play(CLI::App& app, const Globals& g) {
   c->add_option("--wait-subscribers", g_play.wait_subscribers,
                 "before playing, wait until this many subscribers are matched (over all "
                 "channels), at most --wait-timeout seconds")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--wait-timeout", g_play.wait_timeout_s, "seconds --wait-subscribers waits at most")
-      ->check(CLI::PositiveNumber)
+      ->check(positive_number())
       ->capture_default_str();
   c->add_option("--spin-us", g_play.spin_us,
                 "spin (instead of sleeping) this many microseconds before each message is due")

@@ -252,7 +252,7 @@ Verb add_pub(CLI::App& app, const Globals& g) {
                 "messages per second, on absolute deadlines (default: 1 for a JSON argument; stdin lines as they come)")
       ->check(CLI::Range(0.001, 1e6));
   c->add_option("-n,--count", g_pub.count, "publish this many messages, then exit (0: until stopped or EOF)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_flag("-1,--once", g_pub.once, "publish one message, then exit");
   c->add_option("--wait-subscribers", g_pub.wait_subscribers,
                 "before the first message, wait until this many lcmx subscribers are matched")
@@ -260,7 +260,7 @@ Verb add_pub(CLI::App& app, const Globals& g) {
       ->capture_default_str();
   c->add_option("--wait-timeout", g_pub.wait_timeout_s,
                 "seconds to wait for them; then publish anyway (with a warning)")
-      ->check(CLI::PositiveNumber)
+      ->check(positive_number())
       ->capture_default_str();
   c->add_flag("--no-wait", g_pub.no_wait, "publish at once, without waiting for subscribers");
   c->add_flag("--udp", g_pub.udp,

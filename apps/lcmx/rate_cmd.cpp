@@ -206,7 +206,7 @@ Verb add_rate(CLI::App& app, const Globals& g, Kind kind, RateOptions& o) {
       ->check(CLI::Range(0.01, 3600.0))
       ->capture_default_str();
   c->add_option("-n,--reports", o.reports, "exit after this many reports with data (0: until SIGINT/SIGTERM)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_flag("--json", o.json,
               hz ? "one JSON object per channel and report: channel, rate_hz, period_min_s, period_max_s, "
                    "period_std_dev_s, window, new (messages since the last report), total"

@@ -366,18 +366,18 @@ Verb add_record(CLI::App& app, const Globals& g) {
       ->check(CLI::Range(1, 10000));
   c->add_option("--split-mb", g_rec.split_mb,
                 "start the next file (FILE.NN+1, or FILE.0 with --rotate) when this one reaches this many MB")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--split-duration", g_rec.split_s, "start the next file after this many seconds")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--max-duration", g_rec.max_duration_s, "stop after this many seconds (0: until SIGINT)")
-      ->check(CLI::NonNegativeNumber);
+      ->check(non_negative_number());
   c->add_option("--flush-interval", g_rec.flush_ms, "write to the file at least every MS milliseconds")
       ->check(CLI::Range(1, 60000))
       ->capture_default_str();
   c->add_option("-m,--max-unwritten-mb", g_rec.max_unwritten_mb,
                 "received but unwritten messages kept in memory; beyond it new messages are "
                 "dropped (counted per channel)")
-      ->check(CLI::PositiveNumber)
+      ->check(positive_number())
       ->capture_default_str();
   c->add_option("--queue-depth", g_rec.queue_depth,
                 "per channel queue for UDP / in-process messages before the oldest is dropped")

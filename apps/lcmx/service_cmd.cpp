@@ -234,7 +234,7 @@ Verb add_call(CLI::App& app, const Globals& g) {
       ->allow_extra_args(false);
   c->add_option("--hex", g_call.hex, "the request as hex bytes (raw services, or to send exact bytes)");
   c->add_option("--timeout", g_call.timeout_s, "seconds to find a server and get the answer")
-      ->check(CLI::PositiveNumber)
+      ->check(positive_number())
       ->capture_default_str();
   c->add_flag("--json", g_call.json_out, "print the response as one line of JSON");
   c->footer(

@@ -36,6 +36,27 @@ inline RuntimeOptions runtime_options(const Globals& g, bool reach_stock = false
   return ro;
 }
 
+// CLI11's PositiveNumber / NonNegativeNumber are ranges up to DBL_MAX, whose error spells
+// out a 309-digit number: these say "must be greater than 0 (got X)".
+inline CLI::Validator positive_number() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string {
+        double v = 0;
+        if (!CLI::detail::lexical_cast(s, v)) return "not a number: " + s;
+        return v > 0 ? std::string() : "must be greater than 0 (got " + s + ")";
+      },
+      "POSITIVE");
+}
+inline CLI::Validator non_negative_number() {
+  return CLI::Validator(
+      [](std::string& s) -> std::string {
+        double v = 0;
+        if (!CLI::detail::lexical_cast(s, v)) return "not a number: " + s;
+        return v >= 0 ? std::string() : "must be 0 or more (got " + s + ")";
+      },
+      "NONNEGATIVE");
+}
+
 struct Verb {
   CLI::App* command = nullptr;  // owned by the app
   std::function<int()> run;     // called when `command` was parsed; returns the exit code

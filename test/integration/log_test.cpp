@@ -326,6 +326,8 @@ TEST_CASE("truncated, corrupt and garbage logs: log info finds the damage, play 
     CHECK(info.rc == 0);
     CHECK(json_num(info.out, "events") == 0);
     CHECK(json_num(info.out, "damaged_bytes") == 50'000);
+    const auto text = s.run({LCMX_TOOL, "log", "info", log});
+    CHECK(text.out.find("not an LCM log") != std::string::npos);
   }
   SECTION("not a log file at all") {
     const auto play = s.run({LCMX_TOOL, "play", d.file("missing.lcmlog")});
@@ -441,6 +443,10 @@ TEST_CASE("record/play/log: --help for each verb, clear errors for bad options",
   const auto remap = s.run({LCMX_TOOL, "play", d.file("exists.lcmlog"), "--remap", "NOEQUALS"});
   CHECK(remap.rc == 2);
   CHECK(remap.out.find("expected FROM=TO") != std::string::npos);
+  // A bad number is named plainly (not "not in range 0 to 1797693134862315708...").
+  const auto speed = s.run({LCMX_TOOL, "play", d.file("exists.lcmlog"), "--speed", "0"});
+  CHECK(speed.rc == 2);
+  CHECK(speed.out.find("--speed: must be greater than 0 (got 0)") != std::string::npos);
   // A missing or unknown argument exits 2, as --help says (not CLI11's own 105-109).
   CHECK(s.run({LCMX_TOOL, "play"}).rc == 2);
   CHECK(s.run({LCMX_TOOL, "record", "--no-such-option"}).rc == 2);
