@@ -316,6 +316,7 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::set<std::uint32_t> host_addresses;            // this host's IPv4 addresses (network order)
   // Receive thread (recv_mu held): follows the host-local group's route, re-reads host_addresses.
   void refresh_routes();
+  void warn_lcm_default_url() const;  // start_transports
   std::chrono::steady_clock::time_point routes_checked{};
   // Receive thread (recv_mu held), with refresh_routes: warns when a group dropped messages
   // that no sequence gap reports yet - incomplete (fragments lost) or over the reassembly

@@ -9,6 +9,7 @@
 #include <sys/eventfd.h>
 #include <unistd.h>
 
+#include <cstdlib>
 #include <sstream>
 
 #include "internal.hpp"
@@ -53,6 +54,26 @@ RuntimeImpl::~RuntimeImpl() {
   if (rx_wake_fd >= 0) ::close(rx_wake_fd);
 }
 
+// Stock LCM programs follow LCM_DEFAULT_URL; lcmx's host-local group is discovery_url
+// (LCMX_DISCOVERY_URL, or LCM's default). When the two name different groups, those programs
+// are not heard and do not hear the mirror: say so rather than stay silent.
+void RuntimeImpl::warn_lcm_default_url() const {
+  const char* env = std::getenv("LCM_DEFAULT_URL");
+  if (env == nullptr || *env == '\0') return;
+  const std::string url = env;
+  const auto& ours = local_group->config();
+  try {
+    const auto theirs = udpm::parse_url(url);
+    if (theirs.address == ours.address && theirs.port == ours.port) return;
+  } catch (const udpm::Error&) {
+    // not a udpm:// URL lcmx reads (memq://, file://...): different from ours all the same
+  }
+  spdlog::warn("lcmx: LCM_DEFAULT_URL is '{}' but this participant's host-local group is {}:{} "
+               "(discovery_url: LCMX_DISCOVERY_URL or LCM's default): stock LCM programs using "
+               "LCM_DEFAULT_URL are not heard here; set LCMX_DISCOVERY_URL to the same group to join them",
+               url, ours.address, ours.port);
+}
+
 void RuntimeImpl::start_transports() {
   auto open_group = [](const std::string& what, const std::string& url) {
     try {
@@ -71,6 +92,7 @@ void RuntimeImpl::start_transports() {
     }
   };
   local_group = open_group("discovery_url", options.discovery_url);
+  warn_lcm_default_url();
   host_addresses = local_addresses();
   routes_checked = std::chrono::steady_clock::now();
   if (!options.vehicle_url.empty()) {

@@ -705,6 +705,33 @@ TEST_CASE("an incomplete fragmented message from a stock sender is reported in t
   }, 10s));
 }
 
+// LCM_DEFAULT_URL naming another group than lcmx's host-local one: stock programs using it are
+// not heard, and the log says so (nothing when both agree).
+TEST_CASE("LCM_DEFAULT_URL on another group than discovery_url is warned about", "[core][errors]") {
+  auto opts = test_options();
+  auto sink = std::make_shared<spdlog::sinks::ringbuffer_sink_mt>(64);
+  spdlog::default_logger()->sinks().push_back(sink);
+  struct Restore {
+    std::shared_ptr<spdlog::sinks::sink> s;
+    ~Restore() {
+      std::erase(spdlog::default_logger()->sinks(), s);
+      ::unsetenv("LCM_DEFAULT_URL");
+    }
+  } restore{sink};
+  auto warned = [&] {
+    for (const auto& line : sink->last_formatted())
+      if (line.find("LCM_DEFAULT_URL is") != std::string::npos) return true;
+    return false;
+  };
+  const auto cfg = lcmx::udpm::parse_url(opts.discovery_url);
+  ::setenv("LCM_DEFAULT_URL", ("udpm://" + cfg.address + ":" + std::to_string(cfg.port) + "?ttl=0").c_str(), 1);
+  { auto rt = lcmx::Runtime::create(opts); }
+  CHECK_FALSE(warned());
+  ::setenv("LCM_DEFAULT_URL", "udpm://239.255.76.68:7668?ttl=0", 1);
+  { auto rt = lcmx::Runtime::create(opts); }
+  CHECK(warned());
+}
+
 TEST_CASE("LCMX_MIRROR: 0 or 1 or channel patterns - a bad one names the variable", "[core][mirror][errors]") {
   struct Restore {
     ~Restore() { ::unsetenv("LCMX_MIRROR"); }
