@@ -32,6 +32,7 @@
 #include <sstream>
 #include <thread>
 
+#include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx/log/eventlog.hpp"
 #include "log_cmds.hpp"
@@ -310,6 +311,13 @@ int run_play() {
     std::map<std::string, RawPublisher> by_out;
     for (const auto& [ch, ci] : info) {
       if (!(*filter)(ch)) continue;
+      if (ch == discovery::kBeaconChannel) {
+        // Recorded beacons (lcm-logger records them too) would announce the processes of
+        // the recording as alive here: `lcmx nodes` and `topics` would list ghosts.
+        std::cerr << "lcmx play: " << ci.count << " events of " << ch
+                  << " (lcmx's discovery beacons) not played: they would announce the recorded processes as alive\n";
+        continue;
+      }
       auto it = remap.find(ch);
       const std::string out = it == remap.end() ? ch : it->second;
       if (out.size() > kMaxChannelLength) {

@@ -329,6 +329,22 @@ TEST_CASE("truncated, corrupt and garbage logs: log info finds the damage, play 
     const auto text = s.run({LCMX_TOOL, "log", "info", log});
     CHECK(text.out.find("not an LCM log") != std::string::npos);
   }
+  SECTION("recorded discovery beacons are not played (they would announce dead processes)") {
+    const auto log = d.file("beacons.lcmlog");
+    {
+      auto w = el::Writer::open(log, el::OpenMode::create);
+      for (int i = 0; i < 6; ++i) {
+        w.write(1'700'000'000'000'000 + i * 1000, "LCMX_BEACON", bench_bytes(i, 100, "B"));
+        w.write(1'700'000'000'000'500 + i * 1000, ch, bench_bytes(i, 100, "D"));
+      }
+      w.close();
+    }
+    const auto play = s.run({LCMX_TOOL, "play", log, "--fast", "--delay", "0", "--json"});
+    INFO(play.out);
+    CHECK(play.rc == 0);
+    CHECK(json_num(json_line(play.out), "published") == 6);
+    CHECK(play.out.find("6 events of LCMX_BEACON (lcmx's discovery beacons) not played") != std::string::npos);
+  }
   SECTION("not a log file at all") {
     const auto play = s.run({LCMX_TOOL, "play", d.file("missing.lcmlog")});
     CHECK(play.rc == 1);
