@@ -126,7 +126,8 @@ void print_topics(std::ostream& out, const std::vector<discovery::Participant>& 
   const auto& by_topic = index.by_topic;
   const auto& pub_index = index.publishers;
   if (by_topic.empty()) {
-    out << "no topics found\n";
+    out << "no topics found (topics come from lcmx participants' beacons; channels of stock LCM programs "
+           "show in `lcmx monitor` and `lcmx hz`)\n";
     return;
   }
   for (const auto& [topic, refs] : by_topic) {
