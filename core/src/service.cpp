@@ -395,6 +395,10 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     return reply(*pub, rh);
   }
 
+  // The reply publisher failed (no shared memory left...), not the handler.
+  struct ReplyFailed : std::runtime_error {
+    using std::runtime_error::runtime_error;
+  };
   // The handler writes the response straight after the header, in a slot loaned from the
   // reply publisher's shared memory: a client on this host reads it where it lies (no copy);
   // in-process and UDP clients get it from there as from any publish.
@@ -413,7 +417,12 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
       if (size > static_cast<std::size_t>(INT32_MAX))
         throw Error(Errc::message_too_large, "a service response is limited to 2 GiB");
       total = header + size;
-      loan.emplace(pub.loan(total));
+      try {
+        loan.emplace(pub.loan(total));
+      } catch (const Error& e) {  // not the handler's fault: say so (the status stays HANDLER_FAILED)
+        throw ReplyFailed(std::string("the server could not reserve shared memory for its response "
+                                      "(its handler did not fail): ") + e.what());
+      }
       write_reply_header(loan->data(), rh, size);
       return {loan->data() + header, size};
     }
@@ -421,7 +430,12 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
       if (!loan) allocate(0);
       auto l = std::move(*loan);
       loan.reset();
-      pub.publish_loan(std::move(l), total);
+      try {
+        pub.publish_loan(std::move(l), total);
+      } catch (const Error& e) {
+        throw ReplyFailed(std::string("the server could not publish its response (its handler did not fail): ") +
+                          e.what());
+      }
     }
   };
   try {

@@ -1,6 +1,11 @@
 // Services inside one process (the intra-process path): calls, errors, several servers,
 // fail-over, timeouts, and the envelopes' layout against lcm-gen's code.
 // Other paths: test/integration/service_test.cpp (shm), test/multihost (UDP, bridge).
+#include <sched.h>
+#include <sys/mount.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include <atomic>
 #include <catch2/catch.hpp>
 #include <condition_variable>
@@ -79,6 +84,50 @@ TEST_CASE("service: a typed call in one process, sync, future and callback", "[s
   CHECK(cs.pending == 0);
   CHECK(server.stats().requests == 3);
   CHECK(server.stats().clients == 1);
+}
+
+// A full /dev/shm (a container's small tmpfs): the reply cannot be loaned. The call fails
+// handler_failed, and the message says the server, not its handler, failed. In a child with
+// a private 1 MiB tmpfs on /dev/shm (skipped where mount namespaces are not allowed).
+TEST_CASE("service: a response the server cannot fit in /dev/shm says the server failed, not the handler",
+          "[service][tmpfs]") {
+  const pid_t pid = ::fork();
+  REQUIRE(pid >= 0);
+  if (pid == 0) {
+    if (::unshare(CLONE_NEWNS) != 0 || ::mount(nullptr, "/", nullptr, MS_REC | MS_PRIVATE, nullptr) != 0 ||
+        ::mount("tmpfs", "/dev/shm", "tmpfs", MS_NOSUID | MS_NODEV, "size=1m") != 0)
+      ::_exit(96);
+    int rc = 10;
+    try {
+      auto rt = lcmx::Runtime::create(test_options());
+      auto sn = rt.create_node("server");
+      auto cn = rt.create_node("client");
+      auto server = sn.create_service<Pose, Bench>("svc_fullshm", [](const Pose& p) { return answer(p, 2 << 20); });
+      auto client = cn.create_client<Pose, Bench>("svc_fullshm");
+      if (!client.wait_for_service(5s)) ::_exit(11);
+      auto r = client.call(pose(1), 5s);
+      if (r.ok()) ::_exit(12);
+      if (r.error() != lcmx::CallErrc::handler_failed) ::_exit(13);
+      if (r.message().find("the server could not reserve shared memory for its response (its handler did not "
+                           "fail)") == std::string::npos)
+        ::_exit(14);
+      auto small = sn.create_service<Pose, Bench>("svc_fullshm_small", [](const Pose& p) { return answer(p); });
+      auto small_client = cn.create_client<Pose, Bench>("svc_fullshm_small");
+      if (!small_client.wait_for_service(5s) || !small_client.call(pose(2), 5s).ok()) ::_exit(15);
+      rc = 0;
+    } catch (...) {
+      rc = 16;
+    }
+    ::_exit(rc);
+  }
+  int st = 0;
+  REQUIRE(::waitpid(pid, &st, 0) == pid);
+  REQUIRE(WIFEXITED(st));
+  if (WEXITSTATUS(st) == 96) {
+    WARN("cannot mount a private tmpfs on /dev/shm: skipped");
+    return;
+  }
+  CHECK(WEXITSTATUS(st) == 0);
 }
 
 TEST_CASE("service: call() before any server finds it once it appears (no lost first call)",
