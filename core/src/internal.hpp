@@ -228,6 +228,14 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   bool endpoint_announced(std::uint64_t participant, std::uint64_t endpoint);
   std::uint64_t add_event_tap(std::function<void(const Event&)> tap);
   void remove_event_tap(std::uint64_t id);
+  // Housekeeping (service servers forget gone clients): called about once a second on the
+  // receive thread with no lcmx lock held, so it may call into the runtime (destroy a
+  // publisher). Must be quick. May still run once after remove_housekeeping() returns:
+  // capture weak pointers. Guarded by event_mu.
+  std::uint64_t add_housekeeping(std::function<void()> job);
+  void remove_housekeeping(std::uint64_t id);
+  std::map<std::uint64_t, std::shared_ptr<const std::function<void()>>> housekeeping;
+  void run_housekeeping();  // receive thread, no lock held
   std::map<std::uint64_t, std::shared_ptr<const std::function<void(const Event&)>>> event_taps;  // event_mu
   std::uint64_t last_tap = 0;  // event_mu
 

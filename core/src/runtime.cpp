@@ -249,6 +249,33 @@ std::uint64_t RuntimeImpl::add_event_tap(std::function<void(const Event&)> tap) 
   return id;
 }
 
+std::uint64_t RuntimeImpl::add_housekeeping(std::function<void()> job) {
+  std::lock_guard lock(event_mu);
+  const auto id = ++last_tap;
+  housekeeping[id] = std::make_shared<const std::function<void()>>(std::move(job));
+  return id;
+}
+
+void RuntimeImpl::remove_housekeeping(std::uint64_t id) {
+  std::lock_guard lock(event_mu);
+  housekeeping.erase(id);
+}
+
+void RuntimeImpl::run_housekeeping() {
+  std::vector<std::shared_ptr<const std::function<void()>>> jobs;
+  {
+    std::lock_guard lock(event_mu);
+    for (const auto& [id, j] : housekeeping) jobs.push_back(j);
+  }
+  for (const auto& j : jobs) {
+    try {
+      (*j)();
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx: housekeeping failed: {}", e.what());
+    }
+  }
+}
+
 void RuntimeImpl::remove_event_tap(std::uint64_t id) {
   std::lock_guard lock(event_mu);
   event_taps.erase(id);

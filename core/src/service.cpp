@@ -275,12 +275,17 @@ class ServerCore {
     return it != replies.end() && it->second.pub->subscriber_count() > 0;
   }
 
+  // Receive thread, about once a second (RuntimeImpl::add_housekeeping): forgets clients whose
+  // reply channel has had no subscriber for kClientGone, releasing their reply segments.
+  void sweep();
+
   const std::shared_ptr<NodeImpl> node;
   const std::string name;
   const ServiceTypes types;
   const ServerHandler handler;
   const std::uint64_t participant;
   std::shared_ptr<SubscriberCore> request_sub;
+  std::uint64_t housekeeping = 0;  // the runtime's id of the sweep job
 
  private:
   struct ReplyChannel {
@@ -289,7 +294,10 @@ class ServerCore {
   };
   static constexpr std::chrono::seconds kClientGone{10};
   // The publisher of `h.reply_channel`, made on first use. Null for a malformed channel.
-  PublisherCore* reply_channel(const RequestHeader& h);
+  // Shared: sweep() may forget the client meanwhile (the publisher lives while in use).
+  std::shared_ptr<PublisherCore> reply_channel(const RequestHeader& h);
+  // mu held: moves the publishers of clients gone for kClientGone into `gone`.
+  void collect_gone_locked(Clock::time_point now, std::vector<std::shared_ptr<PublisherCore>>& gone);
   // A reply without payload: a probe's answer or an error (responses go through Writer).
   void reply(PublisherCore& pub, const ReplyHeader& rh);
 
@@ -299,21 +307,28 @@ class ServerCore {
   Bytes buffer;  // executor only: the reply being built
 };
 
-PublisherCore* ServerCore::reply_channel(const RequestHeader& h) {
+std::shared_ptr<PublisherCore> ServerCore::reply_channel(const RequestHeader& h) {
   const auto prefix = reply_prefix(name);
   if (h.reply_channel.size() != prefix.size() + 16 || h.reply_channel.compare(0, prefix.size(), prefix) != 0)
     return nullptr;  // not a reply channel of this service: never publish on it
   {
     std::lock_guard lock(mu);
-    if (auto it = replies.find(h.reply_channel); it != replies.end()) return it->second.pub.get();
+    if (auto it = replies.find(h.reply_channel); it != replies.end()) return it->second.pub;
   }
-  // A new client. Forget clients that went away: their reply channel has had no subscriber
-  // for kClientGone (a client's reply subscriber lives as long as the client; across the
-  // bridges, the bridge's subscription lives as long as the client's demand).
   auto pub = create_publisher(*node, h.reply_channel, reply_type_info(), PublisherOptions{});
   std::vector<std::shared_ptr<PublisherCore>> gone;  // destroyed with no lock held
-  const auto now = Clock::now();
   std::lock_guard lock(mu);
+  collect_gone_locked(Clock::now(), gone);
+  auto& r = replies[h.reply_channel];
+  r.pub = std::move(pub);
+  r.last_subscribed = Clock::now();
+  return r.pub;
+}
+
+// Clients that went away: their reply channel has had no subscriber for kClientGone (a
+// client's reply subscriber lives as long as the client; across the bridges, the bridge's
+// subscription lives as long as the client's demand).
+void ServerCore::collect_gone_locked(Clock::time_point now, std::vector<std::shared_ptr<PublisherCore>>& gone) {
   for (auto it = replies.begin(); it != replies.end();) {
     auto& rc = it->second;
     if (rc.pub->subscriber_count() > 0) rc.last_subscribed = now;
@@ -324,10 +339,12 @@ PublisherCore* ServerCore::reply_channel(const RequestHeader& h) {
       ++it;
     }
   }
-  auto& r = replies[h.reply_channel];
-  r.pub = std::move(pub);
-  r.last_subscribed = now;
-  return r.pub.get();
+}
+
+void ServerCore::sweep() {
+  std::vector<std::shared_ptr<PublisherCore>> gone;  // destroyed with no lock held
+  std::lock_guard lock(mu);
+  collect_gone_locked(Clock::now(), gone);
 }
 
 void ServerCore::reply(PublisherCore& pub, const ReplyHeader& rh) {
@@ -351,7 +368,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
                static_cast<std::uint64_t>(h.server_id) != id))
     return;  // for another server of the service
   if (h.request_id == 0 && !any) return;  // probes are addressed to every server
-  auto* pub = reply_channel(h);
+  const auto pub = reply_channel(h);
   if (pub == nullptr) {
     spdlog::warn("lcmx: service '{}': a request with reply channel '{}' was ignored", name,
                  h.reply_channel);
@@ -362,7 +379,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
   rh.request_id = h.request_id;
   rh.server_participant = static_cast<std::int64_t>(participant);
   rh.server_id = static_cast<std::int64_t>(id);
-  rh.reply_endpoint = static_cast<std::int64_t>(static_cast<PublisherImpl*>(pub)->id);
+  rh.reply_endpoint = static_cast<std::int64_t>(static_cast<PublisherImpl*>(pub.get())->id);
   rh.request_fingerprint = types.request_fingerprint;
   rh.response_fingerprint = types.response_fingerprint;
   rh.request_type = types.request_name;
@@ -475,10 +492,16 @@ std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, Serv
       request_channel(name), SubscriberOptions{.queue_depth = 64},
       [raw](const RawMessage& m) { raw->on_request(m.data); }, request_type_info());
   add_subscriber(node, server->request_sub);
+  // Without it a gone client's reply segment stayed until the next new client came.
+  std::weak_ptr<ServerCore> weak = server;
+  server->housekeeping = node.runtime->add_housekeeping([weak] {
+    if (auto s = weak.lock()) s->sweep();
+  });
   return server;
 }
 
 void close_server(const std::shared_ptr<ServerCore>& server) {
+  server->node->runtime->remove_housekeeping(server->housekeeping);
   remove_subscriber(server->request_sub);
 }
 

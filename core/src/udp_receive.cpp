@@ -48,13 +48,16 @@ void RuntimeImpl::receive_loop() {
     epoll_event evs[4];
     const int n = ::epoll_wait(rx_epoll, evs, 4, 1000);
     if (std::chrono::steady_clock::now() - routes_checked >= std::chrono::seconds(1)) {
-      std::lock_guard lock(recv_mu);
-      refresh_routes();
-      // A drain also expires partial messages past their reassembly timeout: with no datagram
-      // arriving after them (a sender whose large messages never complete), nothing else would.
-      drain_locked(true);
-      check_group_drops(*local_group, local_drops, "host-local");
-      if (vehicle_group) check_group_drops(*vehicle_group, vehicle_drops, "vehicle");
+      {
+        std::lock_guard lock(recv_mu);
+        refresh_routes();
+        // A drain also expires partial messages past their reassembly timeout: with no datagram
+        // arriving after them (a sender whose large messages never complete), nothing else would.
+        drain_locked(true);
+        check_group_drops(*local_group, local_drops, "host-local");
+        if (vehicle_group) check_group_drops(*vehicle_group, vehicle_drops, "vehicle");
+      }
+      if (!stopped.load()) run_housekeeping();
     }
     if (n <= 0) continue;
     bool owner_event = false;

@@ -117,6 +117,36 @@ TEST_CASE("service across processes: a burst of 40 calls at once from one client
   CHECK(server.wait() == 0);
 }
 
+// A client process that called once and exited: within kClientGone (10 s) and the next
+// housekeeping pass the server forgets it and releases its reply publisher (8 slots of its
+// largest response), even though no other client ever comes.
+TEST_CASE("service across processes: a server forgets a client that exited, with no new client coming",
+          "[integration][service]") {
+  Session s(144);
+  const auto name = unique_channel("SVC", 144);
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("server");
+  auto server = node.create_service<Pose, Bench>(name, [&](const Pose& p) {
+    Bench b;
+    b.seq = static_cast<std::int64_t>(p.position[0]);
+    b.size = static_cast<std::int32_t>(p.position[1]);
+    b.data.resize(static_cast<std::size_t>(b.size));
+    for (std::size_t i = 0; i < b.data.size(); ++i)
+      b.data[i] = static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(b.seq) * 7u) & 0xffu);
+    return b;
+  });
+  auto& client = s.spawn({LCMX_SERVICE_PEER, "client", "--name", name, "--calls", "1", "--size",
+                          std::to_string(1 << 20), "--timeout-ms", "30000"});
+  auto line = client.expect("CALLS", 30000ms);
+  REQUIRE(line);
+  CHECK(parse_kv(*line).at("ok") == "1");
+  CHECK(client.wait() == 0);
+  CHECK(server.stats().clients == 1);
+  const auto segments = shm_segments_of(::getpid()).size();  // the reply publisher's among them
+  CHECK(wait_until([&] { return server.stats().clients == 0; }, 20000ms));
+  CHECK(wait_until([&] { return shm_segments_of(::getpid()).size() < segments; }, 5000ms));
+}
+
 TEST_CASE("service across processes: a server here, clients in other processes",
           "[integration][service]") {
   Session s(131);
