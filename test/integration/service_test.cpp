@@ -47,6 +47,17 @@ bool content_ok(const Bench& b) {
   return true;
 }
 
+// What lcmx_service_peer's server answers (content_ok checks it): seq = x, position[1] bytes.
+Bench answer(const Pose& p) {
+  Bench b;
+  b.seq = static_cast<std::int64_t>(p.position[0]);
+  b.size = static_cast<std::int32_t>(p.position[1]);
+  b.data.resize(static_cast<std::size_t>(b.size));
+  for (std::size_t i = 0; i < b.data.size(); ++i)
+    b.data[i] = static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(b.seq) * 7u) & 0xffu);
+  return b;
+}
+
 }  // namespace
 
 TEST_CASE("service across processes: a client here, a server there, over shared memory",
@@ -126,15 +137,7 @@ TEST_CASE("service across processes: a server forgets a client that exited, with
   const auto name = unique_channel("SVC", 144);
   auto rt = lcmx::Runtime::create();
   auto node = rt.create_node("server");
-  auto server = node.create_service<Pose, Bench>(name, [&](const Pose& p) {
-    Bench b;
-    b.seq = static_cast<std::int64_t>(p.position[0]);
-    b.size = static_cast<std::int32_t>(p.position[1]);
-    b.data.resize(static_cast<std::size_t>(b.size));
-    for (std::size_t i = 0; i < b.data.size(); ++i)
-      b.data[i] = static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(b.seq) * 7u) & 0xffu);
-    return b;
-  });
+  auto server = node.create_service<Pose, Bench>(name, [](const Pose& p) { return answer(p); });
   auto& client = s.spawn({LCMX_SERVICE_PEER, "client", "--name", name, "--calls", "1", "--size",
                           std::to_string(1 << 20), "--timeout-ms", "30000"});
   auto line = client.expect("CALLS", 30000ms);
@@ -156,13 +159,7 @@ TEST_CASE("service across processes: a server here, clients in other processes",
   std::atomic<int> served{0};
   auto server = node.create_service<Pose, Bench>(name, [&](const Pose& p) {
     ++served;
-    Bench b;
-    b.seq = static_cast<std::int64_t>(p.position[0]);
-    b.size = static_cast<std::int32_t>(p.position[1]);
-    b.data.resize(static_cast<std::size_t>(b.size));
-    for (std::size_t i = 0; i < b.data.size(); ++i)
-      b.data[i] = static_cast<std::uint8_t>((i * 131u + static_cast<std::uint64_t>(b.seq) * 7u) & 0xffu);
-    return b;
+    return answer(p);
   });
   std::vector<Child*> clients;
   for (int i = 0; i < 3; ++i)
