@@ -248,12 +248,12 @@ class CsvSink : public Sink {
     for (const auto& c : cells_) line_ += "," + csv_cell(c);
     line_ += "\n";
     f.out.write(line_.data(), static_cast<std::streamsize>(line_.size()));
-    if (!f.out) throw std::runtime_error("cannot write " + f.path);
+    if (!f.out) throw std::runtime_error("cannot write " + f.path + ": " + std::strerror(errno));
   }
   void close() override {
     for (auto& [k, f] : files_) {
       f->out.close();
-      if (!f->out) throw std::runtime_error("cannot write " + f->path);
+      if (!f->out) throw std::runtime_error("cannot write " + f->path + ": " + std::strerror(errno));
     }
   }
 
@@ -423,6 +423,13 @@ int run_export() {
   } catch (const std::exception& e) {
     if (progress) std::cerr << "\n";
     std::cerr << me << e.what() << "\n";
+    // A failed export (a full disk) leaves no half-written files that look complete.
+    std::set<std::string> partial;
+    for (const auto& [ch, r] : report) partial.insert(r.outputs.begin(), r.outputs.end());
+    for (const auto& path : partial) {
+      std::error_code ec;
+      if (fs::is_regular_file(path, ec) && fs::remove(path, ec)) std::cerr << me << "removed the partial output " << path << "\n";
+    }
     return 1;
   }
   if (progress) std::cerr << "\r\033[Kexporting " << o.file << ": 100.0 %  " << events << " events\n";

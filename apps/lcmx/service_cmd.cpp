@@ -227,12 +227,13 @@ Verb add_call(CLI::App& app, const Globals& g) {
   g_call.g = &g;
   auto* c = app.add_subcommand("call", "call a service once: the request as JSON, the response printed decoded");
   c->add_option("name", g_call.name, "service name")->required();
-  c->add_option("json", g_call.json,
+  auto* json = c->add_option("json", g_call.json,
                 "the request as JSON, e.g. '{\"position\": [1, 2, 3]}'; fields not given are zero (default {})");
   c->add_option("-t,--types", g_call.types,
                 ".lcm file or directory (searched recursively; repeatable, or a ':' list); default LCMX_TYPES_PATH")
       ->allow_extra_args(false);
-  c->add_option("--hex", g_call.hex, "the request as hex bytes (raw services, or to send exact bytes)");
+  c->add_option("--hex", g_call.hex, "the request as hex bytes (raw services, or to send exact bytes); not with JSON")
+      ->excludes(json);
   c->add_option("--timeout", g_call.timeout_s, "seconds to find a server and get the answer")
       ->check(positive_number())
       ->capture_default_str();

@@ -3,10 +3,13 @@
 // summary, JSON Schema validation of every message) and compared field by field with the
 // lcm-gen objects — and to CSV, checked by content. Unknown fingerprints, truncated logs, bad
 // options.
+#include <sched.h>
+#include <sys/mount.h>
 #include <sys/stat.h>
 
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <limits>
@@ -558,6 +561,45 @@ TEST_CASE("log export of a truncated log exports up to the damage and says where
 
 // The ordinary case: a log `lcmx record` made of a live lcm-gen publisher (pose_t over shared
 // memory), exported with the type path from LCMX_TYPES_PATH.
+// A full disk mid-export: the error names its reason and the half-written outputs are removed
+// (a truncated CSV or MCAP would look complete). A private 16 KiB tmpfs in this test's own
+// mount namespace (each test case runs as its own process); skipped where that is refused.
+TEST_CASE("log export on a full disk says why and leaves no partial output", "[integration][export][tmpfs]") {
+  Session s(127);
+  TmpDir d;
+  const auto log = d.file("many.lcmlog");
+  {
+    auto w = el::Writer::open(log, el::OpenMode::create);
+    lcmx_examples::pose_t p{};
+    for (int i = 0; i < 3000; ++i) {
+      p.position[0] = i;
+      w.write(kT0 + i * 1000, "FULL_POSE", encode(p));
+    }
+    w.close();
+  }
+  const auto small = d.file("small");
+  REQUIRE(::mkdir(small.c_str(), 0755) == 0);
+  if (::unshare(CLONE_NEWNS) != 0 || ::mount(nullptr, "/", nullptr, MS_REC | MS_PRIVATE, nullptr) != 0 ||
+      ::mount("tmpfs", small.c_str(), "tmpfs", MS_NOSUID | MS_NODEV, "size=16k") != 0) {
+    WARN("cannot mount a private tmpfs: skipped");
+    return;
+  }
+  struct Unmount {
+    std::string path;
+    ~Unmount() { ::umount2(path.c_str(), MNT_DETACH); }
+  } unmount{small};
+  for (const std::string format : {"csv", "mcap"}) {
+    const auto out = small + (format == "csv" ? "/csv" : "/out.mcap");
+    const auto r = s.run({LCMX_TOOL, "log", "export", "--types", kTypes, "--format", format, log, "-o", out});
+    INFO(format << ": " << r.out);
+    CHECK(r.rc == 1);
+    CHECK(r.out.find("No space left on device") != std::string::npos);
+    CHECK(r.out.find("removed the partial output") != std::string::npos);
+    if (format == "csv") CHECK_FALSE(std::filesystem::exists(out + "/FULL_POSE.csv"));
+    else CHECK_FALSE(std::filesystem::exists(out));
+  }
+}
+
 TEST_CASE("log export of a log lcmx record made from a live lcm-gen publisher", "[integration][export]") {
   Session s(125, 40000ms);
   TmpDir d;

@@ -301,6 +301,9 @@ TEST_CASE("lcmx services and lcmx call against a server process", "[integration]
   auto no_types = s.run({LCMX_TOOL, "call", name, "{}"}, {"LCMX_TYPES_PATH"});
   CHECK(no_types.rc == 1);
   CHECK(no_types.out.find("not in the type path") != std::string::npos);
+  auto both = s.run({LCMX_TOOL, "call", name, "{}", "--hex", "00"});  // JSON and hex: which one?
+  CHECK(both.rc == 2);
+  CHECK(both.out.find("excludes") != std::string::npos);
   auto none = s.run({LCMX_TOOL, "call", name + "_nobody", "{}", "--timeout", "0.3"});
   CHECK(none.rc == 1);
   CHECK(none.out.find("no server of") != std::string::npos);
