@@ -276,7 +276,9 @@ class ServerCore {
   }
 
   // Receive thread, about once a second (RuntimeImpl::add_housekeeping): forgets clients whose
-  // reply channel has had no subscriber for kClientGone, releasing their reply segments.
+  // reply channel has had no subscriber for kClientGone, releasing their reply segments (a
+  // client's reply subscriber lives as long as the client; across the bridges, the bridge's
+  // subscription lives as long as the client's demand).
   void sweep();
 
   const std::shared_ptr<NodeImpl> node;
@@ -296,8 +298,6 @@ class ServerCore {
   // The publisher of `h.reply_channel`, made on first use. Null for a malformed channel.
   // Shared: sweep() may forget the client meanwhile (the publisher lives while in use).
   std::shared_ptr<PublisherCore> reply_channel(const RequestHeader& h);
-  // mu held: moves the publishers of clients gone for kClientGone into `gone`.
-  void collect_gone_locked(Clock::time_point now, std::vector<std::shared_ptr<PublisherCore>>& gone);
   // A reply without payload: a probe's answer or an error (responses go through Writer).
   void reply(PublisherCore& pub, const ReplyHeader& rh);
 
@@ -316,19 +316,17 @@ std::shared_ptr<PublisherCore> ServerCore::reply_channel(const RequestHeader& h)
     if (auto it = replies.find(h.reply_channel); it != replies.end()) return it->second.pub;
   }
   auto pub = create_publisher(*node, h.reply_channel, reply_type_info(), PublisherOptions{});
-  std::vector<std::shared_ptr<PublisherCore>> gone;  // destroyed with no lock held
   std::lock_guard lock(mu);
-  collect_gone_locked(Clock::now(), gone);
   auto& r = replies[h.reply_channel];
   r.pub = std::move(pub);
   r.last_subscribed = Clock::now();
   return r.pub;
 }
 
-// Clients that went away: their reply channel has had no subscriber for kClientGone (a
-// client's reply subscriber lives as long as the client; across the bridges, the bridge's
-// subscription lives as long as the client's demand).
-void ServerCore::collect_gone_locked(Clock::time_point now, std::vector<std::shared_ptr<PublisherCore>>& gone) {
+void ServerCore::sweep() {
+  std::vector<std::shared_ptr<PublisherCore>> gone;  // destroyed with no lock held
+  const auto now = Clock::now();
+  std::lock_guard lock(mu);
   for (auto it = replies.begin(); it != replies.end();) {
     auto& rc = it->second;
     if (rc.pub->subscriber_count() > 0) rc.last_subscribed = now;
@@ -339,12 +337,6 @@ void ServerCore::collect_gone_locked(Clock::time_point now, std::vector<std::sha
       ++it;
     }
   }
-}
-
-void ServerCore::sweep() {
-  std::vector<std::shared_ptr<PublisherCore>> gone;  // destroyed with no lock held
-  std::lock_guard lock(mu);
-  collect_gone_locked(Clock::now(), gone);
 }
 
 void ServerCore::reply(PublisherCore& pub, const ReplyHeader& rh) {
@@ -412,10 +404,6 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     return reply(*pub, rh);
   }
 
-  // The reply publisher failed (no shared memory left...), not the handler.
-  struct ReplyFailed : std::runtime_error {
-    using std::runtime_error::runtime_error;
-  };
   // The handler writes the response straight after the header, in a slot loaned from the
   // reply publisher's shared memory: a client on this host reads it where it lies (no copy);
   // in-process and UDP clients get it from there as from any publish.
@@ -437,7 +425,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
       try {
         loan.emplace(pub.loan(total));
       } catch (const Error& e) {  // not the handler's fault: say so (the status stays HANDLER_FAILED)
-        throw ReplyFailed(std::string("the server could not reserve shared memory for its response "
+        throw std::runtime_error(std::string("the server could not reserve shared memory for its response "
                                       "(its handler did not fail): ") + e.what());
       }
       write_reply_header(loan->data(), rh, size);
@@ -450,7 +438,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
       try {
         pub.publish_loan(std::move(l), total);
       } catch (const Error& e) {
-        throw ReplyFailed(std::string("the server could not publish its response (its handler did not fail): ") +
+        throw std::runtime_error(std::string("the server could not publish its response (its handler did not fail): ") +
                           e.what());
       }
     }
@@ -582,6 +570,9 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   // The server a call goes to now: its pinned server if known, else the best; null if none.
   const Known* target_locked(const Pending& p) const;
   void send_locked(Pending& p, const Known& server);
+  // Removes a call from `pending` (or all of them), keeping `in_flight` in step.
+  std::map<std::uint64_t, Pending>::iterator forget_locked(std::map<std::uint64_t, Pending>::iterator it);
+  void forget_all_locked();
   void dispatch_waiting_locked();
   void expire_locked(Clock::time_point now, std::vector<Finished>& finished);
   std::string mismatch_text_locked() const;
@@ -668,8 +659,7 @@ void ClientCore::close() {
     for (auto& [id, p] : pending)
       finished.push_back({std::move(p.done), CallErrc::shutdown,
                           "service '" + name + "': the client was closed", p.target});
-    pending.clear();
-    in_flight = 0;
+    forget_all_locked();
   }
   finish(finished);
   remove_subscriber(reply_sub);
@@ -729,8 +719,7 @@ void ClientCore::loop() {
         for (auto& [id, p] : pending)
           finished.push_back({std::move(p.done), CallErrc::shutdown,
                               "service '" + name + "': the runtime shut down", p.target});
-        pending.clear();
-        in_flight = 0;
+        forget_all_locked();
       }
     }
     finish(finished);
@@ -808,8 +797,7 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished,
                                       "and no other server is known",
                                       name),
                           p.target});
-      --in_flight;  // it was sent
-      it = pending.erase(it);
+      it = forget_locked(it);
     }
   }
   dispatch_waiting_locked();
@@ -829,6 +817,17 @@ const ClientCore::Known* ClientCore::target_locked(const Pending& p) const {
   if (!p.pin) return best_locked();
   auto it = servers.find(*p.pin);
   return it != servers.end() && it->second.types_ok ? &it->second : nullptr;
+}
+
+std::map<std::uint64_t, ClientCore::Pending>::iterator ClientCore::forget_locked(
+    std::map<std::uint64_t, Pending>::iterator it) {
+  if (it->second.sent) --in_flight;
+  return pending.erase(it);
+}
+
+void ClientCore::forget_all_locked() {
+  pending.clear();
+  in_flight = 0;
 }
 
 void ClientCore::send_locked(Pending& p, const Known& server) {
@@ -866,7 +865,6 @@ void ClientCore::expire_locked(Clock::time_point now, std::vector<Finished>& fin
       finished.push_back({std::move(p.done), CallErrc::timeout,
                           fmt::format("service '{}': no reply within {} ms", name, p.timeout.count()),
                           p.target});
-      --in_flight;
     } else if (target_locked(p) != nullptr) {  // never sent: it waited behind calls in flight
       ++counters.timeouts;
       finished.push_back({std::move(p.done), CallErrc::timeout,
@@ -882,7 +880,7 @@ void ClientCore::expire_locked(Clock::time_point now, std::vector<Finished>& fin
                                       p.timeout.count()),
                           {}});
     }
-    it = pending.erase(it);
+    it = forget_locked(it);
   }
   dispatch_waiting_locked();
 }
@@ -949,8 +947,7 @@ void ClientCore::on_reply(const RawMessage& m) {
   auto done = std::move(it->second.done);
   ServerInfo server = from;
   if (auto s = servers.find({from.participant, from.id}); s != servers.end()) server = s->second.info;
-  if (it->second.sent) --in_flight;
-  pending.erase(it);
+  forget_locked(it);
   ++counters.replies;
   dispatch_waiting_locked();
   lock.unlock();
