@@ -250,14 +250,13 @@ class Recorder {
           if (pool_.size() < 64 && b.capacity() > 0) pool_.push_back(std::move(b));
         used.clear();
       }
+      for (const auto& it : batch) unconfirmed_.push_back({it.channel, it.data.size()});
       try {
         if (!writer_) {  // a write failed earlier: the rest is lost
-          for (auto& it : batch) unconfirmed_.push_back({it.channel, it.data.size()});
           count_unwritten();
           batch.clear();
           continue;
         }
-        for (auto& it : batch) unconfirmed_.push_back({it.channel, it.data.size()});
         for (auto& it : batch) {
           writer_->write(it.ts, *it.channel, it.data);
           used.push_back(std::move(it.data));

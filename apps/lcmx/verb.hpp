@@ -38,24 +38,18 @@ inline RuntimeOptions runtime_options(const Globals& g, bool reach_stock = false
 
 // CLI11's PositiveNumber / NonNegativeNumber are ranges up to DBL_MAX, whose error spells
 // out a 309-digit number: these say "must be greater than 0 (got X)".
-inline CLI::Validator positive_number() {
+inline CLI::Validator number_check(bool zero_ok) {
   return CLI::Validator(
-      [](std::string& s) -> std::string {
+      [zero_ok](std::string& s) -> std::string {
         double v = 0;
         if (!CLI::detail::lexical_cast(s, v)) return "not a number: " + s;
-        return v > 0 ? std::string() : "must be greater than 0 (got " + s + ")";
+        if (v > 0 || (zero_ok && v == 0)) return {};
+        return (zero_ok ? "must be 0 or more (got " : "must be greater than 0 (got ") + s + ")";
       },
-      "POSITIVE");
+      zero_ok ? "NONNEGATIVE" : "POSITIVE");
 }
-inline CLI::Validator non_negative_number() {
-  return CLI::Validator(
-      [](std::string& s) -> std::string {
-        double v = 0;
-        if (!CLI::detail::lexical_cast(s, v)) return "not a number: " + s;
-        return v >= 0 ? std::string() : "must be 0 or more (got " + s + ")";
-      },
-      "NONNEGATIVE");
-}
+inline CLI::Validator positive_number() { return number_check(false); }
+inline CLI::Validator non_negative_number() { return number_check(true); }
 
 struct Verb {
   CLI::App* command = nullptr;  // owned by the app
