@@ -440,15 +440,21 @@ TEST_CASE("every host uses cubic TCP congestion control unless told otherwise, w
     CHECK(c.wait(5s) == 0);
     return line.value_or("");
   };
+  std::string machine;
+  std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> machine;
   {
     auto emu = Emulation::create({.hosts = 2});
     CHECK(cc_of(emu, 0) == "cubic");
     CHECK(cc_of(emu, 1) == "cubic");
   }
   {
+    // The machine's own default is left as it was, even where cubic had to be allowed first.
+    std::string after;
+    std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> after;
+    CHECK(after == machine);
+  }
+  {
     // Empty: what a new namespace inherits from the machine.
-    std::string machine;
-    std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> machine;
     auto emu = Emulation::create({.hosts = 1, .tcp_congestion = ""});
     CHECK(cc_of(emu, 0) == machine);
   }

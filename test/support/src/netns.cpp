@@ -243,6 +243,42 @@ void set_tcp_congestion(const std::string& name, const std::string& ns) {
   }
 }
 
+// Some machines restrict the algorithm a network namespace may pick as its default to
+// net.ipv4.tcp_allowed_congestion_control (a machine-wide list, set by root; this project's VMs
+// list "reno bbr", so a namespace may not pick cubic, which Debian itself allows). Adds `name`
+// to that list when the kernel offers it but the list lacks it. This only lets namespaces (and
+// unprivileged sockets) select it: the machine's own default and every existing socket keep
+// theirs. Idempotent, so emulations created in parallel may race on it. Must run in the
+// machine's namespace (the list is global; only the initial namespace may write it). Throws
+// SetupError when the list cannot be written; leaves a name the kernel does not offer to
+// set_tcp_congestion, which names what it offers.
+void allow_tcp_congestion(const std::string& name) {
+  const auto read_line = [](const char* path) {
+    std::string line;
+    std::ifstream in(path);
+    std::getline(in, line);
+    return line;
+  };
+  const auto words = [](const std::string& line) {
+    std::set<std::string> out;
+    std::istringstream in(line);
+    for (std::string w; in >> w;) out.insert(w);
+    return out;
+  };
+  const std::string allowed_path = "/proc/sys/net/ipv4/tcp_allowed_congestion_control";
+  const std::string allowed = read_line(allowed_path.c_str());
+  if (words(allowed).count(name) != 0) return;
+  if (words(read_line("/proc/sys/net/ipv4/tcp_available_congestion_control")).count(name) == 0) return;
+  try {
+    write_file(allowed_path, allowed + " " + name);
+  } catch (const SetupError& e) {
+    throw SetupError("EmulationSpec::tcp_congestion '" + name + "': this machine lets namespaces pick only '" +
+                     allowed + "' and adding it failed (" + e.what() +
+                     "); run as root in the machine's namespace, or pass tcp_congestion = \"\" to keep the "
+                     "machine's default");
+  }
+}
+
 // Runs body on a fresh thread after setns(fd); throws SetupError if setns fails.
 void on_thread_in(int fd, const std::function<void()>& body) {
   int err = 0;
@@ -559,6 +595,8 @@ Emulation Emulation::create(const EmulationSpec& spec) {
 
   s->sw.name = prefix + "sw";
   for (int i = 0; i < spec.hosts; ++i) s->hosts.push_back({prefix + "h" + std::to_string(i)});
+
+  if (!spec.tcp_congestion.empty()) allow_tcp_congestion(spec.tcp_congestion);
 
   // 1. Namespaces (registered first, so a watchdog can remove them even mid-creation).
   std::string batch;

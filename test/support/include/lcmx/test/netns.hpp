@@ -81,8 +81,10 @@ struct EmulationSpec {
   // the machine running the emulation uses: a new namespace inherits the machine's choice, and
   // some VM images (this project's CI runners) pick bbr, whose pacing spreads a 1 MB burst at
   // its bandwidth estimate (2-3x the time of the same burst under cubic on a veth; bench/README
-  // "TCP congestion control"). Empty: inherit the machine's. create() throws SetupError when
-  // the kernel does not offer the one named.
+  // "TCP congestion control"). Empty: inherit the machine's. When the machine lets namespaces
+  // pick only some algorithms (net.ipv4.tcp_allowed_congestion_control; some VMs list only
+  // "reno bbr"), create() adds the one named to that list, which changes no default. create()
+  // throws SetupError when the kernel does not offer the one named or the list cannot be written.
   std::string tcp_congestion = "cubic";
 };
 
