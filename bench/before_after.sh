@@ -8,9 +8,10 @@
 #   sudo bench/before_after.sh BEFORE_BUILD AFTER_BUILD OUTDIR [LATENCY_ROUNDS]
 #
 # OUTDIR gets latency-{before,after}-<round>.md, udp-{before,after}.md, bridge-{before,after}.md
-# and progress.txt (start time and load average of each run).
+# and progress.txt (start time and load average of each run); bench/tools/before_after_tables.py
+# OUTDIR prints the before/after tables.
 set -euo pipefail
-usage() { sed -n '2,11p' "$0" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'; }
 if [ "${1:-}" = "--help" ] || [ "${1:-}" = "-h" ]; then usage; exit 0; fi
 if [ $# -lt 3 ]; then usage >&2; exit 2; fi
 before=$(cd "$1" && pwd)
