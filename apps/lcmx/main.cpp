@@ -3,6 +3,7 @@
 // It listens to discovery as an observer: it asks every participant to beacon at once and
 // never appears as a participant itself.
 #include <CLI/CLI.hpp>
+#include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include <cstdlib>
@@ -92,6 +93,10 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
 }  // namespace
 
 int main(int argc, char** argv) {
+  // stdout is each verb's output (tables, JSON lines, `ready`); the log (the library's and the
+  // verbs') goes to stderr. spdlog's own default logger writes to stdout.
+  spdlog::set_default_logger(
+      std::make_shared<spdlog::logger>("", std::make_shared<spdlog::sinks::stderr_color_sink_mt>()));
   CLI::App app{"lcmx: inspect and operate an lcmx system (see README.md)"};
   app.require_subcommand(1);
   app.fallthrough();  // global options may also come after the verb
