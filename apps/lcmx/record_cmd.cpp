@@ -158,22 +158,26 @@ class Recorder {
     if (queued_bytes_ >= (4u << 20)) cv_.notify_one();
   }
 
-  // Opens the first file. Throws eventlog::Error.
-  void open_first() {
-    std::string name;
-    eventlog::OpenMode mode = eventlog::OpenMode::create;
+  // Picks the first file's name and mode, creating nothing (so a recording that fails to start
+  // leaves no file behind). Throws eventlog::Error if the name is taken and no option says what
+  // to do with it.
+  void choose_first() {
     if (o_.append) {
-      name = o_.file.empty() ? namer_.next() : (o_.strftime_name ? apply_strftime(o_.file) : o_.file);
-      mode = eventlog::OpenMode::append;
+      first_ = o_.file.empty() ? namer_.next() : (o_.strftime_name ? apply_strftime(o_.file) : o_.file);
+      first_mode_ = eventlog::OpenMode::append;
     } else {
-      name = namer_.next();
-      if (o_.force && !namer_.increment()) mode = eventlog::OpenMode::overwrite;
-      else if (exists(name))
-        throw eventlog::Error("'" + name + "' exists: give --force to overwrite, --append to add to it, or --increment");
+      first_ = namer_.next();
+      if (o_.force && !namer_.increment()) first_mode_ = eventlog::OpenMode::overwrite;
+      else if (exists(first_))
+        throw eventlog::Error("'" + first_ + "' exists: give --force to overwrite, --append to add to it, or --increment");
     }
-    writer_.emplace(eventlog::Writer::open(name, mode));
+  }
+
+  // Opens the file choose_first() picked. Throws eventlog::Error.
+  void open_first() {
+    writer_.emplace(eventlog::Writer::open(first_, first_mode_));
     file_start_ = std::chrono::steady_clock::now();
-    files_.push_back(name);
+    files_.push_back(first_);
   }
 
   void start_writer() { thread_ = std::thread([this] { writer_loop(); }); }
@@ -313,6 +317,8 @@ class Recorder {
 
   const RecordOptions& o_;
   Namer namer_;
+  std::string first_;  // choose_first() -> open_first()
+  eventlog::OpenMode first_mode_ = eventlog::OpenMode::create;
   std::optional<eventlog::Writer> writer_;  // writer thread only (after open_first)
   // Writer thread only: events given to writer_ and not yet known to be in the file (channel,
   // size), oldest first; confirmed_out_: writer_->events_out() already taken off it.
@@ -424,12 +430,11 @@ int run_record() {
 
   Recorder rec(o);
   try {
-    rec.open_first();
+    rec.choose_first();
   } catch (const std::exception& e) {
     std::cerr << "lcmx record: " << e.what() << "\n";
     return 1;
   }
-  rec.start_writer();
 
   std::optional<Runtime> rt;
   std::optional<Node> node;
@@ -444,13 +449,26 @@ int run_record() {
     sp.sched_priority = o.rt_priority;
     if (const int e = ::pthread_setschedparam(::pthread_self(), SCHED_FIFO, &sp); e != 0) {
       std::cerr << "lcmx record: --rt-priority " << o.rt_priority << ": " << std::strerror(e) << "\n";
-      rec.stop_writer();
       return 1;
     }
   }
+  // The runtime first: a bad configuration fails here, before any file exists.
   try {
     rt.emplace(Runtime::create(runtime_options(*o.g)));
     node.emplace(rt->create_node("lcmx_record"));
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx record: " << e.what() << "\n";
+    return 1;
+  }
+  if (o.rt_priority > 0) ::pthread_setschedparam(::pthread_self(), normal_policy, &normal);
+  try {
+    rec.open_first();
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx record: " << e.what() << "\n";
+    return 1;
+  }
+  rec.start_writer();
+  try {
     SubscriberOptions so;
     so.queue_depth = o.queue_depth;
     so.policy = QueuePolicy::drop_oldest;
@@ -462,7 +480,6 @@ int run_record() {
     rec.stop_writer();
     return 1;
   }
-  if (o.rt_priority > 0) ::pthread_setschedparam(::pthread_self(), normal_policy, &normal);
   if (!o.quiet) std::cerr << "lcmx record: recording to " << rec.files().front() << std::endl;
 
   using Clock = std::chrono::steady_clock;
