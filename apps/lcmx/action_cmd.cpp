@@ -337,12 +337,14 @@ Verb add_action(CLI::App& app, const Globals& g) {
   c->require_subcommand(1);
   auto* s = c->add_subcommand("send", "send one goal: the goal as JSON, feedback printed live, then the outcome");
   s->add_option("name", g_send.name, "action name")->required();
-  s->add_option("json", g_send.json,
-                "the goal as JSON, e.g. '{\"position\": [1, 2, 3]}'; fields not given are zero (default {})");
+  auto* json = s->add_option("json", g_send.json,
+                              "the goal as JSON, e.g. '{\"position\": [1, 2, 3]}'; fields not given are zero "
+                              "(default {})");
   s->add_option("-t,--types", g_send.types,
                 ".lcm file or directory (searched recursively; repeatable, or a ':' list); default LCMX_TYPES_PATH")
       ->allow_extra_args(false);
-  s->add_option("--hex", g_send.hex, "the goal as hex bytes (raw actions, or to send exact bytes)");
+  s->add_option("--hex", g_send.hex, "the goal as hex bytes (raw actions, or to send exact bytes); not with JSON")
+      ->excludes(json);
   s->add_option("--find-timeout", g_send.find_s, "seconds to find the server and get the goal accepted")
       ->check(positive_number())
       ->capture_default_str();

@@ -192,6 +192,9 @@ TEST_CASE("lcmx actions and lcmx action send against a server process, Ctrl-C ca
   CHECK(none.out.find("no server of action") != std::string::npos);
   auto hex = s.run({LCMX_TOOL, "action", "send", name, "--hex", "abc"});
   CHECK(hex.rc == 2);
+  auto both = s.run({LCMX_TOOL, "action", "send", name, "{}", "--hex", "00"});  // JSON and hex: which one?
+  CHECK(both.rc == 2);
+  CHECK(both.out.find("excludes") != std::string::npos);
   auto usage = s.run({LCMX_TOOL, "action"});
   CHECK(usage.rc != 0);
   server.send("quit");
