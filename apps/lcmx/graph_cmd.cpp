@@ -139,7 +139,15 @@ int run_graph() {
   std::string format = o.json ? "json" : o.format;
   if (format.empty()) {
     const std::string e = extension(o.output);
-    format = (e == "svg" || e == "png" || e == "pdf" || e == "json") ? e : "dot";
+    if (e == "svg" || e == "png" || e == "pdf" || e == "json") {
+      format = e;
+    } else if (e.empty() || e == "dot" || e == "gv") {
+      format = "dot";
+    } else {
+      std::cerr << "lcmx graph: -o " << o.output << ": no format for '." << e
+                << "': use .dot .svg .png .pdf .json, or say which with --format\n";
+      return 2;
+    }
   }
   if (o.json && !o.format.empty() && o.format != "json") {
     std::cerr << "lcmx graph: --json and --format " << o.format << " exclude each other\n";
@@ -241,7 +249,8 @@ Verb add_graph(CLI::App& app, const Globals& g) {
       "the system as a graph: hosts -> processes -> nodes -> topics, with the path of each "
       "publisher/subscriber pair; DOT, SVG/PNG (Graphviz) or JSON");
   c->add_option("-o,--output", g_graph.output,
-                "write to FILE (default: stdout); its extension (.dot .svg .png .pdf .json) picks the format");
+                "write to FILE (default: stdout); its extension (.dot .svg .png .pdf .json; none: DOT) picks the "
+                "format, unless --format says");
   c->add_option("--format", g_graph.format, "dot, svg, png, pdf (through Graphviz's dot) or json")
       ->check(CLI::IsMember({"dot", "svg", "png", "pdf", "json"}));
   c->add_flag("--json", g_graph.json, "JSON instead of DOT (same as --format json)");

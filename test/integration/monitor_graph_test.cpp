@@ -242,6 +242,11 @@ TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topic
   } else {
     WARN("Graphviz's dot not installed: SVG/PNG not checked");
   }
+  // An extension that names no format: exit 2, no file (not DOT text under a .jpg name).
+  const auto jpg = s.run({LCMX_TOOL, "graph", "-o", d.file("g.jpg")});
+  CHECK(jpg.rc == 2);
+  CHECK(has(jpg.out, "no format for '.jpg'"));
+  CHECK(::access(d.file("g.jpg").c_str(), F_OK) != 0);
   // Without dot in PATH: a clear error, no file.
   const auto nodot = s.run({LCMX_TOOL, "graph", "-o", d.file("none.svg")}, {"PATH=/nonexistent"});
   CHECK(nodot.rc == 1);
