@@ -161,7 +161,7 @@ TEST_CASE("lcmx bridge with --json: --check, keygen and status of a live bridge"
   CHECK(none.rc == 1);
   CHECK(py(s, d, first_json(none.out), "d['bridges']") == "[]");
 
-  auto& bridge = s.spawn({LCMX_TOOL, "bridge", "--config", d.file("good.toml")}, {"LCMX_VEHICLE_URL"});
+  auto& bridge = s.spawn({LCMX_TOOL, "bridge", "--config", d.file("good.toml")}, {"LCMX_VEHICLE_URL", "SPDLOG_LEVEL=info"});
   REQUIRE(bridge.expect("bridge " + name + ": ready"));
   const auto st = s.run({LCMX_TOOL, "bridge", "status", "--url", s.url, "--wait", "10000", "--json"}, {"LCMX_VEHICLE_URL"});
   INFO(st.out);
@@ -173,6 +173,9 @@ TEST_CASE("lcmx bridge with --json: --check, keygen and status of a live bridge"
         "(False, [], 0)");
   bridge.signal(SIGTERM);
   CHECK(bridge.wait(10000ms) == 0);
+  // Its stdout carries the ready line and nothing else: the log ("listening on", "stopping")
+  // goes to stderr.
+  CHECK(bridge.text() == "bridge " + name + ": ready\n");
 }
 
 #endif
