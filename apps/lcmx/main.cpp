@@ -12,10 +12,12 @@
 #include <optional>
 #include <set>
 #include <thread>
+#include <tuple>
 
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/types/schema.hpp"
+#include "lcmx/udpm/config.hpp"
 #include "bridge_cmd.hpp"
 #ifdef LCMX_WITH_DDS
 #include "dds_cmds.hpp"
@@ -92,6 +94,24 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
 
 }  // namespace
 
+// Checks a group URL as the runtime will read it (udpm::parse_url), so that a bad --url or
+// --vehicle-url is a bad argument (exit 2) and not a failure after the verb has started. The
+// vehicle group may be "" (none) and must name its interface (iface=). "" when good, else why.
+std::string check_group_url(const std::string& url, bool vehicle) {
+  if (vehicle && url.empty()) return {};
+  try {
+    const auto cfg = lcmx::udpm::parse_url(url);
+    if (vehicle && cfg.interface.empty()) return "'" + url + "' names no interface: add &iface=<name>";
+  } catch (const std::exception& e) {
+    return "'" + url + "': " + e.what();
+  }
+  return {};
+}
+
+CLI::Validator group_url(bool vehicle) {
+  return CLI::Validator([vehicle](std::string& s) { return check_group_url(s, vehicle); }, "URL");
+}
+
 int main(int argc, char** argv) {
   // stdout is each verb's output (tables, JSON lines, `ready`); the log (the library's and the
   // verbs') goes to stderr. spdlog's own default logger writes to stdout.
@@ -107,11 +127,20 @@ int main(int argc, char** argv) {
     std::cerr << "lcmx: " << e.what() << "\n";
     return 2;
   }
-  app.add_option("--url", g.url, "discovery group (default: LCMX_DISCOVERY_URL or LCM's default)")
-      ->capture_default_str();
   if (const char* v = std::getenv("LCMX_VEHICLE_URL")) g.vehicle_url = v;
+  for (const auto& [var, value, vehicle] : {std::tuple{"LCMX_DISCOVERY_URL", g.url, false},
+                                            std::tuple{"LCMX_VEHICLE_URL", g.vehicle_url, true}})
+    if (const auto why = check_group_url(value, vehicle); !why.empty()) {
+      std::cerr << "lcmx: " << var << " " << why << "\n";
+      return 2;
+    }
+  app.add_option("--url", g.url, "discovery group (default: LCMX_DISCOVERY_URL or LCM's default)")
+      ->check(group_url(false))
+      ->capture_default_str();
   app.add_option("--vehicle-url", g.vehicle_url,
-                 "vehicle group, to see other hosts too (default: LCMX_VEHICLE_URL)")
+                 "vehicle group, to see other hosts too, with its interface: "
+                 "udpm://GROUP:PORT?ttl=1&iface=NAME (default: LCMX_VEHICLE_URL)")
+      ->check(group_url(true))
       ->capture_default_str();
   app.add_option("--wait", g.wait_ms, "how long to listen for beacons, in milliseconds")
       ->check(CLI::Range(50, 60000))

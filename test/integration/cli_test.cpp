@@ -97,10 +97,19 @@ TEST_CASE("lcmx --help and lcmx topics --help exit 0 - a bad flag exits non-zero
   INFO(bad_verb.out);
   CHECK(bad_verb.rc != 0);
   CHECK(contains(bad_verb.out, "lcmx: unknown command 'frobnicate'"));
+  // A bad group URL is a bad argument (exit 2, named), on the command line or in the environment.
   auto bad_url = s.run({LCMX_TOOL, "--url", "udpm://not-an-address:1", "nodes"});
   INFO(bad_url.out);
-  CHECK(bad_url.rc != 0);
-  CHECK(contains(bad_url.out, "lcmx:"));
+  CHECK(bad_url.rc == 2);
+  CHECK(contains(bad_url.out, "--url: 'udpm://not-an-address:1'"));
+  auto bad_env = s.run({LCMX_TOOL, "echo", "X"}, {"LCMX_DISCOVERY_URL=garbage"});
+  INFO(bad_env.out);
+  CHECK(bad_env.rc == 2);
+  CHECK(contains(bad_env.out, "lcmx: LCMX_DISCOVERY_URL 'garbage'"));
+  auto no_iface = s.run({LCMX_TOOL, "--vehicle-url", "udpm://239.255.76.68:7668?ttl=1", "topics"});
+  INFO(no_iface.out);
+  CHECK(no_iface.rc == 2);
+  CHECK(contains(no_iface.out, "names no interface"));
 }
 
 // Issue 9 item 5: an unknown verb is named, whatever follows it (--help too: it used to print

@@ -477,14 +477,15 @@ TEST_CASE("record/play/log: --help for each verb, clear errors for bad options",
   INFO(exclude_first.out);
   CHECK(exclude_first.rc == 1);
   CHECK(exclude_first.out.find("exists: give --force") != std::string::npos);
-  // A recording that cannot start (here a vehicle group without an interface) creates no file,
-  // so the same command, run again, fails for the same reason, not because the file exists.
+  // A recording that cannot start (here its group names an interface this host lacks) creates
+  // no file, so the same command, run again, fails for the same reason, not because the file
+  // exists.
   for (int attempt = 0; attempt < 2; ++attempt) {
     const auto failed = s.run({LCMX_TOOL, "record", d.file("never.lcmlog"), "--max-duration", "1"},
-                              {"LCMX_VEHICLE_URL=udpm://239.255.76.68:7668?ttl=0"});
+                              {"LCMX_DISCOVERY_URL=" + unique_url(87) + "&iface=lcmxnoif0"});
     INFO(failed.out);
     CHECK(failed.rc == 1);
-    CHECK(failed.out.find("names no interface") != std::string::npos);
+    CHECK(failed.out.find("no interface named 'lcmxnoif0'") != std::string::npos);
     CHECK_FALSE(std::filesystem::exists(d.file("never.lcmlog")));
   }
 }
