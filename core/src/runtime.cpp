@@ -357,13 +357,18 @@ Runtime Runtime::create(RuntimeOptions options) {
   static std::once_flag log_env;
   std::call_once(log_env, [] { spdlog::cfg::load_env_levels(); });
   if (options.lease <= options.beacon_period)
-    throw Error(Errc::invalid_argument, "lease must be longer than beacon_period");
+    throw Error(Errc::invalid_argument,
+                "lease " + std::to_string(options.lease.count()) + " ms (LCMX_LEASE_MS) must be longer than beacon_period " +
+                    std::to_string(options.beacon_period.count()) + " ms (LCMX_BEACON_PERIOD_MS)");
   if (detail::g_runtime_alive.exchange(true))
     throw Error(Errc::already_exists, "a lcmx::Runtime already exists in this process");
   try {
     auto impl = std::make_shared<detail::RuntimeImpl>(std::move(options));
     impl->start_transports();
     return Runtime(std::move(impl));
+  } catch (const std::invalid_argument& e) {  // discovery::host_id(): a bad LCMX_HOST_ID
+    detail::g_runtime_alive.store(false);
+    throw Error(Errc::invalid_argument, e.what());
   } catch (...) {
     detail::g_runtime_alive.store(false);
     throw;

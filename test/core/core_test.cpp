@@ -328,6 +328,30 @@ TEST_CASE("a second Runtime in one process is refused", "[core][errors]") {
   }
 }
 
+TEST_CASE("bad runtime settings are lcmx::Errors naming the setting - a bad LCMX_HOST_ID too", "[core][errors]") {
+  auto o = test_options();
+  o.beacon_period = std::chrono::milliseconds(400);
+  o.lease = std::chrono::milliseconds(100);
+  try {
+    auto rt = lcmx::Runtime::create(o);
+    FAIL("no exception");
+  } catch (const lcmx::Error& e) {
+    CHECK(e.code() == lcmx::Errc::invalid_argument);
+    CHECK(std::string(e.what()).find("lease 100 ms (LCMX_LEASE_MS)") != std::string::npos);
+    CHECK(std::string(e.what()).find("beacon_period 400 ms (LCMX_BEACON_PERIOD_MS)") != std::string::npos);
+  }
+  ::setenv("LCMX_HOST_ID", "banana", 1);
+  try {
+    auto rt = lcmx::Runtime::create(test_options());
+    FAIL("no exception");
+  } catch (const lcmx::Error& e) {
+    CHECK(e.code() == lcmx::Errc::invalid_argument);
+    CHECK(std::string(e.what()).find("LCMX_HOST_ID='banana'") != std::string::npos);
+  }
+  ::unsetenv("LCMX_HOST_ID");
+  auto rt = lcmx::Runtime::create(test_options());  // nothing left behind by the failures
+}
+
 TEST_CASE("unsubscribing from inside the callback works", "[core][executor]") {
   auto rt = lcmx::Runtime::create(test_options());
   auto node = rt.create_node("n");
