@@ -336,7 +336,15 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   GroupDrops local_drops, vehicle_drops;
   void check_group_drops(const udpm::Group& group, GroupDrops& last, const char* which);
   std::set<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>> mismatches_reported;
-  struct RateState { std::uint64_t count = 0; std::chrono::steady_clock::time_point when{}; };
+  // An endpoint's rate in beacons: messages over at least kRateWindow. Beacons also go out
+  // early (a query, a newcomer), and one message over such a short gap read as 7.5-15 Hz for
+  // a steady 10 Hz topic.
+  static constexpr std::chrono::seconds kRateWindow{2};
+  struct RateState {
+    std::uint64_t count = 0;                     // at `when`
+    std::chrono::steady_clock::time_point when{};
+    double hz = 0;                               // over the last whole window
+  };
   std::map<std::uint64_t, RateState> rates;
   std::atomic<bool> bridge_seen{false};  // a same-host participant has FLAG_BRIDGE (mu to write)
   mutable std::mutex carried_mu;          // leaf lock, guards carried

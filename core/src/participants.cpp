@@ -164,15 +164,17 @@ lcmx_msgs::beacon_t RuntimeImpl::build_beacon(std::int8_t scope) {
   const auto now = std::chrono::steady_clock::now();
   auto rate = [&](std::uint64_t id, std::uint64_t count) {
     auto& r = rates[id * 2 + (vehicle ? 1 : 0)];
-    double hz = 0;
-    if (r.when != std::chrono::steady_clock::time_point{}) {
-      const double dt = std::chrono::duration<double>(now - r.when).count();
-      if (dt > 0.05) hz = static_cast<double>(count - r.count) / dt;
-      else return 0.0;
+    if (r.when == std::chrono::steady_clock::time_point{}) {
+      r.count = count;
+      r.when = now;
+      return 0.0;
     }
-    r.count = count;
-    r.when = now;
-    return hz;
+    if (now - r.when >= kRateWindow) {
+      r.hz = static_cast<double>(count - r.count) / std::chrono::duration<double>(now - r.when).count();
+      r.count = count;
+      r.when = now;
+    }
+    return r.hz;
   };
   std::lock_guard lock(mu);
   b.revision = revision.load();

@@ -1,4 +1,6 @@
 // The `lcmx` tool (nodes, topics) against running participants.
+#include <regex>
+
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/udpm/udpm.hpp"
 #include "support.hpp"
@@ -141,6 +143,35 @@ TEST_CASE("lcmx: an unknown command is named and fails (also before --help) - ea
   CHECK(status.rc == 0);
   CHECK(contains(status.out, "per bridge on this host"));
   CHECK_FALSE(contains(status.out, "--config"));
+}
+
+TEST_CASE("lcmx topics: a steady 10 Hz publisher reads about 10 Hz, on queries in quick succession too",
+          "[integration][cli]") {
+  // Each query makes every participant beacon at once; a rate taken over the gap since the
+  // previous beacon read one message over 70 ms as 14 Hz.
+  Session s(146);
+  const auto ch = unique_channel("RATE", 146);
+  auto& sub = s.peer({"sub", "--channel", ch, "--type", "pose", "--publishers", "1"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "10", "--subscribers", "1"});
+  REQUIRE(pub.expect("MATCHED"));
+  // Three seconds of traffic: more than one whole rate window (2 s).
+  REQUIRE(poll_sub(sub, ch, [](const Summary& x) { return x.num("received") >= 30; }, 10000ms));
+  const std::regex pub_line("\n  pub [^\n]* msgs  ([0-9.]+) Hz");
+  for (int query = 0; query < 5; ++query) {
+    const auto r = s.run({LCMX_TOOL, "--url", s.url, "--wait", "100", "topics"});
+    INFO(r.out);
+    REQUIRE(r.rc == 0);
+    std::smatch m;
+    REQUIRE(std::regex_search(r.out, m, pub_line));
+    const double hz = std::stod(m[1].str());
+    CHECK(hz > 8.5);
+    CHECK(hz < 11.5);
+  }
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+  sub.send("quit");
+  CHECK(sub.wait() == 0);
 }
 
 TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye) - a kill -9 after its lease", "[integration][cli]") {
