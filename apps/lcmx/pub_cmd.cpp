@@ -217,7 +217,7 @@ int run_pub() {
     ++published;
   }
   if (!o.quiet) {
-    std::cerr << "lcmx pub: published " << published << " messages";
+    std::cerr << "lcmx pub: published " << published << (published == 1 ? " message" : " messages");
     if (skipped > 0) std::cerr << " (" << skipped << " deadlines skipped: publishing was late)";
     std::cerr << "\n";
   }

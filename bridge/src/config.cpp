@@ -195,6 +195,9 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
 }
 
 Config load_config(const std::filesystem::path& file) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(file, ec))
+    throw ConfigError(file.string() + ": is a directory, not a config file (TOML)");
   std::ifstream in(file, std::ios::binary);
   if (!in) throw ConfigError(file.string() + ": cannot read: " + std::strerror(errno));
   std::ostringstream ss;

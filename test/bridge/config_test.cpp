@@ -201,12 +201,18 @@ TEST_CASE("errors give the line of the bad value", "[bridge][config]") {
   CHECK(msg.find("channel[0].hwm: must be an integer from 1 to 1000000 (got -3) (line 10)") != std::string::npos);
 }
 
-TEST_CASE("a missing config file is a clear error", "[bridge][config]") {
+TEST_CASE("a missing config file or a directory is a clear error", "[bridge][config]") {
   try {
     load_config("/nonexistent/lcmx/bridge.toml");
     FAIL("no error");
   } catch (const ConfigError& e) {
     CHECK(std::string(e.what()).find("/nonexistent/lcmx/bridge.toml: cannot read") == 0);
+  }
+  try {
+    load_config("/tmp");
+    FAIL("no error");
+  } catch (const ConfigError& e) {
+    CHECK(std::string(e.what()) == "/tmp: is a directory, not a config file (TOML)");
   }
 }
 

@@ -196,7 +196,8 @@ TEST_CASE("lcmx pub: typed shm subscribers receive JSON lines in order - --once 
                              "--once", "--wait-timeout", "0.3", "--json"});
   CHECK(lonely.rc == 0);
   CHECK(has(lonely.out, "0 of 1 subscribers after 0.3 s; publishing anyway"));
-  CHECK(has(lonely.out, "published 1 messages"));
+  CHECK(has(lonely.out, "published 1 message"));
+  CHECK_FALSE(has(lonely.out, "published 1 messages"));
   // --json: the summary line for scripts.
   const auto j = json_line(lonely.out);
   CHECK(has(j, "\"channel\":\"" + ch + "_NOBODY\""));
