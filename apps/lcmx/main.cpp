@@ -92,8 +92,6 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
           }};
 }
 
-}  // namespace
-
 // Checks a group URL as the runtime will read it (udpm::parse_url), so that a bad --url or
 // --vehicle-url is a bad argument (exit 2) and not a failure after the verb has started. The
 // vehicle group may be "" (none) and must name its interface (iface=). "" when good, else why.
@@ -111,6 +109,8 @@ std::string check_group_url(const std::string& url, bool vehicle) {
 CLI::Validator group_url(bool vehicle) {
   return CLI::Validator([vehicle](std::string& s) { return check_group_url(s, vehicle); }, "URL");
 }
+
+}  // namespace
 
 int main(int argc, char** argv) {
   // stdout is each verb's output (tables, JSON lines, `ready`); the log (the library's and the
