@@ -228,6 +228,16 @@ void write_file(const std::string& path, const std::string& value) {
   if (n != static_cast<ssize_t>(value.size())) throw SetupError(errno_text("write " + path, e));
 }
 
+// The first line of a file ("" if it cannot be read): one-line /proc/sys values.
+std::string read_first_line(const std::string& path) {
+  std::string line;
+  std::ifstream in(path);
+  std::getline(in, line);
+  return line;
+}
+
+const std::string kAvailableCongestion = "/proc/sys/net/ipv4/tcp_available_congestion_control";
+
 // Sets the calling thread's namespace's TCP congestion control (EmulationSpec::tcp_congestion);
 // throws SetupError naming what the kernel offers when it refuses.
 void set_tcp_congestion(const std::string& name, const std::string& ns) {
@@ -235,11 +245,8 @@ void set_tcp_congestion(const std::string& name, const std::string& ns) {
   try {
     write_file(path, name);
   } catch (const SetupError& e) {
-    std::string offered;
-    std::ifstream in("/proc/sys/net/ipv4/tcp_available_congestion_control");
-    std::getline(in, offered);
     throw SetupError("EmulationSpec::tcp_congestion '" + name + "' in " + ns + ": " + e.what() +
-                     " (this kernel offers: " + offered + ")");
+                     " (this kernel offers: " + read_first_line(kAvailableCongestion) + ")");
   }
 }
 
@@ -253,12 +260,6 @@ void set_tcp_congestion(const std::string& name, const std::string& ns) {
 // SetupError when the list cannot be written; leaves a name the kernel does not offer to
 // set_tcp_congestion, which names what it offers.
 void allow_tcp_congestion(const std::string& name) {
-  const auto read_line = [](const char* path) {
-    std::string line;
-    std::ifstream in(path);
-    std::getline(in, line);
-    return line;
-  };
   const auto words = [](const std::string& line) {
     std::set<std::string> out;
     std::istringstream in(line);
@@ -266,9 +267,9 @@ void allow_tcp_congestion(const std::string& name) {
     return out;
   };
   const std::string allowed_path = "/proc/sys/net/ipv4/tcp_allowed_congestion_control";
-  const std::string allowed = read_line(allowed_path.c_str());
+  const std::string allowed = read_first_line(allowed_path);
   if (words(allowed).count(name) != 0) return;
-  if (words(read_line("/proc/sys/net/ipv4/tcp_available_congestion_control")).count(name) == 0) return;
+  if (words(read_first_line(kAvailableCongestion)).count(name) == 0) return;
   try {
     write_file(allowed_path, allowed + " " + name);
   } catch (const SetupError& e) {
