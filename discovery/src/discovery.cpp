@@ -25,11 +25,6 @@ namespace lcmx::discovery {
 
 using Clock = std::chrono::steady_clock;
 
-// A discovery thread woken this much later than it asked was not running (Impl::run): the time
-// it missed is not held against the other participants' leases. A busy machine wakes a thread
-// a few ms late; a stopped process, seconds.
-constexpr auto kLateWake = std::chrono::milliseconds(100);
-
 #ifndef SYS_pidfd_open
 #define SYS_pidfd_open 434
 #endif
@@ -351,20 +346,6 @@ struct Discovery::Impl {
     }
   }
 
-  // Discovery thread: every lease is extended by `by` (the time this thread did not run).
-  void extend_leases(Clock::duration by) {
-    {
-      std::lock_guard lock(mutex);
-      const auto now = Clock::now();
-      for (auto& [id, p] : peers) p.last_seen = std::min(p.last_seen + by, now);
-    }
-    const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(by).count();
-    spdlog::log(ms >= 1000 ? spdlog::level::info : spdlog::level::debug,
-                "lcmx discovery: this process did not run for {} ms (stopped?); that time does not count against "
-                "the other participants' leases",
-                ms);
-  }
-
   Clock::time_point next_expiry() const {
     std::lock_guard lock(mutex);
     auto t = Clock::time_point::max();
@@ -402,12 +383,7 @@ struct Discovery::Impl {
           fds.push_back({w.fd, POLLIN, 0});
           watched.push_back(id);
         }
-      const auto asked = Clock::now() + wait;
       const int r = ::poll(fds.data(), fds.size(), static_cast<int>(wait.count()));
-      // Woken far later than asked: this process did not run (SIGSTOP, a frozen container, a
-      // starved CPU). The beacons of that time are still queued here or in the owner's receive
-      // thread, which resumes beside us: that time does not count against anyone's lease.
-      if (const auto late = Clock::now() - asked; late > kLateWake) extend_leases(late);
       if (r > 0 && (fds[0].revents & POLLIN)) {
         std::uint64_t v;
         [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);
