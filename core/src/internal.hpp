@@ -370,7 +370,11 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
     std::uint32_t lost_before;
   };
   std::vector<Forwarded> forwarded;  // guarded by recv_mu; handled before anything drained later
-  void drain_locked(bool rx_thread);  // recv_mu held
+  // recv_mu held. `handle_beacons`: the receive thread, or a discovery thread reading what is
+  // queued before it expires a lease (discovery::Options::drain_before_expiry); beacons are
+  // handled here, and those other threads drained first before them. Executors pass false:
+  // their beacons go to `forwarded`.
+  void drain_locked(bool handle_beacons);
 
   // UDP loss per sender socket (issue 15): LCM sequence gaps (udpm::Message::lost_before)
   // count data and beacons alike; the beacon's own sequence tells how many were beacons.

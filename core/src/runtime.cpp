@@ -140,6 +140,14 @@ void RuntimeImpl::start_transports() {
     d.scope = scope;
     d.period = options.beacon_period;
     d.lease = options.lease;
+    // Before a lease expires, the beacons queued in our sockets are read (this process may
+    // have been stopped and resumed: its receive thread has not read them yet).
+    d.drain_before_expiry = [weak] {
+      auto self = weak.lock();
+      if (!self || self->stopped.load()) return;
+      std::lock_guard lock(self->recv_mu);
+      self->drain_locked(true);
+    };
     return std::make_unique<discovery::Discovery>(
         d,
         [weak, scope] {

@@ -86,8 +86,8 @@ bool RuntimeImpl::drain_udp(bool try_only) {
   return true;
 }
 
-void RuntimeImpl::drain_locked(bool rx_thread) {
-  if (rx_thread) {
+void RuntimeImpl::drain_locked(bool handle_beacons) {
+  if (handle_beacons) {
     // Beacons other threads drained first: they arrived before anything drained now.
     auto pending = std::move(forwarded);
     forwarded.clear();
@@ -103,7 +103,7 @@ void RuntimeImpl::drain_locked(bool rx_thread) {
   auto one = [&](udpm::Group& group, std::int8_t scope) {
     try {
       group.drain([&](const udpm::Message& m) {
-        if (!rx_thread && m.channel == discovery::kBeaconChannel) {
+        if (!handle_beacons && m.channel == discovery::kBeaconChannel) {
           // Beacons repeat every period: dropping some when the receive thread lags (or has
           // stopped) loses nothing for good, and keeps this bounded.
           if (stopped.load() || forwarded.size() >= 256) return;

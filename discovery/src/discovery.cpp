@@ -320,7 +320,34 @@ struct Discovery::Impl {
     if (on_change) on_change(Change::left, p);
   }
 
+  // Under mutex: has any lease run out?
+  bool lease_due(Clock::time_point now) const {
+    for (const auto& [id, p] : peers)
+      if (now - p.last_seen > std::chrono::milliseconds(std::max(p.beacon.lease_ms, 1))) return true;
+    return false;
+  }
+
+  // Discovery thread, no lock held: every beacon queued now is read (Options::drain_before_expiry).
+  void drain_queued() {
+    try {
+      if (receive)
+        group->drain([this](const udpm::Message& m) { on_datagram(m); });
+      else if (options.drain_before_expiry)
+        options.drain_before_expiry();
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx discovery: receive failed: {}", e.what());
+    }
+  }
+
   void expire_leases() {
+    {
+      std::lock_guard lock(mutex);
+      if (!lease_due(Clock::now())) return;
+    }
+    // A lease has run out by the clock, but its beacons may be queued still: this process
+    // did not run for a while (SIGSTOP, a frozen container) and resumed, or the receive
+    // thread lags. Read them first; then only the participants that really fell silent go.
+    drain_queued();
     std::vector<Participant> gone;
     std::lock_guard order(deliver_mutex);  // until on_change has been told
     {

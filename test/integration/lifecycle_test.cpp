@@ -58,6 +58,43 @@ TEST_CASE("publisher stopped past its lease and resumed: every message delivered
   CHECK(fin.num("received") == 3000);
 }
 
+TEST_CASE("a subscriber stopped past its lease and resumed does not declare the live publisher gone",
+          "[integration][lifecycle]") {
+  // The stopped process's discovery thread wakes long after it asked to, beside its receive
+  // thread, and the publisher's beacons of that time are still queued in its socket. It used
+  // to run its lease check first: "lease expired" for a publisher that beaconed all along,
+  // publisher_unmatched, then matched again. Now it reads what is queued before a lease
+  // expires (discovery::Options::drain_before_expiry).
+  Session s(145, 40000ms);
+  const auto ch = unique_channel("SUBSTOP", 145);
+  auto& sub = s.peer({"sub", "--channel", ch, "--type", "pose", "--publishers", "1"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "100", "--subscribers", "1",
+                      "--id", "A"});
+  REQUIRE(pub.expect("MATCHED"));
+  REQUIRE(poll_sub(sub, ch, [](const Summary& x) { return x.num("received") >= 10; }, 10000ms));
+  // Which thread runs first after SIGCONT is the scheduler's choice: several rounds.
+  for (int round = 0; round < 4; ++round) {
+    sub.signal(SIGSTOP);
+    {
+      Resume resume{sub};
+      // Past the subscriber's lease (the same as the publisher's): the publisher has declared
+      // the stopped subscriber gone.
+      REQUIRE(pub.expect("EVENT participant_left", 5000ms));
+    }
+    // Back: the publisher hears the subscriber's beacon, sent by the discovery thread right
+    // before its lease check.
+    REQUIRE(pub.expect("EVENT participant_joined", 5000ms));
+  }
+  INFO(sub.output());
+  CHECK_FALSE(sub.wait_seen("EVENT participant_left", 1000ms));
+  CHECK_FALSE(sub.seen("EVENT publisher_unmatched"));
+  sub.send("quit");
+  CHECK(sub.wait() == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
+
 TEST_CASE("a process of this host killed -9 is noticed at once, not after its lease", "[integration][lifecycle]") {
   // Both leases 5 s: a departure noticed well before that is the process exit (pidfd).
   Session s(41, 30000ms);

@@ -49,6 +49,14 @@ struct Options {
   // its beacon, so a reused pid is never taken for it) and declared gone as soon as its
   // process exits, not only after its lease. Peers in other pid namespaces: lease only.
   bool watch_processes = true;
+  // With `shared_group`: reads what the owner's sockets hold and hands its beacons to
+  // deliver(), on the calling thread. The Discovery calls it on its own thread, holding none
+  // of its locks, right before it would declare a lease expired: beacons that arrived in time
+  // may still be queued (this process was stopped and resumed, a frozen container, a receive
+  // thread that lags), and a lease expires only on beacons that did not come. Without it the
+  // owner's receive thread alone decides how late a beacon is read. (A Discovery that reads
+  // its own group drains it itself.)
+  std::function<void()> drain_before_expiry;
 };
 
 // What is known about another participant: its latest beacon and when it arrived.
