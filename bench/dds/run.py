@@ -15,7 +15,7 @@ pinned to lo. The DDS programs (source, sink, ddsperf) ask Cyclone for a socket 
 retransmission for ~50 ms in some runs, whichever path sent it. The gateway (a writer here) keeps
 its own config.
 
-usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--csv FILE] [--rcvbuf SIZE]
+usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--csv FILE] [--rcvbuf SIZE] [--spin-us US]
 """
 import argparse, os, re, subprocess, sys, tempfile, time
 
@@ -24,6 +24,8 @@ p.add_argument("build")
 p.add_argument("--pin", default="", help="taskset CPU list for every process (e.g. 0), default none")
 p.add_argument("--quick", action="store_true", help="fewer samples")
 p.add_argument("--csv", default="")
+p.add_argument("--spin-us", type=int, default=None,
+               help="the gateway's spin_us (default: the gateway's own default)")
 p.add_argument("--rcvbuf", default="4MB",
                help="Cyclone SocketReceiveBufferSize max for the DDS programs, e.g. 4MB; '' = Cyclone's default (1 MiB)")
 a = p.parse_args()
@@ -73,6 +75,8 @@ tmp = tempfile.mkdtemp(prefix="lcmx_bench_dds_")
 cfg = os.path.join(tmp, "gw.toml")
 with open(cfg, "w") as f:
     f.write('name = "bench"\ndomain = %d\ninterface = "127.0.0.1"\nallow_multicast = false\npeers = ["127.0.0.1"]\n' % domain)
+    if a.spin_us is not None:
+        f.write('spin_us = %d\n' % a.spin_us)
     for s in sizes + [6000000]:
         f.write('[[map]]\nchannel = "BENCH_%d"\ndirection = "to_dds"\ntopic = "G_%d"\n' % (s, s))
 rows = []

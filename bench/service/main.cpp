@@ -706,9 +706,16 @@ int main(int argc, char** argv) {
           config(dir + "/b.toml", "svcB", b, "svcA", a);
           lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "info"}};
           if (!veh_b.empty()) env.push_back({"LCMX_VEHICLE_URL", veh_b});
+          // The bridge logs on stderr and prints only its ready line on stdout; its log lines
+          // ("link eth ... is up", the counters at "stopping") are read here: stderr goes to the
+          // same pipe.
+          auto merged = [](std::vector<std::string> argv) {
+            argv.insert(argv.begin(), {"/bin/sh", "-c", "exec \"$@\" 2>&1", "sh"});
+            return argv;
+          };
           std::vector<lcmx::test::Child> bridges;
-          bridges.push_back(emu.spawn(0, lcmxbench::taskset(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"}), env));
-          bridges.push_back(emu.spawn(1, lcmxbench::taskset(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"}), env));
+          bridges.push_back(emu.spawn(0, merged(lcmxbench::taskset(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"})), env));
+          bridges.push_back(emu.spawn(1, merged(lcmxbench::taskset(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"})), env));
           // Ready, then linked to the other (its log line "bridge svcA: link eth to svcB ... is up").
           for (const char* n : {"A", "B"}) {
             auto& br = bridges[n[0] == 'A' ? 0 : 1];
