@@ -362,18 +362,32 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
 }
 
 std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(const std::string& topic,
-                                                                           std::uint32_t history) {
+                                                                           std::optional<std::uint32_t> history) {
+  wire::Control::TopicType type;
+  {
+    std::lock_guard lock(view_mu);
+    type = type_of_locked(topic);
+  }
   std::shared_ptr<Republisher> old;  // destroyed outside the lock
   std::lock_guard lock(repub_mu);
   auto& slot = repubs[topic];
-  if (slot && slot->history != history) old = std::move(slot);
+  if (slot && ((history && slot->history != *history) || slot->type != type)) {
+    if (slot->type != type)
+      spdlog::info("bridge {}: {} is now of type {} at its origin (was {})", cfg.name, topic,
+                   type.name.empty() ? "raw" : type.name, slot->type.name.empty() ? "raw" : slot->type.name);
+    history = history.value_or(slot->history);
+    old = std::move(slot);
+  }
   if (!slot) {
     try {
       auto r = std::make_shared<Republisher>();
       PublisherOptions po;
-      po.history = history;  // a late subscriber here gets the origin's last N from our ring
-      r->pub = repub_node->advertise_raw(topic, po);
-      r->history = history;
+      po.history = history.value_or(0);  // a late subscriber here gets the origin's last N from our ring
+      // The origin's type, so tools here show it and a subscriber of another type is told.
+      r->pub = type.name.empty() ? repub_node->advertise_raw(topic, po)
+                                 : repub_node->advertise_raw(topic, type.name, type.fingerprint, po);
+      r->history = po.history;
+      r->type = type;
       r->last_message = Clock::now();
       slot = std::move(r);
     } catch (const std::exception& e) {

@@ -88,15 +88,19 @@ void Bridge::Impl::send_pings() {
     // it large, forwarded at once, reaches them (DESIGN.md "Delivery", the large switch).
     std::set<std::string> offer;
     std::map<std::string, std::uint32_t> keep;
+    std::map<std::string, wire::Control::TopicType> types;  // of what we offer it and our catalogue
     if (active >= 0) {
       std::lock_guard lock(view_mu);
       for (const auto& t : p->served) {
         offer.insert(t);
         if (auto it = kept.find(t); it != kept.end() && it->second > 0) keep[t] = it->second;
       }
+      for (const auto* topics : {&offer, &have})
+        for (const auto& t : *topics)
+          if (auto it = typed.find(t); it != typed.end() && types.size() < wire::kMaxCatalogue) types[t] = it->second;
     }
     const bool full = active >= 0 && (want != p->sent_want || offer != p->sent_offer || have != p->sent_have ||
-                                      keep != p->sent_keep ||
+                                      keep != p->sent_keep || types != p->sent_types ||
                                       active != p->full_sent_link || p->instance != p->full_sent_instance ||
                                       now - p->full_sent_at >= kDemandRefresh);
     for (std::size_t i = 0; i < p->links.size(); ++i) {
@@ -108,6 +112,7 @@ void Bridge::Impl::send_pings() {
       c.want.clear();
       c.offer.clear();
       c.keep.clear();
+      c.types.clear();
       c.have.clear();
       c.channels.clear();
       if (c.has_demand) {
@@ -116,10 +121,12 @@ void Bridge::Impl::send_pings() {
         c.want = want;
         c.offer = offer;
         c.keep = keep;
+        c.types = types;
         c.have = have;
         p->sent_want = want;
         p->sent_offer = offer;
         p->sent_keep = keep;
+        p->sent_types = types;
         p->sent_have = have;
         p->full_sent_at = now;
         p->full_sent_link = active;
@@ -186,6 +193,7 @@ void Bridge::Impl::receive_control() {
       p.wants.clear();
       p.offers.clear();
       p.keeps.clear();
+      p.types.clear();
       p.has.clear();
     }
     if (c->has_demand && p.hello_checked_instance != c->instance) {
@@ -197,6 +205,7 @@ void Bridge::Impl::receive_control() {
       p.wants = std::move(c->want);
       p.offers = std::move(c->offer);
       p.keeps = std::move(c->keep);
+      p.types = std::move(c->types);
       p.has = std::move(c->have);
       p.demand_at = Clock::now();
     } else if (c->active) {

@@ -14,10 +14,19 @@ void Bridge::Impl::refresh_view() {
   std::set<std::string> d;
   std::map<std::string, bool> pubs;
   std::map<std::string, std::uint32_t> keeps;
+  std::map<std::string, std::optional<wire::Control::TopicType>> types;  // nullopt: raw or conflicting
   bool patterns = false;
+  const auto self = static_cast<std::int64_t>(runtime->participant_id());
   for (const auto& part : observer->participants()) {
     const auto& b = part.beacon;
     if (b.scope != lcmx_msgs::beacon_t::SCOPE_HOST) continue;
+    // One bridge per host: a second one republishes what it carries here too, so this host's
+    // subscribers of a topic both carry would get each message twice.
+    if ((b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) && b.participant_id != self &&
+        other_bridges_warned.insert(b.participant_id).second)
+      spdlog::warn("bridge {}: another Message Bridge runs on this host ({} pid {}); run one per host "
+                   "(docs/bridge.md): subscribers here of a topic both carry get each message twice",
+                   cfg.name, b.process_name, b.pid);
     if (b.flags & (lcmx_msgs::beacon_t::FLAG_BRIDGE | lcmx_msgs::beacon_t::FLAG_OBSERVER)) continue;
     if (b.flags & lcmx_msgs::beacon_t::FLAG_CHANNELS) patterns = true;
     for (const auto& e : b.endpoints) {
@@ -25,6 +34,13 @@ void Bridge::Impl::refresh_view() {
       if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER) d.insert(e.topic);
       else if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) {
         pubs[e.topic] = pubs[e.topic] || e.large != 0;
+        const wire::Control::TopicType ty{e.fingerprint, e.type_name};
+        const bool typed_ok = e.fingerprint != 0 && !e.type_name.empty() &&
+                              e.type_name.size() <= wire::Control::kMaxTypeName &&
+                              e.type_name.find_first_of(" \t\n\r") == std::string::npos;
+        if (auto [it, fresh] = types.try_emplace(e.topic, typed_ok ? std::optional(ty) : std::nullopt);
+            !fresh && it->second != (typed_ok ? std::optional(ty) : std::nullopt))
+          it->second.reset();
         if (e.history > 0)
           keeps[e.topic] = std::max(keeps[e.topic], std::min<std::uint32_t>(static_cast<std::uint32_t>(e.history),
                                                                              wire::Control::kMaxKeep));
@@ -35,6 +51,9 @@ void Bridge::Impl::refresh_view() {
   demand = std::move(d);
   published = std::move(pubs);
   kept = std::move(keeps);
+  typed.clear();
+  for (auto& [t, ty] : types)
+    if (ty) typed.emplace(t, std::move(*ty));
   channel_subscribers = patterns;
 }
 
@@ -44,6 +63,19 @@ std::uint32_t Bridge::Impl::keep_of_locked(const std::string& topic) const {
     if (p->active.load() >= 0)
       if (auto it = p->keeps.find(topic); it != p->keeps.end()) n = std::max(n, it->second);
   return n;
+}
+
+wire::Control::TopicType Bridge::Impl::type_of_locked(const std::string& topic) const {
+  std::optional<wire::Control::TopicType> type;
+  for (const auto& p : peers) {
+    if (p->active.load() < 0) continue;
+    const auto it = p->types.find(topic);
+    const wire::Control::TopicType ty = it == p->types.end() ? wire::Control::TopicType{} : it->second;
+    if (it == p->types.end() && !p->offers.count(topic) && !p->has.count(topic)) continue;  // not its topic
+    if (type && *type != ty) return {};  // peers disagree: raw
+    type = ty;
+  }
+  return type.value_or(wire::Control::TopicType{});
 }
 
 bool Bridge::Impl::is_large_locked(const std::string& topic) const {
@@ -164,15 +196,16 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
                  "to pattern subscribers",
                  cfg.name, wire::kMaxCatalogue, wire::kMaxCatalogue);
   announce_cut_logged = announce_cut_logged || announce_cut;
-  // Made with the keep the peers' offers give; never remade here (the data headers' keep
-  // decides that, in republish: an offer may lag behind the data).
+  // Made with the keep the peers' offers give; never remade here for its keep (the data
+  // headers' keep decides that, in republish: an offer may lag behind the data), only when the
+  // type the peers give the topic changed.
   auto ensure = [this](const std::string& t, std::uint32_t history) {
     bool have;
     {
       std::lock_guard lock(repub_mu);
       have = repubs.count(t) > 0;
     }
-    if (!have) ensure_republisher(t, history);
+    ensure_republisher(t, have ? std::nullopt : std::optional(history));
   };
   for (const auto& t : offered)
     if (local_demand.count(t)) ensure(t, keep_of[t]);

@@ -203,12 +203,14 @@ struct Bridge::Impl {
     // What our last full ping (demand) to it said, and when/where/to which instance of it.
     std::set<std::string> sent_want, sent_offer, sent_have;
     std::map<std::string, std::uint32_t> sent_keep;
+    std::map<std::string, wire::Control::TopicType> sent_types;
     Clock::time_point full_sent_at{};
     int full_sent_link = -1;
     std::uint64_t full_sent_instance = 0;
     // guarded by view_mu:
     std::set<std::string> wants, offers;
     std::map<std::string, std::uint32_t> keeps;  // keep last N of offered topics (0: absent)
+    std::map<std::string, wire::Control::TopicType> types;  // of its offered/catalogued topics
     std::set<std::string> has;     // its catalogue: the large topics its host publishes
     Clock::time_point demand_at{};
     std::set<std::string> served;  // what we forward to it now
@@ -230,6 +232,7 @@ struct Bridge::Impl {
   struct Republisher {
     RawPublisher pub;
     std::uint32_t history = 0;  // PublisherOptions::history: the peers' keep for the topic
+    wire::Control::TopicType type;  // announced; {0, ""}: raw bytes
     Clock::time_point last_message{};
   };
 
@@ -279,12 +282,16 @@ struct Bridge::Impl {
   std::set<std::string> demand;                 // topics local non-bridge participants subscribe to
   std::map<std::string, bool> published;        // topic -> some local non-bridge publisher is large
   std::map<std::string, std::uint32_t> kept;     // topic -> largest PublisherOptions::history of them
+  // topic -> the lcm-gen type its local non-bridge publishers announce, when they all announce
+  // the same one (raw publishers and conflicting types: absent).
+  std::map<std::string, wire::Control::TopicType> typed;
   std::set<std::string> sticky_large;           // topics once seen large (never go back)
   bool channel_subscribers = false;             // a local participant has FLAG_CHANNELS
 
   // Control thread only.
   std::map<std::string, std::unique_ptr<Served>> served;
   std::set<std::string> no_channel_logged;
+  std::set<std::int64_t> other_bridges_warned;  // participant ids of other bridges on this host
   bool catalogue_cut_logged = false, announce_cut_logged = false;
 
   std::mutex repub_mu;
@@ -323,9 +330,12 @@ struct Bridge::Impl {
   void receive_data(Channel& ch);
   // Channel threads: into this host's shared memory.
   void republish(const std::string& topic, const zmq::message_t& payload, std::uint32_t keep);
-  // Makes (or remakes, when the keep differs) the topic's republisher. repub_mu not held.
-  std::shared_ptr<Republisher> ensure_republisher(const std::string& topic, std::uint32_t history);
+  // Makes the topic's republisher, or remakes it when `history` (nullopt: whatever it has)
+  // or the type the peers give the topic (type_of_locked) differs. view_mu, repub_mu not held.
+  std::shared_ptr<Republisher> ensure_republisher(const std::string& topic, std::optional<std::uint32_t> history);
   std::uint32_t keep_of_locked(const std::string& topic) const;  // view_mu held: peers' keep
+  // view_mu held: the type up peers give the topic; {0, ""} (raw) when none does or they differ.
+  wire::Control::TopicType type_of_locked(const std::string& topic) const;
   void control_loop();
   void refresh_view();
   bool is_large_locked(const std::string& topic) const;

@@ -41,6 +41,10 @@ std::string encode(const Control& c) {
       for (const auto& t : c.offer) s += "offer " + t + "\n";
       for (const auto& [t, n] : c.keep) s += "keep " + t + " " + std::to_string(n) + "\n";
       for (const auto& t : c.have) s += "have " + t + "\n";
+      for (const auto& [t, ty] : c.types) {
+        std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(ty.fingerprint));
+        s += "type " + t + " " + hex + " " + ty.name + "\n";
+      }
     }
   }
   return s;
@@ -106,6 +110,17 @@ std::optional<Control> decode(std::string_view f) {
           !parse_num(val.substr(sp2 + 1), n) || n > Control::kMaxKeep || c.keep.size() >= kMaxCatalogue)
         return std::nullopt;
       c.keep[std::string(val.substr(0, sp2))] = n;
+    } else if (key == "type" && c.has_demand) {
+      // "<topic> <16 hex> <name>"
+      const auto sp2 = val.find(' ');
+      if (sp2 == std::string_view::npos) return std::nullopt;
+      const auto rest = val.substr(sp2 + 1);
+      const auto sp3 = rest.find(' ');
+      std::uint64_t fp = 0;
+      if (sp3 != 16 || !valid_topic(val.substr(0, sp2)) || !parse_num(rest.substr(0, 16), fp, 16) ||
+          !valid_word(rest.substr(17), Control::kMaxTypeName) || c.types.size() >= kMaxCatalogue)
+        return std::nullopt;
+      c.types[std::string(val.substr(0, sp2))] = {static_cast<std::int64_t>(fp), std::string(rest.substr(17))};
     } else if (key == "have" && c.has_demand) {
       if (!valid_topic(val) || c.have.size() >= kMaxCatalogue) return std::nullopt;
       c.have.emplace(val);

@@ -78,7 +78,7 @@ class World {
   // (32768-60999): Linux hands a socket bound to a port the datagrams of every group joined on
   // the host for that port (IP_MULTICAST_ALL), so an equal port would mix the two groups.
   void use_vehicle_group(const std::string& link) {
-    const unsigned id = static_cast<unsigned>(::getpid()) * 64u + static_cast<unsigned>(index_);
+    const unsigned id = static_cast<unsigned>(::getpid()) * 256u + static_cast<unsigned>(index_);  // index_ < 256
     vehicle_url_ = "udpm://239.253." + std::to_string((id >> 8) & 0xffu) + "." + std::to_string(id & 0xffu) + ":" +
                    std::to_string(61000 + id % 4000) + "?ttl=1&iface=" + emu_.interface(0, link);
   }
@@ -815,12 +815,15 @@ TEST_CASE("channels: 6 MB images on bulk do not cost a pose on control, and carr
   CHECK(bulk_sent <= ni + 60);
 }
 
-TEST_CASE("lcmx echo on host B decodes a large topic of host A carried by the bridges", "[bridge][multihost][tools]") {
+TEST_CASE("lcmx echo on host B decodes a large topic of host A carried by the bridges, and lcmx topics there shows its type",
+          "[bridge][multihost][tools]") {
   LCMX_REQUIRE_NETNS();
   World w(2, 40, {{.name = "eth"}});
   const auto ch = w.channel("ECHO");
   w.bridge(0, {1});
   w.bridge(1, {0});
+  // A raw subscriber on B that stays (demand for the topic while lcmx topics looks below).
+  auto& stay = w.spawn(1, {LCMX_TOOL, "echo", ch, "--json", "--field", "seq"});
   auto& echo = w.spawn(1, {LCMX_TOOL, "echo", ch, "--types", LCMX_LCMTYPES_DIR, "--json", "-n", "3", "--field", "seq"});
   auto& pub = w.pub(0, ch, 200000, "A");  // large: above the 65000-byte UDP limit
   // Single messages until echo printed three (discovery, demand, the republisher come up first).
@@ -840,6 +843,18 @@ TEST_CASE("lcmx echo on host B decodes a large topic of host A carried by the br
     CHECK(j.find("\"size\":200028") != std::string::npos);
     CHECK(j.find("\"field\":\"seq\",\"data\":") != std::string::npos);
   }
+  // Every endpoint of the topic on B is raw (the echoes; B's bridge republishes): the type
+  // shown is the one A's bridge announced with its offer, that of A's publisher. It was "raw".
+  auto& topics = w.spawn(1, {LCMX_TOOL, "topics", "--wait", "800"}, true);
+  REQUIRE(topics.wait(10000ms) == 0);
+  INFO(topics.text());
+  CHECK(topics.text().find(ch + "  [bench_t]") != std::string::npos);  // lcm-gen C++ names it so
+  // A subscriber of another type on B is told, as on any other path (it used to match the raw
+  // republisher and count each message as undecodable).
+  auto& wrong = w.spawn(1, {LCMX_TEST_PEER, "sub", "--type", "pose", "--channel", ch, "--timeout-ms", "20000"});
+  REQUIRE(wrong.expect("READY", 10000ms));
+  CHECK(wrong.wait_seen("EVENT type_mismatch " + ch, 10000ms));
+  stay.signal(SIGTERM);
   pub.send("quit");
 }
 

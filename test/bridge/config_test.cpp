@@ -276,6 +276,7 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   c.want = {"CAMERA", "POSE"};
   c.offer = {"MAP_1"};
   c.have = {"CAMERA_FRONT", "MAP_1"};
+  c.types = {{"MAP_1", {static_cast<std::int64_t>(0x8c636d7864647362ull), "lcmx_examples.map_t"}}};
   const auto text = wire::encode(c);
   auto d = wire::decode(text);
   REQUIRE(d);
@@ -285,7 +286,19 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   CHECK(d->want == c.want);
   CHECK(d->offer == c.offer);
   CHECK(d->have == c.have);
+  CHECK(d->types == c.types);  // a negative fingerprint (top bit set) too
+  CHECK(text.find("type MAP_1 8c636d7864647362 lcmx_examples.map_t\n") != std::string::npos);
   CHECK(d->has_demand);
+  // Type lines: topic, 16 hex digits, a name without spaces, inside the demand state.
+  const std::string head = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\n";
+  const std::string demand = "control 7700\ndemand\n";
+  CHECK(wire::decode(head + demand + "type T 0000000000000001 p.t\n"));
+  CHECK_FALSE(wire::decode(head + "type T 0000000000000001 p.t\n"));                    // no demand
+  CHECK_FALSE(wire::decode(head + demand + "type T 01 p.t\n"));                         // short fingerprint
+  CHECK_FALSE(wire::decode(head + demand + "type T 000000000000000g p.t\n"));           // not hex
+  CHECK_FALSE(wire::decode(head + demand + "type T 0000000000000001\n"));               // no name
+  CHECK_FALSE(wire::decode(head + demand + "type T 0000000000000001 \n"));              // empty name
+  CHECK_FALSE(wire::decode(head + demand + "type T 0000000000000001 " + std::string(256, 'n') + "\n"));
 
   CHECK_FALSE(wire::decode(""));
   CHECK_FALSE(wire::decode("LCMXB2 PING\n"));

@@ -49,7 +49,7 @@ void check_control(std::string_view frame) {
   FUZZ_CHECK(valid_name(c->link));
   if (c->kind == wire::Control::Kind::pong) {
     FUZZ_CHECK(!c->active && !c->has_demand && c->channels.empty() && c->want.empty() && c->offer.empty() &&
-               c->have.empty() && c->keep.empty());
+               c->have.empty() && c->keep.empty() && c->types.empty());
   }
   FUZZ_CHECK(c->channels.size() <= 256);
   for (const auto& [name, port] : c->channels) {
@@ -63,7 +63,12 @@ void check_control(std::string_view frame) {
   FUZZ_CHECK(c->have.size() <= wire::kMaxCatalogue);
   FUZZ_CHECK(c->keep.size() <= wire::kMaxCatalogue);
   for (const auto& [t, n] : c->keep) FUZZ_CHECK(wire::valid_topic(t) && n <= wire::Control::kMaxKeep);
-  if (!c->has_demand) FUZZ_CHECK(c->want.empty() && c->offer.empty() && c->have.empty() && c->keep.empty());
+  FUZZ_CHECK(c->types.size() <= wire::kMaxCatalogue);
+  for (const auto& [t, ty] : c->types)
+    FUZZ_CHECK(wire::valid_topic(t) && !ty.name.empty() && ty.name.size() <= wire::Control::kMaxTypeName &&
+               ty.name.find_first_of(" \t\n\r") == std::string::npos);
+  if (!c->has_demand)
+    FUZZ_CHECK(c->want.empty() && c->offer.empty() && c->have.empty() && c->keep.empty() && c->types.empty());
 
   const std::string text = wire::encode(*c);
   const auto again = wire::decode(text);
@@ -87,6 +92,7 @@ void check_control(std::string_view frame) {
       FUZZ_CHECK(again->offer == c->offer);
       FUZZ_CHECK(again->have == c->have);
       FUZZ_CHECK(again->keep == c->keep);
+      FUZZ_CHECK(again->types == c->types);
     }
   }
 }

@@ -5,7 +5,8 @@
 //   from <bridge name>            instance <16 hex>   link <link name>   t <sender ns>
 //   PING only: control <port>, channel <name> <port> (repeated), and on the active link
 //   "demand" followed by "want <topic>", "offer <topic>" and "have <topic>" lines (the full
-//   sets; "have": the sender's catalogue, at most kMaxCatalogue topics).
+//   sets; "have": the sender's catalogue, at most kMaxCatalogue topics), "keep <topic> <N>" and
+//   "type <topic> <fingerprint, 16 hex> <lcm type name>" lines.
 // Data (channel ports, DEALER -> ROUTER): [topic][header: instance u64 LE, seq u64 LE][payload].
 #pragma once
 
@@ -48,6 +49,16 @@ struct Control {
   // Part of the demand state: the topics the sender could serve (docs/bridge.md "Pattern
   // subscribers"), at most kMaxCatalogue.
   std::set<std::string> have;
+  // The lcm-gen type of offered and catalogued topics at the sender's host (its publishers',
+  // when they agree), at most kMaxCatalogue: the receiver's republisher announces it, so tools
+  // there show it and a subscriber of another type is told of the mismatch. Absent: raw bytes.
+  struct TopicType {
+    std::int64_t fingerprint = 0;
+    std::string name;
+    bool operator==(const TopicType&) const = default;
+  };
+  std::map<std::string, TopicType> types;
+  static constexpr std::size_t kMaxTypeName = 255;
 };
 
 // A topic that the text format can carry: 1..63 bytes, no whitespace or control characters.
