@@ -728,6 +728,23 @@ TEST_CASE("CURVE: a peer with the wrong key is refused and logged, with the righ
   CHECK(bridge_status(w, 1).find("CURVE") != std::string::npos);
 }
 
+TEST_CASE("a second bridge on a host: both warn of the other, by process and pid", "[bridge][multihost]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 50, {{.name = "eth"}});
+  Child& first = w.bridge(0, {1});
+  // Its own name and ports, the same host and group.
+  const auto cfg = w.dir / "second.toml";
+  std::ofstream(cfg) << "name = \"second\"\nlisten = [\"" << w.emu().address(0, "eth")
+                     << "\"]\ncontrol_port = 7800\n\n[[channel]]\nname = \"all\"\nport = 7801\ntopics = [\"*\"]\n\n"
+                     << "[[peer]]\nname = \"chipB\"\nendpoints = [ { link = \"eth\", address = \""
+                     << w.emu().address(1, "eth") << "\" } ]\n";
+  Child& second = w.spawn(0, {LCMX_TOOL, "bridge", "--config", cfg.string()}, true);
+  REQUIRE(second.expect("bridge second: ready", 10000ms));
+  REQUIRE_LOG(second, "bridge second: another Message Bridge runs on this host (lcmx pid " + std::to_string(first.pid()) + ")",
+              5000ms);
+  REQUIRE_LOG(first, "another Message Bridge runs on this host (lcmx pid " + std::to_string(second.pid()) + ")", 5000ms);
+}
+
 TEST_CASE("lcmx bridge --check: good config 0, bad config 2 with the key named, and the daemon refuses a bad one too",
           "[bridge][cli]") {
   std::string t = (fs::temp_directory_path() / "lcmx_bridge_cli_XXXXXX").string();
