@@ -122,7 +122,9 @@ int main(int argc, char** argv) {
   app.fallthrough();  // global options may also come after the verb
   lcmx::cli::Globals g;
   try {
-    g.url = lcmx::RuntimeOptions::from_env().discovery_url;
+    const auto env = lcmx::RuntimeOptions::from_env();
+    env.check();  // refused by every verb, also those that make no runtime (topics, nodes)
+    g.url = env.discovery_url;
   } catch (const std::exception& e) {
     std::cerr << "lcmx: " << e.what() << "\n";
     return 2;

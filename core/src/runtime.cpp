@@ -364,10 +364,7 @@ void RuntimeImpl::remove_subscriber(const SubscriberCore* sub) {
 Runtime Runtime::create(RuntimeOptions options) {
   static std::once_flag log_env;
   std::call_once(log_env, [] { spdlog::cfg::load_env_levels(); });
-  if (options.lease <= options.beacon_period)
-    throw Error(Errc::invalid_argument,
-                "lease " + std::to_string(options.lease.count()) + " ms (LCMX_LEASE_MS) must be longer than beacon_period " +
-                    std::to_string(options.beacon_period.count()) + " ms (LCMX_BEACON_PERIOD_MS)");
+  options.check();
   if (detail::g_runtime_alive.exchange(true))
     throw Error(Errc::already_exists, "a lcmx::Runtime already exists in this process");
   try {

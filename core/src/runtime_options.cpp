@@ -1,12 +1,14 @@
-// RuntimeOptions::from_env: defaults overridden by LCMX_* environment variables.
+// RuntimeOptions::from_env (defaults overridden by LCMX_* environment variables) and check().
 #include <algorithm>
 #include <cerrno>
 #include <cstdlib>
+#include <stdexcept>
 #include <string>
 #include <utility>
 
 #include "lcmx/core/error.hpp"
 #include "lcmx/core/options.hpp"
+#include "lcmx/discovery/identity.hpp"
 
 namespace lcmx {
 
@@ -74,6 +76,18 @@ RuntimeOptions RuntimeOptions::from_env() {
   o.beacon_period = std::chrono::milliseconds(env_number("LCMX_BEACON_PERIOD_MS", o.beacon_period.count(), 10, 60000));
   o.lease = std::chrono::milliseconds(env_number("LCMX_LEASE_MS", o.lease.count(), 50, 600000));
   return o;
+}
+
+void RuntimeOptions::check() const {
+  if (lease <= beacon_period)
+    throw Error(Errc::invalid_argument, "lease " + std::to_string(lease.count()) +
+                                            " ms (LCMX_LEASE_MS) must be longer than beacon_period " +
+                                            std::to_string(beacon_period.count()) + " ms (LCMX_BEACON_PERIOD_MS)");
+  try {
+    (void)discovery::host_id();
+  } catch (const std::invalid_argument& e) {  // a bad LCMX_HOST_ID
+    throw Error(Errc::invalid_argument, e.what());
+  }
 }
 
 }  // namespace lcmx

@@ -108,6 +108,16 @@ TEST_CASE("lcmx --help and lcmx topics --help exit 0 - a bad flag exits non-zero
   INFO(bad_env.out);
   CHECK(bad_env.rc == 2);
   CHECK(contains(bad_env.out, "lcmx: LCMX_DISCOVERY_URL 'garbage'"));
+  // So are a bad LCMX_HOST_ID and a lease not longer than the beacon period: every runtime
+  // refuses them, and the observers (topics, nodes), which make none, refuse them too.
+  auto bad_host = s.run({LCMX_TOOL, "topics"}, {"LCMX_HOST_ID=chip-a"});
+  INFO(bad_host.out);
+  CHECK(bad_host.rc == 2);
+  CHECK(contains(bad_host.out, "lcmx: LCMX_HOST_ID='chip-a'"));
+  auto bad_lease = s.run({LCMX_TOOL, "nodes"}, {"LCMX_LEASE_MS=100", "LCMX_BEACON_PERIOD_MS=400"});
+  INFO(bad_lease.out);
+  CHECK(bad_lease.rc == 2);
+  CHECK(contains(bad_lease.out, "lease 100 ms (LCMX_LEASE_MS) must be longer than beacon_period 400 ms"));
   auto no_iface = s.run({LCMX_TOOL, "--vehicle-url", "udpm://239.255.76.68:7668?ttl=1", "topics"});
   INFO(no_iface.out);
   CHECK(no_iface.rc == 2);

@@ -137,6 +137,10 @@ struct RuntimeOptions {
   // LCMX_LARGE_TOPICS / LCMX_SMALL_TOPICS (comma-separated channels), LCMX_BEACON_PERIOD_MS,
   // LCMX_LEASE_MS. Throws lcmx::Error(invalid_argument) naming a bad variable.
   static RuntimeOptions from_env();
+  // What Runtime::create refuses before it starts anything: lease not longer than
+  // beacon_period, a bad LCMX_HOST_ID. Throws lcmx::Error(invalid_argument) naming the values
+  // and their variables. (The `lcmx` tools call it for every verb, the observers too.)
+  void check() const;
 };
 
 }  // namespace lcmx
