@@ -97,6 +97,7 @@ class Runtime(_Closing):
     def on_event(self, callback):
         """callback(kind, channel, message) for type mismatches, matches, participants and
         errors; runs on the discovery thread (keep it short). Replaces the previous one."""
+        _check_callable(callback, "callback")
         self._rt.on_event(callback)
 
     @property
@@ -137,12 +138,14 @@ class Node(_Closing):
 
     def subscribe(self, channel, msg_type, callback, queue_depth=16):
         """callback(msg) with each message decoded as msg_type (msg_type.decode)."""
+        _check_callable(callback, "callback")
         name, fingerprint = _type_info(msg_type)
         return Subscriber(self._node.subscribe_raw(channel, callback, name, fingerprint,
                                                    msg_type.decode, queue_depth))
 
     def subscribe_raw(self, channel, callback, queue_depth=16):
         """callback(view): a read-only memoryview of the message, valid during the call."""
+        _check_callable(callback, "callback")
         return Subscriber(self._node.subscribe_raw(channel, callback, None, 0, None, queue_depth))
 
     def create_service(self, name, req_type, resp_type, handler):

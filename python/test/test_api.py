@@ -43,6 +43,13 @@ def test_typed_roundtrip_in_process(lcmx_env):
         assert pub.stats()["published"] == 3
         with pytest.raises(TypeError):
             pub.publish(header_t())
+        # A callback that is not callable is a TypeError, as for services and actions.
+        with pytest.raises(TypeError):
+            node.subscribe("PY_NOT_CALLABLE", pose_t, 42)
+        with pytest.raises(TypeError):
+            node.subscribe_raw("PY_NOT_CALLABLE", "not a function")
+        with pytest.raises(TypeError):
+            rt.on_event(None)
 
 
 def test_keep_last_n_late_subscriber_gets_the_last_messages_once(lcmx_env):
