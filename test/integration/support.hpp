@@ -28,6 +28,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <stdexcept>
 #include <set>
 #include <sstream>
 #include <string>
@@ -47,8 +48,11 @@ using ms = std::chrono::milliseconds;
 // A discovery group of its own for test `index` of this process: never LCM's default group.
 // Host-local mode (no iface=): inside a test's network namespace. Tests in the root namespace
 // add "&iface=lo" (Session does), so they never join a group on the machine's real interface.
+// `index` < 256: (pid, index) and (pid + 1, index - 256) would share a group, and the two test
+// processes ctest starts together often have consecutive pids.
 inline std::string unique_url(int index) {
-  const unsigned h = static_cast<unsigned>(::getpid()) * 64u + static_cast<unsigned>(index);
+  if (index < 0 || index >= 256) throw std::invalid_argument("unique_url: test index out of [0, 256)");
+  const unsigned h = static_cast<unsigned>(::getpid()) * 256u + static_cast<unsigned>(index);
   unsigned a = 1 + (h / 250u) % 250u, b = 1 + h % 250u;
   if (a == 76 && b == 67) b = 68;
   const unsigned port = 20000 + h % 40000u;

@@ -12,6 +12,7 @@
 
 #include <algorithm>
 #include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -35,7 +36,9 @@ using it::json_until;
 // "udpm://239.<a>.<b>.<c>:<port>?ttl=1&iface=eth": unique per (test process, test index) and
 // in a range of its own (the host-local groups use 239.255.x.y).
 inline std::string unique_vehicle_url(int index, const std::string& iface) {
-  const unsigned h = static_cast<unsigned>(::getpid()) * 64u + static_cast<unsigned>(index);
+  // index < 256, as unique_url's.
+  if (index < 0 || index >= 256) throw std::invalid_argument("unique_vehicle_url: test index out of [0, 256)");
+  const unsigned h = static_cast<unsigned>(::getpid()) * 256u + static_cast<unsigned>(index);
   const unsigned a = 1 + (h / 250u) % 250u, b = 1 + h % 250u;
   const unsigned port = 20000 + (h * 7u + 13u) % 40000u;
   return "udpm://239.254." + std::to_string(a) + "." + std::to_string(b) + ":" + std::to_string(port) +
