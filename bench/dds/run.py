@@ -5,7 +5,9 @@
    (lcmx_bench_dds sink, envelope type):
      direct:  DDS writer process (lcmx_bench_dds dds-source) -> DDS reader
      gateway: lcmx publisher process (lcmx-source, shared memory) -> lcmx dds-gateway -> DDS reader
-   The two alternate per size; ratio = gateway / direct.
+   The two alternate in --rounds rounds per size (direct first in even rounds, gateway first in
+   odd ones), so both see the same drift of a shared machine; each round's ratio is gateway p50
+   / direct p50 (p99 alike), and the figure given is the median of those per-round ratios.
 2. 6 MB throughput (Mbit/s at the reader): DDS writer -> reader, lcmx -> gateway -> reader, and
    ddsperf pub/sub (Cyclone's own tool, size 6 MB) on the same host.
 Cyclone runs on loopback only (unicast to 127.0.0.1, no multicast); lcmx on a group of its own
@@ -15,7 +17,7 @@ pinned to lo. The DDS programs (source, sink, ddsperf) ask Cyclone for a socket 
 retransmission for ~50 ms in some runs, whichever path sent it. The gateway (a writer here) keeps
 its own config.
 
-usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--csv FILE] [--rcvbuf SIZE] [--spin-us US]
+usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--rounds N] [--csv FILE] [--rcvbuf SIZE] [--spin-us US]
 """
 import argparse, os, re, subprocess, sys, tempfile, time
 
@@ -23,6 +25,7 @@ p = argparse.ArgumentParser()
 p.add_argument("build")
 p.add_argument("--pin", default="", help="taskset CPU list for every process (e.g. 0), default none")
 p.add_argument("--quick", action="store_true", help="fewer samples")
+p.add_argument("--rounds", type=int, default=3, help="alternating rounds per size (default 3)")
 p.add_argument("--csv", default="")
 p.add_argument("--spin-us", type=int, default=None,
                help="the gateway's spin_us (default: the gateway's own default)")
@@ -85,24 +88,27 @@ try:
     expect(gw, "dds-gateway bench: ready")
     for s in sizes:
         n, hz = plan[s]
-        res = {}
-        for path in ("direct", "gateway"):
-            sink = start([bench, "sink", ("D_%d" if path == "direct" else "G_%d") % s, str(n)])
-            expect(sink, "ready")
-            if path == "direct":
-                src = start([bench, "dds-source", "D_%d" % s, str(n), str(s), str(hz)])
-            else:
-                src = start([bench, "lcmx-source", "BENCH_%d" % s, str(n), str(s), str(hz)], stdin=subprocess.PIPE)
-            res[path] = result(expect(sink, "result", 180))
-            if src.stdin:
-                src.stdin.close()
-            src.wait(30)
-            sink.wait(30)
-        rows.append((s, res["direct"], res["gateway"]))
-        print("size %7d  direct p50 %8.1f p99 %8.1f | gateway p50 %8.1f p99 %8.1f | ratio p50 %.2f p99 %.2f" % (
-            s, res["direct"]["p50_us"], res["direct"]["p99_us"], res["gateway"]["p50_us"], res["gateway"]["p99_us"],
-            res["gateway"]["p50_us"] / res["direct"]["p50_us"], res["gateway"]["p99_us"] / res["direct"]["p99_us"]),
-            flush=True)
+        rounds = []  # [{"direct": result, "gateway": result}] per round
+        for r in range(max(1, a.rounds)):
+            res = {}
+            for path in (("direct", "gateway") if r % 2 == 0 else ("gateway", "direct")):
+                sink = start([bench, "sink", ("D_%d" if path == "direct" else "G_%d") % s, str(n)])
+                expect(sink, "ready")
+                if path == "direct":
+                    src = start([bench, "dds-source", "D_%d" % s, str(n), str(s), str(hz)])
+                else:
+                    src = start([bench, "lcmx-source", "BENCH_%d" % s, str(n), str(s), str(hz)], stdin=subprocess.PIPE)
+                res[path] = result(expect(sink, "result", 180))
+                if src.stdin:
+                    src.stdin.close()
+                src.wait(30)
+                sink.wait(30)
+            rounds.append(res)
+            print("size %7d round %d  direct p50 %8.1f p99 %8.1f | gateway p50 %8.1f p99 %8.1f | ratio p50 %.2f p99 %.2f" % (
+                s, r + 1, res["direct"]["p50_us"], res["direct"]["p99_us"], res["gateway"]["p50_us"],
+                res["gateway"]["p99_us"], res["gateway"]["p50_us"] / res["direct"]["p50_us"],
+                res["gateway"]["p99_us"] / res["direct"]["p99_us"]), flush=True)
+        rows.append((s, rounds))
     # 6 MB throughput.
     n6 = 15 if a.quick else 40
     thr = {}
@@ -137,11 +143,41 @@ except OSError:
 print("\n### One-way latency, us (%s; %s; DDS programs' receive buffer %s, rmem_max %s)\n" % (
     "pinned to CPU " + a.pin if a.pin else "unpinned", time.strftime("%Y-%m-%d %H:%M"),
     a.rcvbuf or "Cyclone's default", rmem_max))
-print("| size | direct p50 | direct p99 | gateway p50 | gateway p99 | ratio p50 | ratio p99 |")
+
+
+def median(xs):
+    xs = sorted(xs)
+    m = len(xs) // 2
+    return xs[m] if len(xs) % 2 else (xs[m - 1] + xs[m]) / 2
+
+
+def summary(rounds):
+    """Medians over the rounds: each path's p50/p99, and the per-round ratios' median."""
+    out = {}
+    for q in ("p50_us", "p99_us"):
+        out["direct_" + q] = median([r["direct"][q] for r in rounds])
+        out["gateway_" + q] = median([r["gateway"][q] for r in rounds])
+        out["ratios_" + q] = [r["gateway"][q] / r["direct"][q] for r in rounds]
+        out["ratio_" + q] = median(out["ratios_" + q])
+    return out
+
+
+print("%d alternating rounds per size; each figure is the median over the rounds, the ratio the median of the "
+      "per-round ratios (gateway / direct).\n" % max(1, a.rounds))
+print("| size | direct p50 | direct p99 | gateway p50 | gateway p99 | ratio p50 (per round) | ratio p99 |")
 print("|---:|---:|---:|---:|---:|---:|---:|")
-for s, d, gg in rows:
-    print("| %d | %.1f | %.1f | %.1f | %.1f | %.2f | %.2f |" % (s, d["p50_us"], d["p99_us"], gg["p50_us"], gg["p99_us"],
-                                                           gg["p50_us"] / d["p50_us"], gg["p99_us"] / d["p99_us"]))
+for s, rounds in rows:
+    m = summary(rounds)
+    print("| %d | %.1f | %.1f | %.1f | %.1f | %.2f (%s) | %.2f |" % (
+        s, m["direct_p50_us"], m["direct_p99_us"], m["gateway_p50_us"], m["gateway_p99_us"], m["ratio_p50_us"],
+        ", ".join("%.2f" % x for x in m["ratios_p50_us"]), m["ratio_p99_us"]))
+print("\n### Targets (issue 13): p50 gateway / direct, median of the rounds\n")
+for s, rounds in rows:
+    limit = 1.5 if s <= 1024 else (1.2 if s >= 102400 else None)
+    if limit is None:
+        continue
+    r = summary(rounds)["ratio_p50_us"]
+    print("- %d bytes: <= %.1fx: %s (%.2fx)" % (s, limit, "**holds**" if r <= limit else "**not met**", r))
 print("\n### 6 MB throughput at the reader, Mbit/s\n")
 print("| DDS writer -> reader (reliable, KEEP_LAST 16 as the gateway) | lcmx -> gateway -> reader | ddsperf pub/sub (median of 1 s lines) |")
 print("|---:|---:|---:|")
@@ -151,6 +187,8 @@ print("\nratio gateway/direct 6 MB throughput: %.2f; gateway/ddsperf: %.2f" % (
     thr["gateway"]["mbps"] / max(thr["direct"]["mbps"], 1e-9), thr["gateway"]["mbps"] / max(thr["ddsperf"]["mbps"], 1e-9)))
 if a.csv:
     with open(a.csv, "w") as f:
-        f.write("size,direct_p50_us,direct_p99_us,gateway_p50_us,gateway_p99_us\n")
-        for s, d, gg in rows:
-            f.write("%d,%.1f,%.1f,%.1f,%.1f\n" % (s, d["p50_us"], d["p99_us"], gg["p50_us"], gg["p99_us"]))
+        f.write("size,round,direct_p50_us,direct_p99_us,gateway_p50_us,gateway_p99_us\n")
+        for s, rounds in rows:
+            for i, r in enumerate(rounds):
+                d, gg = r["direct"], r["gateway"]
+                f.write("%d,%d,%.1f,%.1f,%.1f,%.1f\n" % (s, i + 1, d["p50_us"], d["p99_us"], gg["p50_us"], gg["p99_us"]))
