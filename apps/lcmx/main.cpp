@@ -17,7 +17,6 @@
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/types/schema.hpp"
-#include "lcmx/udpm/config.hpp"
 #include "bridge_cmd.hpp"
 #ifdef LCMX_WITH_DDS
 #include "dds_cmds.hpp"
@@ -92,18 +91,11 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
           }};
 }
 
-// Checks a group URL as the runtime will read it (udpm::parse_url), so that a bad --url or
+// Checks a group URL as the runtime will (RuntimeOptions::group_url_problem), so that a bad --url or
 // --vehicle-url is a bad argument (exit 2) and not a failure after the verb has started. The
 // vehicle group may be "" (none) and must name its interface (iface=). "" when good, else why.
 std::string check_group_url(const std::string& url, bool vehicle) {
-  if (vehicle && url.empty()) return {};
-  try {
-    const auto cfg = lcmx::udpm::parse_url(url);
-    if (vehicle && cfg.interface.empty()) return "'" + url + "' names no interface: add &iface=<name>";
-  } catch (const std::exception& e) {
-    return "'" + url + "': " + e.what();
-  }
-  return {};
+  return lcmx::RuntimeOptions::group_url_problem(url, vehicle);
 }
 
 CLI::Validator group_url(bool vehicle) {
@@ -121,9 +113,9 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   app.fallthrough();  // global options may also come after the verb
   lcmx::cli::Globals g;
+  lcmx::RuntimeOptions env;
   try {
-    const auto env = lcmx::RuntimeOptions::from_env();
-    env.check();  // refused by every verb, also those that make no runtime (topics, nodes)
+    env = lcmx::RuntimeOptions::from_env();
     g.url = env.discovery_url;
   } catch (const std::exception& e) {
     std::cerr << "lcmx: " << e.what() << "\n";
@@ -136,6 +128,12 @@ int main(int argc, char** argv) {
       std::cerr << "lcmx: " << var << " " << why << "\n";
       return 2;
     }
+  try {
+    env.check();  // the rest of what every runtime refuses, also for verbs that make none (topics, nodes)
+  } catch (const std::exception& e) {
+    std::cerr << "lcmx: " << e.what() << "\n";
+    return 2;
+  }
   app.add_option("--url", g.url, "discovery group (default: LCMX_DISCOVERY_URL or LCM's default)")
       ->check(group_url(false))
       ->capture_default_str();

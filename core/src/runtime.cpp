@@ -95,10 +95,7 @@ void RuntimeImpl::start_transports() {
   warn_lcm_default_url();
   host_addresses = local_addresses();
   routes_checked = std::chrono::steady_clock::now();
-  if (!options.vehicle_url.empty()) {
-    if (options.vehicle_url.find("iface=") == std::string::npos)
-      throw Error(Errc::invalid_argument, "vehicle_url '" + options.vehicle_url +
-                                              "' names no interface: add &iface=<name>");
+  if (!options.vehicle_url.empty()) {  // naming an interface (RuntimeOptions::check)
     vehicle_group = open_group("vehicle_url", options.vehicle_url);
     // Our sockets hear only the groups they joined (IP_MULTICAST_ALL = 0), but liblcm's do not
     // set that: a stock LCM program bound to this port hears every group joined on its host

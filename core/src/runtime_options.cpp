@@ -9,6 +9,7 @@
 #include "lcmx/core/error.hpp"
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/identity.hpp"
+#include "lcmx/udpm/config.hpp"
 
 namespace lcmx {
 
@@ -78,7 +79,22 @@ RuntimeOptions RuntimeOptions::from_env() {
   return o;
 }
 
+std::string RuntimeOptions::group_url_problem(const std::string& url, bool vehicle) {
+  if (vehicle && url.empty()) return {};
+  try {
+    const auto cfg = udpm::parse_url(url);
+    if (vehicle && cfg.interface.empty()) return "'" + url + "' names no interface: add &iface=<name>";
+  } catch (const std::exception& e) {
+    return "'" + url + "': " + e.what();
+  }
+  return {};
+}
+
 void RuntimeOptions::check() const {
+  if (const auto why = group_url_problem(discovery_url, false); !why.empty())
+    throw Error(Errc::invalid_argument, "discovery_url (LCMX_DISCOVERY_URL) " + why);
+  if (const auto why = group_url_problem(vehicle_url, true); !why.empty())
+    throw Error(Errc::invalid_argument, "vehicle_url (LCMX_VEHICLE_URL) " + why);
   if (lease <= beacon_period)
     throw Error(Errc::invalid_argument, "lease " + std::to_string(lease.count()) +
                                             " ms (LCMX_LEASE_MS) must be longer than beacon_period " +

@@ -147,3 +147,35 @@ TEST_CASE("a vehicle group on the host-local group's port is warned about, anoth
     CHECK_FALSE(warned());
   }
 }
+
+TEST_CASE("RuntimeOptions::check: bad groups, a short lease and a bad LCMX_HOST_ID are named, and Runtime::create refuses them",
+          "[core][options]") {
+  Env env;
+  lcmx::RuntimeOptions good;
+  CHECK_NOTHROW(good.check());
+  CHECK(lcmx::RuntimeOptions::group_url_problem("", true).empty());  // no vehicle group
+  CHECK(lcmx::RuntimeOptions::group_url_problem("udpm://239.255.76.68:7668?ttl=1&iface=lo", true).empty());
+
+  auto no_iface = good;
+  no_iface.vehicle_url = "udpm://239.255.76.68:7668?ttl=1";
+  CHECK(error_of([&] { no_iface.check(); }) ==
+        "vehicle_url (LCMX_VEHICLE_URL) 'udpm://239.255.76.68:7668?ttl=1' names no interface: add &iface=<name>");
+  CHECK(error_of([&] { (void)lcmx::Runtime::create(no_iface); }).find("names no interface") != std::string::npos);
+
+  auto bad_url = good;
+  bad_url.discovery_url = "garbage";
+  CHECK(error_of([&] { bad_url.check(); }).rfind("discovery_url (LCMX_DISCOVERY_URL) 'garbage': ", 0) == 0);
+
+  auto short_lease = good;
+  short_lease.lease = short_lease.beacon_period;
+  CHECK(error_of([&] { short_lease.check(); }).find("(LCMX_LEASE_MS) must be longer than beacon_period") !=
+        std::string::npos);
+
+  const char* old = std::getenv("LCMX_HOST_ID");
+  const std::optional<std::string> saved = old ? std::optional<std::string>(old) : std::nullopt;
+  ::setenv("LCMX_HOST_ID", "chip-a", 1);
+  const auto host = error_of([&] { good.check(); });
+  if (saved) ::setenv("LCMX_HOST_ID", saved->c_str(), 1);
+  else ::unsetenv("LCMX_HOST_ID");
+  CHECK(host.find("LCMX_HOST_ID='chip-a'") != std::string::npos);
+}

@@ -137,10 +137,14 @@ struct RuntimeOptions {
   // LCMX_LARGE_TOPICS / LCMX_SMALL_TOPICS (comma-separated channels), LCMX_BEACON_PERIOD_MS,
   // LCMX_LEASE_MS. Throws lcmx::Error(invalid_argument) naming a bad variable.
   static RuntimeOptions from_env();
-  // What Runtime::create refuses before it starts anything: lease not longer than
-  // beacon_period, a bad LCMX_HOST_ID. Throws lcmx::Error(invalid_argument) naming the values
-  // and their variables. (The `lcmx` tools call it for every verb, the observers too.)
+  // What Runtime::create refuses before it starts anything: a discovery_url or vehicle_url
+  // that group_url_problem() finds wrong, lease not longer than beacon_period, a bad
+  // LCMX_HOST_ID. Throws lcmx::Error(invalid_argument) naming the values and their variables.
+  // (The `lcmx` tools call it for every verb, the observers too.)
   void check() const;
+  // Why `url` cannot be this group ("" when it can): not a udpm:// URL the runtime reads, or a
+  // vehicle group (`vehicle`; "" there means none) that names no interface (iface=).
+  static std::string group_url_problem(const std::string& url, bool vehicle);
 };
 
 }  // namespace lcmx
