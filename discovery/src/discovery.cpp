@@ -25,6 +25,12 @@ namespace lcmx::discovery {
 
 using Clock = std::chrono::steady_clock;
 
+// Lease expiry (Impl::expire_leases) reads what is queued first; a check made this long after
+// that read began (the process was stopped, or starved of a CPU, in between) reads again, at
+// most kMaxReads times.
+constexpr auto kStall = std::chrono::milliseconds(100);
+constexpr int kMaxReads = 3;
+
 #ifndef SYS_pidfd_open
 #define SYS_pidfd_open 434
 #endif
@@ -344,27 +350,39 @@ struct Discovery::Impl {
       std::lock_guard lock(mutex);
       if (!lease_due(Clock::now())) return;
     }
-    // A lease has run out by the clock, but its beacons may be queued still: this process
-    // did not run for a while (SIGSTOP, a frozen container) and resumed, or the receive
-    // thread lags. Read them first; then only the participants that really fell silent go.
-    drain_queued();
     std::vector<Participant> gone;
-    std::lock_guard order(deliver_mutex);  // until on_change has been told
-    {
-      std::lock_guard lock(mutex);
-      const auto now = Clock::now();
-      for (auto it = peers.begin(); it != peers.end();) {
-        const auto lease = std::chrono::milliseconds(std::max(it->second.beacon.lease_ms, 1));
-        if (now - it->second.last_seen > lease) {
-          forget_bytes(it->first);
-          gone.push_back(std::move(it->second));
-          it = peers.erase(it);
-          ++counters.leases_expired;
-          want_watch_sync = true;
-        } else {
-          ++it;
+    std::unique_lock order(deliver_mutex, std::defer_lock);  // until on_change has been told
+    for (int read = 1;; ++read) {
+      // A lease has run out by the clock, but its beacons may be queued still: this process
+      // did not run for a while (SIGSTOP, a frozen container) and resumed, or the receive
+      // thread lags. Read them first (deliver_mutex not held: reading delivers); then only the
+      // participants that really fell silent go.
+      const auto read_at = Clock::now();
+      drain_queued();
+      order.lock();
+      {
+        std::lock_guard lock(mutex);
+        const auto now = Clock::now();
+        // Stopped or starved since the read began: the others' beacons of that time are queued
+        // again, and `now` would hold that time against them. Read again; after kMaxReads, on a
+        // machine that keeps this thread off a CPU that long, the leases decide.
+        if (now - read_at <= kStall || read >= kMaxReads) {
+          for (auto it = peers.begin(); it != peers.end();) {
+            const auto lease = std::chrono::milliseconds(std::max(it->second.beacon.lease_ms, 1));
+            if (now - it->second.last_seen > lease) {
+              forget_bytes(it->first);
+              gone.push_back(std::move(it->second));
+              it = peers.erase(it);
+              ++counters.leases_expired;
+              want_watch_sync = true;
+            } else {
+              ++it;
+            }
+          }
+          break;  // deliver_mutex stays held until on_change has been told
         }
       }
+      order.unlock();
     }
     for (auto& p : gone) {
       spdlog::info("lcmx discovery: participant {} ({} pid {}) lease expired",
