@@ -91,15 +91,11 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
           }};
 }
 
-// Checks a group URL as the runtime will (RuntimeOptions::group_url_problem), so that a bad --url or
-// --vehicle-url is a bad argument (exit 2) and not a failure after the verb has started. The
-// vehicle group may be "" (none) and must name its interface (iface=). "" when good, else why.
-std::string check_group_url(const std::string& url, bool vehicle) {
-  return lcmx::RuntimeOptions::group_url_problem(url, vehicle);
-}
-
+// A group URL checked as the runtime will (RuntimeOptions::group_url_problem), so that a bad --url
+// or --vehicle-url is a bad argument (exit 2) and not a failure after the verb has started.
 CLI::Validator group_url(bool vehicle) {
-  return CLI::Validator([vehicle](std::string& s) { return check_group_url(s, vehicle); }, "URL");
+  return CLI::Validator(
+      [vehicle](std::string& s) { return lcmx::RuntimeOptions::group_url_problem(s, vehicle); }, "URL");
 }
 
 }  // namespace
@@ -121,10 +117,10 @@ int main(int argc, char** argv) {
     std::cerr << "lcmx: " << e.what() << "\n";
     return 2;
   }
-  if (const char* v = std::getenv("LCMX_VEHICLE_URL")) g.vehicle_url = v;
+  g.vehicle_url = env.vehicle_url;
   for (const auto& [var, value, vehicle] : {std::tuple{"LCMX_DISCOVERY_URL", g.url, false},
                                             std::tuple{"LCMX_VEHICLE_URL", g.vehicle_url, true}})
-    if (const auto why = check_group_url(value, vehicle); !why.empty()) {
+    if (const auto why = lcmx::RuntimeOptions::group_url_problem(value, vehicle); !why.empty()) {
       std::cerr << "lcmx: " << var << " " << why << "\n";
       return 2;
     }

@@ -343,7 +343,7 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
       std::lock_guard lock(view_mu);
       if (!demand.count(topic)) return;  // nobody here wants it (any more)
     }
-    r = ensure_republisher(topic, keep);
+    r = ensure_republisher(topic, keep, true);
     if (!r) return;
   }
   r->last_message = Clock::now();
@@ -362,7 +362,8 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
 }
 
 std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(const std::string& topic,
-                                                                           std::optional<std::uint32_t> history) {
+                                                                           std::uint32_t history,
+                                                                           bool remake_for_history) {
   wire::Control::TopicType type;
   {
     std::lock_guard lock(view_mu);
@@ -371,18 +372,18 @@ std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(cons
   std::shared_ptr<Republisher> old;  // destroyed outside the lock
   std::lock_guard lock(repub_mu);
   auto& slot = repubs[topic];
-  if (slot && ((history && slot->history != *history) || slot->type != type)) {
+  if (slot && ((remake_for_history && slot->history != history) || slot->type != type)) {
     if (slot->type != type)
       spdlog::info("bridge {}: {} is now of type {} at its origin (was {})", cfg.name, topic,
                    type.name.empty() ? "raw" : type.name, slot->type.name.empty() ? "raw" : slot->type.name);
-    history = history.value_or(slot->history);
+    if (!remake_for_history) history = slot->history;
     old = std::move(slot);
   }
   if (!slot) {
     try {
       auto r = std::make_shared<Republisher>();
       PublisherOptions po;
-      po.history = history.value_or(0);  // a late subscriber here gets the origin's last N from our ring
+      po.history = history;  // a late subscriber here gets the origin's last N from our ring
       // The origin's type, so tools here show it and a subscriber of another type is told.
       r->pub = type.name.empty() ? repub_node->advertise_raw(topic, po)
                                  : repub_node->advertise_raw(topic, type.name, type.fingerprint, po);

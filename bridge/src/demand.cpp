@@ -34,13 +34,9 @@ void Bridge::Impl::refresh_view() {
       if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER) d.insert(e.topic);
       else if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) {
         pubs[e.topic] = pubs[e.topic] || e.large != 0;
-        const wire::Control::TopicType ty{e.fingerprint, e.type_name};
-        const bool typed_ok = e.fingerprint != 0 && !e.type_name.empty() &&
-                              e.type_name.size() <= wire::Control::kMaxTypeName &&
-                              e.type_name.find_first_of(" \t\n\r") == std::string::npos;
-        if (auto [it, fresh] = types.try_emplace(e.topic, typed_ok ? std::optional(ty) : std::nullopt);
-            !fresh && it->second != (typed_ok ? std::optional(ty) : std::nullopt))
-          it->second.reset();
+        std::optional<wire::Control::TopicType> ty;  // raw, or a name a "type" line cannot carry: none
+        if (e.fingerprint != 0 && wire::valid_type_name(e.type_name)) ty = {e.fingerprint, e.type_name};
+        if (auto [it, fresh] = types.try_emplace(e.topic, ty); !fresh && it->second != ty) it->second.reset();
         if (e.history > 0)
           keeps[e.topic] = std::max(keeps[e.topic], std::min<std::uint32_t>(static_cast<std::uint32_t>(e.history),
                                                                              wire::Control::kMaxKeep));
@@ -70,8 +66,8 @@ wire::Control::TopicType Bridge::Impl::type_of_locked(const std::string& topic) 
   for (const auto& p : peers) {
     if (p->active.load() < 0) continue;
     const auto it = p->types.find(topic);
-    const wire::Control::TopicType ty = it == p->types.end() ? wire::Control::TopicType{} : it->second;
     if (it == p->types.end() && !p->offers.count(topic) && !p->has.count(topic)) continue;  // not its topic
+    const wire::Control::TopicType ty = it == p->types.end() ? wire::Control::TopicType{} : it->second;
     if (type && *type != ty) return {};  // peers disagree: raw
     type = ty;
   }
@@ -199,18 +195,10 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
   // Made with the keep the peers' offers give; never remade here for its keep (the data
   // headers' keep decides that, in republish: an offer may lag behind the data), only when the
   // type the peers give the topic changed.
-  auto ensure = [this](const std::string& t, std::uint32_t history) {
-    bool have;
-    {
-      std::lock_guard lock(repub_mu);
-      have = repubs.count(t) > 0;
-    }
-    ensure_republisher(t, have ? std::nullopt : std::optional(history));
-  };
   for (const auto& t : offered)
-    if (local_demand.count(t)) ensure(t, keep_of[t]);
+    if (local_demand.count(t)) ensure_republisher(t, keep_of[t], false);
   for (const auto& t : announce)
-    if (!offered.count(t) || !local_demand.count(t)) ensure(t, 0);
+    if (!offered.count(t) || !local_demand.count(t)) ensure_republisher(t, 0, false);
   std::vector<std::shared_ptr<Republisher>> dead;  // destroyed outside the lock
   {
     std::lock_guard lock(repub_mu);

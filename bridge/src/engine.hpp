@@ -330,9 +330,11 @@ struct Bridge::Impl {
   void receive_data(Channel& ch);
   // Channel threads: into this host's shared memory.
   void republish(const std::string& topic, const zmq::message_t& payload, std::uint32_t keep);
-  // Makes the topic's republisher, or remakes it when `history` (nullopt: whatever it has)
-  // or the type the peers give the topic (type_of_locked) differs. view_mu, repub_mu not held.
-  std::shared_ptr<Republisher> ensure_republisher(const std::string& topic, std::optional<std::uint32_t> history);
+  // Makes the topic's republisher with keep last `history`, or remakes it when the type the
+  // peers give the topic (type_of_locked) differs, or (`remake_for_history`) its keep differs;
+  // a remade one keeps its keep otherwise. view_mu, repub_mu not held.
+  std::shared_ptr<Republisher> ensure_republisher(const std::string& topic, std::uint32_t history,
+                                                  bool remake_for_history);
   std::uint32_t keep_of_locked(const std::string& topic) const;  // view_mu held: peers' keep
   // view_mu held: the type up peers give the topic; {0, ""} (raw) when none does or they differ.
   wire::Control::TopicType type_of_locked(const std::string& topic) const;

@@ -25,6 +25,7 @@ bool parse_num(std::string_view s, T& out, int base = 10) {
 }  // namespace
 
 bool valid_topic(std::string_view t) { return valid_word(t, kMaxTopic); }
+bool valid_type_name(std::string_view name) { return valid_word(name, Control::kMaxTypeName); }
 
 std::string encode(const Control& c) {
   std::string s = c.kind == Control::Kind::ping ? "LCMXB1 PING\n" : "LCMXB1 PONG\n";
@@ -118,7 +119,7 @@ std::optional<Control> decode(std::string_view f) {
       const auto sp3 = rest.find(' ');
       std::uint64_t fp = 0;
       if (sp3 != 16 || !valid_topic(val.substr(0, sp2)) || !parse_num(rest.substr(0, 16), fp, 16) ||
-          !valid_word(rest.substr(17), Control::kMaxTypeName) || c.types.size() >= kMaxCatalogue)
+          !valid_type_name(rest.substr(17)) || c.types.size() >= kMaxCatalogue)
         return std::nullopt;
       c.types[std::string(val.substr(0, sp2))] = {static_cast<std::int64_t>(fp), std::string(rest.substr(17))};
     } else if (key == "have" && c.has_demand) {

@@ -333,7 +333,8 @@ struct Discovery::Impl {
     return false;
   }
 
-  // Discovery thread, no lock held: every beacon queued now is read (Options::drain_before_expiry).
+  // Discovery thread, no lock held: every beacon queued now is read, from our own group or by
+  // the owner (Options::drain_before_expiry).
   void drain_queued() {
     try {
       if (receive)
@@ -433,13 +434,7 @@ struct Discovery::Impl {
         std::uint64_t v;
         [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);
       }
-      if (r > 0 && (fds[1].revents & POLLIN)) {
-        try {
-          group->drain([this](const udpm::Message& m) { on_datagram(m); });
-        } catch (const std::exception& e) {
-          spdlog::warn("lcmx discovery: receive failed: {}", e.what());
-        }
-      }
+      if (r > 0 && (fds[1].revents & POLLIN)) drain_queued();  // our own group (receive)
       if (r > 0)
         for (std::size_t i = 2; i < fds.size(); ++i)
           if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) process_exited(watched[i - 2]);

@@ -65,8 +65,7 @@ void check_control(std::string_view frame) {
   for (const auto& [t, n] : c->keep) FUZZ_CHECK(wire::valid_topic(t) && n <= wire::Control::kMaxKeep);
   FUZZ_CHECK(c->types.size() <= wire::kMaxCatalogue);
   for (const auto& [t, ty] : c->types)
-    FUZZ_CHECK(wire::valid_topic(t) && !ty.name.empty() && ty.name.size() <= wire::Control::kMaxTypeName &&
-               ty.name.find_first_of(" \t\n\r") == std::string::npos);
+    FUZZ_CHECK(wire::valid_topic(t) && wire::valid_type_name(ty.name));
   if (!c->has_demand)
     FUZZ_CHECK(c->want.empty() && c->offer.empty() && c->have.empty() && c->keep.empty() && c->types.empty());
 

@@ -63,6 +63,9 @@ struct Control {
 
 // A topic that the text format can carry: 1..63 bytes, no whitespace or control characters.
 bool valid_topic(std::string_view t);
+// An lcm type name that a "type" line can carry: 1..Control::kMaxTypeName bytes, no whitespace or
+// control characters. A bridge sends only those: one the decoder refuses would void the frame.
+bool valid_type_name(std::string_view name);
 
 std::string encode(const Control& c);
 // nullopt for anything malformed (unknown kind or key, bad numbers, oversize, bad topics).
