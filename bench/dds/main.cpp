@@ -1,10 +1,14 @@
 // Roles of the DDS gateway benchmark (bench/dds/run.py starts them; docs/dds.md "Benchmark"):
-//   lcmx_bench_dds sink TOPIC COUNT            DDS reader of lcmx::dds::Envelope: one-way latency of
-//                                              each sample from the timestamp in its payload, then
-//                                              "result n=.. p50_us=.. p99_us=.. mbps=.. lost=.."
+//   lcmx_bench_dds sink TOPIC[,TOPIC..] COUNT  DDS reader of lcmx::dds::Envelope on each topic:
+//                                              one-way latency of each sample from the timestamp in
+//                                              its payload, then per topic, in the order given,
+//                                              "result i=.. n=.. p50_us=.. p99_us=.. mbps=.. lost=.."
 //                                              (stops 3 s after the last sample if fewer came)
 //   lcmx_bench_dds dds-source TOPIC COUNT SIZE HZ   DDS writer of envelopes (HZ 0: as fast as it can)
 //   lcmx_bench_dds lcmx-source CHANNEL COUNT SIZE HZ  lcmx raw publisher (the gateway exports it)
+//   lcmx_bench_dds both-source CHANNEL TOPIC COUNT SIZE HZ  both in one process, interleaved: the
+//                                              lcmx publisher at k/HZ, the DDS writer half a period
+//                                              later, COUNT messages each (run.py's default mode)
 // Payload: 8 bytes of fingerprint (0x6c636d7864647362), 8 bytes CLOCK_MONOTONIC ns at send, 8
 // bytes sequence, then filler. Cyclone's network: CYCLONEDDS_URI (run.py: loopback only);
 // domain: BENCH_DDS_DOMAIN.
@@ -66,91 +70,140 @@ void pace(std::int64_t start, std::uint64_t k, double hz) {
   while (now_ns() < due) std::this_thread::sleep_for(std::chrono::microseconds(50));
 }
 
-int sink(const std::string& topic, long count) {
-  const dds_entity_t pp = check(dds_create_participant(domain(), nullptr, nullptr), "participant");
-  const dds_entity_t tp = check(dds_create_topic(pp, &lcmx_dds_Envelope_desc, topic.c_str(), nullptr, nullptr), "topic");
-  dds_qos_t* q = qos(true);
-  const dds_entity_t rd = check(dds_create_reader(pp, tp, q, nullptr), "reader");
-  dds_delete_qos(q);
-  const dds_entity_t ws = check(dds_create_waitset(pp), "waitset");
-  const dds_entity_t rc = check(dds_create_readcondition(rd, DDS_ANY_STATE), "readcondition");
-  dds_waitset_attach(ws, rc, rd);
-  std::cout << "ready" << std::endl;
+// One reader's samples: latencies (us), sequence bookkeeping, bytes, first send / last receipt.
+struct Track {
+  dds_entity_t reader = 0;
   std::vector<double> lat;
   std::uint64_t last_seq = 0, bytes = 0, lost = 0;
   long got = 0;
   std::int64_t first = 0, last = 0;  // first: the first received sample's send time
+};
+
+int sink(const std::string& topics, long count) {
+  const dds_entity_t pp = check(dds_create_participant(domain(), nullptr, nullptr), "participant");
+  const dds_entity_t ws = check(dds_create_waitset(pp), "waitset");
+  std::vector<Track> tracks;
+  for (std::size_t at = 0; at <= topics.size();) {
+    const std::size_t comma = std::min(topics.find(',', at), topics.size());
+    const std::string topic = topics.substr(at, comma - at);
+    at = comma + 1;
+    const dds_entity_t tp =
+        check(dds_create_topic(pp, &lcmx_dds_Envelope_desc, topic.c_str(), nullptr, nullptr), "topic");
+    dds_qos_t* q = qos(true);
+    Track t;
+    t.reader = check(dds_create_reader(pp, tp, q, nullptr), "reader");
+    dds_delete_qos(q);
+    const dds_entity_t rc = check(dds_create_readcondition(t.reader, DDS_ANY_STATE), "readcondition");
+    dds_waitset_attach(ws, rc, t.reader);
+    tracks.push_back(std::move(t));
+  }
+  std::cout << "ready" << std::endl;
+  auto all_done = [&] {
+    return std::all_of(tracks.begin(), tracks.end(), [&](const Track& t) { return t.got >= count; });
+  };
+  std::int64_t last_any = 0;
   const std::int64_t deadline = now_ns() + 120'000'000'000ll;
-  // Until `count` samples, or 3 s without one after the first (the rest was lost upstream).
-  while (got < count && now_ns() < deadline && !(got > 0 && now_ns() - last > 3'000'000'000ll)) {
+  // Until `count` samples on every topic, or 3 s without one after the first (the rest was
+  // lost upstream).
+  while (!all_done() && now_ns() < deadline && !(last_any > 0 && now_ns() - last_any > 3'000'000'000ll)) {
     dds_waitset_wait(ws, nullptr, 0, DDS_MSECS(200));
-    void* samples[16] = {};
-    dds_sample_info_t infos[16];
-    int n;
-    while ((n = dds_take(rd, samples, infos, 16, 16)) > 0) {
-      const std::int64_t t = now_ns();
-      for (int i = 0; i < n; ++i) {
-        if (!infos[i].valid_data) continue;
-        const auto* e = static_cast<const lcmx_dds_Envelope*>(samples[i]);
-        if (e->payload._length < 24) continue;
-        std::int64_t sent;
-        std::uint64_t seq;
-        std::memcpy(&sent, e->payload._buffer + 8, 8);
-        std::memcpy(&seq, e->payload._buffer + 16, 8);
-        if (got > 0 && seq > last_seq + 1) lost += seq - last_seq - 1;
-        last_seq = seq;
-        if (got == 0) first = sent;
-        last = t;
-        bytes += e->payload._length;
-        lat.push_back(static_cast<double>(t - sent) / 1000.0);
-        ++got;
+    for (auto& tr : tracks) {
+      void* samples[16] = {};
+      dds_sample_info_t infos[16];
+      int n;
+      while ((n = dds_take(tr.reader, samples, infos, 16, 16)) > 0) {
+        const std::int64_t t = now_ns();
+        for (int i = 0; i < n; ++i) {
+          if (!infos[i].valid_data) continue;
+          const auto* e = static_cast<const lcmx_dds_Envelope*>(samples[i]);
+          if (e->payload._length < 24) continue;
+          std::int64_t sent;
+          std::uint64_t seq;
+          std::memcpy(&sent, e->payload._buffer + 8, 8);
+          std::memcpy(&seq, e->payload._buffer + 16, 8);
+          if (tr.got > 0 && seq > tr.last_seq + 1) tr.lost += seq - tr.last_seq - 1;
+          tr.last_seq = seq;
+          if (tr.got == 0) tr.first = sent;
+          tr.last = last_any = t;
+          tr.bytes += e->payload._length;
+          tr.lat.push_back(static_cast<double>(t - sent) / 1000.0);
+          ++tr.got;
+        }
+        dds_return_loan(tr.reader, samples, n);
+        samples[0] = nullptr;
       }
-      dds_return_loan(rd, samples, n);
-      samples[0] = nullptr;
     }
   }
-  // Latency: without the first 10% (discovery, first allocations).
-  std::vector<double> l(lat.begin() + static_cast<long>(lat.size() / 10), lat.end());
-  std::sort(l.begin(), l.end());
-  auto pct = [&](double p) { return l.empty() ? 0.0 : l[std::min(l.size() - 1, static_cast<std::size_t>(p * l.size()))]; };
-  const double secs = static_cast<double>(last - first) / 1e9;
-  std::printf("result n=%ld p50_us=%.1f p99_us=%.1f mbps=%.1f lost=%llu\n", got, pct(0.5), pct(0.99),
-              secs > 0 ? static_cast<double>(bytes) * 8 / 1e6 / secs : 0.0, static_cast<unsigned long long>(lost));
+  for (std::size_t i = 0; i < tracks.size(); ++i) {
+    const Track& tr = tracks[i];
+    // Latency: without the first 10% (discovery, first allocations).
+    std::vector<double> l(tr.lat.begin() + static_cast<long>(tr.lat.size() / 10), tr.lat.end());
+    std::sort(l.begin(), l.end());
+    auto pct = [&](double p) {
+      return l.empty() ? 0.0 : l[std::min(l.size() - 1, static_cast<std::size_t>(p * l.size()))];
+    };
+    const double secs = static_cast<double>(tr.last - tr.first) / 1e9;
+    std::printf("result i=%zu n=%ld p50_us=%.1f p99_us=%.1f mbps=%.1f lost=%llu\n", i, tr.got, pct(0.5), pct(0.99),
+                secs > 0 ? static_cast<double>(tr.bytes) * 8 / 1e6 / secs : 0.0,
+                static_cast<unsigned long long>(tr.lost));
+  }
   std::fflush(stdout);
   dds_delete(pp);
-  return got == count ? 0 : 1;
+  return all_done() ? 0 : 1;
 }
 
+// A DDS writer of envelopes on `topic` (reliable KEEP_LAST 16: the gateway's writer's defaults),
+// matched with a reader before it returns; exits the process if none comes within 30 s.
+struct DdsWriter {
+  dds_entity_t participant = 0, writer = 0;
+  explicit DdsWriter(const std::string& topic) {
+    participant = check(dds_create_participant(domain(), nullptr, nullptr), "participant");
+    const dds_entity_t tp =
+        check(dds_create_topic(participant, &lcmx_dds_Envelope_desc, topic.c_str(), nullptr, nullptr), "topic");
+    dds_qos_t* q = qos(false);
+    writer = check(dds_create_writer(participant, tp, q, nullptr), "writer");
+    dds_delete_qos(q);
+    dds_set_status_mask(writer, DDS_PUBLICATION_MATCHED_STATUS);
+    const std::int64_t deadline = now_ns() + 30'000'000'000ll;
+    for (;;) {
+      dds_publication_matched_status_t st{};
+      dds_get_publication_matched_status(writer, &st);
+      if (st.current_count > 0) break;
+      if (now_ns() > deadline) {
+        std::fprintf(stderr, "lcmx_bench_dds: no reader of %s within 30 s\n", topic.c_str());
+        std::exit(1);
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));  // polling discovery, no data yet
+    }
+  }
+  DdsWriter(const DdsWriter&) = delete;
+  DdsWriter& operator=(const DdsWriter&) = delete;
+  ~DdsWriter() {
+    dds_wait_for_acks(writer, DDS_SECS(30));
+    dds_delete(participant);
+  }
+  void write(std::vector<std::uint8_t>& p) {
+    lcmx_dds_Envelope e{};
+    e.channel = const_cast<char*>("BENCH");
+    e.type_name = const_cast<char*>("");
+    e.payload._buffer = p.data();
+    e.payload._length = e.payload._maximum = static_cast<std::uint32_t>(p.size());
+    dds_write(writer, &e);
+  }
+};
+
 int dds_source(const std::string& topic, long count, std::size_t size, double hz) {
-  const dds_entity_t pp = check(dds_create_participant(domain(), nullptr, nullptr), "participant");
-  const dds_entity_t tp = check(dds_create_topic(pp, &lcmx_dds_Envelope_desc, topic.c_str(), nullptr, nullptr), "topic");
-  dds_qos_t* q = qos(false);  // reliable KEEP_LAST 16: the gateway's writer's defaults
-  const dds_entity_t wr = check(dds_create_writer(pp, tp, q, nullptr), "writer");
-  dds_delete_qos(q);
-  dds_set_status_mask(wr, DDS_PUBLICATION_MATCHED_STATUS);
-  const std::int64_t deadline = now_ns() + 30'000'000'000ll;
-  for (;;) {
-    dds_publication_matched_status_t st{};
-    dds_get_publication_matched_status(wr, &st);
-    if (st.current_count > 0) break;
-    if (now_ns() > deadline) return 1;
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));  // polling discovery, no data yet
-  }
   std::vector<std::uint8_t> p(std::max<std::size_t>(size, 24), 0x5a);
-  lcmx_dds_Envelope e{};
-  e.channel = const_cast<char*>("BENCH");
-  e.type_name = const_cast<char*>("");
-  e.payload._buffer = p.data();
-  e.payload._length = e.payload._maximum = static_cast<std::uint32_t>(p.size());
-  const std::int64_t start = now_ns();
-  for (long k = 0; k < count; ++k) {
-    pace(start, static_cast<std::uint64_t>(k), hz);
-    stamp(p, static_cast<std::uint64_t>(k));
-    dds_write(wr, &e);
-  }
-  dds_wait_for_acks(wr, DDS_SECS(30));
+  {
+    DdsWriter w(topic);
+    const std::int64_t start = now_ns();
+    for (long k = 0; k < count; ++k) {
+      pace(start, static_cast<std::uint64_t>(k), hz);
+      stamp(p, static_cast<std::uint64_t>(k));
+      w.write(p);
+    }
+  }  // waits for the acknowledgements
   std::cout << "sent " << count << std::endl;
-  dds_delete(pp);
   return 0;
 }
 
@@ -172,6 +225,35 @@ int lcmx_source(const std::string& channel, long count, std::size_t size, double
   return 0;
 }
 
+// Both paths from one process, interleaved: the k-th lcmx message at k/hz, the k-th DDS sample
+// half a period later, so that the machine's drift falls on both paths alike.
+int both_source(const std::string& channel, const std::string& topic, long count, std::size_t size, double hz) {
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("bench_dds_source");
+  auto pub = node.advertise_raw(channel);
+  if (!pub.wait_for_subscribers(1, std::chrono::seconds(30))) {
+    std::fprintf(stderr, "lcmx_bench_dds: the gateway did not subscribe to %s within 30 s\n", channel.c_str());
+    return 1;
+  }
+  std::vector<std::uint8_t> p(std::max<std::size_t>(size, 24), 0x5a);
+  {
+    DdsWriter w(topic);
+    const std::int64_t start = now_ns();
+    for (long k = 0; k < count; ++k) {
+      pace(start, 2 * static_cast<std::uint64_t>(k), 2 * hz);
+      stamp(p, static_cast<std::uint64_t>(k));
+      pub.publish(std::as_bytes(std::span(p)));
+      pace(start, 2 * static_cast<std::uint64_t>(k) + 1, 2 * hz);
+      stamp(p, static_cast<std::uint64_t>(k));
+      w.write(p);
+    }
+  }
+  std::cout << "sent " << count << std::endl;
+  std::string line;
+  std::getline(std::cin, line);  // until the driver closes stdin (the gateway drains meanwhile)
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -181,7 +263,10 @@ int main(int argc, char** argv) {
     return dds_source(argv[2], std::atol(argv[3]), static_cast<std::size_t>(std::atol(argv[4])), std::atof(argv[5]));
   if (role == "lcmx-source" && argc == 6)
     return lcmx_source(argv[2], std::atol(argv[3]), static_cast<std::size_t>(std::atol(argv[4])), std::atof(argv[5]));
-  std::cerr << "usage: lcmx_bench_dds sink TOPIC COUNT | dds-source TOPIC COUNT SIZE HZ | "
-               "lcmx-source CHANNEL COUNT SIZE HZ\n";
+  if (role == "both-source" && argc == 7)
+    return both_source(argv[2], argv[3], std::atol(argv[4]), static_cast<std::size_t>(std::atol(argv[5])),
+                       std::atof(argv[6]));
+  std::cerr << "usage: lcmx_bench_dds sink TOPIC[,TOPIC..] COUNT | dds-source TOPIC COUNT SIZE HZ | "
+               "lcmx-source CHANNEL COUNT SIZE HZ | both-source CHANNEL TOPIC COUNT SIZE HZ\n";
   return 2;
 }

@@ -5,9 +5,13 @@
    (lcmx_bench_dds sink, envelope type):
      direct:  DDS writer process (lcmx_bench_dds dds-source) -> DDS reader
      gateway: lcmx publisher process (lcmx-source, shared memory) -> lcmx dds-gateway -> DDS reader
-   The two alternate in --rounds rounds per size (direct first in even rounds, gateway first in
-   odd ones), so both see the same drift of a shared machine; each round's ratio is gateway p50
-   / direct p50 (p99 alike), and the figure given is the median of those per-round ratios.
+   --mode interleaved (default): one source process (lcmx_bench_dds both-source) sends on both
+   paths in turn, message by message (the lcmx message at k/HZ, the DDS sample half a period
+   later), and one sink process reads both topics, so both paths see the same moments of a
+   shared machine. --mode blocks: one block per path, the two alternating per round (direct
+   first in even rounds, gateway first in odd ones), as before 2026-11-25.
+   Each of the --rounds rounds per size gives a ratio gateway p50 / direct p50 (p99 alike); the
+   figure given is the median of those per-round ratios.
 2. 6 MB throughput (Mbit/s at the reader): DDS writer -> reader, lcmx -> gateway -> reader, and
    ddsperf pub/sub (Cyclone's own tool, size 6 MB) on the same host.
 Cyclone runs on loopback only (unicast to 127.0.0.1, no multicast); lcmx on a group of its own
@@ -17,7 +21,8 @@ pinned to lo. The DDS programs (source, sink, ddsperf) ask Cyclone for a socket 
 retransmission for ~50 ms in some runs, whichever path sent it. The gateway (a writer here) keeps
 its own config.
 
-usage: run.py BUILD_DIR [--pin CPUS] [--quick] [--rounds N] [--csv FILE] [--rcvbuf SIZE] [--spin-us US]
+usage: run.py BUILD_DIR [--mode interleaved|blocks] [--pin CPUS] [--quick] [--rounds N] [--csv FILE]
+              [--rcvbuf SIZE] [--spin-us US]
 """
 import argparse, os, re, subprocess, sys, tempfile, time
 
@@ -25,7 +30,10 @@ p = argparse.ArgumentParser()
 p.add_argument("build")
 p.add_argument("--pin", default="", help="taskset CPU list for every process (e.g. 0), default none")
 p.add_argument("--quick", action="store_true", help="fewer samples")
-p.add_argument("--rounds", type=int, default=3, help="alternating rounds per size (default 3)")
+p.add_argument("--rounds", type=int, default=3, help="rounds per size (default 3)")
+p.add_argument("--mode", choices=("interleaved", "blocks"), default="interleaved",
+               help="interleaved: both paths message by message from one source (default); "
+                    "blocks: one block per path per round")
 p.add_argument("--csv", default="")
 p.add_argument("--spin-us", type=int, default=None,
                help="the gateway's spin_us (default: the gateway's own default)")
@@ -66,6 +74,13 @@ def expect(pr, prefix, timeout=60):
     raise SystemExit("no '%s' from %s" % (prefix, pr.args))
 
 
+def cpu_seconds(pid):
+    """User + system CPU time of a process so far (/proc/PID/stat), in seconds."""
+    with open("/proc/%d/stat" % pid) as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def result(line):
     return {k: float(v) for k, v in re.findall(r"(\w+)=([\d.]+)", line)}
 
@@ -86,12 +101,23 @@ rows = []
 try:
     gw = start([tool, "dds-gateway", "--config", cfg])
     expect(gw, "dds-gateway bench: ready")
+    gw_cpu0, wall0 = cpu_seconds(gw.pid), time.time()
     for s in sizes:
         n, hz = plan[s]
         rounds = []  # [{"direct": result, "gateway": result}] per round
         for r in range(max(1, a.rounds)):
             res = {}
-            for path in (("direct", "gateway") if r % 2 == 0 else ("gateway", "direct")):
+            if a.mode == "interleaved":
+                sink = start([bench, "sink", "D_%d,G_%d" % (s, s), str(n)])
+                expect(sink, "ready")
+                src = start([bench, "both-source", "BENCH_%d" % s, "D_%d" % s, str(n), str(s), str(hz)],
+                            stdin=subprocess.PIPE)
+                res["direct"] = result(expect(sink, "result i=0", 180))
+                res["gateway"] = result(expect(sink, "result i=1", 30))
+                src.stdin.close()
+                src.wait(30)
+                sink.wait(30)
+            for path in () if a.mode == "interleaved" else (("direct", "gateway") if r % 2 == 0 else ("gateway", "direct")):
                 sink = start([bench, "sink", ("D_%d" if path == "direct" else "G_%d") % s, str(n)])
                 expect(sink, "ready")
                 if path == "direct":
@@ -109,6 +135,7 @@ try:
                 res["gateway"]["p99_us"], res["gateway"]["p50_us"] / res["direct"]["p50_us"],
                 res["gateway"]["p99_us"] / res["direct"]["p99_us"]), flush=True)
         rows.append((s, rounds))
+    gw_cpu = (cpu_seconds(gw.pid) - gw_cpu0) / max(time.time() - wall0, 1e-9)
     # 6 MB throughput.
     n6 = 15 if a.quick else 40
     thr = {}
@@ -162,8 +189,8 @@ def summary(rounds):
     return out
 
 
-print("%d alternating rounds per size; each figure is the median over the rounds, the ratio the median of the "
-      "per-round ratios (gateway / direct).\n" % max(1, a.rounds))
+print("mode %s, %d rounds per size; each figure is the median over the rounds, the ratio the median of the "
+      "per-round ratios (gateway / direct).\n" % (a.mode, max(1, a.rounds)))
 print("| size | direct p50 | direct p99 | gateway p50 | gateway p99 | ratio p50 (per round) | ratio p99 |")
 print("|---:|---:|---:|---:|---:|---:|---:|")
 for s, rounds in rows:
@@ -171,6 +198,8 @@ for s, rounds in rows:
     print("| %d | %.1f | %.1f | %.1f | %.1f | %.2f (%s) | %.2f |" % (
         s, m["direct_p50_us"], m["direct_p99_us"], m["gateway_p50_us"], m["gateway_p99_us"], m["ratio_p50_us"],
         ", ".join("%.2f" % x for x in m["ratios_p50_us"]), m["ratio_p99_us"]))
+print("\nThe gateway's CPU use during the latency runs: %.0f %% of one CPU (spin_us %s).\n" % (
+    100 * gw_cpu, a.spin_us if a.spin_us is not None else "default"))
 print("\n### Targets (issue 13): p50 gateway / direct, median of the rounds\n")
 for s, rounds in rows:
     limit = 1.5 if s <= 1024 else (1.2 if s >= 102400 else None)
