@@ -143,6 +143,33 @@ int server_zmq(const std::string& endpoint) {
   }
 }
 
+// --interleave: an lcmx server and a ZeroMQ REP socket in one process, so that one client
+// process can alternate between them call by call.
+int server_both(const std::string& url, const std::string& vehicle, const std::string& name,
+                const std::string& endpoint) {
+  auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
+  auto node = rt.create_node("bench_server");
+  auto s = node.create_service_raw(name, [](std::span<const std::byte> req, lcmx::ResponseWriter& out) {
+    auto b = out.allocate(response_size(req));
+    std::memset(b.data(), 0xa5, b.size());
+  });
+  zmq::context_t ctx(1);
+  zmq::socket_t rep(ctx, zmq::socket_type::rep);
+  rep.bind(endpoint);
+  std::thread([&rep] {  // as server_zmq's loop; the process ends in std::_Exit below
+    for (;;) {
+      zmq::message_t req;
+      if (!rep.recv(req, zmq::recv_flags::none)) continue;
+      zmq::message_t resp(response_size({static_cast<const std::byte*>(req.data()), req.size()}));
+      std::memset(resp.data(), 0xa5, resp.size());
+      rep.send(resp, zmq::send_flags::none);
+    }
+  }).detach();
+  say("ready");
+  wait_for_end();
+  std::_Exit(0);  // the REP thread blocks in recv; nothing else to tidy
+}
+
 // ---- clients ----
 
 struct Rtts {
@@ -181,6 +208,31 @@ void measure(const std::vector<Case>& cases, const CallFn& call) {
   }
 }
 
+// --interleave: two ways of calling, in turn call by call (a first in even calls, b first in
+// odd ones), so that both see the same moments of the machine; prints "rtt" lines for `a` and
+// "rtt-peer" lines for `b`.
+void measure_pair(const std::vector<Case>& cases, const CallFn& a, const CallFn& b) {
+  for (const auto& c : cases) {
+    const auto req = make_request(c.request, c.response);
+    for (int i = 0; i < std::max(10, c.calls / 10); ++i)
+      if (!a(req) || !b(req)) return say("error warm-up call failed for " + case_label(c));
+    Rtts ra, rb;
+    for (int i = 0; i < c.calls; ++i) {
+      for (int k = 0; k < 2; ++k) {
+        const bool first_a = i % 2 == 0;
+        const bool use_a = (k == 0) == first_a;
+        const auto t0 = Clock::now();
+        if (!(use_a ? a : b)(req)) return say("error call failed for " + case_label(c));
+        (use_a ? ra : rb).us.push_back(std::chrono::duration<double, std::micro>(Clock::now() - t0).count());
+      }
+    }
+    report_rtt(c, ra);
+    std::ostringstream o;
+    o << "rtt-peer " << case_key(c) << " " << rb.pct(0.5) << " " << rb.pct(0.99) << " " << rb.us.size();
+    say(o.str());
+  }
+}
+
 // `clients` threads call back to back for `seconds`; prints "tput <clients> <calls/s>".
 void throughput(int clients, double seconds, const std::function<CallFn(int)>& make) {
   std::atomic<long long> total{0};
@@ -208,8 +260,11 @@ void throughput(int clients, double seconds, const std::function<CallFn(int)>& m
   say("tput " + std::to_string(clients) + " " + std::to_string(static_cast<double>(total.load()) / s));
 }
 
+// With `endpoint` (--interleave), a ZeroMQ REQ socket to it too, and the two alternate call by
+// call (measure_pair: "rtt" lines for lcmx, "rtt-peer" for ZeroMQ).
 int client_lcmx(const std::string& url, const std::string& vehicle, const std::string& name,
-                const std::vector<Case>& cases, int clients, double seconds, bool settle_bridge) {
+                const std::vector<Case>& cases, int clients, double seconds, bool settle_bridge,
+                const std::string& endpoint) {
   auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
   // --settle-bridge: measure the settled state of "UDP + bridges", where this client's reply
   // channel is matched with this host's bridge republisher before it turns large (bridges
@@ -242,11 +297,25 @@ int client_lcmx(const std::string& url, const std::string& vehicle, const std::s
   // The zero-copy form (RawClient::call_retained): the server writes its response in place
   // and the client reads it where it arrived, as ZeroMQ's REQ socket hands over the message it
   // received. call() would add a copy of the response into a byte vector (~15-20 µs per MB).
-  measure(cases, [&](const Bytes& req) {
+  const CallFn call = [&](const Bytes& req) {
     auto r = client.call_retained(req, 10s);
     if (!r.ok()) say("error " + r.message());
     return r.ok();
-  });
+  };
+  if (endpoint.empty()) {
+    measure(cases, call);
+  } else {
+    zmq::context_t ctx(1);
+    zmq::socket_t sock(ctx, zmq::socket_type::req);
+    sock.set(zmq::sockopt::linger, 0);
+    sock.set(zmq::sockopt::rcvtimeo, 10000);
+    sock.connect(endpoint);
+    measure_pair(cases, call, [&](const Bytes& req) {
+      sock.send(zmq::buffer(req.data(), req.size()), zmq::send_flags::none);
+      zmq::message_t resp;
+      return sock.recv(resp, zmq::recv_flags::none).has_value();
+    });
+  }
   if (clients > 0) {
     std::vector<lcmx::RawClient> cs;
     for (int i = 0; i < clients; ++i) {
@@ -331,6 +400,7 @@ std::optional<std::string> line_with(lcmx::test::Child& c, const std::string& ne
 struct Result {
   std::string method, path;
   std::map<std::string, std::pair<double, double>> rtt;  // "req:resp" -> p50, p99
+  std::map<std::string, std::pair<double, double>> peer_rtt;  // --interleave: ZeroMQ's, same calls
   double tput = 0;
   std::string error;
 };
@@ -390,11 +460,11 @@ Result run_method(const std::string& method, const std::vector<std::string>& ser
       std::istringstream in(l);
       std::string kind;
       in >> kind;
-      if (kind == "rtt") {
+      if (kind == "rtt" || kind == "rtt-peer") {
         std::string c;
         double p50 = 0, p99 = 0;
         in >> c >> p50 >> p99;
-        res.rtt[c] = {p50, p99};
+        (kind == "rtt" ? res.rtt : res.peer_rtt)[c] = {p50, p99};
       } else if (kind == "tput") {
         int n = 0;
         in >> n >> res.tput;
@@ -553,7 +623,7 @@ int main(int argc, char** argv) {
   std::string role, url, vehicle, name, endpoint, cases_text, markdown, tcp_cc = "cubic", pin = "none";
   int calls = 2000, big_calls = 200, clients = 8, rounds = 1;
   double seconds = 3;
-  bool no_hosts = false, settle_bridge = false;
+  bool no_hosts = false, settle_bridge = false, interleave = false;
   app.add_option("--calls", calls, "measured calls of 1 KB / 1 KB")->check(CLI::PositiveNumber)->capture_default_str();
   app.add_option("--big-calls", big_calls, "measured calls of 1 KB / 1 MB")->check(CLI::PositiveNumber)->capture_default_str();
   app.add_option("--clients", clients, "concurrent clients for calls/s (0: skip)")->check(CLI::Range(0, 64))->capture_default_str();
@@ -562,6 +632,9 @@ int main(int argc, char** argv) {
   app.add_option("--rounds", rounds, "two hosts: run every method this many times, in turn; tables show medians")
       ->check(CLI::Range(1, 20))
       ->capture_default_str();
+  app.add_flag("--interleave", interleave,
+               "two hosts: only \"UDP + bridges\" against ZeroMQ REQ/REP, from one client process (and one server "
+               "process) that alternate between them call by call, so both see the same moments of the machine");
   app.add_option("--markdown", markdown, "also write the tables to this file");
   app.add_option("--tcp-congestion", tcp_cc,
                  "two hosts: their TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. "
@@ -592,7 +665,8 @@ int main(int argc, char** argv) {
       if (role == "server-lcmx") return server_lcmx(url, vehicle, name);
       if (role == "server-echo") return server_echo(url, name);
       if (role == "server-zmq") return server_zmq(endpoint);
-      if (role == "client-lcmx") return client_lcmx(url, vehicle, name, cs, clients, seconds, settle_bridge);
+      if (role == "server-both") return server_both(url, vehicle, name, endpoint);
+      if (role == "client-lcmx") return client_lcmx(url, vehicle, name, cs, clients, seconds, settle_bridge, endpoint);
       if (role == "client-echo") return client_echo(url, name, cs);
       if (role == "client-zmq") return client_zmq(endpoint, cs, clients, seconds);
       std::cerr << "unknown role " << role << "\n";
@@ -677,8 +751,10 @@ int main(int argc, char** argv) {
       //  - "bridges only": no vehicle group; the bridges carry the service's channels from the
       //    start (`carry`, docs/services.md "Known limits"), so every call takes four
       //    shared-memory/bridge hops.
+      //  - with `zmq_endpoint` (--interleave): the server process also answers ZeroMQ REQ/REP there
+      //    and the client alternates lcmx and ZeroMQ calls (Result::peer_rtt: ZeroMQ's).
       auto bridged = [&](const std::string& method, const std::string& local_b, const std::string& veh_b,
-                         const std::string& svc, int hosts_id) {
+                         const std::string& svc, int hosts_id, const std::string& zmq_endpoint) {
         Result r;
         r.method = method;
         try {
@@ -725,9 +801,14 @@ int main(int argc, char** argv) {
               throw std::runtime_error(std::string("bridge svc") + n + " did not link to the other host");
           }
           std::cerr << "two hosts: " << method << "\n";
-          std::vector<std::string> server{"--role", "server-lcmx", "--url", local_b, "--name", svc};
+          std::vector<std::string> server{"--role", zmq_endpoint.empty() ? "server-lcmx" : "server-both", "--url",
+                                          local_b, "--name", svc};
           std::vector<std::string> client{"--role", "client-lcmx", "--url", local_b, "--name", svc, "--cases", cs,
-                                          "--clients", n_clients, "--seconds", secs};
+                                          "--clients", zmq_endpoint.empty() ? n_clients : "0", "--seconds", secs};
+          if (!zmq_endpoint.empty()) {
+            server.insert(server.end(), {"--endpoint", zmq_endpoint});
+            client.insert(client.end(), {"--endpoint", zmq_endpoint});
+          }
           if (!veh_b.empty()) {
             server.insert(server.end(), {"--vehicle", veh_b});
             client.insert(client.end(), {"--vehicle", veh_b, "--settle-bridge"});
@@ -765,11 +846,26 @@ int main(int argc, char** argv) {
       std::vector<std::vector<Result>> runs(4);  // udp, UDP + bridges, bridges only, ZeroMQ
       for (int round = 0; round < rounds && !g_stop.load(); ++round) {
         if (rounds > 1) std::cerr << "two hosts: round " << round + 1 << " of " << rounds << "\n";
+#ifdef LCMX_BENCH_LCMX_TOOL
+        if (interleave) {
+          // One client process alternating lcmx and ZeroMQ calls: the ZeroMQ row is its peer_rtt.
+          auto r = bridged("lcmx service (UDP + bridges), interleaved", "udpm://239.255.78.5:7671?ttl=0",
+                           "udpm://239.255.78.6:7672?ttl=1&iface=eth", "svcbv", 1, tcp2);
+          Result z;
+          z.method = "ZeroMQ REQ/REP, interleaved";
+          z.path = "tcp";
+          z.rtt = r.peer_rtt;
+          z.error = r.error;
+          runs[1].push_back(std::move(r));
+          runs[3].push_back(std::move(z));
+          continue;
+        }
+#endif
         runs[0].push_back(udp_row());
 #ifdef LCMX_BENCH_LCMX_TOOL
         runs[1].push_back(bridged("lcmx service (UDP + bridges)", "udpm://239.255.78.5:7671?ttl=0",
-                                  "udpm://239.255.78.6:7672?ttl=1&iface=eth", "svcbv", 1));
-        runs[2].push_back(bridged("lcmx service (bridges only)", "udpm://239.255.78.3:7669?ttl=0", "", "svcbb", 2));
+                                  "udpm://239.255.78.6:7672?ttl=1&iface=eth", "svcbv", 1, ""));
+        runs[2].push_back(bridged("lcmx service (bridges only)", "udpm://239.255.78.3:7669?ttl=0", "", "svcbb", 2, ""));
 #endif
         runs[3].push_back(zmq_row());
       }
@@ -801,6 +897,7 @@ int main(int argc, char** argv) {
 #else
   (void)no_hosts;
   (void)rounds;
+  (void)interleave;
   (void)tcp_cc;
   md << "Two hosts: not built (needs lcmx::test_netns, LCMX_BUILD_TESTS=ON)\n";
 #endif
