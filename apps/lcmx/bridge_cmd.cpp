@@ -153,7 +153,7 @@ void print_bridge_status(std::ostream& out, const lcmx_msgs::bridge_status_t& s)
   std::snprintf(host, sizeof host, "%016llx", static_cast<unsigned long long>(s.host_id));
   out << "bridge " << s.name << "  pid " << s.pid << "  host " << host << (s.curve ? "  CURVE" : "")
       << "  bad frames " << s.bad_frames << "  sent zero-copy " << s.zero_copy_sends << "  copied "
-      << s.copied_sends << "\n";
+      << s.copied_sends << "  lost before sending " << s.lost_local << "\n";
   out << "  this host wants: ";
   if (s.demand.empty()) out << "-";
   for (std::size_t i = 0; i < s.demand.size(); ++i) out << (i ? ", " : "") << s.demand[i];
@@ -197,6 +197,7 @@ std::string bridge_status_json(const lcmx_msgs::bridge_status_t& s) {
   j << "{\"name\":" << json_str(s.name) << ",\"pid\":" << s.pid << ",\"host\":\"" << host
     << "\",\"timestamp_us\":" << s.timestamp_us << ",\"curve\":" << b(s.curve) << ",\"bad_frames\":" << s.bad_frames
     << ",\"zero_copy_sends\":" << s.zero_copy_sends << ",\"copied_sends\":" << s.copied_sends
+    << ",\"lost_local\":" << s.lost_local
     << ",\"demand\":" << strings(s.demand) << ",\"peers\":[";
   for (std::size_t i = 0; i < s.peers.size(); ++i) {
     const auto& p = s.peers[i];

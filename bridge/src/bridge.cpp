@@ -192,9 +192,9 @@ void Bridge::Impl::stop() {
   if (observer) observer->stop();
   spdlog::info(
       "bridge {}: stopping; local messages sent zero-copy {}, copied {}; waited for a pin {} times; "
-      "handed to peers' sockets by the shm callback {}, from the queues {}",
+      "handed to peers' sockets by the shm callback {}, from the queues {}; lost before the bridge read them {}",
       cfg.name, zero_copy_msgs.load(), copied_msgs.load(), pin_waits.load(), sent_from_callback.load(),
-      sent_from_queue.load());
+      sent_from_queue.load(), lost_local.load());
   // Subscriptions first (their callbacks touch peers' queues), then publishers, then the
   // runtime (goodbye).
   for (auto& [t, s] : served) s->sub.reset();

@@ -97,6 +97,21 @@ std::set<std::string> Bridge::Impl::catalogue_locked() {
 }
 
 // Subscriptions (what peers want and this host publishes) and republishers.
+void Bridge::Impl::note_local_drops(Served& s, bool final) {
+  const std::uint64_t d = s.sub ? s.sub.stats().drops : s.drops_counted;
+  if (d > s.drops_counted) {
+    lost_local.fetch_add(d - s.drops_counted, std::memory_order_relaxed);
+    s.drops_counted = d;
+  }
+  if (s.drops_counted != s.drops_logged && (final || s.drop_log.allow())) {
+    spdlog::warn("bridge {}: {} local message(s) of {} lost before this bridge read them (the publisher's "
+                 "shared-memory ring overwrote them: the bridge fell behind, e.g. stopped or short of CPU); "
+                 "{} in total for this topic",
+                 cfg.name, s.drops_counted - s.drops_logged, s.topic, s.drops_counted);
+    s.drops_logged = s.drops_counted;
+  }
+}
+
 void Bridge::Impl::reconcile(Clock::time_point now) {
   const auto demand_ttl = 2 * cfg.link_timeout + cfg.heartbeat;
   std::map<std::string, std::vector<std::size_t>> want;  // topic -> peers
@@ -140,7 +155,9 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
   }
   // Subscribe / update / unsubscribe.
   for (auto it = served.begin(); it != served.end();) {
-    if (!want.count(it->first)) {
+    const bool gone = !want.count(it->first);
+    note_local_drops(*it->second, gone);
+    if (gone) {
       it->second->sub.reset();  // waits for a running callback; we hold no lock
       spdlog::debug("bridge {}: no longer serving {}", cfg.name, it->first);
       it = served.erase(it);

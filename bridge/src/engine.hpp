@@ -227,6 +227,10 @@ struct Bridge::Impl {
     std::vector<std::size_t> peers;
     std::shared_ptr<PinWatch> pins = std::make_shared<PinWatch>();
     RawSubscriber sub;
+    // control thread (note_local_drops): the subscription's drops counted into lost_local,
+    // and logged so far.
+    std::uint64_t drops_counted = 0, drops_logged = 0;
+    RateLimit drop_log;
   };
 
   struct Republisher {
@@ -254,6 +258,9 @@ struct Bridge::Impl {
   // Local messages queued for peers: sent straight from their pinned slot / copied out of it.
   std::atomic<std::uint64_t> zero_copy_msgs{0}, copied_msgs{0};
   std::atomic<std::uint64_t> pin_waits{0};  // on_local_message waited for a pin (link moving)
+  // Local messages the served subscriptions lost before the bridge read them (their publisher's
+  // shared-memory ring lapped the bridge), summed by note_local_drops.
+  std::atomic<std::uint64_t> lost_local{0};
   // Messages to peers handed to ZeroMQ by the shm callback itself / by the channel thread
   // from a peer's queue (PeerChannel).
   std::atomic<std::uint64_t> sent_from_callback{0}, sent_from_queue{0};
@@ -356,6 +363,9 @@ struct Bridge::Impl {
   void update_links(Clock::time_point now);
   // Subscriptions (what peers want and this host publishes) and republishers.
   void reconcile(Clock::time_point now);
+  // Control thread: adds what `s`'s subscription dropped since the last call to lost_local and
+  // warns of it (at most once per 5 s per topic; at once with `final`, before it goes).
+  void note_local_drops(Served& s, bool final);
   lcmx_msgs::bridge_status_t status() const;
 };
 

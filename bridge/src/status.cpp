@@ -66,6 +66,7 @@ lcmx_msgs::bridge_status_t Bridge::Impl::status() const {
   s.num_demand = static_cast<std::int32_t>(s.demand.size());
   s.zero_copy_sends = static_cast<std::int64_t>(zero_copy_msgs.load(std::memory_order_relaxed));
   s.copied_sends = static_cast<std::int64_t>(copied_msgs.load(std::memory_order_relaxed));
+  s.lost_local = static_cast<std::int64_t>(lost_local.load(std::memory_order_relaxed));
   return s;
 }
 

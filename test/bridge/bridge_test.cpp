@@ -574,7 +574,9 @@ TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's ot
   LCMX_REQUIRE_NETNS();
   World w(3, 6, {{.name = "eth"}});
   const auto ch = w.channel("SLOW");
-  const BridgeOpts o{.channels = "[[channel]]\nname = \"bulk\"\nport = 7701\nhwm = 4\ntopics = [\"*\"]\n"};
+  // The default hwm (16): with 4, a 40 ms stall of C's own bridge under a loaded test run
+  // dropped messages to C (counted), which is not what this test is about.
+  const BridgeOpts o{.channels = "[[channel]]\nname = \"bulk\"\nport = 7701\ntopics = [\"*\"]\n"};
   auto& ba = w.bridge(0, {1, 2}, o);
   auto& bb = w.bridge(1, {0, 2}, o);
   w.bridge(2, {0, 1}, o);
@@ -594,14 +596,15 @@ TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's ot
   pub.send(pub_cmd(kN, 100));
   REQUIRE(published_total(pub) == warm + kN);
   auto [st, ok] = wait_sub(sub_c, ch, [&](const Summary& x) { return x.num("received") >= c0 + kN; }, 10000ms);
-  INFO("subscriber on C:\n" << sub_c.output() << "\nbridge A:\n" << ba.output());
+  INFO("subscriber on C:\n" << sub_c.output() << "\nbridge A:\n" << ba.output()
+                             << (ok ? std::string() : "\nbridge status on A:\n" + bridge_status(w, 0)));
   REQUIRE(ok);
   CHECK(st.num("received") == c0 + kN);  // C lost nothing while B was stopped
   CHECK(st.num("last") == warm + kN - 1);
   check_clean(st);
   const long long rss1 = rss_kib(ba.pid());
   INFO("bridge A RSS " << rss0 << " KiB -> " << rss1 << " KiB");
-  CHECK(rss1 - rss0 < 24 * 1024);  // hwm 4 x 200 KB queued for B + buffers; 60 MB if unbounded
+  CHECK(rss1 - rss0 < 24 * 1024);  // (hwm 16 + 2) x 200 KB queued for B + buffers; 60 MB if unbounded
   CHECK(log_has(ba, "to chipB dropped on channel bulk", 5000ms));
 
   // B comes back and receives again.
@@ -612,6 +615,57 @@ TEST_CASE("a stopped peer (bridge and subscriber on B) holds back neither A's ot
   INFO("subscriber on B:\n" << sub_b.output() << "\nbridge B:\n" << bb.output());
   CHECK(okb);
   check_clean(sb);
+}
+
+// A bridge that falls behind a local publisher (stopped here while the publisher writes 2.5
+// times its ring) never reads what the ring overwrote. That loss is its own: counted in the
+// status (`lost_local`) and warned of naming the topic; with the drops of its queue to B and
+// those of B's subscriber, it is exactly what the subscriber on B misses.
+TEST_CASE("a bridge that falls behind a local publisher counts and warns of what it never read, exactly what host B misses",
+          "[bridge][multihost]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 51, {{.name = "eth"}});
+  const auto ch = w.channel("BEHIND");
+  auto& ba = w.bridge(0, {1});
+  w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 200000, "A");  // large: the bridges carry it
+  const long long warm = warm_up(pub, {&sub}, ch);
+  REQUIRE(wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms).second);
+  const long long r0 = status_of(sub, ch).num("received");
+  const long long d0 = status_of(sub, ch).num("drops");
+
+  ba.signal(SIGSTOP);
+  constexpr long kN = 160;  // 2.5 times the test publisher's ring (64 slots, bridge_pub.cpp)
+  pub.send(pub_cmd(kN, 0));
+  REQUIRE(published_total(pub) == warm + kN);
+  ba.signal(SIGCONT);
+  REQUIRE_LOG(ba, "local message(s) of " + ch + " lost before this bridge read them", 10000ms);
+  pub.send(pub_cmd(1, 0));  // one more: when it is in, everything that could arrive has
+  REQUIRE(published_total(pub) == warm + kN + 1);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm + kN; }, 10000ms);
+  INFO("subscriber on B:\n" << sub.output());
+  REQUIRE(ok);
+  const long long missing = (kN + 1) - (st.num("received") - r0);
+  // The ring keeps 64 slots of the burst; a few more may have been read before the SIGSTOP
+  // took effect (kill() does not wait for it).
+  CHECK(missing > kN / 4);
+  // Every one is counted: what A's bridge never read, what it then dropped from its queue to B
+  // (hwm 16: it resumed with up to 64 to send at once), what B's subscriber dropped.
+  auto& js = w.spawn(0, {LCMX_TOOL, "bridge", "status", "--json", "--wait", "5000"}, true);
+  REQUIRE(js.wait(10000ms) == 0);
+  const std::string status = js.text();
+  INFO(status);
+  auto sum_of = [&](const std::string& key) {  // every "key":N in the JSON
+    long long n = 0;
+    for (auto at = status.find(key); at != std::string::npos; at = status.find(key, at + 1))
+      n += std::stoll(status.substr(at + key.size()));
+    return n;
+  };
+  const long long lost = sum_of("\"lost_local\":");
+  CHECK(lost > kN / 4);
+  CHECK(lost + sum_of("\"drops\":") + (st.num("drops") - d0) == missing);
+  check_clean(st);
 }
 
 // `lcmx bridge status`: "... sent zero-copy N  copied M" -> {N, M}; {-1, -1} if absent.
