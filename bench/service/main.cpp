@@ -125,6 +125,18 @@ int server_echo(const std::string& url, const std::string& name) {
   return 0;
 }
 
+// Answers every request on `rep` with a response of the size it asks for; never returns (the
+// role's process ends in std::_Exit).
+[[noreturn]] void rep_loop(zmq::socket_t& rep) {
+  for (;;) {
+    zmq::message_t req;
+    if (!rep.recv(req, zmq::recv_flags::none)) continue;
+    zmq::message_t resp(response_size({static_cast<const std::byte*>(req.data()), req.size()}));
+    std::memset(resp.data(), 0xa5, resp.size());
+    rep.send(resp, zmq::send_flags::none);
+  }
+}
+
 int server_zmq(const std::string& endpoint) {
   zmq::context_t ctx(1);
   zmq::socket_t rep(ctx, zmq::socket_type::rep);
@@ -134,13 +146,7 @@ int server_zmq(const std::string& endpoint) {
     wait_for_end();
     std::_Exit(0);
   }).detach();
-  for (;;) {
-    zmq::message_t req;
-    if (!rep.recv(req, zmq::recv_flags::none)) continue;
-    zmq::message_t resp(response_size({static_cast<const std::byte*>(req.data()), req.size()}));
-    std::memset(resp.data(), 0xa5, resp.size());
-    rep.send(resp, zmq::send_flags::none);
-  }
+  rep_loop(rep);
 }
 
 // --interleave: an lcmx server and a ZeroMQ REP socket in one process, so that one client
@@ -156,15 +162,7 @@ int server_both(const std::string& url, const std::string& vehicle, const std::s
   zmq::context_t ctx(1);
   zmq::socket_t rep(ctx, zmq::socket_type::rep);
   rep.bind(endpoint);
-  std::thread([&rep] {  // as server_zmq's loop; the process ends in std::_Exit below
-    for (;;) {
-      zmq::message_t req;
-      if (!rep.recv(req, zmq::recv_flags::none)) continue;
-      zmq::message_t resp(response_size({static_cast<const std::byte*>(req.data()), req.size()}));
-      std::memset(resp.data(), 0xa5, resp.size());
-      rep.send(resp, zmq::send_flags::none);
-    }
-  }).detach();
+  std::thread([&rep] { rep_loop(rep); }).detach();  // the process ends in std::_Exit below
   say("ready");
   wait_for_end();
   std::_Exit(0);  // the REP thread blocks in recv; nothing else to tidy
