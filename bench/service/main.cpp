@@ -32,6 +32,7 @@
 #include <iostream>
 #include <map>
 #include <mutex>
+#include <optional>
 #include <sstream>
 #include <thread>
 #include <zmq.hpp>
@@ -108,18 +109,28 @@ int server_lcmx(const std::string& url, const std::string& vehicle, const std::s
   return 0;
 }
 
-// Two one-way messages: PING -> (this process) -> PONG of the asked size.
+// Two one-way messages: NAME_PING -> a node of its own in this process -> NAME_PONG of the
+// asked size. Not movable (the callback holds `this`).
+struct EchoServer {
+  lcmx::Node node;
+  lcmx::RawPublisher pong;
+  Bytes out;
+  lcmx::RawSubscriber sub;
+  EchoServer(lcmx::Runtime& rt, const std::string& name)
+      : node(rt.create_node("bench_echo")), pong(node.advertise_raw(name + "_PONG")) {
+    sub = node.subscribe_raw(name + "_PING", [this](const lcmx::RawMessage& m) {
+      out.assign(response_size(m.data), std::byte{0xa5});
+      std::memcpy(out.data(), m.data.data(), std::min<std::size_t>(8, out.size()));  // echo the tag
+      pong.publish(out);
+    });
+  }
+  EchoServer(const EchoServer&) = delete;
+  EchoServer& operator=(const EchoServer&) = delete;
+};
+
 int server_echo(const std::string& url, const std::string& name) {
   auto rt = lcmx::Runtime::create(runtime_options(url, ""));
-  auto node = rt.create_node("bench_echo");
-  lcmx::PublisherOptions po;
-  auto pong = node.advertise_raw(name + "_PONG", po);
-  Bytes out;
-  auto sub = node.subscribe_raw(name + "_PING", [&](const lcmx::RawMessage& m) {
-    out.assign(response_size(m.data), std::byte{0xa5});
-    std::memcpy(out.data(), m.data.data(), std::min<std::size_t>(8, out.size()));  // echo the tag
-    pong.publish(out);
-  });
+  EchoServer echo(rt, name);
   say("ready");
   wait_for_end();
   return 0;
@@ -149,20 +160,25 @@ int server_zmq(const std::string& endpoint) {
   rep_loop(rep);
 }
 
-// --interleave: an lcmx server and a ZeroMQ REP socket in one process, so that one client
-// process can alternate between them call by call.
+// --interleave: an lcmx server and, in the same process, a ZeroMQ REP socket on `endpoint` or
+// an echo (`echo`: its channels' prefix), so that one client process can alternate between
+// them call by call.
 int server_both(const std::string& url, const std::string& vehicle, const std::string& name,
-                const std::string& endpoint) {
+                const std::string& endpoint, const std::string& echo_name) {
   auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
   auto node = rt.create_node("bench_server");
   auto s = node.create_service_raw(name, [](std::span<const std::byte> req, lcmx::ResponseWriter& out) {
     auto b = out.allocate(response_size(req));
     std::memset(b.data(), 0xa5, b.size());
   });
+  std::optional<EchoServer> echo;
+  if (!echo_name.empty()) echo.emplace(rt, echo_name);
   zmq::context_t ctx(1);
   zmq::socket_t rep(ctx, zmq::socket_type::rep);
-  rep.bind(endpoint);
-  std::thread([&rep] { rep_loop(rep); }).detach();  // the process ends in std::_Exit below
+  if (!endpoint.empty()) {
+    rep.bind(endpoint);
+    std::thread([&rep] { rep_loop(rep); }).detach();  // the process ends in std::_Exit below
+  }
   say("ready");
   wait_for_end();
   std::_Exit(0);  // the REP thread blocks in recv; nothing else to tidy
@@ -258,11 +274,41 @@ void throughput(int clients, double seconds, const std::function<CallFn(int)>& m
   say("tput " + std::to_string(clients) + " " + std::to_string(static_cast<double>(total.load()) / s));
 }
 
-// With `endpoint` (--interleave), a ZeroMQ REQ socket to it too, and the two alternate call by
-// call (measure_pair: "rtt" lines for lcmx, "rtt-peer" for ZeroMQ).
+// The client side of EchoServer, on a node of its own. A call publishes a ping and waits for a
+// pong newer than it, counting them (one at a time: no overlap). Not movable.
+struct EchoClient {
+  lcmx::Node node;
+  lcmx::RawPublisher ping;
+  std::mutex mu;
+  std::condition_variable cv;
+  std::uint64_t pongs = 0, seen = 0;  // guarded by mu
+  lcmx::RawSubscriber sub;
+  EchoClient(lcmx::Runtime& rt, const std::string& name)
+      : node(rt.create_node("bench_echo_client")), ping(node.advertise_raw(name + "_PING")) {
+    sub = node.subscribe_raw(name + "_PONG", [this](const lcmx::RawMessage&) {
+      std::lock_guard lock(mu);
+      ++pongs;
+      cv.notify_all();
+    });
+  }
+  EchoClient(const EchoClient&) = delete;
+  EchoClient& operator=(const EchoClient&) = delete;
+  bool wait_ready() { return ping.wait_for_subscribers(1, 20s) && sub.wait_for_publishers(1, 20s); }
+  bool call(const Bytes& req) {
+    ping.publish(req);
+    std::unique_lock lock(mu);
+    const bool ok = cv.wait_for(lock, 10s, [&] { return pongs > seen; });
+    seen = pongs;
+    return ok;
+  }
+};
+
+// With `endpoint` or `echo_name` (--interleave), a ZeroMQ REQ socket to it or an EchoClient
+// too, and the two alternate call by call (measure_pair: "rtt" lines for lcmx, "rtt-peer" for
+// the other).
 int client_lcmx(const std::string& url, const std::string& vehicle, const std::string& name,
                 const std::vector<Case>& cases, int clients, double seconds, bool settle_bridge,
-                const std::string& endpoint) {
+                const std::string& endpoint, const std::string& echo_name) {
   auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
   // --settle-bridge: measure the settled state of "UDP + bridges", where this client's reply
   // channel is matched with this host's bridge republisher before it turns large (bridges
@@ -300,7 +346,11 @@ int client_lcmx(const std::string& url, const std::string& vehicle, const std::s
     if (!r.ok()) say("error " + r.message());
     return r.ok();
   };
-  if (endpoint.empty()) {
+  if (!echo_name.empty()) {
+    EchoClient echo(rt, echo_name);
+    if (!echo.wait_ready()) return say("error no echo"), 1;
+    measure_pair(cases, call, [&](const Bytes& req) { return echo.call(req); });
+  } else if (endpoint.empty()) {
     measure(cases, call);
   } else {
     zmq::context_t ctx(1);
@@ -333,26 +383,10 @@ int client_lcmx(const std::string& url, const std::string& vehicle, const std::s
 
 int client_echo(const std::string& url, const std::string& name, const std::vector<Case>& cases) {
   auto rt = lcmx::Runtime::create(runtime_options(url, ""));
-  auto node = rt.create_node("bench_echo_client");
-  auto ping = node.advertise_raw(name + "_PING");
-  std::mutex mu;
-  std::condition_variable cv;
-  // A call waits for a pong newer than its ping, counting them (one at a time: no overlap).
-  std::uint64_t pongs = 0, seen = 0;
-  auto sub = node.subscribe_raw(name + "_PONG", [&](const lcmx::RawMessage&) {
-    std::lock_guard lock(mu);
-    ++pongs;
-    cv.notify_all();
-  });
-  if (!ping.wait_for_subscribers(1, 20s) || !sub.wait_for_publishers(1, 20s)) return say("error no echo"), 1;
+  EchoClient echo(rt, name);
+  if (!echo.wait_ready()) return say("error no echo"), 1;
   say("note path shm");
-  measure(cases, [&](const Bytes& req) {
-    ping.publish(req);
-    std::unique_lock lock(mu);
-    const bool ok = cv.wait_for(lock, 10s, [&] { return pongs > seen; });
-    seen = pongs;
-    return ok;
-  });
+  measure(cases, [&](const Bytes& req) { return echo.call(req); });
   return 0;
 }
 
@@ -478,6 +512,16 @@ Result run_method(const std::string& method, const std::vector<std::string>& ser
   s_in.close_w();  // the server's stdin closes: it exits
   lcmxbench::reap_child(server, 5000, stop);
   return res;
+}
+
+// --interleave: the peer's row of an interleaved run (its "rtt-peer" lines).
+Result peer_of(const Result& r, const std::string& method, const std::string& path) {
+  Result p;
+  p.method = method;
+  p.path = path;
+  p.rtt = r.peer_rtt;
+  p.error = r.error;
+  return p;
 }
 
 std::string fmt(double v) {
@@ -631,8 +675,10 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(1, 20))
       ->capture_default_str();
   app.add_flag("--interleave", interleave,
-               "two hosts: only \"UDP + bridges\" against ZeroMQ REQ/REP, from one client process (and one server "
-               "process) that alternate between them call by call, so both see the same moments of the machine");
+               "one client process (and one server process) alternating the lcmx service and its peer call by "
+               "call, so both see the same moments of the machine: on one host against two one-way shm messages "
+               "and against ZeroMQ REQ/REP ipc (no calls/s), between hosts only \"UDP + bridges\" against ZeroMQ "
+               "REQ/REP tcp");
   app.add_option("--markdown", markdown, "also write the tables to this file");
   app.add_option("--tcp-congestion", tcp_cc,
                  "two hosts: their TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. "
@@ -648,6 +694,8 @@ int main(int argc, char** argv) {
   app.add_option("--vehicle", vehicle)->group("");
   app.add_option("--name", name)->group("");
   app.add_option("--endpoint", endpoint)->group("");
+  std::string echo_name;
+  app.add_option("--echo", echo_name)->group("");
   app.add_option("--cases", cases_text)->group("");
   app.add_flag("--settle-bridge", settle_bridge)->group("");
   CLI11_PARSE(app, argc, argv);
@@ -663,8 +711,9 @@ int main(int argc, char** argv) {
       if (role == "server-lcmx") return server_lcmx(url, vehicle, name);
       if (role == "server-echo") return server_echo(url, name);
       if (role == "server-zmq") return server_zmq(endpoint);
-      if (role == "server-both") return server_both(url, vehicle, name, endpoint);
-      if (role == "client-lcmx") return client_lcmx(url, vehicle, name, cs, clients, seconds, settle_bridge, endpoint);
+      if (role == "server-both") return server_both(url, vehicle, name, endpoint, echo_name);
+      if (role == "client-lcmx")
+        return client_lcmx(url, vehicle, name, cs, clients, seconds, settle_bridge, endpoint, echo_name);
       if (role == "client-echo") return client_echo(url, name, cs);
       if (role == "client-zmq") return client_zmq(endpoint, cs, clients, seconds);
       std::cerr << "unknown role " << role << "\n";
@@ -691,33 +740,56 @@ int main(int argc, char** argv) {
   std::ostringstream md;
   md << "## lcmx_bench_service\n\n";
 
-  std::cerr << "one host: lcmx service\n";
-  auto lx = run_method("lcmx service", {"--role", "server-lcmx", "--url", url1, "--name", "svcb_" + tag},
-                       {"--role", "client-lcmx", "--url", url1, "--name", "svcb_" + tag, "--cases", cs,
-                        "--clients", n_clients, "--seconds", secs});
-  std::cerr << "one host: two one-way lcmx shm messages\n";
-  auto echo = run_method("2 x lcmx one-way", {"--role", "server-echo", "--url", url1, "--name", "SVCB_" + tag},
-                         {"--role", "client-echo", "--url", url1, "--name", "SVCB_" + tag, "--cases", cs});
+  // The service's rows the one-host targets compare (the same row unless --interleave, where
+  // each comparison is its own run).
+  Result svc_vs_echo, echo, svc_vs_zi, zi;
   const std::string ipc = "ipc:///tmp/lcmx_bench_service_" + tag;
-  std::cerr << "one host: ZeroMQ REQ/REP ipc\n";
-  auto zi = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", ipc},
-                       {"--role", "client-zmq", "--endpoint", ipc, "--cases", cs, "--clients", n_clients, "--seconds", secs});
-  ::unlink(("/tmp/lcmx_bench_service_" + tag).c_str());
-  const std::string tcp = "tcp://127.0.0.1:" + std::to_string(41000 + ::getpid() % 20000);
-  std::cerr << "one host: ZeroMQ REQ/REP tcp\n";
-  auto zt = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp},
-                       {"--role", "client-zmq", "--endpoint", tcp, "--cases", cs, "--clients", n_clients, "--seconds", secs});
-  md << table("One host (ratios against ZeroMQ ipc)", {lx, echo, zi, zt}, cases, zi, "ZeroMQ ipc") << "\n";
-  md << table("One host (ratios against two one-way shm messages)", {lx, echo}, cases, echo, "2 x one-way") << "\n";
+  if (interleave) {
+    std::cerr << "one host: lcmx service and two one-way lcmx shm messages, interleaved\n";
+    svc_vs_echo = run_method("lcmx service, interleaved",
+                             {"--role", "server-both", "--url", url1, "--name", "svcb_" + tag, "--echo", "SVCB_" + tag},
+                             {"--role", "client-lcmx", "--url", url1, "--name", "svcb_" + tag, "--echo", "SVCB_" + tag,
+                              "--cases", cs, "--clients", "0"});
+    echo = peer_of(svc_vs_echo, "2 x lcmx one-way, interleaved", "shm");
+    std::cerr << "one host: lcmx service and ZeroMQ REQ/REP ipc, interleaved\n";
+    svc_vs_zi = run_method("lcmx service, interleaved",
+                           {"--role", "server-both", "--url", url1, "--name", "svcb_" + tag, "--endpoint", ipc},
+                           {"--role", "client-lcmx", "--url", url1, "--name", "svcb_" + tag, "--endpoint", ipc,
+                            "--cases", cs, "--clients", "0"});
+    zi = peer_of(svc_vs_zi, "ZeroMQ REQ/REP, interleaved", "ipc");
+    ::unlink(("/tmp/lcmx_bench_service_" + tag).c_str());
+    md << table("One host, interleaved with two one-way shm messages", {svc_vs_echo, echo}, cases, echo, "2 x one-way")
+       << "\n";
+    md << table("One host, interleaved with ZeroMQ REQ/REP ipc", {svc_vs_zi, zi}, cases, zi, "ZeroMQ ipc") << "\n";
+  } else {
+    std::cerr << "one host: lcmx service\n";
+    auto lx = run_method("lcmx service", {"--role", "server-lcmx", "--url", url1, "--name", "svcb_" + tag},
+                         {"--role", "client-lcmx", "--url", url1, "--name", "svcb_" + tag, "--cases", cs,
+                          "--clients", n_clients, "--seconds", secs});
+    std::cerr << "one host: two one-way lcmx shm messages\n";
+    echo = run_method("2 x lcmx one-way", {"--role", "server-echo", "--url", url1, "--name", "SVCB_" + tag},
+                      {"--role", "client-echo", "--url", url1, "--name", "SVCB_" + tag, "--cases", cs});
+    std::cerr << "one host: ZeroMQ REQ/REP ipc\n";
+    zi = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", ipc},
+                    {"--role", "client-zmq", "--endpoint", ipc, "--cases", cs, "--clients", n_clients, "--seconds", secs});
+    ::unlink(("/tmp/lcmx_bench_service_" + tag).c_str());
+    const std::string tcp = "tcp://127.0.0.1:" + std::to_string(41000 + ::getpid() % 20000);
+    std::cerr << "one host: ZeroMQ REQ/REP tcp\n";
+    auto zt = run_method("ZeroMQ REQ/REP", {"--role", "server-zmq", "--endpoint", tcp},
+                         {"--role", "client-zmq", "--endpoint", tcp, "--cases", cs, "--clients", n_clients, "--seconds", secs});
+    md << table("One host (ratios against ZeroMQ ipc)", {lx, echo, zi, zt}, cases, zi, "ZeroMQ ipc") << "\n";
+    md << table("One host (ratios against two one-way shm messages)", {lx, echo}, cases, echo, "2 x one-way") << "\n";
+    svc_vs_echo = svc_vs_zi = lx;
+  }
   // Issue 12's targets, checked after the tables (the ratios are p50 against p50; two hosts:
   // the median of the rounds' ratios).
   std::string targets;
   for (const auto& c : cases) {
     const auto key = case_key(c);
     targets += target_line("one host, " + case_label(c) + ": service ≤ 1.5x two one-way shm messages",
-                           p50_ratio(lx, echo, key), 1.5, false);
+                           p50_ratio(svc_vs_echo, echo, key), 1.5, false);
     targets += target_line("one host, " + case_label(c) + ": service faster than ZeroMQ REQ/REP ipc",
-                           p50_ratio(lx, zi, key), 1.0, true);
+                           p50_ratio(svc_vs_zi, zi, key), 1.0, true);
   }
 
 #ifdef LCMX_BENCH_WITH_NETNS
@@ -849,11 +921,7 @@ int main(int argc, char** argv) {
           // One client process alternating lcmx and ZeroMQ calls: the ZeroMQ row is its peer_rtt.
           auto r = bridged("lcmx service (UDP + bridges), interleaved", "udpm://239.255.78.5:7671?ttl=0",
                            "udpm://239.255.78.6:7672?ttl=1&iface=eth", "svcbv", 1, tcp2);
-          Result z;
-          z.method = "ZeroMQ REQ/REP, interleaved";
-          z.path = "tcp";
-          z.rtt = r.peer_rtt;
-          z.error = r.error;
+          auto z = peer_of(r, "ZeroMQ REQ/REP, interleaved", "tcp");
           runs[1].push_back(std::move(r));
           runs[3].push_back(std::move(z));
           continue;
@@ -901,8 +969,9 @@ int main(int argc, char** argv) {
 #endif
   md << "### Targets (issue 12)\n\n" << targets
      << "- (between hosts the designed set-up is \"UDP + bridges\": small messages over UDP, 1 MB through the "
-        "bridges; the other rows are for comparison. One host: single runs, whose wake-up placement on a "
-        "2-vCPU machine moves a 1 KB call by 2-3x (bench/README.md \"The cross-vCPU wake-up\"). The 1 KB / 1 MB "
+        "bridges; the other rows are for comparison. One host without --interleave: single runs, whose wake-up "
+        "placement on a 2-vCPU machine moves a 1 KB call by 2-3x (bench/README.md \"The cross-vCPU wake-up\"); "
+        "--interleave compares call by call. The 1 KB / 1 MB "
         "call between hosts and why: docs/services.md \"A CPU per host\")\n";
   std::cout << md.str() << std::flush;
   if (!markdown.empty()) std::ofstream(markdown) << md.str();
