@@ -207,34 +207,46 @@ int dds_source(const std::string& topic, long count, std::size_t size, double hz
   return 0;
 }
 
+// An lcmx raw publisher of `channel` (the gateway exports it), subscribed by the gateway before
+// it returns; exits the process if the gateway does not subscribe within 30 s.
+struct LcmxPublisher {
+  lcmx::Runtime rt = lcmx::Runtime::create();
+  lcmx::Node node = rt.create_node("bench_dds_source");
+  lcmx::RawPublisher pub;
+  explicit LcmxPublisher(const std::string& channel) : pub(node.advertise_raw(channel)) {
+    if (!pub.wait_for_subscribers(1, std::chrono::seconds(30))) {
+      std::fprintf(stderr, "lcmx_bench_dds: the gateway did not subscribe to %s within 30 s\n", channel.c_str());
+      std::exit(1);
+    }
+  }
+  void publish(const std::vector<std::uint8_t>& p) { pub.publish(std::as_bytes(std::span(p))); }
+};
+
+// Says "sent COUNT", then keeps the lcmx publisher until the driver closes stdin (the gateway
+// drains meanwhile).
+int sent_then_wait(long count) {
+  std::cout << "sent " << count << std::endl;
+  std::string line;
+  std::getline(std::cin, line);
+  return 0;
+}
+
 int lcmx_source(const std::string& channel, long count, std::size_t size, double hz) {
-  auto rt = lcmx::Runtime::create();
-  auto node = rt.create_node("bench_dds_source");
-  auto pub = node.advertise_raw(channel);
-  if (!pub.wait_for_subscribers(1, std::chrono::seconds(30))) return 1;
+  LcmxPublisher lx(channel);
   std::vector<std::uint8_t> p(std::max<std::size_t>(size, 24), 0x5a);
   const std::int64_t start = now_ns();
   for (long k = 0; k < count; ++k) {
     pace(start, static_cast<std::uint64_t>(k), hz);
     stamp(p, static_cast<std::uint64_t>(k));
-    pub.publish(std::as_bytes(std::span(p)));
+    lx.publish(p);
   }
-  std::cout << "sent " << count << std::endl;
-  std::string line;
-  std::getline(std::cin, line);  // until the driver closes stdin (the gateway drains meanwhile)
-  return 0;
+  return sent_then_wait(count);
 }
 
 // Both paths from one process, interleaved: the k-th lcmx message at k/hz, the k-th DDS sample
 // half a period later, so that the machine's drift falls on both paths alike.
 int both_source(const std::string& channel, const std::string& topic, long count, std::size_t size, double hz) {
-  auto rt = lcmx::Runtime::create();
-  auto node = rt.create_node("bench_dds_source");
-  auto pub = node.advertise_raw(channel);
-  if (!pub.wait_for_subscribers(1, std::chrono::seconds(30))) {
-    std::fprintf(stderr, "lcmx_bench_dds: the gateway did not subscribe to %s within 30 s\n", channel.c_str());
-    return 1;
-  }
+  LcmxPublisher lx(channel);
   std::vector<std::uint8_t> p(std::max<std::size_t>(size, 24), 0x5a);
   {
     DdsWriter w(topic);
@@ -242,16 +254,13 @@ int both_source(const std::string& channel, const std::string& topic, long count
     for (long k = 0; k < count; ++k) {
       pace(start, 2 * static_cast<std::uint64_t>(k), 2 * hz);
       stamp(p, static_cast<std::uint64_t>(k));
-      pub.publish(std::as_bytes(std::span(p)));
+      lx.publish(p);
       pace(start, 2 * static_cast<std::uint64_t>(k) + 1, 2 * hz);
       stamp(p, static_cast<std::uint64_t>(k));
       w.write(p);
     }
-  }
-  std::cout << "sent " << count << std::endl;
-  std::string line;
-  std::getline(std::cin, line);  // until the driver closes stdin (the gateway drains meanwhile)
-  return 0;
+  }  // waits for the acknowledgements
+  return sent_then_wait(count);
 }
 
 }  // namespace

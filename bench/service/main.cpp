@@ -97,18 +97,6 @@ lcmx::RuntimeOptions runtime_options(const std::string& url, const std::string& 
   return o;
 }
 
-int server_lcmx(const std::string& url, const std::string& vehicle, const std::string& name) {
-  auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
-  auto node = rt.create_node("bench_server");
-  auto s = node.create_service_raw(name, [](std::span<const std::byte> req, lcmx::ResponseWriter& out) {
-    auto b = out.allocate(response_size(req));  // written in place (shared memory for shm clients)
-    std::memset(b.data(), 0xa5, b.size());
-  });
-  say("ready");
-  wait_for_end();
-  return 0;
-}
-
 // Two one-way messages: NAME_PING -> a node of its own in this process -> NAME_PONG of the
 // asked size. Not movable (the callback holds `this`).
 struct EchoServer {
@@ -136,34 +124,50 @@ int server_echo(const std::string& url, const std::string& name) {
   return 0;
 }
 
-// Answers every request on `rep` with a response of the size it asks for; never returns (the
-// role's process ends in std::_Exit).
-[[noreturn]] void rep_loop(zmq::socket_t& rep) {
-  for (;;) {
-    zmq::message_t req;
-    if (!rep.recv(req, zmq::recv_flags::none)) continue;
-    zmq::message_t resp(response_size({static_cast<const std::byte*>(req.data()), req.size()}));
-    std::memset(resp.data(), 0xa5, resp.size());
-    rep.send(resp, zmq::send_flags::none);
+// A ZeroMQ REP socket bound to `endpoint`, answering every request with a response of the size
+// it asks for on a thread of its own, until destroyed (which shuts its context down and joins).
+class RepServer {
+ public:
+  explicit RepServer(const std::string& endpoint) : rep_(ctx_, zmq::socket_type::rep) {
+    rep_.bind(endpoint);
+    thread_ = std::thread([this] {
+      try {
+        for (;;) {
+          zmq::message_t req;
+          if (!rep_.recv(req, zmq::recv_flags::none)) continue;
+          zmq::message_t resp(response_size({static_cast<const std::byte*>(req.data()), req.size()}));
+          std::memset(resp.data(), 0xa5, resp.size());
+          rep_.send(resp, zmq::send_flags::none);
+        }
+      } catch (const zmq::error_t& e) {
+        if (e.num() != ETERM) say(std::string("error REP socket: ") + e.what());
+      }
+    });
   }
-}
+  RepServer(const RepServer&) = delete;
+  RepServer& operator=(const RepServer&) = delete;
+  ~RepServer() {
+    ctx_.shutdown();  // the thread's recv/send end with ETERM
+    thread_.join();
+  }
+
+ private:
+  zmq::context_t ctx_{1};
+  zmq::socket_t rep_;
+  std::thread thread_;
+};
 
 int server_zmq(const std::string& endpoint) {
-  zmq::context_t ctx(1);
-  zmq::socket_t rep(ctx, zmq::socket_type::rep);
-  rep.bind(endpoint);
+  RepServer rep(endpoint);
   say("ready");
-  std::thread([] {
-    wait_for_end();
-    std::_Exit(0);
-  }).detach();
-  rep_loop(rep);
+  wait_for_end();
+  return 0;
 }
 
-// --interleave: an lcmx server and, in the same process, a ZeroMQ REP socket on `endpoint` or
-// an echo (`echo`: its channels' prefix), so that one client process can alternate between
-// them call by call.
-int server_both(const std::string& url, const std::string& vehicle, const std::string& name,
+// The lcmx server (its response written in place: shared memory for shm clients) and, with
+// --interleave, in the same process a ZeroMQ REP socket on `endpoint` or an echo (`echo_name`:
+// its channels' prefix), so that one client process can alternate between them call by call.
+int server_lcmx(const std::string& url, const std::string& vehicle, const std::string& name,
                 const std::string& endpoint, const std::string& echo_name) {
   auto rt = lcmx::Runtime::create(runtime_options(url, vehicle));
   auto node = rt.create_node("bench_server");
@@ -173,15 +177,11 @@ int server_both(const std::string& url, const std::string& vehicle, const std::s
   });
   std::optional<EchoServer> echo;
   if (!echo_name.empty()) echo.emplace(rt, echo_name);
-  zmq::context_t ctx(1);
-  zmq::socket_t rep(ctx, zmq::socket_type::rep);
-  if (!endpoint.empty()) {
-    rep.bind(endpoint);
-    std::thread([&rep] { rep_loop(rep); }).detach();  // the process ends in std::_Exit below
-  }
+  std::optional<RepServer> rep;
+  if (!endpoint.empty()) rep.emplace(endpoint);
   say("ready");
   wait_for_end();
-  std::_Exit(0);  // the REP thread blocks in recv; nothing else to tidy
+  return 0;
 }
 
 // ---- clients ----
@@ -245,6 +245,22 @@ void measure_pair(const std::vector<Case>& cases, const CallFn& a, const CallFn&
     o << "rtt-peer " << case_key(c) << " " << rb.pct(0.5) << " " << rb.pct(0.99) << " " << rb.us.size();
     say(o.str());
   }
+}
+
+// A ZeroMQ REQ socket connected to `endpoint` (no linger, 10 s receive timeout).
+zmq::socket_t req_socket(zmq::context_t& ctx, const std::string& endpoint) {
+  zmq::socket_t s(ctx, zmq::socket_type::req);
+  s.set(zmq::sockopt::linger, 0);
+  s.set(zmq::sockopt::rcvtimeo, 10000);
+  s.connect(endpoint);
+  return s;
+}
+
+// One REQ/REP call on `s`; false on a timeout.
+bool zmq_call(zmq::socket_t& s, const Bytes& req) {
+  s.send(zmq::buffer(req.data(), req.size()), zmq::send_flags::none);
+  zmq::message_t resp;
+  return s.recv(resp, zmq::recv_flags::none).has_value();
 }
 
 // `clients` threads call back to back for `seconds`; prints "tput <clients> <calls/s>".
@@ -354,15 +370,8 @@ int client_lcmx(const std::string& url, const std::string& vehicle, const std::s
     measure(cases, call);
   } else {
     zmq::context_t ctx(1);
-    zmq::socket_t sock(ctx, zmq::socket_type::req);
-    sock.set(zmq::sockopt::linger, 0);
-    sock.set(zmq::sockopt::rcvtimeo, 10000);
-    sock.connect(endpoint);
-    measure_pair(cases, call, [&](const Bytes& req) {
-      sock.send(zmq::buffer(req.data(), req.size()), zmq::send_flags::none);
-      zmq::message_t resp;
-      return sock.recv(resp, zmq::recv_flags::none).has_value();
-    });
+    auto sock = req_socket(ctx, endpoint);
+    measure_pair(cases, call, [&](const Bytes& req) { return zmq_call(sock, req); });
   }
   if (clients > 0) {
     std::vector<lcmx::RawClient> cs;
@@ -392,26 +401,14 @@ int client_echo(const std::string& url, const std::string& name, const std::vect
 
 int client_zmq(const std::string& endpoint, const std::vector<Case>& cases, int clients, double seconds) {
   zmq::context_t ctx(1);
-  auto connect = [&] {
-    zmq::socket_t s(ctx, zmq::socket_type::req);
-    s.set(zmq::sockopt::linger, 0);
-    s.set(zmq::sockopt::rcvtimeo, 10000);
-    s.connect(endpoint);
-    return s;
-  };
-  auto sock = connect();
-  auto call_on = [](zmq::socket_t& s, const Bytes& req) {
-    s.send(zmq::buffer(req.data(), req.size()), zmq::send_flags::none);
-    zmq::message_t resp;
-    return s.recv(resp, zmq::recv_flags::none).has_value();
-  };
+  auto sock = req_socket(ctx, endpoint);
   say("note path " + endpoint.substr(0, endpoint.find(':')));
-  measure(cases, [&](const Bytes& req) { return call_on(sock, req); });
+  measure(cases, [&](const Bytes& req) { return zmq_call(sock, req); });
   if (clients > 0) {
     std::vector<zmq::socket_t> socks;
-    for (int i = 0; i < clients; ++i) socks.push_back(connect());
+    for (int i = 0; i < clients; ++i) socks.push_back(req_socket(ctx, endpoint));
     throughput(clients, seconds, [&](int i) -> CallFn {
-      return [&, i](const Bytes& req) { return call_on(socks[static_cast<std::size_t>(i)], req); };
+      return [&, i](const Bytes& req) { return zmq_call(socks[static_cast<std::size_t>(i)], req); };
     });
   }
   return 0;
@@ -708,10 +705,9 @@ int main(int argc, char** argv) {
   try {
     if (!role.empty()) {
       const auto cs = cases_text.empty() ? std::vector<Case>{} : parse_cases(cases_text);
-      if (role == "server-lcmx") return server_lcmx(url, vehicle, name);
+      if (role == "server-lcmx") return server_lcmx(url, vehicle, name, endpoint, echo_name);
       if (role == "server-echo") return server_echo(url, name);
       if (role == "server-zmq") return server_zmq(endpoint);
-      if (role == "server-both") return server_both(url, vehicle, name, endpoint, echo_name);
       if (role == "client-lcmx")
         return client_lcmx(url, vehicle, name, cs, clients, seconds, settle_bridge, endpoint, echo_name);
       if (role == "client-echo") return client_echo(url, name, cs);
@@ -747,13 +743,13 @@ int main(int argc, char** argv) {
   if (interleave) {
     std::cerr << "one host: lcmx service and two one-way lcmx shm messages, interleaved\n";
     svc_vs_echo = run_method("lcmx service, interleaved",
-                             {"--role", "server-both", "--url", url1, "--name", "svcb_" + tag, "--echo", "SVCB_" + tag},
+                             {"--role", "server-lcmx", "--url", url1, "--name", "svcb_" + tag, "--echo", "SVCB_" + tag},
                              {"--role", "client-lcmx", "--url", url1, "--name", "svcb_" + tag, "--echo", "SVCB_" + tag,
                               "--cases", cs, "--clients", "0"});
     echo = peer_of(svc_vs_echo, "2 x lcmx one-way, interleaved", "shm");
     std::cerr << "one host: lcmx service and ZeroMQ REQ/REP ipc, interleaved\n";
     svc_vs_zi = run_method("lcmx service, interleaved",
-                           {"--role", "server-both", "--url", url1, "--name", "svcb_" + tag, "--endpoint", ipc},
+                           {"--role", "server-lcmx", "--url", url1, "--name", "svcb_" + tag, "--endpoint", ipc},
                            {"--role", "client-lcmx", "--url", url1, "--name", "svcb_" + tag, "--endpoint", ipc,
                             "--cases", cs, "--clients", "0"});
     zi = peer_of(svc_vs_zi, "ZeroMQ REQ/REP, interleaved", "ipc");
@@ -871,8 +867,7 @@ int main(int argc, char** argv) {
               throw std::runtime_error(std::string("bridge svc") + n + " did not link to the other host");
           }
           std::cerr << "two hosts: " << method << "\n";
-          std::vector<std::string> server{"--role", zmq_endpoint.empty() ? "server-lcmx" : "server-both", "--url",
-                                          local_b, "--name", svc};
+          std::vector<std::string> server{"--role", "server-lcmx", "--url", local_b, "--name", svc};
           std::vector<std::string> client{"--role", "client-lcmx", "--url", local_b, "--name", svc, "--cases", cs,
                                           "--clients", zmq_endpoint.empty() ? n_clients : "0", "--seconds", secs};
           if (!zmq_endpoint.empty()) {

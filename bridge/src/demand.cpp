@@ -98,7 +98,7 @@ std::set<std::string> Bridge::Impl::catalogue_locked() {
 
 // Subscriptions (what peers want and this host publishes) and republishers.
 void Bridge::Impl::note_local_drops(Served& s, bool final) {
-  const std::uint64_t d = s.sub ? s.sub.stats().drops : s.drops_counted;
+  const std::uint64_t d = s.sub.stats().drops;  // a served topic always has its subscription
   if (d > s.drops_counted) {
     lost_local.fetch_add(d - s.drops_counted, std::memory_order_relaxed);
     s.drops_counted = d;

@@ -322,8 +322,11 @@ long long rss_kib(pid_t pid) {
 }
 
 // Runs `lcmx bridge status` in `host` and returns its output.
-std::string bridge_status(World& w, int host) {
-  auto& c = w.spawn(host, {LCMX_TOOL, "bridge", "status", "--wait", "5000"}, true);
+// `lcmx bridge status` on `host` (`json`: --json), checked to succeed.
+std::string bridge_status(World& w, int host, bool json = false) {
+  std::vector<std::string> argv{LCMX_TOOL, "bridge", "status", "--wait", "5000"};
+  if (json) argv.push_back("--json");
+  auto& c = w.spawn(host, argv, true);
   const int rc = c.wait(10000ms);
   INFO(c.text());
   CHECK(rc == 0);
@@ -652,9 +655,7 @@ TEST_CASE("a bridge that falls behind a local publisher counts and warns of what
   CHECK(missing > kN / 4);
   // Every one is counted: what A's bridge never read, what it then dropped from its queue to B
   // (hwm 16: it resumed with up to 64 to send at once), what B's subscriber dropped.
-  auto& js = w.spawn(0, {LCMX_TOOL, "bridge", "status", "--json", "--wait", "5000"}, true);
-  REQUIRE(js.wait(10000ms) == 0);
-  const std::string status = js.text();
+  const std::string status = bridge_status(w, 0, true);
   INFO(status);
   auto sum_of = [&](const std::string& key) {  // every "key":N in the JSON
     long long n = 0;
