@@ -22,7 +22,7 @@ retransmission for ~50 ms in some runs, whichever path sent it. The gateway (a w
 its own config.
 
 usage: run.py BUILD_DIR [--mode interleaved|blocks] [--pin CPUS] [--quick] [--rounds N] [--csv FILE]
-              [--rcvbuf SIZE] [--spin-us US]
+              [--rcvbuf SIZE] [--spin-us US] [--slice-us US]
 """
 import argparse, os, re, subprocess, sys, tempfile, time
 
@@ -37,6 +37,8 @@ p.add_argument("--mode", choices=("interleaved", "blocks"), default="interleaved
 p.add_argument("--csv", default="")
 p.add_argument("--spin-us", type=int, default=None,
                help="the gateway's spin_us (default: the gateway's own default)")
+p.add_argument("--slice-us", type=int, default=None,
+               help="the gateway's slice_us (default: the gateway's own default; 0 = the kernel's default slice)")
 p.add_argument("--rcvbuf", default="4MB",
                help="Cyclone SocketReceiveBufferSize max for the DDS programs, e.g. 4MB; '' = Cyclone's default (1 MiB)")
 a = p.parse_args()
@@ -95,6 +97,8 @@ with open(cfg, "w") as f:
     f.write('name = "bench"\ndomain = %d\ninterface = "127.0.0.1"\nallow_multicast = false\npeers = ["127.0.0.1"]\n' % domain)
     if a.spin_us is not None:
         f.write('spin_us = %d\n' % a.spin_us)
+    if a.slice_us is not None:
+        f.write('slice_us = %d\n' % a.slice_us)
     for s in sizes + [6000000]:
         f.write('[[map]]\nchannel = "BENCH_%d"\ndirection = "to_dds"\ntopic = "G_%d"\n' % (s, s))
 rows = []
@@ -198,8 +202,9 @@ for s, rounds in rows:
     print("| %d | %.1f | %.1f | %.1f | %.1f | %.2f (%s) | %.2f |" % (
         s, m["direct_p50_us"], m["direct_p99_us"], m["gateway_p50_us"], m["gateway_p99_us"], m["ratio_p50_us"],
         ", ".join("%.2f" % x for x in m["ratios_p50_us"]), m["ratio_p99_us"]))
-print("\nThe gateway's CPU use during the latency runs: %.0f %% of one CPU (spin_us %s).\n" % (
-    100 * gw_cpu, a.spin_us if a.spin_us is not None else "default"))
+print("\nThe gateway's CPU use during the latency runs: %.0f %% of one CPU (spin_us %s, slice_us %s).\n" % (
+    100 * gw_cpu, a.spin_us if a.spin_us is not None else "default",
+    a.slice_us if a.slice_us is not None else "default"))
 print("\n### Targets (issue 13): p50 gateway / direct, median of the rounds\n")
 for s, rounds in rows:
     limit = 1.5 if s <= 1024 else (1.2 if s >= 102400 else None)

@@ -2,6 +2,7 @@
 #include <spdlog/spdlog.h>
 #include <sys/epoll.h>
 #include <sys/eventfd.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -47,6 +48,37 @@ thread_local bool t_fanout_yield = false;
 
 namespace {
 std::atomic<std::uint64_t> g_next_node_uid{1};
+
+// The kernel's struct sched_attr (SCHED_ATTR_SIZE_VER1). Declared here: <linux/sched/types.h>
+// clashes with glibc's <sched.h>, and glibc 2.36 has no sched_setattr wrapper.
+struct SchedAttr {
+  std::uint32_t size;
+  std::uint32_t sched_policy;
+  std::uint64_t sched_flags;
+  std::int32_t sched_nice;
+  std::uint32_t sched_priority;
+  std::uint64_t sched_runtime, sched_deadline, sched_period;
+  std::uint32_t sched_util_min, sched_util_max;
+};
+static_assert(sizeof(SchedAttr) == 56, "SCHED_ATTR_SIZE_VER1");
+
+// Asks for `slice` as the calling thread's scheduler slice (ExecutorOptions::slice). Keeps the
+// thread's policy and nice value; leaves a thread under another policy than SCHED_OTHER or
+// SCHED_BATCH alone. Returns "" when the kernel took it (read back), else why not.
+std::string request_slice(std::chrono::microseconds slice) {
+  SchedAttr a{};
+  if (::syscall(SYS_sched_getattr, 0, &a, sizeof a, 0) != 0) return std::string("sched_getattr: ") + std::strerror(errno);
+  if (a.sched_policy != SCHED_OTHER && a.sched_policy != SCHED_BATCH) return "the thread's policy is not SCHED_OTHER";
+  const auto want = static_cast<std::uint64_t>(std::chrono::nanoseconds(slice).count());
+  a.size = sizeof a;
+  a.sched_flags = 0;
+  a.sched_runtime = want;
+  if (::syscall(SYS_sched_setattr, 0, &a, 0) != 0) return std::string("sched_setattr: ") + std::strerror(errno);
+  SchedAttr b{};
+  if (::syscall(SYS_sched_getattr, 0, &b, sizeof b, 0) != 0) return std::string("sched_getattr: ") + std::strerror(errno);
+  if (b.sched_runtime != want) return "this kernel has no custom slices (Linux 6.12 or later)";
+  return {};
+}
 }  // namespace
 
 NodeImpl::NodeImpl(std::shared_ptr<RuntimeImpl> rt, std::string n, NodeOptions o)
@@ -54,6 +86,10 @@ NodeImpl::NodeImpl(std::shared_ptr<RuntimeImpl> rt, std::string n, NodeOptions o
   if (name.empty()) throw Error(Errc::invalid_argument, "node name is empty");
   if (options.executor.threads < 1)
     throw Error(Errc::invalid_argument, "node '" + name + "': executor.threads must be >= 1");
+  const auto slice = options.executor.slice;
+  if (slice.count() != 0 && (slice < std::chrono::microseconds(100) || slice > std::chrono::milliseconds(100)))
+    throw Error(Errc::invalid_argument, "node '" + name + "': executor.slice must be 0 (the kernel's default) or " +
+                                            "100 us .. 100 ms, not " + std::to_string(slice.count()) + " us");
 }
 
 NodeImpl::~NodeImpl() {
@@ -69,7 +105,12 @@ void NodeImpl::start() {
   // here, after run_once() returned, never under it; its destructor detaches this thread,
   // which then finds the node gone and ends.
   for (int i = 0; i < options.executor.threads; ++i)
-    threads.emplace_back([weak = weak_from_this()] {
+    threads.emplace_back([weak = weak_from_this(), slice = options.executor.slice, name = name] {
+      if (slice.count() > 0) {
+        const auto why = request_slice(slice);
+        if (!why.empty())
+          spdlog::debug("lcmx: node '{}': executor slice of {} us not applied: {}", name, slice.count(), why);
+      }
       for (;;) {
         const auto self = weak.lock();
         if (!self || self->stopping.load(std::memory_order_acquire)) return;

@@ -93,7 +93,7 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
   // The pre-scan against toml++ 3.3.0's non-ASCII bug, then the parse (as the bridge's).
   const toml::table root = bridge::detail::parse_toml(text, file);
   c.only(root, "", {"name", "domain", "partition", "interface", "allow_multicast", "peers", "receive_buffer_kb",
-                    "types", "status_period_ms", "spin_us", "ros2", "map"});
+                    "types", "status_period_ms", "spin_us", "slice_us", "ros2", "map"});
   Config cfg;
   cfg.file = file;
   cfg.name = c.string(root, "", "name", true);
@@ -123,6 +123,9 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
            root.get("allow_multicast"));
   cfg.status_period = std::chrono::milliseconds(c.integer(root, "", "status_period_ms", false, 1000, 50, 600000));
   cfg.spin = std::chrono::microseconds(c.integer(root, "", "spin_us", false, 50, 0, 100000));
+  cfg.slice = std::chrono::microseconds(c.integer(root, "", "slice_us", false, 100, 0, 100000));
+  if (cfg.slice.count() > 0 && cfg.slice.count() < 100)
+    c.fail("slice_us", "must be 0 (the kernel's default) or 100..100000 (the kernel's range)", root.get("slice_us"));
   const bool ros2_default = c.boolean(root, "", "ros2", false);
 
   for (const auto& p : c.strings(root, "", "types", false)) {

@@ -456,6 +456,7 @@ Gateway Gateway::start(Config cfg, RuntimeOptions options) {
   options.dds_gateway = true;
   g.runtime.emplace(Runtime::create(options));
   NodeOptions no;
+  no.executor.slice = g.cfg.slice;
   if (g.cfg.spin.count() > 0) {
     no.executor.wait = WaitStrategy::adaptive;
     no.executor.spin = g.cfg.spin;

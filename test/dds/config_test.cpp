@@ -52,6 +52,8 @@ TEST_CASE("dds config: defaults, ROS 2 naming and Cyclone's network config", "[d
   CHECK(b.partition == "p1");
   CHECK(b.exports());
   CHECK(b.imports());
+  CHECK(cfg.spin == std::chrono::microseconds(50));
+  CHECK(cfg.slice == std::chrono::microseconds(100));  // the executor's requested slice
 
   const auto net = parse_config("name = \"gw\"\ndomain = 7\ninterface = \"127.0.0.1\"\nallow_multicast = false\n"
                                 "peers = [\"127.0.0.1\"]\n[[map]]\nchannel = \"X\"\ndirection = \"from_dds\"\n",
@@ -87,6 +89,9 @@ TEST_CASE("dds config: bad configs are refused naming the key", "[dds][config]")
   CHECK_THAT(error_of(head + "interface = \"lo\"\npeers = [\"x\"]\n" + map), Catch::Contains("peers[0]: not an IPv4"));
   CHECK_THAT(error_of(head + "interface = \"lo\"\nallow_multicast = false\n" + map),
              Catch::Contains("needs at least one peer"));
+  CHECK_THAT(error_of(head + "slice_us = 50\n" + map), Catch::Contains("slice_us: must be 0 (the kernel's default) or 100"));
+  CHECK_THAT(error_of(head + "slice_us = 100001\n" + map), Catch::Contains("slice_us: must be an integer from 0 to 100000"));
+  CHECK(parse_config(head + "slice_us = 0\n" + map, "gw.toml").slice.count() == 0);
   CHECK_THAT(error_of(head + "[[map]]\ndirection = \"to_dds\"\n"), Catch::Contains("map[0].channel: missing"));
   CHECK_THAT(error_of(head + "[[map]]\nchannel = \"X\"\ndirection = \"up\"\n"),
              Catch::Contains("map[0].direction: must be \"to_dds\", \"from_dds\" or \"both\""));

@@ -37,6 +37,14 @@ struct ExecutorOptions {
   WaitStrategy wait = WaitStrategy::block;
   // spin_then_block: how long to poll first; adaptive: how long after the last message.
   std::chrono::microseconds spin{50};
+  // The scheduler slice the executor's threads ask the kernel for (Linux's EEVDF, kernels
+  // 6.12 and later: sched_setattr's sched_runtime for SCHED_OTHER threads). A short slice
+  // lets a thread that wakes a reader and then has a little more to do (a relay: a message
+  // in, several datagrams out) finish before the woken reader preempts it, so the reader then
+  // runs on the same CPU instead of waking another (docs/dds.md "Benchmark"). 0 (default):
+  // the kernel's default. Else 100 us .. 100 ms. A kernel without custom slices, or a thread
+  // under another policy (SCHED_FIFO, ...), is left as it is (logged at debug level).
+  std::chrono::microseconds slice{0};
 };
 
 struct NodeOptions {

@@ -73,6 +73,10 @@ struct Config {
   // lets another thread run; 0 = block at once). Saves the cross-CPU wake-up per export while
   // traffic is dense, at the cost of CPU then; idle it costs nothing.
   std::chrono::microseconds spin{50};
+  // The scheduler slice the gateway's executor thread asks for (ExecutorOptions::slice;
+  // Linux 6.12 and later): short, so that a message's datagrams all leave before the DDS
+  // reader they wake preempts the gateway (docs/dds.md "Benchmark"). 0: the kernel's default.
+  std::chrono::microseconds slice{100};
   std::vector<std::filesystem::path> type_paths;  // .lcm files/directories (absolute)
   std::shared_ptr<const types::TypeRegistry> types;  // loaded type_paths (never null)
   std::vector<MappingConfig> mappings;
