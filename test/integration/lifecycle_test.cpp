@@ -7,6 +7,7 @@
 #include <cstring>
 
 #include "lcmx/core.hpp"
+#include "dead_shm.hpp"
 #include "support.hpp"
 
 using namespace lcmx::it;
@@ -290,7 +291,7 @@ TEST_CASE("containers sharing /dev/shm but not the pid namespace: shm works, nob
   // Destroyed after the Session (which kills the publishers): removes what they may leave,
   // named with their pid inside their namespaces.
   struct RemovePid1 {
-    ~RemovePid1() { remove_shm_of(1); }
+    ~RemovePid1() { remove_dead_shm_of(1); }
   } remove_pid1;
   Session s(44, 40000ms);
   const auto a = unique_channel("PIDNS_A", 44);

@@ -8,6 +8,7 @@
 #include <algorithm>
 
 #include "lcmx/core.hpp"
+#include "dead_shm.hpp"
 #include "support.hpp"
 
 using namespace lcmx::it;
@@ -39,7 +40,7 @@ TEST_CASE("a shm publisher in another pid namespace killed -9 is noticed at once
     return;
   }
   struct RemovePid1 {  // after the Session: what the killed publisher (pid 1 there) left
-    ~RemovePid1() { remove_shm_of(1); }
+    ~RemovePid1() { remove_dead_shm_of(1); }
   } remove_pid1;
   // Leases 5 s: a departure noticed well before that is the writer's death (OwnerWatch).
   Session s(45, 30000ms);
