@@ -21,7 +21,7 @@ pinned to lo. The DDS programs (source, sink, ddsperf) ask Cyclone for a socket 
 retransmission for ~50 ms in some runs, whichever path sent it. The gateway (a writer here) keeps
 its own config.
 
-usage: run.py BUILD_DIR [--mode interleaved|blocks] [--pin CPUS] [--quick] [--rounds N] [--csv FILE]
+usage: run.py BUILD_DIR [--mode interleaved|blocks] [--pin CPUS] [--quick] [--rounds N] [--csv FILE] [--sizes LIST]
               [--rcvbuf SIZE] [--spin-us US] [--slice-us US]
 """
 import argparse, os, re, subprocess, sys, tempfile, time
@@ -35,6 +35,9 @@ p.add_argument("--mode", choices=("interleaved", "blocks"), default="interleaved
                help="interleaved: both paths message by message from one source (default); "
                     "blocks: one block per path per round")
 p.add_argument("--csv", default="")
+p.add_argument("--no-throughput", action="store_true", help="latency only (no 6 MB throughput part)")
+p.add_argument("--sizes", default="",
+               help="comma-separated message sizes in bytes, a subset of 1024,10240,102400,1048576,2097152 (default all)")
 p.add_argument("--spin-us", type=int, default=None,
                help="the gateway's spin_us (default: the gateway's own default)")
 p.add_argument("--slice-us", type=int, default=None,
@@ -91,6 +94,14 @@ sizes = [1024, 10240, 102400, 1048576, 2097152]
 plan = {1024: (400, 200), 10240: (400, 200), 102400: (300, 100), 1048576: (150, 30), 2097152: (100, 20)}
 if a.quick:
     plan = {s: (max(50, n // 4), hz) for s, (n, hz) in plan.items()}
+if a.sizes:
+    try:
+        sizes = [int(x) for x in a.sizes.split(",")]
+    except ValueError:
+        raise SystemExit("--sizes: a comma-separated list of byte counts, e.g. 1024,102400")
+    bad = [x for x in sizes if x not in plan]
+    if bad:
+        raise SystemExit("--sizes: %s not among %s" % (bad, ",".join(str(x) for x in plan)))
 tmp = tempfile.mkdtemp(prefix="lcmx_bench_dds_")
 cfg = os.path.join(tmp, "gw.toml")
 with open(cfg, "w") as f:
@@ -102,6 +113,12 @@ with open(cfg, "w") as f:
     for s in sizes + [6000000]:
         f.write('[[map]]\nchannel = "BENCH_%d"\ndirection = "to_dds"\ntopic = "G_%d"\n' % (s, s))
 rows = []
+
+
+class Done(Exception):
+    """The latency part is all that was asked for (--no-throughput)."""
+
+
 try:
     gw = start([tool, "dds-gateway", "--config", cfg])
     expect(gw, "dds-gateway bench: ready")
@@ -143,6 +160,9 @@ try:
     # 6 MB throughput.
     n6 = 15 if a.quick else 40
     thr = {}
+    if a.no_throughput:
+        gw.terminate(); gw.wait(10)
+        raise Done()
     sink = start([bench, "sink", "D_6000000", str(n6)]); expect(sink, "ready")
     src = start([bench, "dds-source", "D_6000000", str(n6), "6000000", "0"])
     thr["direct"] = result(expect(sink, "result", 300)); src.wait(60); sink.wait(30)
@@ -159,6 +179,8 @@ try:
     rates = [r for r in rates if r > 0]
     thr["ddsperf"] = {"mbps": sorted(rates)[len(rates) // 2] if rates else 0.0}
     gw.terminate(); gw.wait(10)
+except Done:
+    pass
 finally:
     for pr in procs:
         if pr.poll() is None:
@@ -212,13 +234,14 @@ for s, rounds in rows:
         continue
     r = summary(rounds)["ratio_p50_us"]
     print("- %d bytes: <= %.1fx: %s (%.2fx)" % (s, limit, "**holds**" if r <= limit else "**not met**", r))
-print("\n### 6 MB throughput at the reader, Mbit/s\n")
-print("| DDS writer -> reader (reliable, KEEP_LAST 16 as the gateway) | lcmx -> gateway -> reader | ddsperf pub/sub (median of 1 s lines) |")
-print("|---:|---:|---:|")
-print("| %.0f (%d of %d received) | %.0f (%d of %d received) | %.0f |" % (
-    thr["direct"]["mbps"], thr["direct"]["n"], n6, thr["gateway"]["mbps"], thr["gateway"]["n"], n6, thr["ddsperf"]["mbps"]))
-print("\nratio gateway/direct 6 MB throughput: %.2f; gateway/ddsperf: %.2f" % (
-    thr["gateway"]["mbps"] / max(thr["direct"]["mbps"], 1e-9), thr["gateway"]["mbps"] / max(thr["ddsperf"]["mbps"], 1e-9)))
+if thr:
+    print("\n### 6 MB throughput at the reader, Mbit/s\n")
+    print("| DDS writer -> reader (reliable, KEEP_LAST 16 as the gateway) | lcmx -> gateway -> reader | ddsperf pub/sub (median of 1 s lines) |")
+    print("|---:|---:|---:|")
+    print("| %.0f (%d of %d received) | %.0f (%d of %d received) | %.0f |" % (
+        thr["direct"]["mbps"], thr["direct"]["n"], n6, thr["gateway"]["mbps"], thr["gateway"]["n"], n6, thr["ddsperf"]["mbps"]))
+    print("\nratio gateway/direct 6 MB throughput: %.2f; gateway/ddsperf: %.2f" % (
+        thr["gateway"]["mbps"] / max(thr["direct"]["mbps"], 1e-9), thr["gateway"]["mbps"] / max(thr["ddsperf"]["mbps"], 1e-9)))
 if a.csv:
     with open(a.csv, "w") as f:
         f.write("size,round,direct_p50_us,direct_p99_us,gateway_p50_us,gateway_p99_us\n")
