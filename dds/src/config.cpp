@@ -1,5 +1,7 @@
 #include "lcmx/dds/config.hpp"
 
+#include <sched.h>
+
 #include <cerrno>
 #include <cstring>
 #include <fstream>
@@ -68,6 +70,13 @@ const char* to_string(Direction d) {
 
 const char* to_string(Mode m) { return m == Mode::typed ? "typed" : "opaque"; }
 
+std::chrono::microseconds default_slice() noexcept {
+  cpu_set_t set;
+  CPU_ZERO(&set);
+  if (::sched_getaffinity(0, sizeof set, &set) != 0) return std::chrono::microseconds(0);
+  return CPU_COUNT(&set) >= 2 ? std::chrono::microseconds(100) : std::chrono::microseconds(0);
+}
+
 std::string Config::cyclone_xml() const {
   if (interface.empty()) return {};
   std::string x = "<CycloneDDS><Domain id=\"any\"><General><Interfaces><NetworkInterface ";
@@ -122,10 +131,12 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
     c.fail("peers", "allow_multicast = false needs at least one peer (else nothing is discovered)",
            root.get("allow_multicast"));
   cfg.status_period = std::chrono::milliseconds(c.integer(root, "", "status_period_ms", false, 1000, 50, 600000));
-  cfg.spin = std::chrono::microseconds(c.integer(root, "", "spin_us", false, 50, 0, 100000));
-  cfg.slice = std::chrono::microseconds(c.integer(root, "", "slice_us", false, 100, 0, 100000));
-  if (cfg.slice.count() > 0 && cfg.slice.count() < 100)
-    c.fail("slice_us", "must be 0 (the kernel's default) or 100..100000 (the kernel's range)", root.get("slice_us"));
+  cfg.spin = std::chrono::microseconds(c.integer(root, "", "spin_us", false, 0, 0, 100000));
+  if (root.get("slice_us")) {
+    cfg.slice = std::chrono::microseconds(c.integer(root, "", "slice_us", false, 100, 0, 100000));
+    if (cfg.slice->count() > 0 && cfg.slice->count() < 100)
+      c.fail("slice_us", "must be 0 (the kernel's default) or 100..100000 (the kernel's range)", root.get("slice_us"));
+  }
   const bool ros2_default = c.boolean(root, "", "ros2", false);
 
   for (const auto& p : c.strings(root, "", "types", false)) {

@@ -456,7 +456,10 @@ Gateway Gateway::start(Config cfg, RuntimeOptions options) {
   options.dds_gateway = true;
   g.runtime.emplace(Runtime::create(options));
   NodeOptions no;
-  no.executor.slice = g.cfg.slice;
+  // sched_getaffinity is per thread: the executor's thread inherits this one's mask.
+  no.executor.slice = g.cfg.slice ? *g.cfg.slice : default_slice();
+  spdlog::debug("dds-gateway {}: executor slice {} us{}", g.cfg.name, no.executor.slice.count(),
+                g.cfg.slice ? "" : " (slice_us not set: by the CPUs this process may use)");
   if (g.cfg.spin.count() > 0) {
     no.executor.wait = WaitStrategy::adaptive;
     no.executor.spin = g.cfg.spin;

@@ -1,8 +1,10 @@
 // The DDS gateway's config: defaults, and every bad config refused with a message naming the key.
 #include <catch2/catch.hpp>
+#include <sched.h>
 
 #include <fstream>
 #include <string>
+#include <thread>
 
 #include "lcmx/dds/config.hpp"
 
@@ -52,8 +54,8 @@ TEST_CASE("dds config: defaults, ROS 2 naming and Cyclone's network config", "[d
   CHECK(b.partition == "p1");
   CHECK(b.exports());
   CHECK(b.imports());
-  CHECK(cfg.spin == std::chrono::microseconds(50));
-  CHECK(cfg.slice == std::chrono::microseconds(100));  // the executor's requested slice
+  CHECK(cfg.spin == std::chrono::microseconds(0));
+  CHECK_FALSE(cfg.slice.has_value());  // not set: default_slice() when the gateway starts
 
   const auto net = parse_config("name = \"gw\"\ndomain = 7\ninterface = \"127.0.0.1\"\nallow_multicast = false\n"
                                 "peers = [\"127.0.0.1\"]\n[[map]]\nchannel = \"X\"\ndirection = \"from_dds\"\n",
@@ -71,6 +73,37 @@ TEST_CASE("dds config: defaults, ROS 2 naming and Cyclone's network config", "[d
   const auto byname = parse_config("name = \"gw\"\ninterface = \"veth0\"\n[[map]]\nchannel = \"X\"\ndirection = \"both\"\n",
                                    "gw.toml");
   CHECK(byname.cyclone_xml().find("<NetworkInterface name=\"veth0\"/>") != std::string::npos);
+}
+
+// default_slice() reads the calling thread's CPU affinity: run it on a thread of its own with
+// the mask given (empty: the process's own).
+std::chrono::microseconds default_slice_on(const cpu_set_t* mask) {
+  std::chrono::microseconds got{-1};
+  std::thread t([&] {
+    if (mask != nullptr && ::sched_setaffinity(0, sizeof *mask, mask) != 0) return;
+    got = lcmx::dds::default_slice();
+  });
+  t.join();
+  return got;
+}
+
+TEST_CASE("dds config: without slice_us the gateway asks for 100 us on two CPUs or more, the kernel's slice on one",
+          "[dds][config]") {
+  cpu_set_t all;
+  CPU_ZERO(&all);
+  REQUIRE(::sched_getaffinity(0, sizeof all, &all) == 0);
+  int first = -1;
+  for (int c = 0; c < CPU_SETSIZE && first < 0; ++c)
+    if (CPU_ISSET(c, &all)) first = c;
+  REQUIRE(first >= 0);
+  cpu_set_t one;
+  CPU_ZERO(&one);
+  CPU_SET(first, &one);
+  CHECK(default_slice_on(&one) == std::chrono::microseconds(0));
+  if (CPU_COUNT(&all) >= 2)
+    CHECK(default_slice_on(&all) == std::chrono::microseconds(100));
+  else
+    WARN("this process may run on one CPU only: the two-CPU case is not checked here");
 }
 
 TEST_CASE("dds config: bad configs are refused naming the key", "[dds][config]") {
@@ -91,7 +124,8 @@ TEST_CASE("dds config: bad configs are refused naming the key", "[dds][config]")
              Catch::Contains("needs at least one peer"));
   CHECK_THAT(error_of(head + "slice_us = 50\n" + map), Catch::Contains("slice_us: must be 0 (the kernel's default) or 100"));
   CHECK_THAT(error_of(head + "slice_us = 100001\n" + map), Catch::Contains("slice_us: must be an integer from 0 to 100000"));
-  CHECK(parse_config(head + "slice_us = 0\n" + map, "gw.toml").slice.count() == 0);
+  CHECK(parse_config(head + "slice_us = 0\n" + map, "gw.toml").slice == std::chrono::microseconds(0));
+  CHECK(parse_config(head + "slice_us = 100\n" + map, "gw.toml").slice == std::chrono::microseconds(100));
   CHECK_THAT(error_of(head + "[[map]]\ndirection = \"to_dds\"\n"), Catch::Contains("map[0].channel: missing"));
   CHECK_THAT(error_of(head + "[[map]]\nchannel = \"X\"\ndirection = \"up\"\n"),
              Catch::Contains("map[0].direction: must be \"to_dds\", \"from_dds\" or \"both\""));

@@ -11,6 +11,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -70,13 +71,16 @@ struct Config {
   std::chrono::milliseconds status_period{1000};
   // How long after the last lcmx message the gateway's executor keeps polling for the next
   // one before it sleeps (WaitStrategy::adaptive: yields between polls, stops when a yield
-  // lets another thread run; 0 = block at once). Saves the cross-CPU wake-up per export while
-  // traffic is dense, at the cost of CPU then; idle it costs nothing.
-  std::chrono::microseconds spin{50};
+  // lets another thread run). Saves the wake-up per export only while messages come less
+  // than `spin` apart; otherwise it costs: a CPU busy polling right after a dds_write makes
+  // the scheduler wake the DDS reader on another CPU (docs/dds.md "Benchmark": 1 KB 1.24-1.38x
+  // at 0, 1.34-1.53x at 50 us). 0 (default): block at once.
+  std::chrono::microseconds spin{0};
   // The scheduler slice the gateway's executor thread asks for (ExecutorOptions::slice;
   // Linux 6.12 and later): short, so that a message's datagrams all leave before the DDS
   // reader they wake preempts the gateway (docs/dds.md "Benchmark"). 0: the kernel's default.
-  std::chrono::microseconds slice{100};
+  // Unset (no `slice_us`): default_slice() when the gateway starts.
+  std::optional<std::chrono::microseconds> slice;
   std::vector<std::filesystem::path> type_paths;  // .lcm files/directories (absolute)
   std::shared_ptr<const types::TypeRegistry> types;  // loaded type_paths (never null)
   std::vector<MappingConfig> mappings;
@@ -84,6 +88,14 @@ struct Config {
   // Cyclone's XML config for `interface` / `allow_multicast` / `peers`; "" without interface.
   std::string cyclone_xml() const;
 };
+
+// The slice a gateway without `slice_us` asks for: 100 us when the calling thread may run on two
+// CPUs or more (sched_getaffinity), else 0 (the kernel's default). The short slice is there so
+// that a reader the gateway wakes runs after it on the same CPU instead of waking another; on
+// a single CPU there is no other, and the short slice would only let the gateway preempt the
+// publisher that woke it (docs/dds.md "Benchmark": 100 KB 1.27-1.32x with it, 1.14-1.17x
+// without, everything pinned to one CPU). Never throws (0 if the affinity cannot be read).
+std::chrono::microseconds default_slice() noexcept;
 
 // Reads and validates a config file. Throws ConfigError.
 Config load_config(const std::filesystem::path& file);
