@@ -3,6 +3,8 @@
 //   RuntimeImpl::recv_mu -> (discovery: Discovery::Impl::deliver_mutex, held while it calls
 //   on_participant) -> RuntimeImpl::mu -> SubscriberState::mu -> NodeImpl::mu
 //   PublisherImpl::publish_mu -> PublisherImpl::intra_mu -> SubscriberState::mu
+//   RuntimeImpl::recv_mu -> ClientCore::mu (a service client's SubscriberCore::udp_inline runs
+//   in on_udp; nothing under ClientCore::mu takes recv_mu)
 #pragma once
 
 #include <atomic>

@@ -513,7 +513,7 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   void start(const std::string& node_name);
   void close();
   void call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
-            std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin);
+            std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin, bool hands_over);
   bool wait_for_service(std::chrono::milliseconds timeout);
   ClientStats stats() const;
   std::vector<ServerInfo> servers_now() const;
@@ -542,6 +542,9 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
     ReplyHandler done;
     ServerInfo target;
     bool sent = false;  // false: waiting for a server
+    // `done` only hands the result over (a blocking call's promise): its reply may complete it
+    // where the reply is received (try_inline_reply).
+    bool hands_over = false;
     // Only this server (participant, id) may execute the call: no fail-over.
     std::optional<std::pair<std::uint64_t, std::uint64_t>> pin;
   };
@@ -564,6 +567,12 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   }
   void loop();
   void on_reply(const RawMessage& m);  // client thread, in the reply subscriber's callback
+  // The runtime's receive thread (SubscriberCore::udp_inline): completes a hands_over call on
+  // its reply from UDP at once; false (the client thread takes it) for anything else.
+  bool try_inline_reply(const RawMessage& m);
+  // Ends call `it` with its reply: under `lock` (released here, before `done` runs).
+  void complete_locked(std::unique_lock<std::mutex>& lock, std::map<std::uint64_t, Pending>::iterator it,
+                       const ReplyHeader& h, std::span<const std::byte> payload, const RawMessage& m);
   // Under mu: drop servers whose reply publisher is no longer matched, fail calls over.
   void refresh_servers_locked(std::vector<Finished>& finished, std::vector<ServerInfo>& gone_servers);
   const Known* best_locked() const;
@@ -624,6 +633,11 @@ void ClientCore::start(const std::string& node_name) {
   reply_sub = std::make_shared<RawSubscriberCore>(
       reply_channel, SubscriberOptions{.queue_depth = 64},
       [this](const RawMessage& m) { on_reply(m); }, reply_type_info());
+  // A weak reference: the receive thread may offer a reply while the client is being closed.
+  reply_sub->udp_inline = [weak](const RawMessage& m) {
+    const auto self = weak.lock();
+    return self && self->try_inline_reply(m);
+  };
   add_subscriber(*node, reply_sub);
   // Our reply channel's publishers come and go (a server leaves): re-check at once.
   tap = runtime->add_event_tap([weak, channel = reply_channel](const Event& e) {
@@ -944,6 +958,29 @@ void ClientCore::on_reply(const RawMessage& m) {
     ++counters.late_replies;
     return;
   }
+  complete_locked(lock, it, h, payload, m);
+}
+
+bool ClientCore::try_inline_reply(const RawMessage& m) {
+  ReplyHeader h;
+  std::span<const std::byte> payload;
+  if (!parse_reply(m.data, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id ||
+      h.request_id == 0)
+    return false;  // not ours, or a probe's answer: the client thread's
+  std::unique_lock lock(mu);
+  auto it = pending.find(static_cast<std::uint64_t>(h.request_id));
+  // Calls waiting to be sent go when this one ends: the client thread publishes them.
+  if (it == pending.end() || !it->second.hands_over || pending.size() > in_flight) return false;
+  ++counters.direct_replies;
+  complete_locked(lock, it, h, payload, m);
+  return true;
+}
+
+void ClientCore::complete_locked(std::unique_lock<std::mutex>& lock, std::map<std::uint64_t, Pending>::iterator it,
+                                 const ReplyHeader& h, std::span<const std::byte> payload, const RawMessage& m) {
+  ServerInfo from;
+  from.participant = static_cast<std::uint64_t>(h.server_participant);
+  from.id = static_cast<std::uint64_t>(h.server_id);
   auto done = std::move(it->second.done);
   ServerInfo server = from;
   if (auto s = servers.find({from.participant, from.id}); s != servers.end()) server = s->second.info;
@@ -967,7 +1004,8 @@ void ClientCore::on_reply(const RawMessage& m) {
 }
 
 void ClientCore::call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
-                      std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin) {
+                      std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin,
+                      bool hands_over) {
   if (size > static_cast<std::size_t>(INT32_MAX))
     return done({}, CallErrc::bad_request, false, "a service request is limited to 2 GiB", {}, nullptr);
   RequestHeader h = request_header();
@@ -975,6 +1013,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
   p.timeout = timeout;
   p.deadline = Clock::now() + timeout;
   p.done = std::move(done);
+  p.hands_over = hands_over;
   if (pin != nullptr) p.pin.emplace(pin->participant, pin->id);
   std::unique_lock lock(mu);
   if (closed) {
@@ -1059,8 +1098,9 @@ void close_client(const std::shared_ptr<ClientCore>& client) { client->close(); 
 
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
-                 std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin) {
-  client.call(size, encode, timeout, std::move(done), pin);
+                 std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin,
+                 bool hands_over) {
+  client.call(size, encode, timeout, std::move(done), pin, hands_over);
 }
 bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout) {
   return client.wait_for_service(timeout);

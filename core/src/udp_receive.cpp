@@ -251,7 +251,18 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   std::shared_ptr<const void> owner = m.buffer;
   if (!owner) owner = make_bytes(m.data);
   const auto bytes = m.buffer ? m.data : std::span<const std::byte>(*std::static_pointer_cast<const Bytes>(owner));
-  for (auto& [sub, stats] : targets) push_intra(*sub, IntraItem{owner, &raw_type_info(), stats, bytes});
+  for (auto& [sub, stats] : targets) {
+    if (sub->udp_inline && !sub->state->removed.load()) {
+      RetainSource src;
+      src.owner = owner;
+      if (sub->udp_inline(RawMessage{sub->channel(), bytes, &src})) {
+        stats->received.fetch_add(1, std::memory_order_relaxed);
+        sub->delivered.fetch_add(1, std::memory_order_relaxed);
+        continue;
+      }
+    }
+    push_intra(*sub, IntraItem{owner, &raw_type_info(), stats, bytes});
+  }
 }
 
 // Sends the queued keep-last-N replays (count_remote_locked). mu not held: each publisher's

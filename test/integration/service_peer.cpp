@@ -7,13 +7,15 @@
 //       "block"  from now on a request with x < 0 prints "CALLED <x>" and never returns
 //       "quit"   (or EOF) prints "SERVED <requests>" and exits 0
 //   client --name N --calls K [--size BYTES] [--call-timeout-ms T] [--servers S] [--first X] [--go]
-//          [--no-wait]
+//          [--no-wait] [--async]
 //     Waits for a server (for S servers with --servers), prints "CHOSEN participant=<id>" (the
 //     server calls go to; --no-wait: neither waits nor prints, e.g. for a server of other
 //     types), with --go waits for "go" on stdin, makes K calls (x = X..X+K-1,
 //     default X = 0), checks every response's seq and bytes,
 //     prints "CALLS ok=<n> failed=<f> wrong=<w> path=<path of the last answer>
-//     server=<participant> error=<first error or ->" and exits 0.
+//     server=<participant> error=<first error or -> direct=<ClientStats::direct_replies>" and
+//     exits 0. Calls are blocking call()s; with --async, call_async() with a callback of its
+//     own (which must run on the client's thread: never direct).
 //   action-server --name N [--client-timeout-ms T]
 //     Serves action N (goal pose_t, feedback pose_t, result bench_t), prints "READY
 //     participant=<id>". A goal with x = position[0] >= 0 publishes feedback 1..x, 5 ms apart,
@@ -30,7 +32,9 @@
 #include <atomic>
 #include <chrono>
 #include <cstdio>
+#include <future>
 #include <iostream>
+#include <optional>
 #include <string>
 #include <thread>
 
@@ -89,7 +93,7 @@ int run_server(const std::string& name) {
 }
 
 int run_client(const std::string& name, int calls, int size, int call_timeout_ms,
-               std::size_t servers_wanted, int first, bool go, bool no_wait) {
+               std::size_t servers_wanted, int first, bool go, bool no_wait, bool async) {
   auto rt = lcmx::Runtime::create();
   auto node = rt.create_node("service_peer_client");
   auto client = node.create_client<lcmx_examples::pose_t, lcmx_examples::bench_t>(name);
@@ -115,7 +119,18 @@ int run_client(const std::string& name, int calls, int size, int call_timeout_ms
     lcmx_examples::pose_t p;
     p.position[0] = i;
     p.position[1] = size;
-    auto r = client.call(p, std::chrono::milliseconds(call_timeout_ms));
+    const auto timeout = std::chrono::milliseconds(call_timeout_ms);
+    using Result = decltype(client)::Result;
+    std::optional<Result> got;
+    if (async) {
+      std::promise<Result> done;
+      auto f = done.get_future();
+      client.call_async(p, timeout, [&done](Result x) { done.set_value(std::move(x)); });
+      got.emplace(f.get());
+    } else {
+      got.emplace(client.call(p, timeout));
+    }
+    auto& r = *got;
     if (!r.ok()) {
       ++failed;
       if (first_error == "-") first_error = std::string(lcmx::to_string(r.error())) + ": " + r.message();
@@ -130,7 +145,7 @@ int run_client(const std::string& name, int calls, int size, int call_timeout_ms
   }
   say("CALLS ok=" + std::to_string(ok) + " failed=" + std::to_string(failed) +
       " wrong=" + std::to_string(wrong) + " path=" + path + " server=" + std::to_string(server) +
-      " error=" + first_error);
+      " error=" + first_error + " direct=" + std::to_string(client.stats().direct_replies));
   return 0;
 }
 
@@ -207,7 +222,7 @@ int main(int argc, char** argv) {
   int calls = 10, size = 16, call_timeout_ms = 5000, timeout_ms = 60000;
   std::size_t servers_wanted = 1;
   int first = 0;
-  bool go = false, no_wait = false;
+  bool go = false, no_wait = false, async = false;
   app.require_subcommand(1);
   auto* server = app.add_subcommand("server", "serve NAME");
   auto* client = app.add_subcommand("client", "call NAME");
@@ -227,6 +242,7 @@ int main(int argc, char** argv) {
   client->add_option("--first", first, "x of the first call");
   client->add_flag("--go", go, "wait for \"go\" on stdin before calling");
   client->add_flag("--no-wait", no_wait, "call without waiting for a server");
+  client->add_flag("--async", async, "call_async() with a callback instead of call()");
   CLI11_PARSE(app, argc, argv);
   std::thread([timeout_ms] {
     std::this_thread::sleep_for(std::chrono::milliseconds(timeout_ms));
@@ -237,7 +253,7 @@ int main(int argc, char** argv) {
     if (*server) return run_server(name);
     if (*action_server) return run_action_server(name, client_timeout_ms);
     if (*action_client) return run_action_client(name, x);
-    return run_client(name, calls, size, call_timeout_ms, servers_wanted, first, go, no_wait);
+    return run_client(name, calls, size, call_timeout_ms, servers_wanted, first, go, no_wait, async);
   } catch (const std::exception& e) {
     say(std::string("FATAL ") + e.what());
     return 1;

@@ -30,7 +30,9 @@ TEST_CASE("service across hosts: a client on another host calls over UDP, one on
   auto& local = service_peer(h, 1, {"client", "--name", name, "--calls", "100", "--size", "300"});
   // A response of 200 KB: more than one datagram (fragments, as no bridge runs here).
   auto& big = service_peer(h, 0, {"client", "--name", name, "--calls", "5", "--size", "200000"});
-  for (auto* c : {&remote, &local, &big}) {
+  // call_async with a callback of its own: the callback runs on the client's thread.
+  auto& async = service_peer(h, 0, {"client", "--name", name, "--calls", "20", "--size", "300", "--async"});
+  for (auto* c : {&remote, &local, &big, &async}) {
     auto line = c->expect("CALLS", 30000ms);
     INFO(c->output());
     REQUIRE(line);
@@ -38,12 +40,15 @@ TEST_CASE("service across hosts: a client on another host calls over UDP, one on
     CHECK(kv.at("failed") == "0");
     CHECK(kv.at("wrong") == "0");
     CHECK(kv.at("path") == (c == &local ? "shm" : "udp"));
+    // Blocking calls answered over UDP complete where the reply is received (no hand-over
+    // through the client's thread); over shm, and for a user's callback, never.
+    CHECK(kv.at("direct") == (c == &remote ? "100" : c == &big ? "5" : "0"));
     CHECK(c->wait() == 0);
   }
   server.send("quit");
   auto served = server.expect("SERVED");
   REQUIRE(served);
-  CHECK(*served == "SERVED 205");
+  CHECK(*served == "SERVED 225");
 }
 
 TEST_CASE("service across hosts: the server on another host is SIGKILLed mid-call, the call fails over",

@@ -124,6 +124,9 @@ struct ClientStats {
   std::uint64_t timeouts = 0;
   std::uint64_t failovers = 0;     // calls re-sent to another server
   std::uint64_t late_replies = 0;  // replies to calls already finished (timed out, failed over)
+  // Replies that completed a blocking call (call(), call_retained(), the future call_async())
+  // on the thread that received them from UDP, not handed over through the client's thread.
+  std::uint64_t direct_replies = 0;
   std::size_t pending = 0;         // calls waiting for a reply now
   std::size_t servers = 0;         // servers that answered a probe and are still matched
 };
@@ -186,7 +189,10 @@ void close_client(const std::shared_ptr<ClientCore>& client);
 // message `response` lies in (for RawMessage::retain(), during the call only), or nullptr
 // when no reply came (an error the client found itself). With `pin`, only that server
 // (participant, id) executes the call: it waits for that server's probe answer, and fails
-// with server_gone, never over, if the server goes away.
+// with server_gone, never over, if the server goes away. With `hands_over`, `done` only hands
+// the result to another thread (a promise: short, never blocks, never calls lcmx): a reply
+// that arrives over UDP may then run it on the thread that received it (the runtime's receive
+// thread) instead of the client's, sparing the caller one thread hand-over.
 using ReplyHandler =
     std::function<void(std::span<const std::byte> response, CallErrc error, bool ok,
                        const std::string& message, const ServerInfo& server, const RawMessage* reply)>;
@@ -197,7 +203,7 @@ inline std::function<void(std::span<std::byte>)> copy_request(std::span<const st
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
                  std::chrono::milliseconds timeout, ReplyHandler done,
-                 const ServerInfo* pin = nullptr);
+                 const ServerInfo* pin = nullptr, bool hands_over = false);
 bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout);
 ClientStats client_stats(const ClientCore& client);
 std::vector<ServerInfo> client_servers(const ClientCore& client);
@@ -284,12 +290,21 @@ class Client : public detail::ClientHandle {
   std::future<Result> call_async(const Req& request, std::chrono::milliseconds timeout) {
     auto promise = std::make_shared<std::promise<Result>>();
     auto future = promise->get_future();
-    call_async(request, timeout, [promise](Result r) { promise->set_value(std::move(r)); });
+    start(request, timeout, [promise](Result r) { promise->set_value(std::move(r)); }, true);
     return future;
   }
   // `done` runs once with the result, on the client's thread (see the file comment).
   void call_async(const Req& request, std::chrono::milliseconds timeout,
                   std::function<void(Result)> done) {
+    start(request, timeout, std::move(done), false);
+  }
+
+ private:
+  friend class Node;
+  explicit Client(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
+  // `hands_over`: see detail::client_call.
+  void start(const Req& request, std::chrono::milliseconds timeout, std::function<void(Result)> done,
+             bool hands_over) {
     const auto size = static_cast<std::size_t>(request.getEncodedSize());
     detail::client_call(
         *core_, size,
@@ -308,12 +323,9 @@ class Client : public detail::ClientHandle {
                                             Resp::getTypeName(),
                                         server));
           done(Result::success(std::move(response), server));
-        });
+        },
+        nullptr, hands_over);
   }
-
- private:
-  friend class Node;
-  explicit Client(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
 };
 
 // A client over raw bytes: requests and responses are any payload (lcm-gen encodings or not).
@@ -329,19 +341,13 @@ class RawClient : public detail::ClientHandle {
                                  std::chrono::milliseconds timeout) {
     auto promise = std::make_shared<std::promise<Result>>();
     auto future = promise->get_future();
-    call_async(request, timeout, [promise](Result r) { promise->set_value(std::move(r)); });
+    start(request, timeout, [promise](Result r) { promise->set_value(std::move(r)); }, true);
     return future;
   }
+  // `done` runs once with the result, on the client's thread (see the file comment).
   void call_async(std::span<const std::byte> request, std::chrono::milliseconds timeout,
                   std::function<void(Result)> done) {
-    detail::client_call(
-        *core_, request.size(),
-        detail::copy_request(request), timeout,
-        [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
-                                 const std::string& message, const ServerInfo& server, const RawMessage*) {
-          if (!ok) return done(Result::failure(error, message, server));
-          done(Result::success(Bytes(bytes.begin(), bytes.end()), server));
-        });
+    start(request, timeout, std::move(done), false);
   }
 
   // Zero-copy forms of call(): the response stays where it arrived - the reply's pinned
@@ -356,12 +362,34 @@ class RawClient : public detail::ClientHandle {
   RetainedResult call_retained(std::span<const std::byte> request, std::chrono::milliseconds timeout) {
     auto promise = std::make_shared<std::promise<RetainedResult>>();
     auto future = promise->get_future();
-    call_retained_async(request, timeout, [promise](RetainedResult r) { promise->set_value(std::move(r)); });
+    start_retained(request, timeout, [promise](RetainedResult r) { promise->set_value(std::move(r)); }, true);
     return future.get();
   }
   // `done` runs once with the result, on the client's thread (see the file comment).
   void call_retained_async(std::span<const std::byte> request, std::chrono::milliseconds timeout,
                            std::function<void(RetainedResult)> done) {
+    start_retained(request, timeout, std::move(done), false);
+  }
+
+ private:
+  friend class Node;
+  explicit RawClient(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
+  // `hands_over`: see detail::client_call.
+  void start(std::span<const std::byte> request, std::chrono::milliseconds timeout,
+             std::function<void(Result)> done, bool hands_over) {
+    detail::client_call(
+        *core_, request.size(),
+        detail::copy_request(request), timeout,
+        [done = std::move(done)](std::span<const std::byte> bytes, CallErrc error, bool ok,
+                                 const std::string& message, const ServerInfo& server, const RawMessage*) {
+          if (!ok) return done(Result::failure(error, message, server));
+          done(Result::success(Bytes(bytes.begin(), bytes.end()), server));
+        },
+        nullptr, hands_over);
+  }
+
+  void start_retained(std::span<const std::byte> request, std::chrono::milliseconds timeout,
+                      std::function<void(RetainedResult)> done, bool hands_over) {
     detail::client_call(
         *core_, request.size(),
         detail::copy_request(request), timeout,
@@ -375,12 +403,9 @@ class RawClient : public detail::ClientHandle {
           const auto offset = static_cast<std::size_t>(bytes.data() - reply->data.data());
           RetainedBytes r{whole.data.subspan(offset, bytes.size()), std::move(whole.owner), whole.zero_copy};
           done(RetainedResult::success(std::move(r), server));
-        });
+        },
+        nullptr, hands_over);
   }
-
- private:
-  friend class Node;
-  explicit RawClient(std::shared_ptr<detail::ClientCore> c) : ClientHandle(std::move(c)) {}
 };
 
 }  // namespace lcmx

@@ -21,6 +21,7 @@
 
 namespace lcmx {
 class Runtime;
+struct RawMessage;
 namespace detail {
 
 class RuntimeImpl;
@@ -98,6 +99,13 @@ class SubscriberCore {
 
   std::uint64_t id = 0;                   // endpoint id, set by the runtime
   std::shared_ptr<SubscriberState> state;  // the runtime's side (matches, queue), core/src
+  // Set before the subscriber is added, never after. A message received over UDP is first
+  // offered to it, on the runtime's receive thread (concurrently with deliver_* on the
+  // executor): true takes it (counted as received and delivered), false queues it for the
+  // executor as usual. lcmx's own service clients use it to complete a blocking call where its
+  // reply arrives, without a hand-over through the client's thread. Must be short, never block
+  // or publish, and must not throw.
+  std::function<bool(const RawMessage&)> udp_inline;
   std::atomic<std::uint64_t> delivered{0};
   std::atomic<std::uint64_t> decode_errors{0};
 
