@@ -7,6 +7,7 @@
 #include <cstring>
 
 #include "lcmx/core.hpp"
+#include "containers.hpp"
 #include "dead_shm.hpp"
 #include "support.hpp"
 
@@ -160,30 +161,10 @@ TEST_CASE("a node reading 150 shm publishers (more than one futex_waitv takes) g
 
 namespace {
 
-// argv running `peer_args` (the test peer's) in new namespaces: `flags` for unshare, and
-// with `private_shm` a tmpfs of its own on /dev/shm (a container without --ipc=host).
+// The test peer (lcmx_test_peer) in a container: containers.hpp.
 std::vector<std::string> in_container(std::vector<std::string> flags, bool private_shm,
                                       std::vector<std::string> peer_args) {
-  std::vector<std::string> argv = {LCMX_UNSHARE};
-  for (auto& f : flags) argv.push_back(std::move(f));
-  argv.push_back("--");
-  argv.push_back("/bin/sh");
-  argv.push_back("-c");
-  argv.push_back(private_shm ? "mount -t tmpfs -o size=16m lcmxit /dev/shm && exec \"$@\"" : "exec \"$@\"");
-  argv.push_back("sh");
-  argv.push_back(LCMX_TEST_PEER);
-  for (auto& a : peer_args) argv.push_back(std::move(a));
-  argv.push_back("--timeout-ms");
-  argv.push_back("60000");
-  return argv;
-}
-
-// Whether this machine lets the test create mount and pid namespaces.
-bool can_unshare() {
-  Child c({LCMX_UNSHARE, "--mount", "--pid", "--fork", "--mount-proc", "--propagation", "private", "/bin/sh",
-           "-c", "mount -t tmpfs lcmxit /dev/shm"},
-          {}, true);
-  return c.wait(10000ms) == 0;
+  return lcmx::it::in_container(std::move(flags), private_shm, LCMX_TEST_PEER, std::move(peer_args));
 }
 
 std::string vehicle_url(int index) {

@@ -9,6 +9,7 @@
 #include "lcmx/core.hpp"
 #include "lcmx_examples/bench_t.hpp"
 #include "lcmx_examples/pose_t.hpp"
+#include "containers.hpp"
 #include "support.hpp"
 
 using namespace lcmx::it;
@@ -86,6 +87,59 @@ TEST_CASE("service across processes: a client here, a server there, over shared 
   CHECK(content_ok(big.value()));
   server.send("quit");
   REQUIRE(server.expect("SERVED"));
+  CHECK(server.wait() == 0);
+}
+
+// A server that is a neighbour (a container with its own /dev/shm, sharing the network): the
+// calls go over UDP on the host-local group. A blocking call (call(), the future call_async)
+// completes on the thread that receives its reply (ClientStats::direct_replies), sparing the
+// hand-over through the client's thread; a call_async with a callback of its own never does:
+// the callback runs on the client's thread.
+TEST_CASE("service to a neighbour over UDP: blocking calls complete where the reply is received, a callback on the client's thread",
+          "[integration][service][containers]") {
+  if (!can_unshare()) {
+    WARN("cannot create mount namespaces here: skipped");
+    return;
+  }
+  Session s(147);
+  const auto name = unique_channel("SVC_NEIGHBOUR", 147);
+  auto& server = s.spawn(in_container({"--mount", "--propagation", "private"}, true, LCMX_SERVICE_PEER,
+                                      {"server", "--name", name}));
+  REQUIRE(server.expect("READY"));
+  auto rt = lcmx::Runtime::create();
+  auto node = rt.create_node("client");
+  auto client = node.create_client<Pose, Bench>(name);
+  REQUIRE(client.wait_for_service(10000ms));
+  REQUIRE(client.servers().size() == 1);
+  REQUIRE(client.servers()[0].path == lcmx::Path::udp);
+  const auto before = client.stats().direct_replies;  // none yet: probes' answers never count
+  CHECK(before == 0);
+  for (int i = 0; i < 50; ++i) {
+    auto r = client.call(request(i, 64), 5000ms);
+    REQUIRE(r.ok());
+    CHECK(r.value().seq == i);
+    CHECK(content_ok(r.value()));
+    CHECK(r.server().path == lcmx::Path::udp);
+  }
+  CHECK(client.stats().direct_replies == 50);
+  auto f = client.call_async(request(50, 64), 5000ms);  // the future form: a hand-over too
+  auto fr = f.get();
+  REQUIRE(fr.ok());
+  CHECK(fr.value().seq == 50);
+  CHECK(client.stats().direct_replies == 51);
+  std::promise<bool> done;
+  auto got = done.get_future();
+  client.call_async(request(51, 64), 5000ms, [&done](lcmx::Client<Pose, Bench>::Result r) {
+    done.set_value(r.ok() && r.value().seq == 51 && content_ok(r.value()));
+  });
+  CHECK(got.get());
+  CHECK(client.stats().direct_replies == 51);  // the callback's call went through the client's thread
+  CHECK(client.stats().replies == 52);
+  CHECK(client.stats().late_replies == 0);
+  server.send("quit");
+  auto served = server.expect("SERVED");
+  REQUIRE(served);
+  CHECK(*served == "SERVED 52");
   CHECK(server.wait() == 0);
 }
 
