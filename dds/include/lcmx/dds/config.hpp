@@ -73,8 +73,8 @@ struct Config {
   // one before it sleeps (WaitStrategy::adaptive: yields between polls, stops when a yield
   // lets another thread run). Saves the wake-up per export only while messages come less
   // than `spin` apart; otherwise it costs: a CPU busy polling right after a dds_write makes
-  // the scheduler wake the DDS reader on another CPU (docs/dds.md "Benchmark": 1 KB 1.24-1.38x
-  // at 0, 1.34-1.53x at 50 us). 0 (default): block at once.
+  // the scheduler wake the DDS reader on another CPU (docs/dds.md "Benchmark", unpinned: 1 KB
+  // median 1.37x at 0, 1.42x at 50 us, 7 runs each). 0 (default): block at once.
   std::chrono::microseconds spin{0};
   // The scheduler slice the gateway's executor thread asks for (ExecutorOptions::slice;
   // Linux 6.12 and later): short, so that a message's datagrams all leave before the DDS
