@@ -22,6 +22,7 @@ retransmission for ~50 ms in some runs, whichever path sent it. The gateway (a w
 its own config.
 
 usage: run.py BUILD_DIR [--mode interleaved|blocks] [--pin CPUS] [--quick] [--rounds N] [--csv FILE] [--sizes LIST]
+              [--no-throughput]
               [--rcvbuf SIZE] [--spin-us US] [--slice-us US]
 """
 import argparse, os, re, subprocess, sys, tempfile, time
@@ -113,12 +114,7 @@ with open(cfg, "w") as f:
     for s in sizes + [6000000]:
         f.write('[[map]]\nchannel = "BENCH_%d"\ndirection = "to_dds"\ntopic = "G_%d"\n' % (s, s))
 rows = []
-
-
-class Done(Exception):
-    """The latency part is all that was asked for (--no-throughput)."""
-
-
+thr = {}  # 6 MB throughput per path (empty with --no-throughput)
 try:
     gw = start([tool, "dds-gateway", "--config", cfg])
     expect(gw, "dds-gateway bench: ready")
@@ -159,28 +155,23 @@ try:
     gw_cpu = (cpu_seconds(gw.pid) - gw_cpu0) / max(time.time() - wall0, 1e-9)
     # 6 MB throughput.
     n6 = 15 if a.quick else 40
-    thr = {}
-    if a.no_throughput:
-        gw.terminate(); gw.wait(10)
-        raise Done()
-    sink = start([bench, "sink", "D_6000000", str(n6)]); expect(sink, "ready")
-    src = start([bench, "dds-source", "D_6000000", str(n6), "6000000", "0"])
-    thr["direct"] = result(expect(sink, "result", 300)); src.wait(60); sink.wait(30)
-    sink = start([bench, "sink", "G_6000000", str(n6)]); expect(sink, "ready")
-    # lcmx as fast as it publishes: what the gateway does not keep up with is lost (counted).
-    src = start([bench, "lcmx-source", "BENCH_6000000", str(n6), "6000000", "0"], stdin=subprocess.PIPE)
-    thr["gateway"] = result(expect(sink, "result", 300)); src.stdin.close(); src.wait(30); sink.wait(30)
-    # ddsperf: sub and pub processes, 6 MB samples, 8 s; the sub's per-second "Mb/s" lines.
-    dsub = start(["ddsperf", "-i", str(domain), "-D", "10", "sub"])
-    dpub = start(["ddsperf", "-i", str(domain), "-D", "8", "pub", "size", "6MB"])
-    out = dsub.communicate(timeout=60)[0]
-    dpub.wait(30)
-    rates = [float(x) for x in re.findall(r"([\d.]+) Mb/s", out)]
-    rates = [r for r in rates if r > 0]
-    thr["ddsperf"] = {"mbps": sorted(rates)[len(rates) // 2] if rates else 0.0}
+    if not a.no_throughput:
+        sink = start([bench, "sink", "D_6000000", str(n6)]); expect(sink, "ready")
+        src = start([bench, "dds-source", "D_6000000", str(n6), "6000000", "0"])
+        thr["direct"] = result(expect(sink, "result", 300)); src.wait(60); sink.wait(30)
+        sink = start([bench, "sink", "G_6000000", str(n6)]); expect(sink, "ready")
+        # lcmx as fast as it publishes: what the gateway does not keep up with is lost (counted).
+        src = start([bench, "lcmx-source", "BENCH_6000000", str(n6), "6000000", "0"], stdin=subprocess.PIPE)
+        thr["gateway"] = result(expect(sink, "result", 300)); src.stdin.close(); src.wait(30); sink.wait(30)
+        # ddsperf: sub and pub processes, 6 MB samples, 8 s; the sub's per-second "Mb/s" lines.
+        dsub = start(["ddsperf", "-i", str(domain), "-D", "10", "sub"])
+        dpub = start(["ddsperf", "-i", str(domain), "-D", "8", "pub", "size", "6MB"])
+        out = dsub.communicate(timeout=60)[0]
+        dpub.wait(30)
+        rates = [float(x) for x in re.findall(r"([\d.]+) Mb/s", out)]
+        rates = [r for r in rates if r > 0]
+        thr["ddsperf"] = {"mbps": sorted(rates)[len(rates) // 2] if rates else 0.0}
     gw.terminate(); gw.wait(10)
-except Done:
-    pass
 finally:
     for pr in procs:
         if pr.poll() is None:

@@ -8,6 +8,7 @@
 #include <algorithm>
 
 #include "lcmx/core.hpp"
+#include "containers.hpp"
 #include "dead_shm.hpp"
 #include "support.hpp"
 
@@ -18,12 +19,8 @@ namespace {
 // argv running the test peer in new pid + mount namespaces (private /proc), sharing /dev/shm
 // and the network namespace: a container started with --ipc=host --net=host.
 std::vector<std::string> in_pid_namespace(std::vector<std::string> peer_args) {
-  std::vector<std::string> argv = {LCMX_UNSHARE, "--pid", "--fork", "--kill-child", "--mount-proc",
-                                   "--propagation", "private", "--", LCMX_TEST_PEER};
-  for (auto& a : peer_args) argv.push_back(std::move(a));
-  argv.push_back("--timeout-ms");
-  argv.push_back("60000");
-  return argv;
+  return in_container({"--pid", "--fork", "--kill-child", "--mount-proc", "--propagation", "private"}, false,
+                      LCMX_TEST_PEER, std::move(peer_args));
 }
 
 bool can_unshare_pid() {

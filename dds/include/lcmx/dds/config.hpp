@@ -93,7 +93,7 @@ struct Config {
 // CPUs or more (sched_getaffinity), else 0 (the kernel's default). The short slice is there so
 // that a reader the gateway wakes runs after it on the same CPU instead of waking another; on
 // a single CPU there is no other, and the short slice would only let the gateway preempt the
-// publisher that woke it (docs/dds.md "Benchmark": 100 KB 1.27-1.32x with it, 1.14-1.17x
+// publisher that woke it (docs/dds.md "Benchmark": 100 KB 1.27-1.32x with it, 1.14-1.19x
 // without, everything pinned to one CPU). Never throws (0 if the affinity cannot be read).
 std::chrono::microseconds default_slice() noexcept;
 
