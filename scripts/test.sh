@@ -2,7 +2,7 @@
 # Runs the whole test suite, in three stages (CI: .ci/run calls exactly this script):
 #  1. the plain suite in build/ (unit, integration, multihost) with CTest, two at a time;
 #  2. every libFuzzer target (CTest label `fuzz`, test/fuzz/README.md) for LCMX_FUZZ_SECONDS
-#     seconds each (default 50: six targets, two at a time, 2.5 minutes), two at a time: a
+#     seconds each (default 40: seven targets, two at a time, about 2.7 minutes): a
 #     crash, leak or hang fails;
 #  3. the unit and integration tests again, built with ASan + UBSan in build-asan/
 #     (scripts/sanitizers.sh address); skipped with LCMX_TEST_SANITIZERS=0.

@@ -18,7 +18,7 @@ struct LogOptions {
 };
 LogOptions g_log;
 CLI::App* g_info = nullptr;
-Verb g_export;  // log export (log_export.cpp)
+Verb g_export_verb;  // log export (log_export.cpp)
 
 struct Stats {
   std::uint64_t count = 0, bytes = 0;
@@ -138,13 +138,13 @@ Verb add_log(CLI::App& app, const Globals&) {
   g_info = c->add_subcommand("info", "duration, start/end, per channel count, sizes and rate; damage");
   g_info->add_option("file", g_log.file, "LCM log file")->required();
   g_info->add_flag("--json", g_log.json, "print as JSON");
-  g_export = add_log_export(*c);
+  g_export_verb = add_log_export(*c);
   return {c, [] { return run_log(); }};
 }
 
 int run_log() {
   if (g_info->parsed()) return run_info();
-  if (g_export.command->parsed()) return g_export.run();
+  if (g_export_verb.command->parsed()) return g_export_verb.run();
   return 2;
 }
 

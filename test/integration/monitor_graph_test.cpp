@@ -14,16 +14,16 @@ using namespace lcmx::it;
 
 namespace {
 
-const std::string kLcmDefaultUrl = "udpm://239.255.76.67:7667?ttl=0";
+const std::string kGraphLcmUrl = "udpm://239.255.76.67:7667?ttl=0";
 
-struct TmpDir {
+struct GraphTmpDir {
   std::string path;
-  TmpDir() {
+  GraphTmpDir() {
     char t[] = "/tmp/lcmx_it_tools_XXXXXX";
     REQUIRE(::mkdtemp(t) != nullptr);
     path = t;
   }
-  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
+  ~GraphTmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
   std::string file(const std::string& n) const { return path + "/" + n; }
 };
 
@@ -66,7 +66,7 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
                                  "--rate", "50", "--id", "P", "--timeout-ms", "60000"}),
                           {"LCMX_DISCOVERY_URL"});
   REQUIRE(shm_pub.expect("READY"));
-  auto& stock_pub = s.spawn(in_ns({LCMX_LCM_PEER, "pub", kLcmDefaultUrl, "MON_STOCK", "100000", "10", "64", "ST"}));
+  auto& stock_pub = s.spawn(in_ns({LCMX_LCM_PEER, "pub", kGraphLcmUrl, "MON_STOCK", "100000", "10", "64", "ST"}));
   REQUIRE(stock_pub.expect("ready"));
 
   Tmux tmux("lcmxit_mon_" + std::to_string(::getpid()));
@@ -196,7 +196,7 @@ TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topic
           "through dot, --watch rewrites on change",
           "[integration][tools]") {
   Session s(96, 60000ms);
-  TmpDir d;
+  GraphTmpDir d;
   const std::string ch = unique_channel("GRAPH", 96);
   auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "20"});
   REQUIRE(pub.expect("READY"));

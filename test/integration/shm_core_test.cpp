@@ -19,7 +19,7 @@ namespace {
 // argv running the test peer in new pid + mount namespaces (private /proc), sharing /dev/shm
 // and the network namespace: a container started with --ipc=host --net=host.
 std::vector<std::string> in_pid_namespace(std::vector<std::string> peer_args) {
-  return in_container({"--pid", "--fork", "--kill-child", "--mount-proc", "--propagation", "private"}, false,
+  return lcmx::it::in_container({"--pid", "--fork", "--kill-child", "--mount-proc", "--propagation", "private"}, false,
                       LCMX_TEST_PEER, std::move(peer_args));
 }
 

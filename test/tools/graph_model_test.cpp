@@ -10,7 +10,7 @@ namespace {
 using lcmx::discovery::Participant;
 using Endpoint = lcmx_msgs::endpoint_t;
 
-Participant participant(std::int64_t id, std::int64_t host, const std::string& proc, int pid) {
+Participant graph_participant(std::int64_t id, std::int64_t host, const std::string& proc, int pid) {
   Participant p;
   p.beacon.participant_id = id;
   p.beacon.host_id = host;
@@ -44,13 +44,13 @@ void match(Endpoint& sub, std::int64_t pp, std::int64_t pe, const std::string& p
 }
 
 std::vector<Participant> system() {
-  auto cam = participant(11, 0x1, "camera", 100);
+  auto cam = graph_participant(11, 0x1, "camera", 100);
   add(cam, 1, Endpoint::KIND_PUBLISHER, "driver", "IMAGE", "image_t");
-  auto viewer = participant(22, 0x1, "viewer", 200);
+  auto viewer = graph_participant(22, 0x1, "viewer", 200);
   auto& s = add(viewer, 1, Endpoint::KIND_SUBSCRIBER, "view", "IMAGE", "image_t");
   match(s, 11, 1, "shm");
   match(s, 0, 999, "udp");  // a stock LCM sender
-  auto remote = participant(33, 0x2, "planner", 300);
+  auto remote = graph_participant(33, 0x2, "planner", 300);
   auto& r = add(remote, 5, Endpoint::KIND_SUBSCRIBER, "plan", "IMAGE", "image_t");
   match(r, 11, 1, "udp");
   add(remote, 6, Endpoint::KIND_SUBSCRIBER, "plan", "ORPHAN");
@@ -107,9 +107,9 @@ TEST_CASE("JSON: hosts, processes, nodes, publishes, subscribes with pairs, topi
 }
 
 TEST_CASE("DOT flags a topic with two types and says why a subscriber is not matched", "[graph]") {
-  auto a = participant(1, 0x1, "a", 10);
+  auto a = graph_participant(1, 0x1, "a", 10);
   add(a, 1, Endpoint::KIND_PUBLISHER, "n", "T", "image_t");
-  auto b = participant(2, 0x1, "b", 20);
+  auto b = graph_participant(2, 0x1, "b", 20);
   auto& s = add(b, 1, Endpoint::KIND_SUBSCRIBER, "n", "T", "pose_t");
   s.errors.push_back("type mismatch on channel 'T'");
   const auto dot = lcmx::cli::graph::to_dot({a, b});

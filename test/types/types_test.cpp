@@ -33,7 +33,7 @@ using namespace lcmx::types;
 
 namespace {
 
-const TypeRegistry& corpus() {
+const TypeRegistry& lcm_corpus() {
   static const TypeRegistry r = TypeRegistry::load({LCMX_TYPES_CORPUS});
   return r;
 }
@@ -78,7 +78,7 @@ ParseError parse_error_of(const std::string& text) {
 }  // namespace
 
 TEST_CASE("every corpus type's fingerprint equals lcm-gen's getHash()", "[unit]") {
-  const TypeRegistry& r = corpus();
+  const TypeRegistry& r = lcm_corpus();
   CHECK(r.size() == 12);
   check_hash<corpus_a::primitives_t>(r, "corpus_a.primitives_t");
   check_hash<corpus_a::empty_t>(r, "corpus_a.empty_t");
@@ -111,7 +111,7 @@ TEST_CASE("lcmx's own lcmtypes fingerprints equal their generated getHash()", "[
 }
 
 TEST_CASE("the parser keeps members and dimensions and constants as declared", "[unit]") {
-  const TypeRegistry& r = corpus();
+  const TypeRegistry& r = lcm_corpus();
   const StructType& p = r.at("corpus_a.primitives_t");
   CHECK(p.file.find("primitives.lcm") != std::string::npos);
   REQUIRE(p.members.size() == 12);
