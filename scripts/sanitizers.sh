@@ -22,7 +22,8 @@ esac
 
 # Benchmarks and the libFuzzer targets (clang, already sanitized) are not built here. -O1, the
 # usual level for sanitizers: g++ -O2 with ASan+UBSan took 3.2x the CPU of a plain -O2 compile
-# (core/src/runtime.cpp: 41 s vs 13 s), -O1 1.9x (25 s), which keeps CI under 30 minutes.
+# (core/src/runtime.cpp: 41 s vs 13 s), -O1 1.9x (25 s), which keeps CI under 30 minutes; the
+# test programs' own code is -O0 here (test/CMakeLists.txt), the libraries and tools -O1.
 # -g1: line tables only, so reports still name file:line, without the cost of full debug info.
 cmake -S . -B "$dir" -DCMAKE_BUILD_TYPE=RelWithDebInfo -D"$option"=ON \
   -DCMAKE_CXX_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG" -DCMAKE_C_FLAGS_RELWITHDEBINFO="-O1 -g1 -DNDEBUG" \
