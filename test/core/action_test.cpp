@@ -22,16 +22,12 @@ using namespace std::chrono_literals;
 using lcmx::GoalState;
 using lcmx::core_test::eventually;
 using lcmx::core_test::Gate;
+using lcmx::core_test::pose;
 using lcmx::core_test::test_options;
 using Pose = lcmx_examples::pose_t;
 using Bench = lcmx_examples::bench_t;
 using Goal = lcmx::ActionGoal<Pose, Pose, Bench>;
 
-Pose goal_pose(double x) {
-  Pose p;
-  p.position[0] = x;
-  return p;
-}
 Bench bench(std::int64_t seq) {
   Bench b;
   b.seq = seq;
@@ -48,7 +44,7 @@ TEST_CASE("action: goal, feedback in order, result, states", "[action]") {
   auto cn = rt.create_node("client");
   auto server = sn.create_action_server<Pose, Pose, Bench>("act_basic", [](Goal& g) {
     const int n = static_cast<int>(g.goal().position[0]);
-    for (int i = 1; i <= n; ++i) g.publish_feedback(goal_pose(i));
+    for (int i = 1; i <= n; ++i) g.publish_feedback(pose(i));
     g.succeed(bench(n * 10));
   });
   auto client = cn.create_action_client<Pose, Pose, Bench>("act_basic");
@@ -56,7 +52,7 @@ TEST_CASE("action: goal, feedback in order, result, states", "[action]") {
 
   std::mutex mu;
   std::vector<double> feedback;
-  auto sent = client.send_goal(goal_pose(5), 2s, [&](const Pose& f) {
+  auto sent = client.send_goal(pose(5), 2s, [&](const Pose& f) {
     std::lock_guard lock(mu);
     feedback.push_back(f.position[0]);
   });
@@ -98,7 +94,7 @@ TEST_CASE("action: executing and canceling are seen, cancel ends a goal canceled
     }
   });
   auto client = node.create_action_client<Pose, Pose, Bench>("act_cancel");
-  auto goal = client.send_goal(goal_pose(1), 2s).value();
+  auto goal = client.send_goal(pose(1), 2s).value();
   REQUIRE(goal.accepted());
   REQUIRE(eventually([&] { return goal.status().state == GoalState::executing; }));
   const auto c = goal.cancel(2s);
@@ -121,7 +117,7 @@ TEST_CASE("action: a cancel that arrives after success changes nothing", "[actio
   auto server = node.create_action_server<Pose, Pose, Bench>("act_race", [](Goal& g) { g.succeed(bench(7)); });
   auto client = node.create_action_client<Pose, Pose, Bench>("act_race");
   for (int i = 0; i < 20; ++i) {
-    auto goal = client.send_goal(goal_pose(i), 2s).value();
+    auto goal = client.send_goal(pose(i), 2s).value();
     REQUIRE(goal.accepted());
     // Races the end of execute: either the goal was still live (then execute ignored the
     // request and succeeded anyway) or it had ended: the reply says how.
@@ -158,11 +154,11 @@ TEST_CASE("action: concurrent goals run at once, max_goals rejects the rest", "[
   auto client = node.create_action_client<Pose, Pose, Bench>("act_many");
   std::vector<lcmx::ClientGoal<Bench>> goals;
   for (int i = 0; i < 3; ++i) {
-    goals.push_back(client.send_goal(goal_pose(i), 2s).value());
+    goals.push_back(client.send_goal(pose(i), 2s).value());
     REQUIRE(goals.back().accepted());
   }
   REQUIRE(gate.wait_arrived(3));  // three execute functions at once
-  auto fourth = client.send_goal(goal_pose(3), 2s);
+  auto fourth = client.send_goal(pose(3), 2s);
   REQUIRE(fourth.ok());
   CHECK_FALSE(fourth.value().accepted());
   CHECK(fourth.value().message().find("busy") != std::string::npos);
@@ -187,17 +183,17 @@ TEST_CASE("action: the accept function rejects with a reason, execute that throw
       },
       [](const Pose& p) { return p.position[0] < 0 ? std::string("negative goals are refused") : std::string(); });
   auto client = node.create_action_client<Pose, Pose, Bench>("act_reject");
-  auto rejected = client.send_goal(goal_pose(-1), 2s).value();
+  auto rejected = client.send_goal(pose(-1), 2s).value();
   CHECK_FALSE(rejected.accepted());
   CHECK(rejected.message() == "negative goals are refused");
 
-  auto thrown = client.send_goal(goal_pose(9), 2s).value().wait(5s);
+  auto thrown = client.send_goal(pose(9), 2s).value().wait(5s);
   REQUIRE(thrown.ok());
   CHECK(thrown.value().status.state == GoalState::aborted);
   CHECK(thrown.value().status.message == "execute threw: too far");
   CHECK_FALSE(thrown.value().result.has_value());
 
-  auto silent = client.send_goal(goal_pose(1), 2s).value().wait(5s);
+  auto silent = client.send_goal(pose(1), 2s).value().wait(5s);
   REQUIRE(silent.ok());
   CHECK(silent.value().status.state == GoalState::aborted);
   CHECK(silent.value().status.message == "execute returned without ending the goal");
@@ -219,7 +215,7 @@ TEST_CASE("action: a late client learns live goals from the status and fetches a
       },
       o);
   auto first = node.create_action_client<Pose, Pose, Bench>("act_late");
-  auto goal = first.send_goal(goal_pose(1), 2s).value();
+  auto goal = first.send_goal(pose(1), 2s).value();
   REQUIRE(gate.wait_arrived(1));
   // A client made after the goal was sent hears its state from the re-announced status...
   auto late = node.create_action_client<Pose, Pose, Bench>("act_late");
@@ -251,7 +247,7 @@ TEST_CASE("action: type mismatch, raw clients and servers, bad names", "[action]
 
   // A raw client talks to the typed server with encoded bytes.
   auto raw = node.create_action_client_raw("act_types");
-  const Pose p = goal_pose(2);
+  const Pose p = pose(2);
   lcmx::Bytes b(static_cast<std::size_t>(p.getEncodedSize()));
   p.encode(b.data(), 0, static_cast<int>(b.size()));
   auto out = raw.send_goal(b, 2s).value().wait(5s);
@@ -308,14 +304,14 @@ TEST_CASE("action: ending a goal twice or with a live state throws, destroying t
     }
   });
   auto client = node.create_action_client<Pose, Pose, Bench>("act_close");
-  auto once = client.send_goal(goal_pose(1), 2s).value().wait(5s);
+  auto once = client.send_goal(pose(1), 2s).value().wait(5s);
   REQUIRE(once.ok());
   CHECK(once.value().result->seq == 1);
   // execute goes on after its first end (the client may hear the end first).
   CHECK(eventually([&] { return second_end_threw == 1; }));
   CHECK(bad_state_threw == 1);
 
-  auto live = client.send_goal(goal_pose(2), 2s).value();
+  auto live = client.send_goal(pose(2), 2s).value();
   REQUIRE(eventually([&] { return live.status().state == GoalState::executing; }));
   server.reset();  // returns once execute returned
   CHECK(canceled_on_close);

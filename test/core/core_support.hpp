@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "lcmx/core.hpp"
+#include "lcmx_examples/pose_t.hpp"
 
 namespace lcmx::core_test {
 
@@ -36,6 +37,13 @@ inline lcmx::NodeOptions manual() {
   lcmx::NodeOptions o;
   o.executor.kind = lcmx::ExecutorKind::manual;
   return o;
+}
+
+// A pose whose position[0] is `x` (a sequence number, a goal), the rest zero.
+inline lcmx_examples::pose_t pose(double x) {
+  lcmx_examples::pose_t p{};
+  p.position[0] = x;
+  return p;
 }
 
 // Waits for pred() with a deadline (condition polling, not a sleep to synchronise).

@@ -17,12 +17,6 @@ using namespace lcmx::core_test;
 
 namespace {
 
-lcmx_examples::pose_t pose(double seq) {
-  lcmx_examples::pose_t p{};
-  p.position[0] = seq;
-  return p;
-}
-
 // Raw messages: 8 bytes of sequence number, then `size - 8` bytes of a pattern.
 std::vector<std::byte> raw(std::int64_t seq, std::size_t size = 64) {
   std::vector<std::byte> b(std::max<std::size_t>(size, 8));

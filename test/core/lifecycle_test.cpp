@@ -19,13 +19,8 @@ namespace {
 
 using namespace std::chrono_literals;
 using lcmx::core_test::eventually;
+using lcmx::core_test::manual;
 using lcmx::core_test::test_options;
-
-lcmx::NodeOptions manual_node() {
-  lcmx::NodeOptions o;
-  o.executor.kind = lcmx::ExecutorKind::manual;
-  return o;
-}
 
 std::string channel(const char* base) { return std::string(base) + "_" + std::to_string(::getpid()); }
 
@@ -35,7 +30,7 @@ TEST_CASE("spin_once(timeout) returns when its deadline passes, whatever the mom
   // The deadline can pass between the executor's check and its wait; a negative wait means
   // "forever" to the futex layer. Many short timeouts hit that window.
   auto rt = lcmx::Runtime::create(test_options());
-  auto node = rt.create_node("m", manual_node());
+  auto node = rt.create_node("m", manual());
   const auto ch = channel("SPIN_DEADLINE");
   auto pub = node.advertise_raw(ch);
   auto sub = node.subscribe_raw(ch, [](const lcmx::RawMessage&) {});
@@ -63,12 +58,12 @@ TEST_CASE("a node allocated where a destroyed one was gets its own callbacks run
   for (int attempt = 0; attempt < 30; ++attempt) {
     {
       // This thread's executor cache now holds node A: no subscriber, version 2.
-      auto a = rt.create_node("a", manual_node());
+      auto a = rt.create_node("a", manual());
       { auto s = a.subscribe_raw(ch + "_x", [](const lcmx::RawMessage&) {}); }
       a.spin_once(0ms);
     }
-    auto filler = rt.create_node("filler", manual_node());  // frees A's memory (expired weak_ptr)
-    auto b = rt.create_node("b", manual_node());              // often at A's address
+    auto filler = rt.create_node("filler", manual());  // frees A's memory (expired weak_ptr)
+    auto b = rt.create_node("b", manual());              // often at A's address
     int got = 0;
     auto s1 = b.subscribe_raw(ch, [&](const lcmx::RawMessage&) { ++got; });
     auto s2 = b.subscribe_raw(ch + "_y", [](const lcmx::RawMessage&) {});  // version 2 too

@@ -27,15 +27,11 @@ using namespace std::chrono_literals;
 using lcmx::core_test::eventually;
 using lcmx::core_test::Gate;
 using lcmx::core_test::manual;
+using lcmx::core_test::pose;
 using lcmx::core_test::test_options;
 using Pose = lcmx_examples::pose_t;
 using Bench = lcmx_examples::bench_t;
 
-Pose pose(double x) {
-  Pose p;
-  p.position[0] = x;
-  return p;
-}
 
 // Answers a pose with a bench_t whose seq is the pose's x and whose data has `size` bytes.
 Bench answer(const Pose& p, std::int32_t size = 3) {

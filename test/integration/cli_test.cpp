@@ -11,8 +11,6 @@ using namespace lcmx::it;
 
 namespace {
 
-bool contains(const std::string& s, const std::string& what) { return s.find(what) != std::string::npos; }
-
 // Lines of `out` from the one starting with `head` up to the next unindented line.
 std::string block(const std::string& out, const std::string& head) {
   std::istringstream in(out);

@@ -15,23 +15,7 @@ using namespace lcmx::it;
 
 namespace {
 
-const std::string kEchoLcmUrl = "udpm://239.255.76.67:7667?ttl=0";
 const std::string kTypes = LCMX_LCMTYPES_DIR;
-
-struct EchoTmpDir {
-  std::string path;
-  EchoTmpDir() {
-    char t[] = "/tmp/lcmx_it_tools_XXXXXX";
-    REQUIRE(::mkdtemp(t) != nullptr);
-    path = t;
-    ::chmod(path.c_str(), 0755);
-  }
-  ~EchoTmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
-  std::string write(const std::string& name, const std::string& text) const {
-    std::ofstream(path + "/" + name) << text;
-    return path + "/" + name;
-  }
-};
 
 std::vector<std::string> lines_of(const std::string& text, const std::string& prefix = "") {
   std::vector<std::string> out;
@@ -41,7 +25,6 @@ std::vector<std::string> lines_of(const std::string& text, const std::string& pr
   return out;
 }
 
-bool echo_has(const std::string& s, const std::string& needle) { return s.find(needle) != std::string::npos; }
 
 }  // namespace
 
@@ -59,10 +42,10 @@ TEST_CASE("lcmx echo decodes a shm publisher's messages: text, --json, --field, 
   const auto objs = lines_of(j.out, "{");
   REQUIRE(objs.size() == 3);
   for (const auto& o : objs) {
-    CHECK(echo_has(o, "\"channel\":\"" + ch + "\""));
-    CHECK(echo_has(o, "\"type\":\"lcmx_examples.pose_t\""));
-    CHECK(echo_has(o, "\"frame_id\":\"E1\""));
-    CHECK(echo_has(o, "\"orientation\":[0,0,0,1]"));
+    CHECK(contains(o, "\"channel\":\"" + ch + "\""));
+    CHECK(contains(o, "\"type\":\"lcmx_examples.pose_t\""));
+    CHECK(contains(o, "\"frame_id\":\"E1\""));
+    CHECK(contains(o, "\"orientation\":[0,0,0,1]"));
     CHECK(json_num(o, "size") == lcmx_examples::pose_t().getEncodedSize() + 2);  // frame_id "E1"
   }
   // Messages of one publisher arrive in order.
@@ -73,8 +56,8 @@ TEST_CASE("lcmx echo decodes a shm publisher's messages: text, --json, --field, 
   INFO(t.out);
   CHECK(t.rc == 0);
   CHECK(lines_of(t.out, "--- " + ch).size() == 2);
-  CHECK(echo_has(t.out, "  frame_id: \"E1\""));
-  CHECK(echo_has(t.out, "lcmx_examples.pose_t"));
+  CHECK(contains(t.out, "  frame_id: \"E1\""));
+  CHECK(contains(t.out, "lcmx_examples.pose_t"));
   const auto f = s.run({LCMX_TOOL, "echo", ch, "--types", kTypes, "-n", "2", "--field", "orientation[3]", "--no-header"});
   INFO(f.out);
   CHECK(lines_of(f.out, "orientation[3]: 1").size() == 2);
@@ -84,7 +67,7 @@ TEST_CASE("lcmx echo decodes a shm publisher's messages: text, --json, --field, 
   char fp[64];
   const auto h = static_cast<unsigned long long>(lcmx_examples::pose_t::getHash());
   std::snprintf(fp, sizeof fp, "  000000  %02llx %02llx", h >> 56, (h >> 48) & 0xff);
-  CHECK(echo_has(r.out, fp));
+  CHECK(contains(r.out, fp));
   // Until SIGINT: a clean exit.
   auto& live = s.spawn({LCMX_TOOL, "echo", ch, "--types", kTypes, "--max-array", "2"});
   REQUIRE(live.expect("orientation: [0, 0, ... (2 more)]"));
@@ -94,7 +77,7 @@ TEST_CASE("lcmx echo decodes a shm publisher's messages: text, --json, --field, 
   const auto e = s.run({LCMX_TOOL, "echo", ch, "-n", "1", "--field", "header.nope"}, {"LCMX_TYPES_PATH=" + kTypes});
   INFO(e.out);
   CHECK(e.rc == 0);
-  CHECK(echo_has(e.out, "no field 'nope' in header"));
+  CHECK(contains(e.out, "no field 'nope' in header"));
   pub.send("quit");
 }
 
@@ -124,45 +107,45 @@ TEST_CASE("lcmx echo shows unknown, truncated and garbage messages and never cra
   CHECK(rc == 0);
   const auto out = lines_of(echo.text(), "{");
   REQUIRE(out.size() == 5);
-  CHECK(echo_has(out[0], "\"size\":30"));
-  CHECK(echo_has(out[0], "\"type\":\"lcmx_examples.pose_t\""));
-  CHECK(echo_has(out[0], "\"error\":\"decode: header.frame_id: message truncated"));
-  CHECK(echo_has(out[1], "\"size\":5,\"error\":\"too short for an LCM message"));
-  CHECK(echo_has(out[2], "13 trailing bytes after a lcmx_examples.pose_t"));
-  CHECK(echo_has(out[3], "\"fingerprint\":\"0x5a5a5a5a5a5a5a5a\""));
-  CHECK(echo_has(out[3], "unknown type: no type in the type path has this fingerprint"));
-  CHECK(echo_has(out[4], "\"frame_id\":\"ok\""));
+  CHECK(contains(out[0], "\"size\":30"));
+  CHECK(contains(out[0], "\"type\":\"lcmx_examples.pose_t\""));
+  CHECK(contains(out[0], "\"error\":\"decode: header.frame_id: message truncated"));
+  CHECK(contains(out[1], "\"size\":5,\"error\":\"too short for an LCM message"));
+  CHECK(contains(out[2], "13 trailing bytes after a lcmx_examples.pose_t"));
+  CHECK(contains(out[3], "\"fingerprint\":\"0x5a5a5a5a5a5a5a5a\""));
+  CHECK(contains(out[3], "unknown type: no type in the type path has this fingerprint"));
+  CHECK(contains(out[4], "\"frame_id\":\"ok\""));
 }
 
 TEST_CASE("lcmx echo and pub: bad .lcm files and bad arguments are errors that say why", "[integration][tools]") {
   Session s(122);
-  EchoTmpDir d;
+  TmpDir d;
   const auto bad = d.write("bad.lcm", "package p;\nstruct s_t {\n  int32_t x\n}\n");
   const auto e = s.run({LCMX_TOOL, "echo", "X", "--types", bad});
   CHECK(e.rc == 1);
-  CHECK(echo_has(e.out, bad + ":4:1:"));
+  CHECK(contains(e.out, bad + ":4:1:"));
   const auto missing = s.run({LCMX_TOOL, "echo", "X", "--types", d.path + "/nothing"});
   CHECK(missing.rc == 1);
-  CHECK(echo_has(missing.out, "nothing"));
+  CHECK(contains(missing.out, "nothing"));
   const auto rx = s.run({LCMX_TOOL, "hz", "(", "--regex"});
   CHECK(rx.rc == 2);
-  CHECK(echo_has(rx.out, "bad channel expression"));
+  CHECK(contains(rx.out, "bad channel expression"));
   const std::string ch = unique_channel("PUBERR", 122);
   auto p = s.run({LCMX_TOOL, "pub", ch, "lcmx_examples.pose_t", R"({"position": [1, 2, 3], "orientaton": []})",
                   "--types", kTypes, "--once"});
   CHECK(p.rc == 1);
-  CHECK(echo_has(p.out, "from_json: orientaton: no such field in lcmx_examples.pose_t"));
+  CHECK(contains(p.out, "from_json: orientaton: no such field in lcmx_examples.pose_t"));
   p = s.run({LCMX_TOOL, "pub", ch, "pose_t", "{}", "--types", kTypes, "--once"});
   CHECK(p.rc == 1);
-  CHECK(echo_has(p.out, "unknown type 'pose_t'"));
-  CHECK(echo_has(p.out, "did you mean lcmx_examples.pose_t?"));
+  CHECK(contains(p.out, "unknown type 'pose_t'"));
+  CHECK(contains(p.out, "did you mean lcmx_examples.pose_t?"));
   p = s.run({LCMX_TOOL, "pub", ch, "lcmx_examples.pose_t", R"({"header": {"seq": "x"}})", "--types", kTypes, "--once"});
   CHECK(p.rc == 1);
-  CHECK(echo_has(p.out, "header.seq: expected an integer (int64_t), got a string"));
+  CHECK(contains(p.out, "header.seq: expected an integer (int64_t), got a string"));
   for (const char* verb : {"echo", "hz", "bw", "pub"}) {
     const auto h = s.run({LCMX_TOOL, verb, "--help"});
     CHECK(h.rc == 0);
-    CHECK(echo_has(h.out, "Usage"));
+    CHECK(contains(h.out, "Usage"));
   }
 }
 
@@ -189,29 +172,29 @@ TEST_CASE("lcmx pub: typed shm subscribers receive JSON lines in order - --once 
   CHECK(sum[0].num("bad_content") == 0);
   CHECK(sum[0].num("out_of_order") == 0);
   CHECK(sum[0].num("duplicates") == 0);
-  CHECK(echo_has(pub.text(), "published 20 messages"));
+  CHECK(contains(pub.text(), "published 20 messages"));
 
   // Nobody subscribed: it says so after --wait-timeout, publishes anyway, exits.
   const auto lonely = s.run({LCMX_TOOL, "pub", ch + "_NOBODY", "lcmx_examples.pose_t", "{}", "--types", kTypes,
                              "--once", "--wait-timeout", "0.3", "--json"});
   CHECK(lonely.rc == 0);
-  CHECK(echo_has(lonely.out, "0 of 1 subscribers after 0.3 s; publishing anyway"));
-  CHECK(echo_has(lonely.out, "published 1 message"));
-  CHECK_FALSE(echo_has(lonely.out, "published 1 messages"));
+  CHECK(contains(lonely.out, "0 of 1 subscribers after 0.3 s; publishing anyway"));
+  CHECK(contains(lonely.out, "published 1 message"));
+  CHECK_FALSE(contains(lonely.out, "published 1 messages"));
   // --json: the summary line for scripts.
   const auto j = json_line(lonely.out);
-  CHECK(echo_has(j, "\"channel\":\"" + ch + "_NOBODY\""));
-  CHECK(echo_has(j, "\"type\":\"lcmx_examples.pose_t\""));
+  CHECK(contains(j, "\"channel\":\"" + ch + "_NOBODY\""));
+  CHECK(contains(j, "\"type\":\"lcmx_examples.pose_t\""));
   CHECK(json_num(j, "published") == 1);
   CHECK(json_num(j, "subscribers") == 0);
-  CHECK(echo_has(j, "\"ok\":true"));
+  CHECK(contains(j, "\"ok\":true"));
   // A bad stdin line stops it, naming the line.
   auto& bad = s.spawn({LCMX_TOOL, "pub", ch + "_BAD", "lcmx_examples.pose_t", "-", "--types", kTypes, "--no-wait"},
                       {}, true);
   bad.send("{}");
   bad.send(R"({"header": {"frame": "x"}})");
   CHECK(bad.wait(10000ms) == 1);
-  CHECK(echo_has(bad.text(), "stdin line 2: from_json: header.frame: no such field in lcmx_examples.header_t"));
+  CHECK(contains(bad.text(), "stdin line 2: from_json: header.frame: no such field in lcmx_examples.header_t"));
 }
 
 TEST_CASE("lcmx hz and bw: a 30 Hz camera of 6 MB images reads 30 Hz over shm, several channels, SIGINT",
@@ -231,7 +214,7 @@ TEST_CASE("lcmx hz and bw: a 30 Hz camera of 6 MB images reads 30 Hz over shm, s
   auto& bw = s.spawn({LCMX_TOOL, "bw", fast, "--json", "-w", "20", "--period", "0.25"});
   // A full window of each channel.
   auto full = [](const std::string& channel) {
-    return [channel](const std::string& j) { return echo_has(j, "\"" + channel + "\"") && json_num(j, "window") == 20; };
+    return [channel](const std::string& j) { return contains(j, "\"" + channel + "\"") && json_num(j, "window") == 20; };
   };
   const auto hf = json_until(hz, full(fast), 20000ms);
   INFO(hz.text() << p1.text());
@@ -239,7 +222,7 @@ TEST_CASE("lcmx hz and bw: a 30 Hz camera of 6 MB images reads 30 Hz over shm, s
   CHECK(std::abs(json_num(*hf, "rate_hz") - 30) < 30 * 0.15);
   CHECK(json_num(*hf, "period_min_s") <= 1.0 / 30);
   CHECK(json_num(*hf, "period_max_s") >= 1.0 / 30);
-  const auto hs = json_until(hz, [&](const std::string& j) { return echo_has(j, "\"" + slow + "\"") && json_num(j, "window") >= 8; },
+  const auto hs = json_until(hz, [&](const std::string& j) { return contains(j, "\"" + slow + "\"") && json_num(j, "window") >= 8; },
                              20000ms);
   REQUIRE(hs);
   CHECK(std::abs(json_num(*hs, "rate_hz") - 10) < 10 * 0.2);
@@ -258,7 +241,7 @@ TEST_CASE("lcmx hz and bw: a 30 Hz camera of 6 MB images reads 30 Hz over shm, s
   CHECK(hz.wait(5000ms) == 0);
   CHECK(bw.wait(5000ms) == 0);
   CHECK(p1.wait(5000ms) == 0);
-  CHECK(echo_has(p1.text(), "lcmx pub: published"));
+  CHECK(contains(p1.text(), "lcmx pub: published"));
   p2.signal(SIGTERM);
   CHECK(p2.wait(5000ms) == 0);
 }
@@ -274,7 +257,7 @@ TEST_CASE("lcmx echo, hz and pub --udp with stock liblcm on LCM's default URL", 
   };
   const std::vector<std::string> env = {"LCMX_DISCOVERY_URL", "LCM_DEFAULT_URL"};  // the defaults
   // A stock publisher of bench_t at 50 Hz (lcmx_mh_lcm_peer: liblcm).
-  auto& stock = s.spawn(in_ns({LCMX_LCM_PEER, "pub", kEchoLcmUrl, ch, "2000", "50", "100", "ST"}));
+  auto& stock = s.spawn(in_ns({LCMX_LCM_PEER, "pub", kLcmDefaultUrl, ch, "2000", "50", "100", "ST"}));
   REQUIRE(stock.expect("ready"));
   auto& echo = s.spawn(in_ns({LCMX_TOOL, "echo", ch, "--types", kTypes, "--json", "-n", "3"}), env);
   CHECK(echo.wait(15000ms) == 0);
@@ -282,7 +265,7 @@ TEST_CASE("lcmx echo, hz and pub --udp with stock liblcm on LCM's default URL", 
   INFO(echo.text());
   REQUIRE(out.size() == 3);
   for (const auto& o : out) {
-    CHECK(echo_has(o, "\"type\":\"lcmx_examples.bench_t\""));
+    CHECK(contains(o, "\"type\":\"lcmx_examples.bench_t\""));
     CHECK(json_num(o, "size") == 8 + 8 + 8 + 4 + 100);
   }
   auto& hz = s.spawn(in_ns({LCMX_TOOL, "hz", ch, "--json", "-w", "10", "--period", "0.25"}), env);
@@ -296,7 +279,7 @@ TEST_CASE("lcmx echo, hz and pub --udp with stock liblcm on LCM's default URL", 
 
   // lcmx pub --udp reaches a stock subscriber (who is not in discovery: --no-wait).
   const std::string ch2 = unique_channel("TO_STOCK", 125);
-  auto& stock_sub = s.spawn(in_ns({LCMX_LCM_PEER, "sub", kEchoLcmUrl, ch2, "3", "20000"}));
+  auto& stock_sub = s.spawn(in_ns({LCMX_LCM_PEER, "sub", kLcmDefaultUrl, ch2, "3", "20000"}));
   REQUIRE(stock_sub.expect("ready"));
   auto& pub = s.spawn(in_ns({LCMX_TOOL, "pub", ch2, "lcmx_examples.bench_t", "-", "--types", kTypes, "--udp",
                              "--no-wait", "--rate", "100", "-n", "3"}),

@@ -18,20 +18,6 @@ namespace el = lcmx::eventlog;
 
 namespace {
 
-const std::string kLcmDefaultUrl = "udpm://239.255.76.67:7667?ttl=0";
-
-struct TmpDir {
-  std::string path;
-  TmpDir() {
-    char t[] = "/tmp/lcmx_it_logs_XXXXXX";
-    REQUIRE(::mkdtemp(t) != nullptr);
-    path = t;
-    ::chmod(path.c_str(), 0755);
-  }
-  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
-  std::string file(const std::string& n) const { return path + "/" + n; }
-};
-
 std::vector<el::Event> read_log(const std::string& path, el::Reader* keep = nullptr) {
   std::vector<el::Event> out;
   try {

@@ -14,32 +14,17 @@ using namespace lcmx::it;
 
 namespace {
 
-const std::string kGraphLcmUrl = "udpm://239.255.76.67:7667?ttl=0";
-
-struct GraphTmpDir {
-  std::string path;
-  GraphTmpDir() {
-    char t[] = "/tmp/lcmx_it_tools_XXXXXX";
-    REQUIRE(::mkdtemp(t) != nullptr);
-    path = t;
-  }
-  ~GraphTmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
-  std::string file(const std::string& n) const { return path + "/" + n; }
-};
-
 std::string slurp(const std::string& p) {
   std::ifstream f(p, std::ios::binary);
   return {std::istreambuf_iterator<char>(f), std::istreambuf_iterator<char>()};
 }
-
-bool has(const std::string& s, const std::string& w) { return s.find(w) != std::string::npos; }
 
 // The screen line (0-based) that contains `w`, or -1.
 int line_of(const std::string& screen, const std::string& w) {
   std::istringstream in(screen);
   int i = 0;
   for (std::string l; std::getline(in, l); ++i)
-    if (has(l, w)) return i;
+    if (contains(l, w)) return i;
   return -1;
 }
 
@@ -66,7 +51,7 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
                                  "--rate", "50", "--id", "P", "--timeout-ms", "60000"}),
                           {"LCMX_DISCOVERY_URL"});
   REQUIRE(shm_pub.expect("READY"));
-  auto& stock_pub = s.spawn(in_ns({LCMX_LCM_PEER, "pub", kGraphLcmUrl, "MON_STOCK", "100000", "10", "64", "ST"}));
+  auto& stock_pub = s.spawn(in_ns({LCMX_LCM_PEER, "pub", kLcmDefaultUrl, "MON_STOCK", "100000", "10", "64", "ST"}));
   REQUIRE(stock_pub.expect("ready"));
 
   Tmux tmux("lcmxit_mon_" + std::to_string(::getpid()));
@@ -77,47 +62,47 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
                     cmd + "; echo MON-EXIT=$?; sleep 30"}).rc == 0);
   // Rows for both publishers: package-qualified types from the type path, publishers, paths.
   const bool rows = tmux.wait_screen("mon", [](const std::string& p) {
-    return has(p, "MON_SHM") && has(p, "MON_STOCK") && has(p, "lcmx_examples.pose_t") &&
-           has(p, "lcmx_examples.bench_t") && has(p, "LCM sender") && has(p, "lcmx_test_peer[");
+    return contains(p, "MON_SHM") && contains(p, "MON_STOCK") && contains(p, "lcmx_examples.pose_t") &&
+           contains(p, "lcmx_examples.bench_t") && contains(p, "LCM sender") && contains(p, "lcmx_test_peer[");
   });
   INFO(tmux.pane("mon"));
   REQUIRE(rows);
   {
     const auto p = tmux.pane("mon");
     const auto l = lines(p);
-    CHECK(has(l.at(static_cast<std::size_t>(line_of(p, "MON_SHM"))), " shm "));
-    CHECK(has(l.at(static_cast<std::size_t>(line_of(p, "MON_STOCK"))), " udp "));
-    CHECK(has(p, "q:quit"));  // keys on screen
+    CHECK(contains(l.at(static_cast<std::size_t>(line_of(p, "MON_SHM"))), " shm "));
+    CHECK(contains(l.at(static_cast<std::size_t>(line_of(p, "MON_STOCK"))), " udp "));
+    CHECK(contains(p, "q:quit"));  // keys on screen
     CHECK(line_of(p, "MON_SHM") < line_of(p, "MON_STOCK"));  // sorted by channel
   }
 
   // Sort by Hz (column 5): ascending puts the 10 Hz stock channel first, 'r' reverses.
   REQUIRE(tmux.keys("mon", {"5"}));
   CHECK(tmux.wait_screen("mon", [](const std::string& p) {
-    return has(p, "sort: Hz") && !has(p, "(desc)") && line_of(p, "MON_STOCK") >= 0 &&
+    return contains(p, "sort: Hz") && !contains(p, "(desc)") && line_of(p, "MON_STOCK") >= 0 &&
            line_of(p, "MON_STOCK") < line_of(p, "MON_SHM");
   }));
   REQUIRE(tmux.keys("mon", {"r"}));
   CHECK(tmux.wait_screen("mon", [](const std::string& p) {
-    return has(p, "sort: Hz (desc)") && line_of(p, "MON_SHM") >= 0 && line_of(p, "MON_SHM") < line_of(p, "MON_STOCK");
+    return contains(p, "sort: Hz (desc)") && line_of(p, "MON_SHM") >= 0 && line_of(p, "MON_SHM") < line_of(p, "MON_STOCK");
   }));
 
   // Pause and resume.
   REQUIRE(tmux.keys("mon", {"p"}));
   CHECK(tmux.wait_screen("mon", [](const std::string& p) {
     const auto l = lines(p);
-    return !l.empty() && has(l[0], "PAUSED");
+    return !l.empty() && contains(l[0], "PAUSED");
   }));
   REQUIRE(tmux.keys("mon", {"p"}));
-  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return !has(p, "PAUSED"); }));
+  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return !contains(p, "PAUSED"); }));
 
   // Filter: only the stock channel is left.
   REQUIRE(tmux.keys("mon", {"/"}));
-  REQUIRE(tmux.wait_screen("mon", [](const std::string& p) { return has(p, "filter (regex"); }));
+  REQUIRE(tmux.wait_screen("mon", [](const std::string& p) { return contains(p, "filter (regex"); }));
   REQUIRE(tmux.keys("mon", {"-l", "st.ck"}));
   REQUIRE(tmux.keys("mon", {"Enter"}));
   CHECK(tmux.wait_screen("mon", [](const std::string& p) {
-    return has(p, "filter: /st.ck/") && has(p, "MON_STOCK") && !has(p, "MON_SHM") && has(p, "1 channels");
+    return contains(p, "filter: /st.ck/") && contains(p, "MON_STOCK") && !contains(p, "MON_SHM") && contains(p, "1 channels");
   }));
 
   // Open it: the decoded latest message, live; the byte array folded until Enter on it.
@@ -126,7 +111,7 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
   const bool opened = tmux.wait_screen("mon", [&](const std::string& p) {
     const int l = line_of(p, "seq: ");
     if (l >= 0) seq_line = lines(p)[static_cast<std::size_t>(l)];
-    return has(p, "lcmx_examples.bench_t") && has(p, "rate (max") && has(p, "size: 64") && has(p, "data: bytes[64]") &&
+    return contains(p, "lcmx_examples.bench_t") && contains(p, "rate (max") && contains(p, "size: 64") && contains(p, "data: bytes[64]") &&
            l >= 0;
   });
   INFO(tmux.pane("mon"));
@@ -135,19 +120,19 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
     const int l = line_of(p, "seq: ");
     return l >= 0 && lines(p)[static_cast<std::size_t>(l)] != seq_line;
   }));
-  CHECK_FALSE(has(tmux.pane("mon"), "000030:"));
+  CHECK_FALSE(contains(tmux.pane("mon"), "000030:"));
   REQUIRE(tmux.keys("mon", {"End"}));
   REQUIRE(tmux.keys("mon", {"Enter"}));
-  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return has(p, "000030:") && has(p, "- data: bytes[64]"); }));
+  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return contains(p, "000030:") && contains(p, "- data: bytes[64]"); }));
 
   // Back, resize to 80x24: everything fits, redrawn.
   REQUIRE(tmux.keys("mon", {"Escape"}));
-  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return has(p, "CHANNEL") && has(p, "MON_STOCK"); }));
+  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return contains(p, "CHANNEL") && contains(p, "MON_STOCK"); }));
   REQUIRE(tmux.run({"resize-window", "-t", "mon", "-x", "80", "-y", "24"}).rc == 0);
   const bool resized = tmux.wait_screen("mon", [](const std::string& p) {
     const auto l = lines(p);
-    return l.size() == 24 && has(l.front(), "lcmx monitor") && has(l.back(), "q:quit") && has(l.back(), "/:filter") &&
-           has(p, "MON_STOCK") && has(p, "DROPS");
+    return l.size() == 24 && contains(l.front(), "lcmx monitor") && contains(l.back(), "q:quit") && contains(l.back(), "/:filter") &&
+           contains(p, "MON_STOCK") && contains(p, "DROPS");
   });
   INFO(tmux.pane("mon"));
   CHECK(resized);
@@ -155,12 +140,12 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
   // Clear the filter: both rows again.
   REQUIRE(tmux.keys("mon", {"/", "BSpace", "BSpace", "BSpace", "BSpace", "BSpace", "Enter"}));
   CHECK(tmux.wait_screen("mon", [](const std::string& p) {
-    return has(p, "MON_SHM") && has(p, "MON_STOCK") && !has(p, "filter: /");
+    return contains(p, "MON_SHM") && contains(p, "MON_STOCK") && !contains(p, "filter: /");
   }));
 
   // Ctrl-C: clean exit, terminal restored (the shell's echo shows on the normal screen).
   REQUIRE(tmux.keys("mon", {"C-c"}));
-  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return has(p, "MON-EXIT=0"); }));
+  CHECK(tmux.wait_screen("mon", [](const std::string& p) { return contains(p, "MON-EXIT=0"); }));
 
   // Without a type path: the beacon's type name (no package), the stock channel's fingerprint;
   // opening it shows the raw bytes and says why. q quits.
@@ -170,17 +155,17 @@ TEST_CASE("lcmx monitor on a terminal (tmux): shm and stock LCM rows, sort, filt
                     cmd2 + "; echo MON2-EXIT=$?; sleep 30"}).rc == 0);
   const bool untyped = tmux.wait_screen("mon2", [](const std::string& p) {
     const int shm = line_of(p, "MON_SHM"), stock = line_of(p, "MON_STOCK");
-    return shm >= 0 && stock >= 0 && has(lines(p)[static_cast<std::size_t>(shm)], " pose_t ") &&
+    return shm >= 0 && stock >= 0 && contains(lines(p)[static_cast<std::size_t>(shm)], " pose_t ") &&
            std::regex_search(lines(p)[static_cast<std::size_t>(stock)], std::regex(" 0x[0-9a-f]+"));
   });
   INFO(tmux.pane("mon2"));
   CHECK(untyped);
   REQUIRE(tmux.keys("mon2", {"Down", "Enter"}));
   CHECK(tmux.wait_screen("mon2", [](const std::string& p) {
-    return has(p, "MON_STOCK") && has(p, "type unknown (fingerprint 0x") && has(p, "bytes[");
+    return contains(p, "MON_STOCK") && contains(p, "type unknown (fingerprint 0x") && contains(p, "bytes[");
   }));
   REQUIRE(tmux.keys("mon2", {"q"}));
-  CHECK(tmux.wait_screen("mon2", [](const std::string& p) { return has(p, "MON2-EXIT=0"); }));
+  CHECK(tmux.wait_screen("mon2", [](const std::string& p) { return contains(p, "MON2-EXIT=0"); }));
 
   const auto once = s.run(in_ns({"env", "LCMX_TYPES_PATH=" LCMX_LCMTYPES_DIR, LCMX_TOOL, "monitor", "--once",
                                  "--json", "--duration", "1.5", "--sort", "hz", "--reverse"}),
@@ -196,7 +181,7 @@ TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topic
           "through dot, --watch rewrites on change",
           "[integration][tools]") {
   Session s(96, 60000ms);
-  GraphTmpDir d;
+  TmpDir d;
   const std::string ch = unique_channel("GRAPH", 96);
   auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "20"});
   REQUIRE(pub.expect("READY"));
@@ -207,12 +192,12 @@ TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topic
   const auto dot = s.run({LCMX_TOOL, "graph"});
   INFO(dot.out);
   REQUIRE(dot.rc == 0);
-  CHECK(has(dot.out, "digraph lcmx {"));
-  CHECK(has(dot.out, "subgraph \"cluster_host_"));
-  CHECK(has(dot.out, "label=\"" + pub_proc + "\""));
-  CHECK(has(dot.out, "label=\"lcmx_test_peer[" + std::to_string(sub.started_pid()) + "]\""));
-  CHECK(has(dot.out, "\"t_" + ch + "\" [shape=ellipse"));
-  CHECK(has(dot.out, "\\npose_t\""));  // lcm-gen's name in beacons: no package
+  CHECK(contains(dot.out, "digraph lcmx {"));
+  CHECK(contains(dot.out, "subgraph \"cluster_host_"));
+  CHECK(contains(dot.out, "label=\"" + pub_proc + "\""));
+  CHECK(contains(dot.out, "label=\"lcmx_test_peer[" + std::to_string(sub.started_pid()) + "]\""));
+  CHECK(contains(dot.out, "\"t_" + ch + "\" [shape=ellipse"));
+  CHECK(contains(dot.out, "\\npose_t\""));  // lcm-gen's name in beacons: no package
   CHECK(std::regex_search(dot.out, std::regex("\"n_[0-9]+_[a-z_]+\" -> \"t_" + ch + "\";")));
   CHECK(std::regex_search(dot.out, std::regex("\"t_" + ch + "\" -> \"n_[0-9]+_[a-z_]+\" \\[label=\"shm from " +
                                               std::regex_replace(pub_proc, std::regex(R"([\[\]])"), R"(\$&)") + "/")));
@@ -221,22 +206,22 @@ TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topic
   const auto json = s.run({LCMX_TOOL, "graph", "--json", "--types", LCMX_LCMTYPES_DIR});
   INFO(json.out);
   CHECK(json.rc == 0);
-  CHECK(has(json.out, "{\"hosts\":[{\"host\":\""));
-  CHECK(has(json.out, "\"pairs\":[{\"publisher\":\"" + pub_proc + "/"));
-  CHECK(has(json.out, "\"path\":\"shm\""));
-  CHECK(has(json.out, "{\"topic\":\"" + ch + "\",\"types\":[\"lcmx_examples.pose_t\"],\"publishers\":1,\"subscribers\":1}"));
+  CHECK(contains(json.out, "{\"hosts\":[{\"host\":\""));
+  CHECK(contains(json.out, "\"pairs\":[{\"publisher\":\"" + pub_proc + "/"));
+  CHECK(contains(json.out, "\"path\":\"shm\""));
+  CHECK(contains(json.out, "{\"topic\":\"" + ch + "\",\"types\":[\"lcmx_examples.pose_t\"],\"publishers\":1,\"subscribers\":1}"));
 
   // Files: DOT by extension; SVG and PNG through Graphviz's dot when it is installed.
   REQUIRE(s.run({LCMX_TOOL, "graph", "-o", d.file("g.dot")}).rc == 0);
-  CHECK(has(slurp(d.file("g.dot")), "\"t_" + ch + "\""));
+  CHECK(contains(slurp(d.file("g.dot")), "\"t_" + ch + "\""));
   if (::access("/usr/bin/dot", X_OK) == 0) {
     const auto svg = s.run({LCMX_TOOL, "graph", "-o", d.file("g.svg")});
     INFO(svg.out);
     REQUIRE(svg.rc == 0);
     const auto text = slurp(d.file("g.svg"));
     CHECK(text.rfind("<?xml", 0) == 0);
-    CHECK(has(text, "<svg"));
-    CHECK(has(text, ch));
+    CHECK(contains(text, "<svg"));
+    CHECK(contains(text, ch));
     REQUIRE(s.run({LCMX_TOOL, "graph", "--format", "png", "-o", d.file("g.img")}).rc == 0);
     CHECK(slurp(d.file("g.img")).rfind("\x89PNG\r\n", 0) == 0);
   } else {
@@ -245,12 +230,12 @@ TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topic
   // An extension that names no format: exit 2, no file (not DOT text under a .jpg name).
   const auto jpg = s.run({LCMX_TOOL, "graph", "-o", d.file("g.jpg")});
   CHECK(jpg.rc == 2);
-  CHECK(has(jpg.out, "no format for '.jpg'"));
+  CHECK(contains(jpg.out, "no format for '.jpg'"));
   CHECK(::access(d.file("g.jpg").c_str(), F_OK) != 0);
   // Without dot in PATH: a clear error, no file.
   const auto nodot = s.run({LCMX_TOOL, "graph", "-o", d.file("none.svg")}, {"PATH=/nonexistent"});
   CHECK(nodot.rc == 1);
-  CHECK(has(nodot.out, "needs Graphviz's 'dot'"));
+  CHECK(contains(nodot.out, "needs Graphviz's 'dot'"));
   CHECK(::access(d.file("none.svg").c_str(), F_OK) != 0);
 
   // --watch: a new subscriber on another topic appears in the file, and goes when it leaves.
@@ -258,14 +243,14 @@ TEST_CASE("lcmx graph of live processes: DOT with hosts, processes, nodes, topic
   const std::string live = d.file("live.dot");
   auto& watch = s.spawn({LCMX_TOOL, "graph", "--watch", "-o", live}, {}, true);
   REQUIRE(watch.expect("lcmx graph: wrote", 10000ms));
-  CHECK(has(slurp(live), "\"t_" + ch + "\""));
-  CHECK_FALSE(has(slurp(live), ch2));
+  CHECK(contains(slurp(live), "\"t_" + ch + "\""));
+  CHECK_FALSE(contains(slurp(live), ch2));
   auto& sub2 = s.peer({"sub", "--channel", ch2, "--type", "pose"});
   REQUIRE(sub2.expect("READY"));
-  CHECK(wait_until([&] { return has(slurp(live), "\"t_" + ch2 + "\""); }, 10000ms, 50ms));
+  CHECK(wait_until([&] { return contains(slurp(live), "\"t_" + ch2 + "\""); }, 10000ms, 50ms));
   sub2.send("quit");
   CHECK(sub2.wait(10000ms) == 0);
-  CHECK(wait_until([&] { return !has(slurp(live), ch2); }, 10000ms, 50ms));
+  CHECK(wait_until([&] { return !contains(slurp(live), ch2); }, 10000ms, 50ms));
   watch.signal(SIGINT);
   CHECK(watch.wait(10000ms) == 0);
   const std::string log = watch.text();
@@ -280,25 +265,25 @@ TEST_CASE("lcmx monitor / graph: --help, and clear errors for bad input", "[inte
     const auto r = s.run({LCMX_TOOL, verb, "--help"});
     INFO(r.out);
     CHECK(r.rc == 0);
-    CHECK(has(r.out, verb + " [OPTIONS]"));
-    CHECK(has(r.out, "--json"));
+    CHECK(contains(r.out, verb + " [OPTIONS]"));
+    CHECK(contains(r.out, "--json"));
   }
   const auto notty = s.run({LCMX_TOOL, "monitor"});
   CHECK(notty.rc == 2);
-  CHECK(has(notty.out, "needs a terminal"));
+  CHECK(contains(notty.out, "needs a terminal"));
   const auto filter = s.run({LCMX_TOOL, "monitor", "--once", "--filter", "(unclosed"});
   CHECK(filter.rc == 2);
-  CHECK(has(filter.out, "bad --filter expression"));
+  CHECK(contains(filter.out, "bad --filter expression"));
   const auto sort = s.run({LCMX_TOOL, "monitor", "--once", "--sort", "colour"});
   CHECK(sort.rc == 2);
-  CHECK(has(sort.out, "unknown --sort column 'colour'"));
+  CHECK(contains(sort.out, "unknown --sort column 'colour'"));
   const auto types = s.run({LCMX_TOOL, "monitor", "--once", "--types", "/nonexistent/dir"});
   CHECK(types.rc == 2);
-  CHECK(has(types.out, "/nonexistent/dir"));
+  CHECK(contains(types.out, "/nonexistent/dir"));
   const auto watch = s.run({LCMX_TOOL, "graph", "--watch"});
   CHECK(watch.rc == 2);
-  CHECK(has(watch.out, "--watch rewrites a file"));
+  CHECK(contains(watch.out, "--watch rewrites a file"));
   const auto svg = s.run({LCMX_TOOL, "graph", "--format", "svg"});
   CHECK(svg.rc == 2);
-  CHECK(has(svg.out, "needs -o FILE"));
+  CHECK(contains(svg.out, "needs -o FILE"));
 }

@@ -10,6 +10,7 @@
 #include <catch2/catch.hpp>
 #include <dirent.h>
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <poll.h>
 #include <signal.h>
 #include <spawn.h>
@@ -23,6 +24,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <fstream>
 #include <functional>
 #include <map>
 #include <memory>
@@ -100,6 +102,32 @@ inline bool wait_until(const std::function<bool()>& pred, ms timeout, ms step = 
     std::this_thread::sleep_for(step);
   }
 }
+
+inline bool contains(const std::string& s, const std::string& what) { return s.find(what) != std::string::npos; }
+
+// LCM's default URL: what stock LCM programs use when LCM_DEFAULT_URL is not set.
+inline const std::string kLcmDefaultUrl = "udpm://239.255.76.67:7667?ttl=0";
+
+// A fresh directory under /tmp (mode 0755: stock LCM tools and peers write into it too),
+// removed with everything in it when the test leaves its scope, failed or not.
+struct TmpDir {
+  std::string path;
+  TmpDir() {
+    char t[] = "/tmp/lcmx_it_XXXXXX";
+    REQUIRE(::mkdtemp(t) != nullptr);
+    path = t;
+    ::chmod(path.c_str(), 0755);
+  }
+  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
+  TmpDir(const TmpDir&) = delete;
+  TmpDir& operator=(const TmpDir&) = delete;
+  std::string file(const std::string& name) const { return path + "/" + name; }
+  // Writes `text` into the file `name` here; returns its path.
+  std::string write(const std::string& name, const std::string& text) const {
+    std::ofstream(file(name)) << text;
+    return file(name);
+  }
+};
 
 inline bool contains_any(const std::string& s, std::initializer_list<const char*> words) {
   for (const char* w : words)

@@ -14,19 +14,6 @@ using namespace lcmx::it;
 
 namespace {
 
-bool json_contains(const std::string& s, const std::string& what) { return s.find(what) != std::string::npos; }
-
-struct JsonTmpDir {
-  std::string path;
-  JsonTmpDir() {
-    char t[] = "/tmp/lcmx_it_json_XXXXXX";
-    REQUIRE(::mkdtemp(t) != nullptr);
-    path = t;
-  }
-  ~JsonTmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
-  std::string file(const std::string& n) const { return path + "/" + n; }
-};
-
 // The first line of `out` that starts with '{'.
 std::string first_json(const std::string& out) {
   std::istringstream in(out);
@@ -37,7 +24,7 @@ std::string first_json(const std::string& out) {
 
 // Parses `json` with python3's json module and prints the Python expression `expr` over it
 // (`d` is the document); the printed value, without the newline. FAILs if it does not parse.
-std::string py(Session& s, const JsonTmpDir& d, const std::string& json, const std::string& expr) {
+std::string py(Session& s, const TmpDir& d, const std::string& json, const std::string& expr) {
   const auto f = d.file("doc.json");
   std::ofstream(f) << json;
   const auto r = s.run({LCMX_PYTHON3, "-c", "import json,sys; d=json.load(open(sys.argv[1])); print(" + expr + ")", f},
@@ -52,7 +39,7 @@ std::string py(Session& s, const JsonTmpDir& d, const std::string& json, const s
 
 TEST_CASE("lcmx topics and nodes: package-qualified type names from the type path, and --json", "[integration][cli]") {
   Session s(123);
-  JsonTmpDir d;
+  TmpDir d;
   const auto ch = unique_channel("QUAL", 123);
   const auto raw = unique_channel("RAWCH", 123);
   auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "50", "--node", "camera",
@@ -65,32 +52,32 @@ TEST_CASE("lcmx topics and nodes: package-qualified type names from the type pat
   const auto plain = s.run({LCMX_TOOL, "--url", s.url, "topics"}, {"LCMX_TYPES_PATH"});
   INFO(plain.out);
   CHECK(plain.rc == 0);
-  CHECK(json_contains(plain.out, ch + "  [pose_t]  1 publisher(s), 1 subscriber(s)"));
+  CHECK(contains(plain.out, ch + "  [pose_t]  1 publisher(s), 1 subscriber(s)"));
 
   // --types: the package-qualified name, found by fingerprint.
   const auto topics = s.run({LCMX_TOOL, "--url", s.url, "topics", "--types", LCMX_LCMTYPES_DIR}, {"LCMX_TYPES_PATH"});
   INFO(topics.out);
   CHECK(topics.rc == 0);
-  CHECK(json_contains(topics.out, ch + "  [lcmx_examples.pose_t]  1 publisher(s), 1 subscriber(s)"));
+  CHECK(contains(topics.out, ch + "  [lcmx_examples.pose_t]  1 publisher(s), 1 subscriber(s)"));
   // LCMX_TYPES_PATH does the same for nodes.
   const auto nodes = s.run({LCMX_TOOL, "--url", s.url, "nodes"}, {std::string("LCMX_TYPES_PATH=") + LCMX_LCMTYPES_DIR});
   INFO(nodes.out);
   CHECK(nodes.rc == 0);
-  CHECK(json_contains(nodes.out, "pub " + ch + "  [lcmx_examples.pose_t]"));
-  CHECK(json_contains(nodes.out, "sub " + ch + "  [lcmx_examples.pose_t]"));
+  CHECK(contains(nodes.out, "pub " + ch + "  [lcmx_examples.pose_t]"));
+  CHECK(contains(nodes.out, "sub " + ch + "  [lcmx_examples.pose_t]"));
   // A type path without the type: lcm-gen's name again.
   std::ofstream(d.file("other.lcm")) << "package elsewhere;\nstruct thing_t { int32_t x; }\n";
   const auto other = s.run({LCMX_TOOL, "--url", s.url, "topics", "--types", d.file("other.lcm")});
-  CHECK(json_contains(other.out, ch + "  [pose_t]"));
+  CHECK(contains(other.out, ch + "  [pose_t]"));
   // An explicit --types that does not load is an error; a broken LCMX_TYPES_PATH a warning.
   std::ofstream(d.file("bad.lcm")) << "package p;\nstruct s_t { int32_t x }\n";
   const auto bad = s.run({LCMX_TOOL, "--url", s.url, "topics", "--types", d.file("bad.lcm")});
   CHECK(bad.rc == 2);
-  CHECK(json_contains(bad.out, "lcmx topics: --types: " + d.file("bad.lcm") + ":"));
+  CHECK(contains(bad.out, "lcmx topics: --types: " + d.file("bad.lcm") + ":"));
   const auto warn = s.run({LCMX_TOOL, "--url", s.url, "topics"}, {"LCMX_TYPES_PATH=" + d.file("bad.lcm")});
   CHECK(warn.rc == 0);
-  CHECK(json_contains(warn.out, "warning: LCMX_TYPES_PATH"));
-  CHECK(json_contains(warn.out, ch + "  [pose_t]"));
+  CHECK(contains(warn.out, "warning: LCMX_TYPES_PATH"));
+  CHECK(contains(warn.out, ch + "  [pose_t]"));
 
   // --json: one document, parsed by python.
   const auto tj = s.run({LCMX_TOOL, "--url", s.url, "topics", "--json", "--types", LCMX_LCMTYPES_DIR});
@@ -126,7 +113,7 @@ TEST_CASE("lcmx topics and nodes: package-qualified type names from the type pat
 
 TEST_CASE("lcmx bridge with --json: --check, keygen and status of a live bridge", "[integration][cli]") {
   Session s(124, 30000ms);
-  JsonTmpDir d;
+  TmpDir d;
   const int port = 21000 + static_cast<int>(::getpid() % 20000) * 2;
   const std::string name = "b" + std::to_string(::getpid());
   std::ofstream(d.file("good.toml")) << "name = \"" << name << "\"\nlisten = [\"127.0.0.1\"]\ncontrol_port = " << port
@@ -138,7 +125,7 @@ TEST_CASE("lcmx bridge with --json: --check, keygen and status of a live bridge"
   const auto gdoc = first_json(good.out);
   // The same facts as the text verdict ("...: ok: bridge NAME, N channel(s), M peer(s)").
   const auto text = s.run({LCMX_TOOL, "bridge", "--config", d.file("good.toml"), "--check"}, {"LCMX_VEHICLE_URL"});
-  CHECK(json_contains(text.out, ": ok: bridge " + name + ", " + py(s, d, gdoc, "d['channels']") + " channel(s), " +
+  CHECK(contains(text.out, ": ok: bridge " + name + ", " + py(s, d, gdoc, "d['channels']") + " channel(s), " +
                                py(s, d, gdoc, "d['peers']") + " peer(s)\n"));
   CHECK(py(s, d, gdoc, "(d['ok'], d['name'], d['curve'])") == "(True, '" + name + "', False)");
   const auto bad = s.run({LCMX_TOOL, "bridge", "--config", d.file("bad.toml"), "--check", "--json"}, {"LCMX_VEHICLE_URL"});
@@ -154,7 +141,7 @@ TEST_CASE("lcmx bridge with --json: --check, keygen and status of a live bridge"
   const std::string pubkey{std::istreambuf_iterator<char>(pubf), std::istreambuf_iterator<char>()};
   const auto key_json = py(s, d, kdoc, "d['public_key']");
   CHECK(key_json.size() == 40);  // Z85 CURVE key
-  CHECK(json_contains(pubkey, key_json));
+  CHECK(contains(pubkey, key_json));
 
   // No bridge: an empty list and exit 1.
   const auto none = s.run({LCMX_TOOL, "bridge", "status", "--url", s.url, "--wait", "100", "--json"}, {"LCMX_VEHICLE_URL"});
