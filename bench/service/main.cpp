@@ -659,7 +659,7 @@ int main(int argc, char** argv) {
   CLI::App app{
       "lcmx_bench_service: service round trip (p50/p99) and calls/s, lcmx vs ZeroMQ REQ/REP and two lcmx\n"
       "one-way shm messages, on one host and (root) between two emulated hosts. Markdown on stdout."};
-  std::string role, url, vehicle, name, endpoint, cases_text, markdown, tcp_cc = "cubic", pin = "none";
+  std::string role, url, vehicle, name, endpoint, cases_text, markdown, tcp_cc = "cubic", pin = "none", link_rate;
   int calls = 2000, big_calls = 200, clients = 8, rounds = 1;
   double seconds = 3;
   bool no_hosts = false, settle_bridge = false, interleave = false;
@@ -681,6 +681,10 @@ int main(int argc, char** argv) {
                  "two hosts: their TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. "
                  "bbr, whose pacing slows 1 MB bursts; bench/README.md)")
       ->capture_default_str();
+  app.add_option("--link-rate", link_rate,
+                 "two hosts: shape the link to this tc rate (e.g. 10gbit, the vehicle's 10 GbE; a tbf qdisc at "
+                 "each sender, as lcmx_bench_bridge --link-rate); \"\" = not rate-limited (a veth: memory speed)")
+      ->capture_default_str();
   app.add_option("--pin", pin,
                  "two hosts: none, or split: host A's processes (client, its bridge) on CPU 0, host B's "
                  "(server, its bridge) on CPU 1, as if each host had its own CPU (bench/README.md)")
@@ -697,6 +701,16 @@ int main(int argc, char** argv) {
   app.add_flag("--settle-bridge", settle_bridge)->group("");
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::warn);
+#ifdef LCMX_BENCH_WITH_NETNS
+  if (!link_rate.empty()) {
+    try {
+      (void)lcmx::test::rate_bytes_per_second(link_rate);
+    } catch (const std::exception& e) {
+      std::cerr << "--link-rate: " << e.what() << "\n";
+      return 2;
+    }
+  }
+#endif
   struct sigaction sa {};
   sa.sa_handler = on_signal;
   for (int s : {SIGINT, SIGTERM}) ::sigaction(s, &sa, nullptr);
@@ -795,7 +809,10 @@ int main(int argc, char** argv) {
       md << "Two hosts: skipped (" << why << ")\n";
     } else {
       auto emu = lcmx::test::Emulation::create(
-          {.hosts = 2, .links = {lcmx::test::LinkSpec{.name = "eth"}}, .tcp_congestion = tcp_cc});
+          {.hosts = 2,
+           .links = {lcmx::test::LinkSpec{.name = "eth",
+                                          .rate = link_rate.empty() ? std::nullopt : std::optional(link_rate)}},
+           .tcp_congestion = tcp_cc});
       // --pin split: host A (index 0: the clients, bridge svcA) on CPU 0, host B (index 1: the
       // servers, bridge svcB) on CPU 1. The orchestrator (this process) stays unpinned.
       const int cpu_a = pin == "split" ? 0 : -1, cpu_b = pin == "split" ? 1 : -1;
@@ -935,7 +952,9 @@ int main(int argc, char** argv) {
         if (!r.empty()) rows.push_back(median_of(r));
       std::string cc;
       emu.run_in(0, [&] { std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> cc; });
-      md << table("Two emulated hosts, one veth link, TCP congestion control " + cc +
+      md << table("Two emulated hosts, one veth link " +
+                      (link_rate.empty() ? std::string("(not rate-limited)") : "shaped to " + link_rate + " (tc tbf)") +
+                      ", TCP congestion control " + cc +
                       (pin == "split" ? ", host A on CPU 0 and host B on CPU 1 (--pin split)" : "") +
                       " (ratios against ZeroMQ tcp)" +
                       (rounds > 1 ? " — medians of " + std::to_string(rounds) + " rounds" : std::string()),
@@ -948,7 +967,8 @@ int main(int argc, char** argv) {
         if (runs[m].empty()) continue;
         for (const auto& c : cases) {
           const auto key = case_key(c);
-          targets += target_line("two hosts" + std::string(pin == "split" ? " (split)" : "") + ", " + case_label(c) +
+          targets += target_line("two hosts" + std::string(pin == "split" ? " (split)" : "") +
+                                   (link_rate.empty() ? std::string() : ", link " + link_rate) + ", " + case_label(c) +
                                      ": " + runs[m].front().method + " ≤ 1.2x ZeroMQ REQ/REP tcp",
                                  median_round_ratio(runs[m], runs[3], key), 1.2, false);
         }

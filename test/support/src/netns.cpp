@@ -388,24 +388,6 @@ std::string ip_string(std::uint32_t host_order) {
 }
 
 // tc rate ("1gbit", "400mbit", "10gbps", "125000bps", "1e9bit"...) in bytes per second.
-double rate_bytes_per_second(const std::string& r) {
-  std::size_t pos = 0;
-  double v = 0;
-  try {
-    v = std::stod(r, &pos);
-  } catch (const std::exception&) {
-    throw SetupError("rate '" + r + "': not a tc rate (e.g. 1gbit, 400mbit, 10gbps)");
-  }
-  std::string unit = r.substr(pos);
-  for (auto& c : unit) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  static const std::pair<const char*, double> units[] = {
-      {"", 1.0 / 8},   {"bit", 1.0 / 8}, {"kbit", 1e3 / 8}, {"mbit", 1e6 / 8}, {"gbit", 1e9 / 8},
-      {"tbit", 1e12 / 8}, {"bps", 1.0},  {"kbps", 1e3},     {"mbps", 1e6},     {"gbps", 1e9},
-      {"tbps", 1e12}};
-  for (const auto& [u, f] : units)
-    if (unit == u && v > 0) return v * f;
-  throw SetupError("rate '" + r + "': not a tc rate (e.g. 1gbit, 400mbit, 10gbps)");
-}
 
 void validate_token(const std::string& what, const std::string& v) {
   const bool ok = !v.empty() && v.size() < 32 && std::all_of(v.begin(), v.end(), [](char c) {
@@ -432,6 +414,25 @@ std::optional<std::string> probe_in_scratch_ns(const std::vector<std::string>& a
 std::atomic<unsigned> g_serial{0};
 
 }  // namespace
+
+double rate_bytes_per_second(const std::string& r) {
+  std::size_t pos = 0;
+  double v = 0;
+  try {
+    v = std::stod(r, &pos);
+  } catch (const std::exception&) {
+    throw SetupError("rate '" + r + "': not a tc rate (e.g. 1gbit, 400mbit, 10gbps)");
+  }
+  std::string unit = r.substr(pos);
+  for (auto& c : unit) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  static const std::pair<const char*, double> units[] = {
+      {"", 1.0 / 8},   {"bit", 1.0 / 8}, {"kbit", 1e3 / 8}, {"mbit", 1e6 / 8}, {"gbit", 1e9 / 8},
+      {"tbit", 1e12 / 8}, {"bps", 1.0},  {"kbps", 1e3},     {"mbps", 1e6},     {"gbps", 1e9},
+      {"tbps", 1e12}};
+  for (const auto& [u, f] : units)
+    if (unit == u && v > 0) return v * f;
+  throw SetupError("rate '" + r + "': not a tc rate (e.g. 1gbit, 400mbit, 10gbps)");
+}
 
 // ---------------------------------------------------------------------------------------------
 ScopedNetns::ScopedNetns(int netns_fd) {

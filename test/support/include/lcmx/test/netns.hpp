@@ -193,6 +193,10 @@ class Emulation {
 // Whether network namespaces can be created here; if not, `why` (if given) says why
 // (not root / no CAP_SYS_ADMIN, `ip` missing, unshare(CLONE_NEWNET) refused, ...). Cached.
 bool netns_available(std::string* why = nullptr);
+// Bytes per second of a tc rate as LinkSpec::rate takes it ("10gbit", "400mbit", "1gbps"; a bare
+// number is bits). Throws SetupError naming the rate when it is not one; for checking a user's
+// option before any namespace is made.
+double rate_bytes_per_second(const std::string& rate);
 // Whether LinkSpec::delay can work (the kernel has the netem qdisc). Cached.
 bool delay_available(std::string* why = nullptr);
 
