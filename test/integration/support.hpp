@@ -37,6 +37,8 @@
 #include <thread>
 #include <vector>
 
+#include "lcmx/test/tmp_dir.hpp"
+
 extern char** environ;
 
 namespace lcmx::it {
@@ -108,25 +110,10 @@ inline bool contains(const std::string& s, const std::string& what) { return s.f
 // LCM's default URL: what stock LCM programs use when LCM_DEFAULT_URL is not set.
 inline const std::string kLcmDefaultUrl = "udpm://239.255.76.67:7667?ttl=0";
 
-// A fresh directory under /tmp (mode 0755: stock LCM tools and peers write into it too),
-// removed with everything in it when the test leaves its scope, failed or not.
-struct TmpDir {
-  std::string path;
-  TmpDir() {
-    char t[] = "/tmp/lcmx_it_XXXXXX";
-    REQUIRE(::mkdtemp(t) != nullptr);
-    path = t;
-    ::chmod(path.c_str(), 0755);
-  }
-  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
-  TmpDir(const TmpDir&) = delete;
-  TmpDir& operator=(const TmpDir&) = delete;
-  std::string file(const std::string& name) const { return path + "/" + name; }
-  // Writes `text` into the file `name` here; returns its path.
-  std::string write(const std::string& name, const std::string& text) const {
-    std::ofstream(file(name)) << text;
-    return file(name);
-  }
+// A fresh /tmp/lcmx_it_* directory (mode 0755: stock LCM tools and peers write into it too),
+// removed when the test leaves its scope.
+struct TmpDir : lcmx::test::TmpDir {
+  TmpDir() : lcmx::test::TmpDir("lcmx_it", 0755) {}
 };
 
 inline bool contains_any(const std::string& s, std::initializer_list<const char*> words) {

@@ -11,20 +11,14 @@
 #include <vector>
 
 #include "lcmx/log/eventlog.hpp"
+#include "lcmx/test/tmp_dir.hpp"
 
 namespace el = lcmx::eventlog;
 
 namespace {
 
-struct TmpDir {
-  std::string path;
-  TmpDir() {
-    char t[] = "/tmp/lcmx_eventlog_XXXXXX";
-    REQUIRE(::mkdtemp(t) != nullptr);
-    path = t;
-  }
-  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
-  std::string file(const std::string& n) const { return path + "/" + n; }
+struct TmpDir : lcmx::test::TmpDir {
+  TmpDir() : lcmx::test::TmpDir("lcmx_eventlog") {}
 };
 
 std::vector<char> slurp(const std::string& p) {

@@ -3,6 +3,7 @@
 // The lo-routed variants are in test/integration/log_test.cpp.
 #include "lcmx/log/eventlog.hpp"
 #include "lcmx/test/catch_netns.hpp"
+#include "lcmx/test/tmp_dir.hpp"
 #include "lcmx_examples/bench_t.hpp"
 #include "multihost.hpp"
 
@@ -11,15 +12,8 @@ namespace el = lcmx::eventlog;
 
 namespace {
 
-struct TmpDir {
-  std::string path;
-  TmpDir() {
-    char t[] = "/tmp/lcmx_mh_logs_XXXXXX";
-    REQUIRE(::mkdtemp(t) != nullptr);
-    path = t;
-  }
-  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
-  std::string file(const std::string& n) const { return path + "/" + n; }
+struct TmpDir : lcmx::test::TmpDir {
+  TmpDir() : lcmx::test::TmpDir("lcmx_mh_logs") {}
 };
 
 std::vector<el::Event> read_log(const std::string& path) {
