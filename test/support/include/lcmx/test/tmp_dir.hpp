@@ -8,7 +8,8 @@
 #include <sys/types.h>
 #include <unistd.h>
 
-#include <cstdlib>
+#include <cstdlib>  // mkdtemp
+#include <filesystem>
 #include <fstream>
 #include <string>
 
@@ -24,7 +25,10 @@ struct TmpDir {
     path = t;
     if (mode != 0700) ::chmod(path.c_str(), mode);
   }
-  ~TmpDir() { std::system(("rm -rf '" + path + "'").c_str()); }
+  ~TmpDir() {
+    std::error_code ec;  // a destructor must not throw; a leftover shows in /tmp
+    std::filesystem::remove_all(path, ec);
+  }
   TmpDir(const TmpDir&) = delete;
   TmpDir& operator=(const TmpDir&) = delete;
   std::string file(const std::string& name) const { return path + "/" + name; }
