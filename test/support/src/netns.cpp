@@ -387,8 +387,6 @@ std::string ip_string(std::uint32_t host_order) {
   return buf;
 }
 
-// tc rate ("1gbit", "400mbit", "10gbps", "125000bps", "1e9bit"...) in bytes per second.
-
 void validate_token(const std::string& what, const std::string& v) {
   const bool ok = !v.empty() && v.size() < 32 && std::all_of(v.begin(), v.end(), [](char c) {
     return std::isalnum(static_cast<unsigned char>(c)) || c == '.';
@@ -415,6 +413,7 @@ std::atomic<unsigned> g_serial{0};
 
 }  // namespace
 
+// tc rate ("1gbit", "400mbit", "10gbps", "125000bps", "1e9bit"...) in bytes per second.
 double rate_bytes_per_second(const std::string& r) {
   std::size_t pos = 0;
   double v = 0;
