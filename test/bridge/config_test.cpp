@@ -10,6 +10,7 @@
 
 #include "lcmx/bridge/config.hpp"
 #include "lcmx/bridge/detail/wire.hpp"
+#include "lcmx/test/skip.hpp"
 
 using namespace lcmx::bridge;
 namespace fs = std::filesystem;
@@ -217,10 +218,7 @@ TEST_CASE("a missing config file or a directory is a clear error", "[bridge][con
 }
 
 TEST_CASE("CURVE keys: keygen files, config with keys, wrong pairs and bad files", "[bridge][config][curve]") {
-  if (!curve_available()) {
-    WARN("skipped: libzmq without CURVE");
-    return;
-  }
+  if (!curve_available()) LCMX_SKIP("libzmq without CURVE");
   TempDir dir;
   const auto a = generate_key_pair(), b = generate_key_pair();
   CHECK(a.public_key.size() == 40);
