@@ -1648,31 +1648,36 @@ TEST_CASE("a configured peer cannot speak in another peer's name, on control or 
   LCMX_REQUIRE_NETNS();
   World w(3, 66, {{.name = "eth"}});
   const auto ch = w.channel("ATK_NAME");
-  // C (host 2) is a peer of both, and runs no bridge: only the attacker.
+  // C (host 2) is a peer of both and runs no bridge: only the attacker, from C's own address.
   auto& ba = w.bridge(0, {1, 2});
   auto& bb = w.bridge(1, {0, 2});
   auto& sub = w.sub(1, {ch});
   auto& pub = w.pub(0, ch, 70000, "A");
+  warm_up(pub, {&sub}, ch);
+  INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  // Data into B's shared memory in A's name.
+  auto& data = attacker(w, 2, {"data", "--to", w.emu().address(1, "eth"), "--port", "7701", "--as", "chipA",
+                               "--topic", ch, "--count", "20", "--interval-ms", "10", "--id", "EVIL"});
+  REQUIRE(data.expect("DONE", 15000ms));
+  CHECK_FALSE(injected_or_refused(sub, ch, "EVIL", bb, "claiming to be chipA"));
+  // Pings to A in B's name: B's demand at A stays (no "restarted", no answer to C).
+  auto& ping = attacker(w, 2, {"ping", "--to", w.emu().address(0, "eth"), "--port", "7700", "--as", "chipB",
+                               "--count", "50", "--interval-ms", "20"});
+  REQUIRE(ping.expect("DONE", 15000ms));
+  CHECK(ping.seen("PONGS 0"));
+  CHECK(log_has(ba, "claiming to be chipB", 5000ms));
+  CHECK_FALSE(log_has(ba, "peer chipB restarted", 0ms));
+  // (Connecting with another peer's routing id may take over that peer's connection
+  // (ZMQ_ROUTER_HANDOVER) until it reconnects: docs/bridge.md "Trust". Traffic resumes.)
   const long long warm = warm_up(pub, {&sub}, ch);
   auto [st0, drained] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms);
   REQUIRE(drained);
-  auto& ping = attacker(w, 2, {"ping", "--to", w.emu().address(0, "eth"), "--port", "7700", "--as", "chipB",
-                               "--count", "100", "--interval-ms", "20"});
-  auto& data = attacker(w, 2, {"data", "--to", w.emu().address(1, "eth"), "--port", "7701", "--as", "chipA",
-                               "--topic", ch, "--count", "20", "--interval-ms", "10", "--id", "EVIL"});
-  constexpr long kN = 100;
-  pub.send(pub_cmd(kN, 50));
-  REQUIRE(published_total(pub) == warm + kN);
-  REQUIRE(ping.expect("DONE", 15000ms));
-  REQUIRE(data.expect("DONE", 15000ms));
-  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= st0.num("received") + kN; },
+  pub.send(pub_cmd(20, 100));
+  REQUIRE(published_total(pub) == warm + 20);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= st0.num("received") + 20; },
                            10000ms);
-  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
   CHECK(ok);
   check_clean(st);
   CHECK(sources_of(st).count("EVIL") == 0);
-  CHECK(ping.seen("PONGS 0"));
-  CHECK(log_has(ba, "claiming to be chipB", 0ms));
-  CHECK(log_has(bb, "claiming to be chipA", 0ms));
   pub.send("quit");
 }
