@@ -132,10 +132,12 @@ class Printer {
     const Decoded d = decode(m);
     std::string out;
     if (!o_.no_header || !d.error.empty()) {
-      out = "--- " + std::string(m.channel) + "  " + format_us(now) + "  " + std::to_string(m.data.size()) + " bytes";
-      if (d.type) out += "  " + d.type->full_name();
+      // The channel name is whatever the sender chose: escaped (safe_text.hpp), as every name
+      // from the network or a file the tools print.
+      out = "--- " + printable(m.channel) + "  " + format_us(now) + "  " + std::to_string(m.data.size()) + " bytes";
+      if (d.type) out += "  " + printable(d.type->full_name());
       else if (d.fingerprint) out += "  fingerprint " + hex_fingerprint(*d.fingerprint);
-      if (!d.error.empty()) out += "  (" + d.error + ")";
+      if (!d.error.empty()) out += "  (" + printable(d.error) + ")";
       out += '\n';
     }
     if (o_.raw) {
