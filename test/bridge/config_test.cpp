@@ -66,6 +66,9 @@ TEST_CASE("the example config is valid and means what its comments say", "[bridg
   CHECK(c.channels[0].priority == 1);
   CHECK(c.channels[0].hwm == 100);
   CHECK(c.channels[1].hwm == 4);
+  CHECK(c.channels[0].max_keep == 16);
+  CHECK(c.channels[1].max_keep == 2);
+  CHECK(c.max_catalogue == 256);
   REQUIRE(c.peers.size() == 1);
   CHECK(c.peers[0].endpoints.size() == 2);
   CHECK(c.peers[0].endpoints[0].link == "pcie");
