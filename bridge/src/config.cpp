@@ -238,7 +238,9 @@ void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bo
   // directory entry, never what a symbolic link there points to. A target that exists is
   // refused unless `overwrite`, and refused even then when it is not a regular file (a link
   // planted at chipA.key would otherwise be followed, or silently replaced).
-  auto write = [&](const std::filesystem::path& p, const std::string& key, mode_t mode, const char* what) {
+  const std::filesystem::path secret(prefix.string() + ".key"), pub(prefix.string() + ".pub");
+  // Both targets are checked before either is written.
+  for (const auto& p : {secret, pub}) {
     struct stat st {};
     if (::lstat(p.c_str(), &st) == 0) {
       if (S_ISLNK(st.st_mode)) throw ConfigError(p.string() + ": is a symbolic link: refused (remove it first)");
@@ -247,6 +249,8 @@ void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bo
     } else if (errno != ENOENT) {
       throw ConfigError(p.string() + ": cannot create: " + std::strerror(errno));
     }
+  }
+  auto write = [&](const std::filesystem::path& p, const std::string& key, mode_t mode, const char* what) {
     std::string tmp = p.string() + ".XXXXXX";
     const int fd = ::mkostemp(tmp.data(), O_CLOEXEC);  // mode 0600, O_EXCL
     if (fd < 0) throw ConfigError(p.string() + ": cannot create: " + std::strerror(errno));
@@ -265,8 +269,8 @@ void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bo
     if (!overwrite || r != 0) ::unlink(tmp.c_str());
     if (r != 0) throw ConfigError(p.string() + ": cannot create: " + std::strerror(re));
   };
-  write(std::filesystem::path(prefix.string() + ".key"), keys.secret_key, 0600, "secret");
-  write(std::filesystem::path(prefix.string() + ".pub"), keys.public_key, 0644, "public");
+  write(secret, keys.secret_key, 0600, "secret");
+  write(pub, keys.public_key, 0644, "public");
 }
 
 std::string read_key_file(const std::filesystem::path& file, KeyFile kind) {

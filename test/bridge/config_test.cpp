@@ -313,10 +313,14 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   CHECK_FALSE(wire::decode("LCMXB1 PING\nfrom a\ninstance 1\nlink l\nt 1\n"));       // short instance
   CHECK_FALSE(wire::decode("LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nwant X\n"));  // no demand
   CHECK_FALSE(wire::decode(std::string(wire::kMaxControlFrame + 1, 'x')));
-  // Truncations of a valid frame never crash, and what still decodes (a cut after a whole line)
-  // says nothing the frame did not: the same sender, and a part of each of its sets.
+  // Truncations of a valid frame never crash, and what still decodes (a cut at the end of a
+  // line, or inside a topic, which leaves a shorter valid one: ZeroMQ never delivers a cut
+  // frame, so this is only the parser's robustness) says nothing the frame did not: the same
+  // sender, instance, link and port, and every topic a prefix of one the frame named.
   auto subset = [](const auto& part, const auto& whole) {
-    return std::includes(whole.begin(), whole.end(), part.begin(), part.end());
+    return std::all_of(part.begin(), part.end(), [&](const std::string& t) {
+      return std::any_of(whole.begin(), whole.end(), [&](const std::string& w) { return w.rfind(t, 0) == 0; });
+    });
   };
   std::size_t decoded = 0;
   for (std::size_t n = 0; n < text.size(); ++n) {
@@ -327,7 +331,7 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
     CHECK(t->from == "chipA");
     CHECK(t->instance == c.instance);
     CHECK(t->link == "pcie");
-    CHECK(t->control_port == 7700);
+    if (t->has_demand) CHECK(t->control_port == 7700);  // else a heartbeat without the state: 0
     CHECK(subset(t->want, c.want));
     CHECK(subset(t->offer, c.offer));
     CHECK(subset(t->have, c.have));
