@@ -1669,13 +1669,13 @@ TEST_CASE("a configured peer cannot speak in another peer's name, on control or 
   CHECK_FALSE(log_has(ba, "peer chipB restarted", 0ms));
   // (Connecting with another peer's routing id may take over that peer's connection
   // (ZMQ_ROUTER_HANDOVER) until it reconnects: docs/bridge.md "Trust". Traffic resumes.)
+  // (A message in flight when a connection is taken over is lost: what is asserted is that
+  // A's traffic reaches B again, once and in order, and that nothing of C's ever does.)
   const long long warm = warm_up(pub, {&sub}, ch);
-  auto [st0, drained] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms);
-  REQUIRE(drained);
   pub.send(pub_cmd(20, 100));
   REQUIRE(published_total(pub) == warm + 20);
-  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= st0.num("received") + 20; },
-                           10000ms);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm + 19; }, 10000ms);
+  INFO("subscriber:\n" << sub.output());
   CHECK(ok);
   check_clean(st);
   CHECK(sources_of(st).count("EVIL") == 0);
