@@ -18,6 +18,13 @@ Bridge::Impl::Impl(Config c, RuntimeOptions o)
   if (instance == 0) instance = 1;
 }
 
+std::string routing_id(const std::string& prefix) {
+  static thread_local std::mt19937_64 rng{std::random_device{}() ^ static_cast<std::uint64_t>(now_ns())};
+  std::uint64_t r = rng();
+  if (r == 0) r = 1;
+  return prefix + "/" + hex64(r);
+}
+
 // A Config built in code (not by load_config) gets the same limits.
 Config Bridge::Impl::check_limits(Config c) {
   if (c.channels.empty() || c.channels.size() > kMaxChannels)
@@ -151,7 +158,7 @@ void Bridge::Impl::start() {
     for (auto& l : p->links) {
       l->ctl = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::dealer);
       client_options(*l->ctl, *p);
-      l->ctl->set(zmq::sockopt::routing_id, cfg.name + "/" + l->cfg.link);
+      l->ctl->set(zmq::sockopt::routing_id, routing_id(cfg.name + "/" + l->cfg.link));
       l->ctl->set(zmq::sockopt::sndhwm, 4);
       l->ctl->set(zmq::sockopt::rcvhwm, kControlRcvHwm);  // pongs
       l->ctl->set(zmq::sockopt::maxmsgsize, static_cast<std::int64_t>(wire::kMaxControlFrame));

@@ -18,7 +18,7 @@ using namespace std::chrono_literals;
 std::unique_ptr<zmq::socket_t> Bridge::Impl::make_data_dealer(const Peer& p, const Channel& ch, const Link& l) {
   auto s = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::dealer);
   client_options(*s, p);
-  s->set(zmq::sockopt::routing_id, cfg.name);
+  s->set(zmq::sockopt::routing_id, routing_id(cfg.name));
   s->set(zmq::sockopt::sndhwm, 2);  // our own queue holds the rest (drop policy)
   // Nothing is read from a data DEALER: whatever a peer sends back waits in TCP.
   s->set(zmq::sockopt::rcvhwm, 1);
@@ -300,10 +300,11 @@ void Bridge::Impl::receive_data(Channel& ch) {
     }
     // The front door: sizes first (nothing is copied out of a frame before its size is
     // checked), then the sender's name against its connection's, then the contents.
-    const std::string_view id_view = parts[0].to_string_view();
+    const std::string_view id_view = routing_name(parts[0].to_string_view());
     auto it = id_view.size() <= 32 ? peer_by_name.find(std::string(id_view)) : peer_by_name.end();
     if (it == peer_by_name.end()) {
-      count_bad("channel " + ch.cfg.name + ": data from unknown bridge '" + printable(id_view, 40) + "'");
+      count_bad("channel " + ch.cfg.name + ": data from unknown bridge '" + printable(parts[0].to_string_view(), 40) +
+                "'");
       continue;
     }
     const std::string& id = it->first;

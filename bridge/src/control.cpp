@@ -189,8 +189,10 @@ void Bridge::Impl::receive_control() {
     }
     // The name a ping claims (`from`) must be the connection's: the peer the ZAP handler
     // admitted it as (User-Id: its address, and with CURVE its key), and the routing id its
-    // control DEALER set ("<name>/<link>"), which our pong goes back to.
-    if (id.to_string_view() != c->from + "/" + c->link || !authentic(body, c->from)) {
+    // control DEALER set ("<name>/<link>/<random>", engine.hpp routing_id), which our pong goes
+    // back to.
+    const std::string claimed_id = c->from + "/" + c->link + "/";
+    if (id.to_string_view().substr(0, claimed_id.size()) != claimed_id || !authentic(body, c->from)) {
       count_bad("control: ping from " + user_of(body) + "'s connection claiming to be " + c->from + " (routing id '" +
                 printable(id.to_string_view()) + "')");
       continue;

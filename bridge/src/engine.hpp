@@ -103,6 +103,15 @@ inline std::string hex64(std::uint64_t v) {
   return b;
 }
 
+// A DEALER's routing id: "<prefix>/<16 hex random digits>", new for every socket. The receiver
+// reads only the name before the first '/' (routing_name) and checks it against the connection's
+// peer (User-Id); the random part is what makes the routing id unguessable, so that another
+// peer cannot connect with it and take this socket's connection over (ZMQ_ROUTER_HANDOVER:
+// docs/bridge.md "Trust"). It is never sent in a message, only in the ZMTP handshake.
+std::string routing_id(const std::string& prefix);
+// The bridge name a routing id claims (up to its first '/').
+inline std::string_view routing_name(std::string_view id) { return id.substr(0, id.find('/')); }
+
 // Lowers the calling thread's scheduling priority by `nice` (Linux: per-thread niceness).
 // Raising it would need CAP_SYS_NICE; lowering never fails for lack of rights.
 inline void set_thread_nice(int nice) {

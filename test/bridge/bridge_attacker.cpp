@@ -4,11 +4,12 @@
 //
 //   lcmx_bridge_attacker ping --to ADDR --port P --as NAME [--link L] [--count N] [--interval-ms I]
 //                             [--have N --prefix X]
-//       A DEALER with routing id NAME/L sends N pings "from NAME" (a fresh instance, the demand
+//       A DEALER with routing id NAME/L/<random> (as a bridge's control DEALER) sends N pings "from NAME" (a fresh instance, the demand
 //       state with no want line, and N catalogue topics X0000, X0001, ...), one every I ms.
 //   lcmx_bridge_attacker data --to ADDR --port P --as NAME --topic T [--count N] [--interval-ms I]
 //                             [--keep K] [--size S] [--id ID]
-//       A DEALER with routing id NAME sends N data messages on T: lcmx_examples::bench_t of S
+//       A DEALER with routing id NAME (what a bridge's data DEALER used before issue 34; now
+//       NAME/<random>: both name NAME) sends N data messages on T: lcmx_examples::bench_t of S
 //       bytes whose data starts with ID (what lcmx_test_peer's sub counts in "sources"), with
 //       the header's keep K.
 //   lcmx_bridge_attacker peer --name NAME --listen ADDR --to ADDR [--port P] [--link L]
@@ -16,7 +17,8 @@
 //       A fake bridge NAME: answers pings on ADDR:P (so the target sees it up) and sends its
 //       own pings with the demand state and N catalogue topics every 100 ms, for S seconds
 //       (or until "quit" on stdin).
-// Prints "READY" once its sockets are set up, "PONGS <n>" (pongs received) and "DONE" at the end.
+// Prints "READY" once its sockets are set up, "PONGS <n>" (pongs received) or "SENT <n>" (data
+// messages ZeroMQ took) and "DONE" at the end.
 // Exit 0, or 2 on bad arguments.
 #include <poll.h>
 #include <unistd.h>
@@ -89,9 +91,16 @@ std::unique_ptr<zmq::socket_t> dealer(zmq::context_t& ctx, const std::string& ro
   return s;
 }
 
+// A control DEALER's routing id as a bridge makes it: "<name>/<link>/<16 hex>".
+std::string control_id(const Args& a) {
+  char r[20];
+  std::snprintf(r, sizeof r, "%016llx", static_cast<unsigned long long>(fresh_instance()));
+  return a.as + "/" + a.link + "/" + r;
+}
+
 int do_ping(const Args& a) {
   zmq::context_t ctx;
-  auto s = dealer(ctx, a.as + "/" + a.link, a.to, a.port);
+  auto s = dealer(ctx, control_id(a), a.to, a.port);
   std::cout << "READY" << std::endl;
   const std::uint64_t instance = fresh_instance();
   int pongs = 0;
@@ -113,6 +122,7 @@ int do_data(const Args& a) {
   m.size = std::max(a.size, 8);
   m.data.resize(static_cast<std::size_t>(m.size));
   const std::uint64_t instance = fresh_instance();
+  int sent = 0;
   for (int k = 0; k < a.count; ++k) {
     m.seq = k;
     for (std::size_t i = 8; i < m.data.size(); ++i)
@@ -122,12 +132,15 @@ int do_data(const Args& a) {
     m.encode(payload.data(), 0, static_cast<int>(payload.size()));
     unsigned char hdr[wire::kDataHeader];
     wire::encode_header({instance, static_cast<std::uint64_t>(k) + 1, a.keep}, hdr);
-    s->send(zmq::buffer(a.topic), zmq::send_flags::sndmore);
-    s->send(zmq::buffer(hdr, sizeof hdr), zmq::send_flags::sndmore);
-    s->send(zmq::buffer(payload), zmq::send_flags::none);
+    // Never blocks: a DEALER whose connection was refused has no peer to send to.
+    if (s->send(zmq::buffer(a.topic), zmq::send_flags::sndmore | zmq::send_flags::dontwait)) {
+      s->send(zmq::buffer(hdr, sizeof hdr), zmq::send_flags::sndmore);
+      s->send(zmq::buffer(payload), zmq::send_flags::none);
+      ++sent;
+    }
     std::this_thread::sleep_for(std::chrono::milliseconds(a.interval_ms));  // the attack's pace
   }
-  std::cout << "DONE" << std::endl;
+  std::cout << "SENT " << sent << "\nDONE" << std::endl;
   return 0;
 }
 
@@ -136,7 +149,7 @@ int do_peer(const Args& a) {
   zmq::socket_t router(ctx, zmq::socket_type::router);
   router.set(zmq::sockopt::linger, 0);
   router.bind("tcp://" + a.listen + ":" + std::to_string(a.port));
-  auto out = dealer(ctx, a.as + "/" + a.link, a.to, a.port);
+  auto out = dealer(ctx, control_id(a), a.to, a.port);
   out->set(zmq::sockopt::linger, 0);
   std::cout << "READY" << std::endl;
   const std::uint64_t instance = fresh_instance();
