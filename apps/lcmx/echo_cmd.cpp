@@ -209,8 +209,11 @@ int run_echo() {
     std::cerr << "lcmx echo: " << e.what() << "\n";
     return 1;
   }
-  std::cerr << "lcmx echo: listening (" << (reg.size() ? std::to_string(reg.size()) + " types" : "no types")
-            << ")" << std::endl;
+  // One write: the executor thread may already print messages on stdout (a terminal, or one
+  // pipe for both), and a line written in pieces would be cut by them.
+  const std::string listening =
+      "lcmx echo: listening (" + (reg.size() ? std::to_string(reg.size()) + " types" : std::string("no types")) + ")\n";
+  std::cerr << listening << std::flush;
   stop.wait(std::chrono::nanoseconds(-1));
   std::uint64_t drops = 0;
   for (const auto& [ch, st] : tap->stats()) drops += st.drops;
