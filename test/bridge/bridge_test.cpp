@@ -1075,10 +1075,13 @@ TEST_CASE("lcmx hz, bw, monitor --once and graph on host B see a large topic of 
   while (!(report && bw_report) && Clock::now() < deadline) {
     pub.send(pub_cmd(1, 0));
     published_total(pub);
+    // With -n 1 each tool prints its first report with data (a window of 2 messages or more)
+    // and exits: that one, whatever its window (it was "window 5" only, and failed when the
+    // first report came with fewer).
     while (auto line = hz.read_line(10ms))
-      if (!line->empty() && (*line)[0] == '{' && line->find("\"window\":5") != std::string::npos) report = line;
+      if (!line->empty() && (*line)[0] == '{') report = line;
     while (auto line = bw.read_line(10ms))
-      if (!line->empty() && (*line)[0] == '{' && line->find("\"window\":5") != std::string::npos) bw_report = line;
+      if (!line->empty() && (*line)[0] == '{') bw_report = line;
   }
   INFO(hz.text() << bw.text());
   REQUIRE(report);
