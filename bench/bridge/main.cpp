@@ -234,19 +234,6 @@ std::vector<std::string> role_args(Run& run, const std::string& role, const std:
 
 // ---- bridges ----
 
-void write_bridge_config(const std::string& path, const std::string& name, const std::string& listen,
-                         const std::string& peer, const std::string& peer_addr) {
-  std::ofstream f(path);
-  f << "# written by lcmx_bench_bridge\n"
-    << "name = \"" << name << "\"\n"
-    << "listen = [\"" << listen << "\"]\n"
-    << "control_port = 7700\nheartbeat_ms = 100\nlink_timeout_ms = 500\n\n"
-    << "[[channel]]\nname = \"bulk\"\nport = 7702\npriority = 0\nhwm = 4\ndrop = \"oldest\"\ntopics = [\"*\"]\n\n"
-    << "[[peer]]\nname = \"" << peer << "\"\n"
-    << "endpoints = [ { link = \"eth\", address = \"" << peer_addr << "\" } ]\n";
-  if (!f) throw std::runtime_error("cannot write " + path);
-}
-
 // Starts `lcmx bridge` on A and B (once per run). Readiness is proven later by probes.
 bool start_bridges(Run& run, std::vector<std::string>& errors) {
   if (!run.bridges.empty()) return true;
@@ -255,10 +242,11 @@ bool start_bridges(Run& run, std::vector<std::string>& errors) {
     return false;
   }
   try {
-    const auto a = run.emu->address(0, "eth"), b = run.emu->address(1, "eth");
-    const std::string ca = run.workdir + "/bridgeA.toml", cb = run.workdir + "/bridgeB.toml";
-    write_bridge_config(ca, "benchA", a, "benchB", b);
-    write_bridge_config(cb, "benchB", b, "benchA", a);
+    const std::string body =
+        "heartbeat_ms = 100\nlink_timeout_ms = 500\n\n"
+        "[[channel]]\nname = \"bulk\"\nport = 7702\npriority = 0\nhwm = 4\ndrop = \"oldest\"\ntopics = [\"*\"]\n";
+    const std::string ca = write_bridge_config(*run.emu, 0, run.workdir, "bench", body);
+    const std::string cb = write_bridge_config(*run.emu, 1, run.workdir, "bench", body);
     const lcmx::test::Env env{{"LCMX_DISCOVERY_URL", run.discovery_url}};
     run.bridges.push_back(run.emu->spawn(0, taskset(run.cpu_a, {run.opt.lcmx_tool, "bridge", "--config", ca}), env));
     run.bridges.push_back(run.emu->spawn(1, taskset(run.cpu_b, {run.opt.lcmx_tool, "bridge", "--config", cb}), env));

@@ -48,6 +48,23 @@ std::string hosts_line(const lcmx::test::Emulation& emu) {
   return "A " + emu.ns(0) + " (" + emu.address(0, "eth") + ") -> B " + emu.ns(1) + " (" + emu.address(1, "eth") + ")";
 }
 
+std::string write_bridge_config(const lcmx::test::Emulation& emu, int host, const std::string& dir,
+                                const std::string& prefix, const std::string& body) {
+  const char* const side[] = {"A", "B"};
+  const std::string path = dir + "/" + prefix + side[host] + ".toml";
+  std::ofstream f(path);
+  f << "# written by " << prefix << " (bench/harness)\n"
+    << "name = \"" << prefix << side[host] << "\"\n"
+    << "listen = [\"" << emu.address(host, "eth") << "\"]\n"
+    << "control_port = 7700\n"
+    << body << "\n"
+    << "[[peer]]\nname = \"" << prefix << side[1 - host] << "\"\n"
+    << "endpoints = [ { link = \"eth\", address = \"" << emu.address(1 - host, "eth") << "\" } ]\n";
+  f.close();
+  if (!f) throw std::runtime_error("cannot write " + path);
+  return path;
+}
+
 std::string tcp_congestion_of(lcmx::test::Emulation& emu, int host) {
   std::string cc;
   emu.run_in(host, [&] { std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> cc; });

@@ -37,4 +37,12 @@ std::string hosts_line(const lcmx::test::Emulation& emu);
 // The TCP congestion control a host runs (read inside its namespace).
 std::string tcp_congestion_of(lcmx::test::Emulation& emu, int host);
 
+// Writes the config of `lcmx bridge` on host `host` (0: A, 1: B) of a two-host emulation, named
+// `<prefix>A` or `<prefix>B`, listening on its "eth" address, with the other host's bridge as
+// its one peer on that link, control port 7700; `body` adds the rest (top-level keys, then
+// [[channel]] tables; docs/bridge.md "Configuration"). Returns the file's path,
+// `<dir>/<prefix><A|B>.toml`. Throws std::runtime_error when it cannot be written.
+std::string write_bridge_config(const lcmx::test::Emulation& emu, int host, const std::string& dir,
+                                const std::string& prefix, const std::string& body);
+
 }  // namespace lcmxbench

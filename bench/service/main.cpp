@@ -777,19 +777,10 @@ int main(int argc, char** argv) {
               std::filesystem::remove_all(path, ec);
             }
           } remove_dir{dir};
-          const auto a = emu.address(0, "eth"), b = emu.address(1, "eth");
-          auto config = [&](const std::string& path, const std::string& me, const std::string& listen,
-                            const std::string& peer, const std::string& peer_addr) {
-            std::ofstream f(path);
-            f << "name = \"" << me << "\"\nlisten = [\"" << listen << "\"]\ncontrol_port = 7700\n";
-            if (veh_b.empty()) f << "carry = [\"" << svc << "/*\"]\n";
-            f << "\n[[channel]]\nname = \"all\"\nport = 7702\ntopics = [\"*\"]\n\n"
-              << "[[peer]]\nname = \"" << peer << "\"\nendpoints = [ { link = \"eth\", address = \"" << peer_addr
-              << "\" } ]\n";
-            if (!f) throw std::runtime_error("cannot write " + path);
-          };
-          config(dir + "/a.toml", "svcA", a, "svcB", b);
-          config(dir + "/b.toml", "svcB", b, "svcA", a);
+          const std::string body = (veh_b.empty() ? "carry = [\"" + svc + "/*\"]\n" : std::string()) +
+                                   "\n[[channel]]\nname = \"all\"\nport = 7702\ntopics = [\"*\"]\n";
+          const std::string config_a = lcmxbench::write_bridge_config(emu, 0, dir, "svc", body);
+          const std::string config_b = lcmxbench::write_bridge_config(emu, 1, dir, "svc", body);
           lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "info"}};
           if (!veh_b.empty()) env.push_back({"LCMX_VEHICLE_URL", veh_b});
           // The bridge logs on stderr and prints only its ready line on stdout; its log lines
@@ -800,8 +791,8 @@ int main(int argc, char** argv) {
             return argv;
           };
           std::vector<lcmx::test::Child> bridges;
-          bridges.push_back(emu.spawn(0, merged(lcmxbench::taskset(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"})), env));
-          bridges.push_back(emu.spawn(1, merged(lcmxbench::taskset(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"})), env));
+          bridges.push_back(emu.spawn(0, merged(lcmxbench::taskset(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", config_a})), env));
+          bridges.push_back(emu.spawn(1, merged(lcmxbench::taskset(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", config_b})), env));
           // Ready, then linked to the other (its log line "bridge svcA: link eth to svcB ... is up").
           for (const char* n : {"A", "B"}) {
             auto& br = bridges[n[0] == 'A' ? 0 : 1];
