@@ -37,7 +37,7 @@
 #include "harness/pingpong.hpp"
 #include "harness/report.hpp"
 #include "harness/stats.hpp"
-#include "roles.hpp"
+#include "bridge/roles.hpp"
 
 #ifndef LCMX_BENCH_LCMX_TOOL
 #define LCMX_BENCH_LCMX_TOOL "lcmx"

@@ -7,7 +7,7 @@
 //    header, publish(loan, size); RawSubscriber reads the header zero-copy in its callback.
 //    Between hosts the message goes through `lcmx bridge` (started by the orchestrator).
 // See roles.hpp for the line protocol.
-#include "roles.hpp"
+#include "bridge/roles.hpp"
 
 #include <fcntl.h>
 #include <linux/futex.h>

@@ -18,7 +18,7 @@
 #include <string>
 #include <vector>
 
-#include "roles.hpp"
+#include "latency/roles.hpp"
 #include "harness/endpoints.hpp"
 #include "harness/options.hpp"
 #include "lcmx/core.hpp"

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "roles.hpp"
+#include "latency/roles.hpp"
 #include "lcmx_examples/bench_t.hpp"
 
 namespace lcmxbench {

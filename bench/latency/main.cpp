@@ -25,7 +25,7 @@
 #include "harness/pingpong.hpp"
 #include "harness/report.hpp"
 #include "lcmx/shm/segment.hpp"
-#include "roles.hpp"
+#include "latency/roles.hpp"
 
 namespace lcmxbench {
 namespace {

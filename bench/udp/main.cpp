@@ -23,7 +23,7 @@
 #include "harness/hosts.hpp"
 #include "harness/options.hpp"
 #include "harness/report.hpp"
-#include "roles.hpp"
+#include "udp/roles.hpp"
 
 namespace lcmxbench::udp {
 namespace {

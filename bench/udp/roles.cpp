@@ -16,7 +16,7 @@
 #include <string>
 #include <thread>
 
-#include "roles.hpp"
+#include "udp/roles.hpp"
 #include "harness/endpoints.hpp"
 #include "harness/options.hpp"
 #include "lcmx/core.hpp"
