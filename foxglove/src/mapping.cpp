@@ -409,6 +409,7 @@ std::optional<std::string> to_view_json(ViewKind kind, const Value& value, std::
       std::int64_t step = int_field(s, "step", int_field(s, "stride", int_field(s, "row_stride", 0)));
       if (w <= 0 || h <= 0) return std::nullopt;
       if (step <= 0) step = static_cast<std::int64_t>(data->size()) / h;
+      if (step <= 0) return std::nullopt;
       if (static_cast<std::uint64_t>(step) * static_cast<std::uint64_t>(h) > data->size()) return std::nullopt;
       out += R"(,"width":)";
       append_int(out, w);

@@ -60,7 +60,7 @@ TEST_CASE("foxglove mapping: schema within Foxglove's reader, flattened arrays, 
   raw.push_back(types::Bytes{0xff, 0x00});
   s.find("raw")->data = raw;
   s.find("f")->data = std::numeric_limits<float>::infinity();
-  const auto j = to_json(v);
+  const auto j = foxglove::detail::to_json(v);
   CHECK(j ==
         R"({"utime":1700000000000000,"n":1,"grid":[0,0,2.5,null,0,0],"items":[{"a":0,"s":"q\"\u0001"}],"f":null,"raw":"/wA=","ok":false})");
   CHECK(utime_ns(v) == std::uint64_t{1'700'000'000'000'000'000});
@@ -69,7 +69,7 @@ TEST_CASE("foxglove mapping: schema within Foxglove's reader, flattened arrays, 
   const auto back = from_foxglove_json(t, R"({"n":1,"grid":[1,2,3,4,5,6],"items":[{"a":3}],"raw":"/wA="})");
   const auto bytes = types::encode(t, back);
   const auto again = types::decode(t, bytes.data(), bytes.size());
-  CHECK(to_json(again) ==
+  CHECK(foxglove::detail::to_json(again) ==
         R"({"utime":0,"n":1,"grid":[1,2,3,4,5,6],"items":[{"a":3,"s":""}],"f":0,"raw":"/wA=","ok":false})");
   CHECK_NOTHROW(from_foxglove_json(t, R"({"grid":[[1,2,3],[4,5,6]]})"));
   CHECK_THROWS_WITH(from_foxglove_json(t, R"({"grid":[1,2,3]})"), Catch::Contains("grid"));
