@@ -85,7 +85,7 @@ TEST_CASE("lcmx foxglove: both subprotocols, valid schemas, typed messages, an i
   REQUIRE(cam.expect("READY"));
   REQUIRE(sub.expect("READY"));
   REQUIRE(server.expect("READY"));
-  const int port = start_server(s, {"--publish-allow", "FG_CMD.*"});
+  const int port = start_server(s, {"--publish-allow", ".*FG_CMD.*"});
 
   for (const std::string proto : {"foxglove.websocket.v1", "foxglove.sdk.v1"}) {
     DYNAMIC_SECTION("subprotocol " << proto) {
