@@ -21,6 +21,7 @@ packages=(
   iperf3                           # bench/bridge: TCP reference on the emulated link
   graphviz                         # lcmx graph: SVG/PNG through dot
   libssl-dev                       # lcmx foxglove: wss:// (Boost.Beast over OpenSSL)
+  openssl                          # lcmx foxglove tests: a throwaway self-signed certificate (wss://)
 )
 
 missing=()

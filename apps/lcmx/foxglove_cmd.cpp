@@ -50,7 +50,8 @@ std::string stats_json(const foxglove::ServerStats& s) {
          ",\"lcm_subscriptions\":" + std::to_string(s.lcm_subscriptions) +
          ",\"messages_in\":" + std::to_string(s.messages_in) + ",\"messages_out\":" + std::to_string(s.messages_out) +
          ",\"dropped\":" + std::to_string(s.dropped) + ",\"rate_skipped\":" + std::to_string(s.rate_skipped) +
-         ",\"decode_errors\":" + std::to_string(s.decode_errors) + "}";
+         ",\"decode_errors\":" + std::to_string(s.decode_errors) + ",\"time\":" + (s.time ? "true" : "false") +
+         "}";
 }
 
 int run(const FoxgloveArgs& a, const Globals& g) {

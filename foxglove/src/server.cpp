@@ -4,11 +4,15 @@
 //    Foxglove channel of it), services, the connection graph, and the discovery thread;
 //  - Client: one WebSocket client (a transport Peer): its control messages, its bounded data
 //    queue (ClientQueue), its subscriptions and client-published channels.
+//  - the play clock: while discovery shows an `lcmx play` clock (kPlayClockChannel), the
+//    server subscribes to it, offers `time` (a new serverInfo to every client) and sends
+//    `time` frames; messages without `utime` are then stamped with the log's time.
 // Threads: the I/O thread runs every Client's on_text/on_binary/next_frame and the Impl calls
-// they make; the node's executor threads run Route callbacks (decode, JSON, push to clients);
-// the discovery thread runs tick(); service replies arrive on the lcmx client threads.
-// Locks, in order: Impl::mu -> Route::mu -> Client::mu (leaf); Impl::seen_mu and Impl::probe_mu
-// are leaves. No lcmx subscriber is destroyed while Impl::mu is held (its destruction waits for
+// they make; the node's executor threads run Route callbacks (decode, JSON, push to clients)
+// and the clock's; the discovery thread runs tick(); service replies arrive on the lcmx client
+// threads.
+// Locks, in order: Impl::mu -> Route::mu -> Client::mu (leaf); Impl::seen_mu, Impl::probe_mu
+// and Impl::clock_mu are leaves. No lcmx subscriber is destroyed while Impl::mu is held (its destruction waits for
 // a running callback, which takes Route::mu and Client::mu).
 #include "lcmx/foxglove/server.hpp"
 
@@ -31,6 +35,7 @@
 #include "lcmx/core.hpp"
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/types/types.hpp"
+#include "lcmx_msgs/play_clock_t.hpp"
 #include "lcmx_msgs/service_reply_t.hpp"
 #include "lcmx_msgs/service_request_t.hpp"
 #include "mapping.hpp"
@@ -83,6 +88,11 @@ std::vector<std::regex> compile(const std::vector<std::string>& patterns, const 
   }
   return out;
 }
+// lcmx's own channels, never advertised.
+bool reserved_channel(const std::string& ch) {
+  return ch == "LCMX_BEACON" || ch == "LCMX_HISTORY" || ch == kPlayClockChannel;
+}
+
 bool any_match(const std::vector<std::regex>& rs, const std::string& s) {
   for (const auto& r : rs)
     if (std::regex_match(s, r)) return true;
@@ -195,6 +205,19 @@ struct detail::ServerImpl : std::enable_shared_from_this<detail::ServerImpl> {
 
   std::atomic<std::uint64_t> messages_in{0}, messages_out{0}, dropped{0}, rate_skipped{0}, decode_errors{0};
 
+  // The play clock. clock_sub: the discovery thread's (made and destroyed outside mu: its
+  // callback takes mu). time_active (mu): `time` is in the capabilities clients were sent.
+  std::optional<Subscriber<lcmx_msgs::play_clock_t>> clock_sub;
+  bool time_active = false;
+  std::mutex clock_mu;
+  struct ClockState {
+    std::int64_t log_ns = 0;
+    Clock::time_point at{};  // when log_ns was received
+    double speed = 0;
+    bool paused = false;
+  } clock;                                // clock_mu
+  std::atomic<bool> clock_valid{false};  // clock holds a value (fast path of stamp())
+
   explicit ServerImpl(ServerOptions opts);
   void start();
   void stop();
@@ -211,6 +234,14 @@ struct detail::ServerImpl : std::enable_shared_from_this<detail::ServerImpl> {
   // Discovery thread.
   void run_discovery();
   void tick();
+  void follow_clock(bool present);
+  // Executor threads: a clock message.
+  void on_clock(const lcmx_msgs::play_clock_t& m);
+  // The log's time now (ns) while a clock is followed.
+  std::optional<std::uint64_t> log_time_ns();
+  // mu held: what a client is sent when it connects or the capabilities change.
+  std::string server_info_locked(const std::string& subprotocol) const;
+  void send_catalogue_locked(Client& c) const;
   // Executor threads.
   void on_message(Route& r, const RawMessage& m);
 
@@ -230,8 +261,24 @@ namespace detail {
 // One WebSocket client.
 class Client final : public detail::Peer, public std::enable_shared_from_this<Client> {
  public:
-  Client(ServerImpl& s, std::weak_ptr<detail::Connection> c, std::uint32_t id)
-      : srv_(s), conn_(std::move(c)), id_(id), queue_(s.o.client_queue_bytes, s.o.client_queue_messages) {}
+  Client(ServerImpl& s, std::weak_ptr<detail::Connection> c, std::uint32_t id, std::string subprotocol)
+      : subprotocol(std::move(subprotocol)),
+        srv_(s),
+        conn_(std::move(c)),
+        id_(id),
+        queue_(s.o.client_queue_bytes, s.o.client_queue_messages) {}
+
+  const std::string subprotocol;
+
+  // Any thread: the server's time is now `ns` (a `time` frame; only the latest is kept).
+  void set_time(std::uint64_t ns) {
+    {
+      std::lock_guard l(mu_);
+      if (closed_) return;
+      time_ = ns;
+    }
+    wake();
+  }
 
   // Any thread: a message for subscription `sub`.
   void push(std::uint32_t sub, std::uint64_t ts, const std::shared_ptr<const std::string>& payload) {
@@ -306,6 +353,14 @@ class Client final : public detail::Peer, public std::enable_shared_from_this<Cl
       control_.pop_front();
       return f;
     }
+    if (time_) {
+      detail::OutFrame f;
+      f.text = false;
+      f.head += static_cast<char>(2);
+      put_u64(f.head, *time_);
+      time_.reset();
+      return f;
+    }
     if (auto m = queue_.pop()) {
       detail::OutFrame f;
       f.text = false;
@@ -361,6 +416,7 @@ class Client final : public detail::Peer, public std::enable_shared_from_this<Cl
   mutable std::mutex mu_;
   std::set<std::uint32_t> subs_live_;
   std::deque<detail::OutFrame> control_;
+  std::optional<std::uint64_t> time_;  // a `time` frame to send
   detail::ClientQueue queue_;
   bool closed_ = false, warned_ = false;
   std::uint64_t drops_since_status_ = 0;
@@ -467,6 +523,22 @@ void Client::on_binary(std::span<const std::uint8_t> m) {
 
 }  // namespace detail
 
+namespace {
+json service_json(const ServiceEntry& e) {
+  auto def = [](const types::StructType* t) {
+    return json{{"encoding", "json"}, {"schemaName", t->full_name()}, {"schemaEncoding", "jsonschema"},
+                {"schema", detail::json_schema(*t)}};
+  };
+  return {{"id", e.id},
+          {"name", e.name},
+          {"type", e.request->full_name() + " -> " + e.response->full_name()},
+          {"request", def(e.request)},
+          {"response", def(e.response)},
+          {"requestSchema", detail::json_schema(*e.request)},
+          {"responseSchema", detail::json_schema(*e.response)}};
+}
+}  // namespace
+
 // ---- Impl ----
 
 ServerImpl::ServerImpl(ServerOptions opts) : o(std::move(opts)) {
@@ -545,6 +617,7 @@ void ServerImpl::stop() {
   subs.clear();
   svc.clear();
   probes.clear();
+  clock_sub.reset();
   watcher.reset();
   listener.reset();  // no Client call on the I/O thread after this
   for (auto& c : cl) c->pubs.clear();
@@ -652,7 +725,7 @@ void ServerImpl::tick() {
   }
   std::vector<RawSubscriber> done_probes;
   for (const auto& ch : candidates) {
-    if (ch == "LCMX_BEACON" || ch == "LCMX_HISTORY" || !channel_allowed(ch)) continue;
+    if (reserved_channel(ch) || !channel_allowed(ch)) continue;
     auto it = pubs.find(ch);
     const bool typed = it != pubs.end() && std::any_of(it->second.begin(), it->second.end(), [](auto f) { return f != 0; });
     if (typed) continue;
@@ -685,7 +758,7 @@ void ServerImpl::tick() {
   // The wanted Foxglove channels.
   std::map<ChannelKey, const types::StructType*> want;
   for (const auto& [ch, fps] : pubs) {
-    if (!channel_allowed(ch)) continue;
+    if (reserved_channel(ch) || !channel_allowed(ch)) continue;
     for (auto fp : fps) {
       const types::StructType* t = reg->find(fp);
       want[{ch, fp, ViewKind::none}] = t;
@@ -777,17 +850,7 @@ void ServerImpl::tick() {
         e.response = reg->find(static_cast<std::uint64_t>(servers.front().response_fingerprint));
         if (e.request == nullptr || e.response == nullptr) continue;  // raw or not in the type path
         e.advertised = true;
-        auto def = [](const types::StructType* t) {
-          return json{{"encoding", "json"}, {"schemaName", t->full_name()}, {"schemaEncoding", "jsonschema"},
-                      {"schema", detail::json_schema(*t)}};
-        };
-        sadv.push_back({{"id", e.id},
-                        {"name", name},
-                        {"type", e.request->full_name() + " -> " + e.response->full_name()},
-                        {"request", def(e.request)},
-                        {"response", def(e.response)},
-                        {"requestSchema", detail::json_schema(*e.request)},
-                        {"responseSchema", detail::json_schema(*e.response)}});
+        sadv.push_back(service_json(e));
       }
     }
 
@@ -806,40 +869,100 @@ void ServerImpl::tick() {
   for (auto& [c, s] : out) c->send_text(std::move(s));
   to_drop.clear();
   gone_clients.clear();
+  follow_clock(pubs.count(kPlayClockChannel) > 0);
+}
+
+// Discovery thread: subscribes to the play clock while a publisher of it is there; when it
+// goes, `time` is withdrawn (a new serverInfo to every client).
+void ServerImpl::follow_clock(bool present) {
+  if (present == clock_sub.has_value()) return;
+  if (present) {
+    std::weak_ptr<ServerImpl> weak = shared_from_this();
+    try {
+      clock_sub.emplace(node->subscribe<lcmx_msgs::play_clock_t>(
+          kPlayClockChannel, [weak](const lcmx_msgs::play_clock_t& m) {
+            if (auto self = weak.lock()) self->on_clock(m);
+          }));
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx foxglove: cannot follow the play clock: {}", e.what());
+    }
+    return;
+  }
+  clock_sub.reset();  // outside mu: its callback takes mu
+  clock_valid = false;
+  std::lock_guard l(mu);
+  if (!time_active) return;
+  time_active = false;
+  for (const auto& c : clients) {
+    c->send_text(server_info_locked(c->subprotocol));
+    send_catalogue_locked(*c);
+  }
+  spdlog::info("lcmx foxglove: the play clock is gone: time is the receive time again");
+}
+
+void ServerImpl::on_clock(const lcmx_msgs::play_clock_t& m) {
+  if (m.log_utime <= 0) return;
+  {
+    std::lock_guard l(clock_mu);
+    clock = {m.log_utime * 1000, Clock::now(), m.speed, m.paused != 0};
+  }
+  clock_valid = true;
+  std::lock_guard l(mu);
+  if (!time_active) {
+    // Clients learn the capability from a new serverInfo (same session: they keep their
+    // subscriptions); the channels follow it, since a serverInfo resets a client's types.
+    time_active = true;
+    for (const auto& c : clients) {
+      c->send_text(server_info_locked(c->subprotocol));
+      send_catalogue_locked(*c);
+    }
+    spdlog::info("lcmx foxglove: following the play clock (time capability)");
+  }
+  const auto ns = static_cast<std::uint64_t>(m.log_utime) * 1000;
+  for (const auto& c : clients) c->set_time(ns);
+}
+
+std::optional<std::uint64_t> ServerImpl::log_time_ns() {
+  if (!clock_valid.load(std::memory_order_acquire)) return std::nullopt;
+  std::lock_guard l(clock_mu);
+  std::int64_t t = clock.log_ns;
+  if (!clock.paused && clock.speed > 0)
+    t += static_cast<std::int64_t>(std::chrono::duration<double, std::nano>(Clock::now() - clock.at).count() * clock.speed);
+  return static_cast<std::uint64_t>(t);
+}
+
+std::string ServerImpl::server_info_locked(const std::string& subprotocol) const {
+  json caps = json::array({"connectionGraph"});
+  if (o.client_publish || !publish_allow.empty()) caps.push_back("clientPublish");
+  if (o.services) caps.push_back("services");
+  if (time_active) caps.push_back("time");
+  return json{{"op", "serverInfo"},
+              {"name", o.name},
+              {"capabilities", caps},
+              {"supportedEncodings", json::array({"json"})},
+              {"metadata", {{"lcmx", "lcmx foxglove"}, {"subprotocol", subprotocol}}},
+              {"sessionId", session_id}}
+      .dump();
+}
+
+
+void ServerImpl::send_catalogue_locked(Client& c) const {
+  json adv = json::array();
+  for (const auto& [_, ch] : channels) adv.push_back(ch.advertised);
+  if (!adv.empty()) c.send_text(json{{"op", "advertise"}, {"channels", adv}}.dump());
+  json sadv = json::array();
+  for (const auto& [name, e] : services)
+    if (e.advertised) sadv.push_back(service_json(e));
+  if (!sadv.empty()) c.send_text(json{{"op", "advertiseServices"}, {"services", sadv}}.dump());
 }
 
 std::shared_ptr<detail::Peer> ServerImpl::on_open(std::shared_ptr<detail::Connection> conn) {
   std::lock_guard l(mu);
-  auto c = std::make_shared<Client>(*this, conn, next_client++);
-  json caps = json::array({"connectionGraph"});
-  if (o.client_publish || !publish_allow.empty()) caps.push_back("clientPublish");
-  if (o.services) caps.push_back("services");
-  c->send_text(json{{"op", "serverInfo"},
-                    {"name", o.name},
-                    {"capabilities", caps},
-                    {"supportedEncodings", json::array({"json"})},
-                    {"metadata", {{"lcmx", "lcmx foxglove"}, {"subprotocol", conn->subprotocol()}}},
-                    {"sessionId", session_id}}
-                   .dump());
-  json adv = json::array();
-  for (const auto& [_, ch] : channels) adv.push_back(ch.advertised);
-  if (!adv.empty()) c->send_text(json{{"op", "advertise"}, {"channels", adv}}.dump());
-  json sadv = json::array();
-  for (const auto& [name, e] : services) {
-    if (!e.advertised) continue;
-    auto def = [](const types::StructType* t) {
-      return json{{"encoding", "json"}, {"schemaName", t->full_name()}, {"schemaEncoding", "jsonschema"},
-                  {"schema", detail::json_schema(*t)}};
-    };
-    sadv.push_back({{"id", e.id},
-                    {"name", name},
-                    {"type", e.request->full_name() + " -> " + e.response->full_name()},
-                    {"request", def(e.request)},
-                    {"response", def(e.response)},
-                    {"requestSchema", detail::json_schema(*e.request)},
-                    {"responseSchema", detail::json_schema(*e.response)}});
-  }
-  if (!sadv.empty()) c->send_text(json{{"op", "advertiseServices"}, {"services", sadv}}.dump());
+  auto c = std::make_shared<Client>(*this, conn, next_client++, conn->subprotocol());
+  c->send_text(server_info_locked(c->subprotocol));
+  send_catalogue_locked(*c);
+  if (time_active)
+    if (const auto t = log_time_ns()) c->set_time(*t);
   clients.insert(c);
   spdlog::info("lcmx foxglove: client {} connected from {} ({})", c->id(), conn->remote(), conn->subprotocol());
   return c;
@@ -954,7 +1077,8 @@ void ServerImpl::on_message(Route& r, const RawMessage& m) {
   if (!targets) return;
   const auto* data = reinterpret_cast<const std::uint8_t*>(m.data.data());
   const auto fp = types::message_fingerprint(data, m.data.size()).value_or(0);
-  const std::uint64_t received = now_ns();
+  // The receive time, on the log's clock while `lcmx play` runs one.
+  const std::uint64_t received = log_time_ns().value_or(now_ns());
   std::optional<types::Value> value;
   bool failed = false;
   for (const auto& t : *targets) {
@@ -1075,6 +1199,7 @@ ServerStats Server::stats() const {
   s.dropped = impl_->dropped.load();
   s.rate_skipped = impl_->rate_skipped.load();
   s.decode_errors = impl_->decode_errors.load();
+  s.time = impl_->clock_valid.load();
   return s;
 }
 

@@ -2,14 +2,19 @@
 // `ws`, test/foxglove/client/fg_client.js, run by Node.js): both subprotocols, schemas checked
 // by an independent validator (schema_check.py, python3-jsonschema), typed messages from shm
 // publishers, an image as foxglove.RawImage, clientPublish to a typed C++ subscriber, an lcmx
-// service, the connection graph, and a slow client that neither delays another client nor grows
-// without bound. Every process is a real one (lcmx, lcmx_test_peer, lcmx_service_peer, node);
-// the server listens on 127.0.0.1, port 0 (read back from its ready line).
+// service, the connection graph, a slow client that neither delays another client nor grows
+// without bound, a type in no .lcm file (lcmx.unknown), `lcmx play` with the `time` capability,
+// and wss:// with a throwaway certificate. Every process is a real one (lcmx, lcmx_test_peer,
+// lcmx_service_peer, lcmx_fg_raw_peer, node, openssl); the server listens on 127.0.0.1, port 0
+// (read back from its ready line). Other hosts and stock LCM senders: multihost_test.cpp.
 #include <catch2/catch.hpp>
 
 #include <fstream>
 #include <regex>
 
+#include "lcmx/log/eventlog.hpp"
+#include "lcmx_examples/image_t.hpp"
+#include "lcmx_examples/pose_t.hpp"
 #include "support.hpp"
 
 using namespace lcmx::it;
@@ -198,4 +203,163 @@ TEST_CASE("lcmx foxglove: a slow client does not delay another client, and its q
   CHECK(rss_kb > 0);
   CHECK(rss_kb < 200 * 1024);
   slow.signal(SIGTERM);
+}
+
+TEST_CASE("lcmx foxglove: a type in no .lcm file is advertised as lcmx.unknown, its messages as base64",
+          "[foxglove]") {
+  require_client();
+  Session s(2, 60000ms);
+  TmpDir dir;
+  // Two raw publishers of a made-up type: one announces no type (the server learns the
+  // fingerprint from a message), one announces it ("lcmx_test.mystery_t"): neither is dropped.
+  const std::string ch = unique_channel("FG_RAW", 2);
+  Child& raw = s.spawn({LCMX_FG_RAW_PEER, ch, "50"});
+  REQUIRE(raw.expect("READY"));
+  const int port = start_server(s, {});
+  const std::string dump = dir.path + "/dump.json";
+  Child& c = client(s, write_plan(dir, "plan.json",
+                                  "{\"url\":\"ws://127.0.0.1:" + std::to_string(port) +
+                                      "\",\"timeout_ms\":30000,\"dump\":\"" + dump + "\",\"subscribe\":[{\"topic\":\"" +
+                                      ch + "\",\"count\":3},{\"topic\":\"" + ch + "_T\",\"count\":3}]}"));
+  const auto lines = run_client(c, 40000ms);
+  std::printf("---- what the client sees ----\n%s", joined(lines).c_str());
+  REQUIRE(any_line(lines, {"\"done\":true"}));
+  for (const std::string& topic : {ch, ch + "_T"}) {
+    INFO("topic " << topic);
+    CHECK(any_line(lines, {"\"advertised\"", ("\"topic\":\"" + topic + "\"").c_str(), "\"schemaName\":\"lcmx.unknown\"",
+                           "\"encoding\":\"json\""}));
+    // The whole LCM encoding, base64: fingerprint 0123456789abcdef + "unknown payload!".
+    CHECK(any_line(lines, {"\"message\"", ("\"topic\":\"" + topic + "\"").c_str(),
+                           "\"fingerprint\":\"0x0123456789abcdef\"", "\"size\":24",
+                           "\"data\":\"ASNFZ4mrze91bmtub3duIHBheWxvYWQh\""}));
+  }
+  const auto check = s.run({LCMX_PYTHON3, LCMX_SCHEMA_CHECK, dump});
+  std::printf("%s", check.out.c_str());
+  CHECK(check.rc == 0);
+  raw.send("quit");
+  CHECK(raw.wait() == 0);
+}
+
+TEST_CASE("lcmx foxglove: lcmx play's channels appear, and time follows the log's clock while it plays", "[foxglove]") {
+  require_client();
+  Session s(3, 90000ms);
+  TmpDir dir;
+  const std::string pose_ch = unique_channel("FG_LOG_POSE", 3), cam_ch = unique_channel("FG_LOG_CAM", 3);
+  // A log of 20 s starting 2001-09-09T01:46:40Z (far from now: a receive-time stamp would show):
+  // poses at 50 Hz, a 32x24 image at 5 Hz.
+  constexpr std::int64_t t0_us = 1'000'000'000'000'000;
+  constexpr std::int64_t span_us = 20'000'000;
+  const std::string log = dir.path + "/play.lcmlog";
+  {
+    auto w = lcmx::eventlog::Writer::open(log, lcmx::eventlog::OpenMode::create);
+    for (std::int64_t k = 0; k * 20'000 <= span_us; ++k) {
+      const std::int64_t t = t0_us + k * 20'000;
+      lcmx_examples::pose_t p{};
+      p.header.seq = k;
+      p.header.frame_id = "log";
+      p.position[0] = static_cast<double>(k);
+      p.orientation[3] = 1;
+      std::vector<std::byte> buf(static_cast<std::size_t>(p.getEncodedSize()));
+      REQUIRE(p.encode(buf.data(), 0, static_cast<int>(buf.size())) == static_cast<int>(buf.size()));
+      w.write(t, pose_ch, buf);
+      if (k % 10 == 0) {
+        lcmx_examples::image_t img{};
+        img.header.seq = k;
+        img.width = 32;
+        img.height = 24;
+        img.stride = 96;
+        img.encoding = "rgb8";
+        img.size = 96 * 24;
+        img.data.assign(96 * 24, static_cast<std::uint8_t>(k));
+        std::vector<std::byte> ib(static_cast<std::size_t>(img.getEncodedSize()));
+        REQUIRE(img.encode(ib.data(), 0, static_cast<int>(ib.size())) == static_cast<int>(ib.size()));
+        w.write(t, cam_ch, ib);
+      }
+    }
+    w.close();
+  }
+  Child* server = nullptr;
+  const int port = start_server(s, {"--stats", "0.2"}, &server);
+  Child& play = s.spawn({LCMX_TOOL, "play", log, "--delay", "0", "--json"});
+  const std::string dump = dir.path + "/dump.json";
+  Child& c = client(s, write_plan(dir, "plan.json",
+                                  "{\"url\":\"ws://127.0.0.1:" + std::to_string(port) +
+                                      "\",\"timeout_ms\":40000,\"expect_capability\":\"time\",\"dump\":\"" + dump +
+                                      "\",\"subscribe\":[{\"topic\":\"" + pose_ch + "\",\"count\":20},{\"topic\":\"" +
+                                      cam_ch + "/image\",\"count\":2}],\"time_count\":20,\"report_timestamps\":true}"));
+  const auto lines = run_client(c, 50000ms);
+  std::printf("---- what the client sees ----\n%s", joined(lines).c_str());
+  REQUIRE(any_line(lines, {"\"done\":true"}));
+  CHECK(any_line(lines, {"serverInfo", "\"time\""}));
+  CHECK(any_line(lines, {"\"advertised\"", ("\"topic\":\"" + pose_ch + "\"").c_str(), "lcmx_examples.pose_t"}));
+  CHECK(any_line(lines, {"\"advertised\"", ("\"topic\":\"" + cam_ch + "/image\"").c_str(), "foxglove.RawImage"}));
+  CHECK(any_line(lines, {"\"message\"", ("\"topic\":\"" + pose_ch + "\"").c_str(), "\"frame_id\":\"log\""}));
+  CHECK_FALSE(any_line(lines, {"LCMX_PLAY_CLOCK"}));  // the clock is the `time`, not a channel
+  // `time` follows the log: within its span, never backwards.
+  const std::int64_t lo_ns = t0_us * 1000, hi_ns = (t0_us + span_us + 1'000'000) * 1000;
+  auto field = [](const std::string& line, const std::string& key) {
+    const std::regex re("\"" + key + "\":\"?([0-9]+)");
+    std::smatch m;
+    REQUIRE(std::regex_search(line, m, re));
+    return std::stoll(m[1]);
+  };
+  bool saw_time = false;
+  for (const auto& l : lines) {
+    if (contains(l, "\"event\":\"time\"")) {
+      saw_time = true;
+      CHECK(field(l, "min") >= lo_ns);
+      CHECK(field(l, "max") <= hi_ns);
+      CHECK(field(l, "decreasing") == 0);
+    }
+    // Message timestamps on the same clock (pose_t has no utime: the log's time at receipt).
+    if (contains(l, "\"event\":\"timestamps\"") && contains(l, pose_ch)) {
+      CHECK(field(l, "min") >= lo_ns);
+      CHECK(field(l, "max") <= hi_ns);
+    }
+  }
+  CHECK(saw_time);
+  const auto check = s.run({LCMX_PYTHON3, LCMX_SCHEMA_CHECK, dump});
+  std::printf("%s", check.out.c_str());
+  CHECK(check.rc == 0);
+  // When play stops, the server stops following its clock.
+  play.send("quit");
+  CHECK(play.wait(15000ms) == 0);
+  CHECK(json_until(*server, [](const std::string& l) { return contains(l, "\"time\":false"); }, 10000ms));
+}
+
+TEST_CASE("lcmx foxglove: wss:// with a throwaway self-signed certificate", "[foxglove]") {
+  require_client();
+  Session s(4, 60000ms);
+  TmpDir dir;
+  const std::string cert = dir.path + "/cert.pem", key = dir.path + "/key.pem";
+  const auto gen = s.run({LCMX_OPENSSL, "req", "-x509", "-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1",
+                          "-nodes", "-keyout", key, "-out", cert, "-days", "1", "-subj", "/CN=127.0.0.1", "-addext",
+                          "subjectAltName=IP:127.0.0.1"});
+  INFO(gen.out);
+  REQUIRE(gen.rc == 0);
+  const std::string ch = unique_channel("FG_TLS", 4);
+  Child& pose = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "50", "--id", "tls"});
+  REQUIRE(pose.expect("READY"));
+  std::vector<std::string> argv{LCMX_TOOL, "foxglove", "--port",     "0",  "--json",     "--types",
+                                LCMX_LCMTYPES_DIR, "--tls-cert", cert, "--tls-key", key};
+  Child& server = s.spawn(argv);
+  const auto ready = server.expect("{\"ready\":true", 15000ms);
+  REQUIRE(ready);
+  CHECK(contains(*ready, "\"url\":\"wss://127.0.0.1:"));
+  const std::string port = std::to_string(static_cast<int>(json_num(*ready, "port")));
+  // The client trusts exactly this certificate (and checks it names 127.0.0.1).
+  Child& c = client(s, write_plan(dir, "tls.json",
+                                  "{\"url\":\"wss://127.0.0.1:" + port + "\",\"ca\":\"" + cert +
+                                      "\",\"timeout_ms\":30000,\"subscribe\":[{\"topic\":\"" + ch + "\",\"count\":3}]}"));
+  const auto lines = run_client(c, 40000ms);
+  std::printf("---- over wss:// ----\n%s", joined(lines).c_str());
+  REQUIRE(any_line(lines, {"\"done\":true"}));
+  CHECK(any_line(lines, {"serverInfo", "foxglove.websocket.v1"}));
+  CHECK(any_line(lines, {"\"message\"", ("\"topic\":\"" + ch + "\"").c_str(), "\"frame_id\":\"tls\""}));
+  // Plain ws:// to the TLS port gets no WebSocket.
+  Child& plain = client(s, write_plan(dir, "plain.json", "{\"url\":\"ws://127.0.0.1:" + port + "\",\"timeout_ms\":5000}"));
+  const auto plain_lines = run_client(plain, 15000ms);
+  std::printf("---- plain ws:// to it ----\n%s", joined(plain_lines).c_str());
+  CHECK(any_line(plain_lines, {"\"done\":false"}));
+  CHECK_FALSE(any_line(plain_lines, {"\"event\":\"serverInfo\""}));
 }

@@ -5,6 +5,9 @@
 //
 // PLAN (every key optional but url):
 //   url, subprotocol ("foxglove.websocket.v1" | "foxglove.sdk.v1"), timeout_ms (whole run)
+//   ca: PATH                           wss:// trusting only this PEM certificate (else any)
+//   expect_capability: NAME            wait until a serverInfo lists it (e.g. "time")
+//   time_count: N                      wait for N `time` messages, print {"event":"time",...}
 //   expect_topics: [topic...]          wait until each is advertised
 //   subscribe: [{topic, count}]        subscribe, wait for `count` messages (decoded JSON)
 //   publish: [{topic, schemaName, messages: [obj...], period_ms}]   clientPublish
@@ -15,6 +18,7 @@
 //   slow: true                         with subscribe_all: stop reading the socket (never resume)
 //   stats_every_ms: N                  print {"stats":{topic:{count, lat_p50_ms...}}} lines
 //   run_ms: N                          stay connected this long after the steps (bench)
+//   report_timestamps: true            at the end, {"event":"timestamps", topic, min, max, count}
 // Prints one JSON line per event worth checking ("serverInfo", "advertised", "message" for the
 // first of each topic, "status", "called", "graph") and a last line {"done": true|false,
 // "error": ...}. Exit 0 when every step finished in time, 1 otherwise.
@@ -27,9 +31,10 @@ const plan = JSON.parse(fs.readFileSync(process.argv[2], "utf8"));
 const out = (o) => process.stdout.write(JSON.stringify(o) + "\n");
 const deadline = Date.now() + (plan.timeout_ms || 20000);
 
-const ws = new WebSocket(plan.url, [plan.subprotocol || FoxgloveClient.SUPPORTED_SUBPROTOCOL], {
-  rejectUnauthorized: false,
-});
+// wss://: with `ca`, only a server presenting that certificate (for the address in the URL) is
+// accepted, as a browser that trusts it would; without, any certificate.
+const ws = new WebSocket(plan.url, [plan.subprotocol || FoxgloveClient.SUPPORTED_SUBPROTOCOL],
+  plan.ca ? { ca: [fs.readFileSync(plan.ca)], rejectUnauthorized: true } : { rejectUnauthorized: false });
 const client = new FoxgloveClient({ ws });
 const channels = new Map(); // id -> channel
 const byTopic = new Map(); // topic -> [channel]
@@ -41,6 +46,8 @@ const services = new Map(); // name -> service
 const callResults = new Map(); // callId -> result
 let graph = null;
 let info = null;
+const times = { count: 0, first: null, last: null, min: null, max: null, decreasing: 0 };
+const stamps = new Map(); // topic -> {min, max, count} of message timestamps (ns, BigInt)
 const waiters = [];
 const decoder = new TextDecoder();
 let paused = false;
@@ -103,6 +110,11 @@ client.on("message", ({ subscriptionId, timestamp, data }) => {
   if (!ch) return;
   const n = (counts.get(ch.topic) || 0) + 1;
   counts.set(ch.topic, n);
+  const st = stamps.get(ch.topic) || { min: timestamp, max: timestamp, count: 0 };
+  if (timestamp < st.min) st.min = timestamp;
+  if (timestamp > st.max) st.max = timestamp;
+  st.count += 1;
+  stamps.set(ch.topic, st);
   const nowNs = BigInt(Date.now()) * 1000000n;
   if (!lat.has(ch.topic)) lat.set(ch.topic, []);
   lat.get(ch.topic).push(Number(nowNs - timestamp) / 1e6);
@@ -141,6 +153,15 @@ client.on("serviceCallFailure", (r) => {
   callResults.set(r.callId, { ok: false, message: r.message });
   poke();
 });
+client.on("time", ({ timestamp }) => {
+  if (times.count === 0) times.first = timestamp;
+  if (times.last !== null && timestamp < times.last) times.decreasing += 1;
+  times.last = timestamp;
+  if (times.min === null || timestamp < times.min) times.min = timestamp;
+  if (times.max === null || timestamp > times.max) times.max = timestamp;
+  times.count += 1;
+  poke();
+});
 client.on("connectionGraphUpdate", (g) => {
   graph = g;
   poke();
@@ -154,6 +175,8 @@ function percentile(a, p) {
 
 async function main() {
   await until(() => info !== null, "serverInfo");
+  if (plan.expect_capability)
+    await until(() => info.capabilities.includes(plan.expect_capability), "capability " + plan.expect_capability);
   if (plan.slow) {
     // Stop reading: the socket's receive buffer fills, then the server's sends wait.
     ws._socket.pause();
@@ -192,6 +215,14 @@ async function main() {
     out({ event: "graph", publishedTopics: graph.publishedTopics.filter((t) => t.name === plan.graph_topic),
           subscribedTopics: graph.subscribedTopics.length, advertisedServices: graph.advertisedServices });
   }
+  if (plan.time_count) {
+    await until(() => times.count >= plan.time_count, plan.time_count + " time messages");
+    out({ event: "time", count: times.count, first: String(times.first), last: String(times.last),
+          min: String(times.min), max: String(times.max), decreasing: times.decreasing });
+  }
+  if (plan.report_timestamps)
+    for (const [t, st] of stamps)
+      out({ event: "timestamps", topic: t, min: String(st.min), max: String(st.max), count: st.count });
   if (plan.dump) {
     const ms = {};
     for (const [t, r] of received) ms[t] = r;

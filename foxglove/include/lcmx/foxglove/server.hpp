@@ -27,6 +27,11 @@
 
 namespace lcmx::foxglove {
 
+// The reserved channel `lcmx play` publishes its clock on (lcmx_msgs.play_clock_t,
+// lcmtypes/play.lcm). While a clock is there the server offers the `time` capability and
+// follows it (docs/foxglove.md "Time"); the channel itself is not advertised.
+inline constexpr const char* kPlayClockChannel = "LCMX_PLAY_CLOCK";
+
 class Error : public std::runtime_error {
  public:
   explicit Error(const std::string& what) : std::runtime_error(what) {}
@@ -77,6 +82,7 @@ struct ServerStats {
   std::uint64_t dropped = 0;       // dropped from client queues (slow clients)
   std::uint64_t rate_skipped = 0;  // not forwarded by a rate limit
   std::uint64_t decode_errors = 0;
+  bool time = false;               // following an `lcmx play` clock (the `time` capability)
 };
 
 namespace detail {
