@@ -6,6 +6,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <vector>
 
 namespace lcmx::foxglove::detail {
@@ -48,6 +49,20 @@ std::size_t utf8_len(std::string_view s, std::size_t i) {
 }
 }  // namespace
 
+namespace {
+// Every 12-bit value as its two base64 characters: three bytes are two lookups.
+struct PairTable {
+  char c[4096][2];
+  constexpr PairTable() : c() {
+    for (int i = 0; i < 4096; ++i) {
+      c[i][0] = kB64[i >> 6];
+      c[i][1] = kB64[i & 63];
+    }
+  }
+};
+constexpr PairTable kPairs;
+}  // namespace
+
 void base64_append(std::string& out, const std::uint8_t* d, std::size_t n) {
   const std::size_t start = out.size();
   out.resize(start + (n + 2) / 3 * 4);
@@ -55,10 +70,9 @@ void base64_append(std::string& out, const std::uint8_t* d, std::size_t n) {
   std::size_t i = 0;
   for (; i + 3 <= n; i += 3) {
     const std::uint32_t v = (std::uint32_t{d[i]} << 16) | (std::uint32_t{d[i + 1]} << 8) | d[i + 2];
-    *o++ = kB64[v >> 18];
-    *o++ = kB64[(v >> 12) & 63];
-    *o++ = kB64[(v >> 6) & 63];
-    *o++ = kB64[v & 63];
+    std::memcpy(o, kPairs.c[v >> 12], 2);
+    std::memcpy(o + 2, kPairs.c[v & 0xfff], 2);
+    o += 4;
   }
   if (n - i == 1) {
     const std::uint32_t v = std::uint32_t{d[i]} << 16;
@@ -221,25 +235,51 @@ struct SchemaBuilder {
 
 // ---- messages ----
 
-void value_json(std::string& out, const Value& v);
+// Where a message's JSON goes: `out`, and, when `payload` is set, large byte arrays as shared
+// parts of their own (base64 made once per message by `cache`).
+struct JsonOut {
+  std::string out;
+  Payload* payload = nullptr;
+  Base64Cache* cache = nullptr;
+
+  // `"<base64 of data>"`.
+  void bytes(const std::uint8_t* data, std::size_t size, bool stable) {
+    out += '"';
+    if (payload != nullptr && cache != nullptr && stable && size >= Base64Cache::kMin) {
+      flush();
+      payload->add(cache->get(data, size));
+    } else {
+      base64_append(out, data, size);
+    }
+    out += '"';
+  }
+  // `out` becomes a part of the payload.
+  void flush() {
+    if (payload == nullptr || out.empty()) return;
+    payload->add(std::make_shared<const std::string>(std::move(out)));
+    out.clear();
+  }
+};
+
+void value_json(JsonOut& o, const Value& v);
 
 // Leaves of a (possibly nested) array, row-major, as JSON array elements.
-void flatten(std::string& out, const Value& v, bool& first) {
+void flatten(JsonOut& o, const Value& v, bool& first) {
   if (const auto* a = std::get_if<types::Array>(&v.data)) {
-    for (const auto& e : *a) flatten(out, e, first);
+    for (const auto& e : *a) flatten(o, e, first);
     return;
   }
   if (const auto* b = std::get_if<types::Bytes>(&v.data)) {  // only inside a flattened non-byte walk
     for (auto x : *b) {
-      if (!first) out += ',';
+      if (!first) o.out += ',';
       first = false;
-      append_int(out, x);
+      append_int(o.out, x);
     }
     return;
   }
-  if (!first) out += ',';
+  if (!first) o.out += ',';
   first = false;
-  value_json(out, v);
+  value_json(o, v);
 }
 
 void collect_bytes(const Value& v, types::Bytes& out) {
@@ -248,50 +288,48 @@ void collect_bytes(const Value& v, types::Bytes& out) {
     for (const auto& e : *a) collect_bytes(e, out);
 }
 
-void struct_json(std::string& out, const types::Struct& s) {
-  out += '{';
+void struct_json(JsonOut& o, const types::Struct& s) {
+  o.out += '{';
   for (std::size_t i = 0; i < s.fields.size(); ++i) {
     const auto& f = s.fields[i];
-    if (i) out += ',';
-    json_string_append(out, f.name);
-    out += ':';
+    if (i) o.out += ',';
+    json_string_append(o.out, f.name);
+    o.out += ':';
     const Member* m = s.type ? s.type->find_member(f.name) : nullptr;
     if (m != nullptr && is_byte_array(*m)) {
-      out += '"';
       if (const auto* b = std::get_if<types::Bytes>(&f.value.data)) {
-        base64_append(out, b->data(), b->size());
+        o.bytes(b->data(), b->size(), true);
       } else {
         types::Bytes all;
         collect_bytes(f.value, all);
-        base64_append(out, all.data(), all.size());
+        o.bytes(all.data(), all.size(), false);  // a temporary: not shared
       }
-      out += '"';
     } else if (f.value.is<types::Array>() || f.value.is<types::Bytes>()) {
-      out += '[';
+      o.out += '[';
       bool first = true;
-      flatten(out, f.value, first);
-      out += ']';
+      flatten(o, f.value, first);
+      o.out += ']';
     } else {
-      value_json(out, f.value);
+      value_json(o, f.value);
     }
   }
-  out += '}';
+  o.out += '}';
 }
 
-void value_json(std::string& out, const Value& v) {
+void value_json(JsonOut& o, const Value& v) {
   std::visit(
       [&](const auto& x) {
         using T = std::decay_t<decltype(x)>;
-        if constexpr (std::is_same_v<T, std::int64_t>) append_int(out, x);
-        else if constexpr (std::is_same_v<T, double> || std::is_same_v<T, float>) append_float(out, x);
-        else if constexpr (std::is_same_v<T, bool>) out += x ? "true" : "false";
-        else if constexpr (std::is_same_v<T, std::string>) json_string_append(out, x);
-        else if constexpr (std::is_same_v<T, types::Struct>) struct_json(out, x);
+        if constexpr (std::is_same_v<T, std::int64_t>) append_int(o.out, x);
+        else if constexpr (std::is_same_v<T, double> || std::is_same_v<T, float>) append_float(o.out, x);
+        else if constexpr (std::is_same_v<T, bool>) o.out += x ? "true" : "false";
+        else if constexpr (std::is_same_v<T, std::string>) json_string_append(o.out, x);
+        else if constexpr (std::is_same_v<T, types::Struct>) struct_json(o, x);
         else {
-          out += '[';
+          o.out += '[';
           bool first = true;
-          flatten(out, v, first);
-          out += ']';
+          flatten(o, v, first);
+          o.out += ']';
         }
       },
       v.data);
@@ -345,10 +383,27 @@ std::string json_schema(const StructType& type) {
   return b.object(type, true);
 }
 
+std::shared_ptr<const std::string> Base64Cache::get(const std::uint8_t* data, std::size_t size) {
+  for (const auto& e : entries_)
+    if (e.data == data && e.size == size) return e.text;
+  auto text = std::make_shared<std::string>();
+  base64_append(*text, data, size);
+  entries_.push_back({data, size, text});
+  return text;
+}
+
 std::string to_json(const Value& value) {
-  std::string out;
-  value_json(out, value);
-  return out;
+  JsonOut o;
+  value_json(o, value);
+  return std::move(o.out);
+}
+
+Payload to_json(const Value& value, Base64Cache& cache) {
+  Payload p;
+  JsonOut o{{}, &p, &cache};
+  value_json(o, value);
+  o.flush();
+  return p;
 }
 
 View view_of(const StructType& t) {
@@ -392,13 +447,16 @@ std::string view_schema(ViewKind kind) {
   return "{}";
 }
 
-std::optional<std::string> to_view_json(ViewKind kind, const Value& value, std::uint64_t stamp_ns) {
+namespace {
+std::optional<Payload> view_json(ViewKind kind, const Value& value, std::uint64_t stamp_ns, Base64Cache* cache) {
   if (!value.is<types::Struct>()) return std::nullopt;
   const auto& s = value.as<types::Struct>();
   const types::Bytes* data = bytes_field(s, "data");
   if (data == nullptr) return std::nullopt;
-  std::string out;
-  out.reserve(data->size() / 3 * 4 + 256);
+  Payload payload;
+  JsonOut o{{}, &payload, cache};
+  std::string& out = o.out;
+  if (cache == nullptr) out.reserve(data->size() / 3 * 4 + 256);
   out += '{';
   stamp_json(out, stamp_ns);
   out += R"(,"frame_id":)";
@@ -447,10 +505,22 @@ std::optional<std::string> to_view_json(ViewKind kind, const Value& value, std::
     }
     case ViewKind::none: return std::nullopt;
   }
-  out += R"(,"data":")";
-  base64_append(out, data->data(), data->size());
-  out += "\"}";
-  return out;
+  out += R"(,"data":)";
+  o.bytes(data->data(), data->size(), true);
+  out += '}';
+  o.flush();
+  return payload;
+}
+}  // namespace
+
+std::optional<std::string> to_view_json(ViewKind kind, const Value& value, std::uint64_t stamp_ns) {
+  auto p = view_json(kind, value, stamp_ns, nullptr);
+  if (!p) return std::nullopt;
+  return p->joined();
+}
+
+std::optional<Payload> to_view_json(ViewKind kind, const Value& value, std::uint64_t stamp_ns, Base64Cache& cache) {
+  return view_json(kind, value, stamp_ns, &cache);
 }
 
 bool has_utime(const StructType& type) {

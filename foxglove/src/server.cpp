@@ -281,7 +281,7 @@ class Client final : public detail::Peer, public std::enable_shared_from_this<Cl
   }
 
   // Any thread: a message for subscription `sub`.
-  void push(std::uint32_t sub, std::uint64_t ts, const std::shared_ptr<const std::string>& payload) {
+  void push(std::uint32_t sub, std::uint64_t ts, const std::shared_ptr<const detail::Payload>& payload) {
     {
       std::lock_guard l(mu_);
       if (closed_ || !subs_live_.count(sub)) return;
@@ -391,6 +391,15 @@ class Client final : public detail::Peer, public std::enable_shared_from_this<Cl
   std::uint64_t queued_bytes() const {
     std::lock_guard l(mu_);
     return queue_.bytes();
+  }
+  ClientStats stats() const {
+    ClientStats st;
+    if (auto c = conn_.lock()) st.remote = c->remote();
+    std::lock_guard l(mu_);
+    st.queued_bytes = queue_.bytes();
+    st.queued_messages = queue_.size();
+    st.dropped = queue_.dropped();
+    return st;
   }
 
   // Client-published channels (I/O thread).
@@ -1080,13 +1089,14 @@ void ServerImpl::on_message(Route& r, const RawMessage& m) {
   // The receive time, on the log's clock while `lcmx play` runs one.
   const std::uint64_t received = log_time_ns().value_or(now_ns());
   std::optional<types::Value> value;
+  detail::Base64Cache b64;  // a large byte array is encoded once for the struct and its view
   bool failed = false;
   for (const auto& t : *targets) {
     if (t.fingerprint != fp || t.subs.empty()) continue;
-    std::shared_ptr<const std::string> payload;
+    std::shared_ptr<const detail::Payload> payload;
     std::uint64_t ts = received;
     if (t.type == nullptr) {
-      payload = std::make_shared<const std::string>(detail::unknown_json(fp, data, m.data.size()));
+      payload = detail::Payload::of(detail::unknown_json(fp, data, m.data.size()));
     } else {
       if (!value && !failed) {
         try {
@@ -1101,11 +1111,11 @@ void ServerImpl::on_message(Route& r, const RawMessage& m) {
       if (!value) continue;
       if (auto u = detail::utime_ns(*value)) ts = *u;
       if (t.view == ViewKind::none) {
-        payload = std::make_shared<const std::string>(detail::to_json(*value));
+        payload = std::make_shared<const detail::Payload>(detail::to_json(*value, b64));
       } else {
-        auto j = detail::to_view_json(t.view, *value, ts);
+        auto j = detail::to_view_json(t.view, *value, ts, b64);
         if (!j) continue;
-        payload = std::make_shared<const std::string>(std::move(*j));
+        payload = std::make_shared<const detail::Payload>(std::move(*j));
       }
     }
     for (const auto& [c, sub] : t.subs) c->push(sub, ts, payload);
@@ -1166,7 +1176,7 @@ void ServerImpl::service_call(const std::shared_ptr<Client>& c, std::uint32_t se
         put_u32(f.head, call);
         put_u32(f.head, 4);
         f.head += "json";
-        f.body = std::make_shared<const std::string>(std::move(body));
+        f.body = detail::Payload::of(std::move(body));
         cl->send(std::move(f));
       });
 }
@@ -1193,6 +1203,10 @@ ServerStats Server::stats() const {
     s.clients = impl_->clients.size();
     s.channels = impl_->channels.size();
     s.lcm_subscriptions = impl_->routes.size();
+    for (const auto& c : impl_->clients) {
+      s.per_client.push_back(c->stats());
+      s.max_client_queue_bytes = std::max(s.max_client_queue_bytes, s.per_client.back().queued_bytes);
+    }
   }
   s.messages_in = impl_->messages_in.load();
   s.messages_out = impl_->messages_out.load();

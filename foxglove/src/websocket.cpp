@@ -10,6 +10,10 @@
 #include <boost/beast/websocket.hpp>
 #include <boost/beast/websocket/ssl.hpp>
 
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <sys/socket.h>
+
 #include <array>
 #include <atomic>
 #include <future>
@@ -176,25 +180,41 @@ class Session final : public SessionBase, public Connection, public std::enable_
     });
   }
 
-  void write_next() {
+  // Writes the Peer's next frame, if any. `chained`: called as the previous write completed.
+  // Frames that follow each other are corked (TCP_CORK) until the Peer has none left: the kernel
+  // then sends full segments, and a client is woken once per batch, not once per small message
+  // (the per-message wake-ups and segments were most of the server's CPU at 10 000 messages/s).
+  void write_next(bool chained = false) {
     if (writing_ || !open_ || closing_ || !peer_) return;
     auto f = peer_->next_frame();
-    if (!f) return;
+    if (!f) {
+      cork(false);
+      return;
+    }
+    if (chained) cork(true);
     writing_ = true;
     out_ = std::move(*f);
     ws_.text(out_.text);
-    std::array<asio::const_buffer, 2> bufs{
-        asio::buffer(out_.head),
-        out_.body ? asio::buffer(out_.body->data(), out_.body->size()) : asio::const_buffer()};
-    ws_.async_write(bufs, [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
+    bufs_.clear();
+    if (!out_.head.empty()) bufs_.push_back(asio::buffer(out_.head));
+    if (out_.body)
+      for (const auto& p : out_.body->parts) bufs_.push_back(asio::buffer(p->data(), p->size()));
+    ws_.async_write(bufs_, [self = this->shared_from_this()](beast::error_code ec, std::size_t) {
       self->writing_ = false;
       self->out_ = {};
       if (ec) {
         self->ended();
         return;
       }
-      self->write_next();
+      self->write_next(true);
     });
+  }
+
+  void cork(bool on) {
+    if (on == corked_) return;
+    corked_ = on;
+    const int v = on ? 1 : 0;
+    ::setsockopt(beast::get_lowest_layer(ws_).socket().native_handle(), IPPROTO_TCP, TCP_CORK, &v, sizeof v);
   }
 
   void ended() {
@@ -213,8 +233,9 @@ class Session final : public SessionBase, public Connection, public std::enable_
   http::request<http::string_body> request_;
   beast::flat_buffer in_;
   OutFrame out_;
+  std::vector<asio::const_buffer> bufs_;  // out_'s pieces, while it is written
   std::shared_ptr<Peer> peer_;
-  bool open_ = false, closing_ = false, writing_ = false;
+  bool open_ = false, closing_ = false, writing_ = false, corked_ = false;
   std::atomic<bool> wake_pending_{false};
 };
 

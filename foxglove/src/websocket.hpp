@@ -20,13 +20,16 @@
 #include <string_view>
 #include <vector>
 
+#include "payload.hpp"
+
 namespace lcmx::foxglove::detail {
 
-// One WebSocket message to send: `head` then `body` (either may be empty).
+// One WebSocket message to send: `head` then the parts of `body` (either may be empty), in one
+// gathering write.
 struct OutFrame {
   bool text = true;
   std::string head;
-  std::shared_ptr<const std::string> body;
+  std::shared_ptr<const Payload> body;
 };
 
 // The server's side of one client. All calls on the I/O thread.

@@ -111,6 +111,36 @@ TEST_CASE("foxglove mapping: image, compressed image and point cloud views", "[f
   CHECK(pj->find(R"("fields":[{"name":"x","offset":0,"type":7},{"name":"y","offset":4,"type":7})") != std::string::npos);
 }
 
+TEST_CASE("foxglove mapping: a large image's base64 is made once, shared by the struct and its view", "[foxglove]") {
+  const auto r = reg();
+  auto v = types::zero_value(r.at("t.img_t"));
+  auto& s = v.as<types::Struct>();
+  s.find("width")->data = std::int64_t{300};
+  s.find("height")->data = std::int64_t{300};
+  s.find("encoding")->data = std::string("mono8");
+  types::Bytes px(90'000);
+  for (std::size_t i = 0; i < px.size(); ++i) px[i] = static_cast<std::uint8_t>(i * 13);
+  s.find("size")->data = std::int64_t{90'000};
+  s.find("data")->data = px;
+  Base64Cache cache;
+  const Payload whole = foxglove::detail::to_json(v, cache);
+  const auto view = to_view_json(ViewKind::raw_image, v, 7, cache);
+  REQUIRE(view);
+  // The same text as the one-string forms, and the base64 part is one object in both.
+  CHECK(whole.joined() == foxglove::detail::to_json(v));
+  CHECK(view->joined() == *to_view_json(ViewKind::raw_image, v, 7));
+  CHECK(whole.size == whole.joined().size());
+  REQUIRE(whole.parts.size() == 3);
+  REQUIRE(view->parts.size() == 3);
+  CHECK(whole.parts[1] == view->parts[1]);
+  CHECK(whole.parts[1]->size() == 120'000);
+  // Small byte arrays stay inline (one part).
+  s.find("data")->data = types::Bytes{1, 2, 3};
+  s.find("size")->data = std::int64_t{3};
+  Base64Cache other;
+  CHECK(foxglove::detail::to_json(v, other).parts.size() == 1);
+}
+
 TEST_CASE("foxglove mapping: unknown types and base64", "[foxglove]") {
   const std::uint8_t d[] = {0, 1, 2, 3, 4, 5, 6, 7, 8};
   CHECK(unknown_json(0x0001020304050607, d, 9) ==
@@ -126,7 +156,7 @@ TEST_CASE("foxglove mapping: unknown types and base64", "[foxglove]") {
 
 namespace {
 QueuedMessage msg(std::uint32_t sub, std::size_t bytes) {
-  return {sub, 0, std::make_shared<const std::string>(bytes, 'x'), 0};
+  return {sub, 0, Payload::of(std::string(bytes, 'x')), 0};
 }
 }  // namespace
 
@@ -164,4 +194,14 @@ TEST_CASE("foxglove client queue: bounded, large channels lose their oldest firs
   CHECK(q2.size() == 4);
   q2.erase(7);
   CHECK(q2.empty());
+
+  // Three subscriptions: pops follow arrival order across them; erasing one keeps the others'.
+  ClientQueue q3(1 << 20, 100);
+  for (int i = 0; i < 9; ++i) q3.push(msg(static_cast<std::uint32_t>(10 + i % 3), 5));
+  q3.erase(11);
+  CHECK(q3.size() == 6);
+  CHECK(q3.bytes() == 30);
+  std::vector<std::uint32_t> subs;
+  while (auto m = q3.pop()) subs.push_back(m->subscription);
+  CHECK(subs == std::vector<std::uint32_t>{10, 12, 10, 12, 10, 12});
 }

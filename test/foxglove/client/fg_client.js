@@ -15,7 +15,8 @@
 //   graph_topic: NAME                  subscribe to the connection graph, wait for NAME published
 //   dump: PATH                         write {channels, messages: {topic: [first 3 decoded]}}
 //   subscribe_all: true                subscribe to every channel advertised (now and later)
-//   slow: true                         with subscribe_all: stop reading the socket (never resume)
+//   slow: true                         with subscribe_all: stop reading the socket (never resume),
+//                                      after expect_topics are advertised
 //   stats_every_ms: N                  print {"stats":{topic:{count, lat_p50_ms...}}} lines
 //   run_ms: N                          stay connected this long after the steps (bench)
 //   report_timestamps: true            at the end, {"event":"timestamps", topic, min, max, count}
@@ -177,13 +178,14 @@ async function main() {
   await until(() => info !== null, "serverInfo");
   if (plan.expect_capability)
     await until(() => info.capabilities.includes(plan.expect_capability), "capability " + plan.expect_capability);
+  for (const t of plan.expect_topics || []) await until(() => (byTopic.get(t) || []).length > 0, "topic " + t);
   if (plan.slow) {
-    // Stop reading: the socket's receive buffer fills, then the server's sends wait.
+    // Stop reading (once the expected topics are advertised, and subscribed with subscribe_all):
+    // the socket's receive buffer fills, then the server's sends wait.
     ws._socket.pause();
     paused = true;
     out({ event: "paused" });
   }
-  for (const t of plan.expect_topics || []) await until(() => (byTopic.get(t) || []).length > 0, "topic " + t);
   for (const s of plan.subscribe || []) {
     await until(() => (byTopic.get(s.topic) || []).length > 0, "topic " + s.topic);
     for (const ch of byTopic.get(s.topic)) subscribeChannel(ch);

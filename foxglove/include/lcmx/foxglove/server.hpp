@@ -73,6 +73,13 @@ struct ServerOptions {
   std::chrono::milliseconds discovery_period{250};  // how often the channel list is refreshed
 };
 
+struct ClientStats {
+  std::string remote;              // "ip:port"
+  std::size_t queued_bytes = 0;    // in its queue now (bounded by client_queue_bytes)
+  std::size_t queued_messages = 0;
+  std::uint64_t dropped = 0;       // from its queue since it connected
+};
+
 struct ServerStats {
   std::size_t clients = 0;
   std::size_t channels = 0;        // advertised now
@@ -80,6 +87,8 @@ struct ServerStats {
   std::uint64_t messages_in = 0;   // received from lcmx
   std::uint64_t messages_out = 0;  // queued to clients (every client counts)
   std::uint64_t dropped = 0;       // dropped from client queues (slow clients)
+  std::size_t max_client_queue_bytes = 0;  // the fullest client queue now (bounded by client_queue_bytes)
+  std::vector<ClientStats> per_client;
   std::uint64_t rate_skipped = 0;  // not forwarded by a rate limit
   std::uint64_t decode_errors = 0;
   bool time = false;               // following an `lcmx play` clock (the `time` capability)
