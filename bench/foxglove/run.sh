@@ -13,15 +13,18 @@
 # publish), the stuck client's queue (bounded by --queue-mb) and the server's RSS, and publish()
 # p50/p99 without vs with the server.
 # Usage: bench/foxglove/run.sh [BUILD_DIR] [SECONDS] [WARMUP]   (loopback; a private discovery group)
-# Environment: TASKSET="taskset -c 0" (or similar) prefixes every process; SERVER_ARGS extra
-# `lcmx foxglove` options.
+# Environment: PUB_CPUS / REST_CPUS (taskset -c lists, e.g. 0 and 1): pin the publishers, and
+# everything else (plain subscriber, server, clients), to those CPUs; SERVER_ARGS: extra
+# `lcmx foxglove` options; PERF=FILE: a perf profile of the server over the window; KEEP=1 keeps
+# the outputs.
 set -euo pipefail
 here=$(cd "$(dirname "$0")" && pwd)
 root=$(cd "$here/../.." && pwd)
 build=${1:-$root/build}
 secs=${2:-15}
 warm=${3:-3}
-run=${TASKSET:-}
+pub_run=${PUB_CPUS:+taskset -c $PUB_CPUS}
+run=${REST_CPUS:+taskset -c $REST_CPUS}
 lcmx=$build/apps/lcmx
 bench=$build/bench/foxglove/lcmx_bench_foxglove
 tmp=$(mktemp -d)
@@ -39,11 +42,12 @@ wait_for() { for _ in $(seq 600); do grep -q "$2" "$1" 2>/dev/null && return 0; 
 hz=$(getconf CLK_TCK)
 cpu() { python3 -c "print(round(100*($2-$1)/$hz/$3,1))"; }
 
+load0=$(cut -d' ' -f1-3 /proc/loadavg)
 echo "== without the server: a plain lcmx subscriber of every channel ($warm s warm-up, $secs s measured)"
 $run "$bench" sub --seconds "$secs" --warmup "$warm" > "$tmp/sub.out" &
 sp=$!; pids+=("$sp")
 wait_for "$tmp/sub.out" READY
-$run "$bench" pub --seconds "$pub_secs" > "$tmp/pub0.out" &
+$pub_run "$bench" pub --seconds "$pub_secs" > "$tmp/pub0.out" &
 pp=$!; pids+=("$pp")
 wait_for "$tmp/pub0.out" MATCHED
 sleep "$warm"
@@ -59,7 +63,7 @@ $run "$lcmx" foxglove --port 0 --json --types "$root/lcmtypes" --types "$here" -
 srv=$!; pids+=("$srv")
 wait_for "$tmp/server.out" '"ready":true'
 port=$(grep -m1 '"ready":true' "$tmp/server.out" | sed 's/.*"port":\([0-9]*\).*/\1/')
-$run "$bench" pub --seconds "$pub_secs" > "$tmp/pub1.out" &
+$pub_run "$bench" pub --seconds "$pub_secs" > "$tmp/pub1.out" &
 pp=$!; pids+=("$pp")
 $run "$bench" client --port "$port" --clients 2 --slow 1 --seconds "$secs" --warmup "$warm" > "$tmp/clients.out" &
 cp=$!; pids+=("$cp")
@@ -78,6 +82,7 @@ win=$(python3 -c "print($w1-$w0)")
 srv_cpu=$(cpu "$t0" "$t1" "$win"); pub1_cpu=$(cpu "$p0" "$p1" "$win"); cl_cpu=$(cpu "$c0" "$c1" "$win")
 grep '^{"clients":3' "$tmp/server.out" > "$tmp/stats.json" || true
 
+echo "pinning: publishers ${PUB_CPUS:-any CPU}, the rest ${REST_CPUS:-any CPU}; load average before: $load0"
 python3 - "$tmp" "$srv_cpu" "$rss" "$hwm" "$pub0_cpu" "$pub1_cpu" "$sub_cpu" "$cl_cpu" <<'PY'
 import json, sys
 tmp, srv_cpu, rss, hwm, pub0_cpu, pub1_cpu, sub_cpu, cl_cpu = sys.argv[1:]
