@@ -406,6 +406,12 @@ int run_play() {
                   << " (lcmx's discovery beacons) not played: they would announce the recorded processes as alive\n";
         continue;
       }
+      if (ch == foxglove::kPlayClockChannel && !o.no_clock) {
+        // A clock recorded from an earlier play: two clocks would fight. --no-clock plays it.
+        std::cerr << "lcmx play: " << ci.count << " events of " << ch
+                  << " (a recorded play clock) not played: this play publishes its own (--no-clock plays them)\n";
+        continue;
+      }
       auto it = remap.find(ch);
       const std::string out = it == remap.end() ? ch : it->second;
       if (out.size() > kMaxChannelLength) {
