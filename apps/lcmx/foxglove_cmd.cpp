@@ -47,15 +47,17 @@ std::optional<foxglove::RateLimit> parse_rate(const std::string& s, std::string*
 }
 
 std::string stats_json(const foxglove::ServerStats& s) {
-  std::string j = "{\"clients\":" + std::to_string(s.clients) + ",\"channels\":" + std::to_string(s.channels) +
-         ",\"lcm_subscriptions\":" + std::to_string(s.lcm_subscriptions) +
-         ",\"messages_in\":" + std::to_string(s.messages_in) + ",\"messages_out\":" + std::to_string(s.messages_out) +
-         ",\"dropped\":" + std::to_string(s.dropped) + ",\"max_client_queue_bytes\":" + std::to_string(s.max_client_queue_bytes) + ",\"rate_skipped\":" + std::to_string(s.rate_skipped) +
-         ",\"decode_errors\":" + std::to_string(s.decode_errors) + ",\"time\":" + (s.time ? "true" : "false") + ",\"per_client\":[";
+  auto n = [](auto v) { return std::to_string(v); };
+  std::string j = "{\"clients\":" + n(s.clients) + ",\"channels\":" + n(s.channels) +
+                  ",\"lcm_subscriptions\":" + n(s.lcm_subscriptions) + ",\"messages_in\":" + n(s.messages_in) +
+                  ",\"messages_out\":" + n(s.messages_out) + ",\"dropped\":" + n(s.dropped) +
+                  ",\"max_client_queue_bytes\":" + n(s.max_client_queue_bytes) +
+                  ",\"rate_skipped\":" + n(s.rate_skipped) + ",\"decode_errors\":" + n(s.decode_errors) +
+                  ",\"time\":" + (s.time ? "true" : "false") + ",\"per_client\":[";
   for (std::size_t i = 0; i < s.per_client.size(); ++i) {
     const auto& c = s.per_client[i];
-    j += std::string(i ? "," : "") + "{\"remote\":\"" + c.remote + "\",\"queued_bytes\":" + std::to_string(c.queued_bytes) +
-         ",\"queued_messages\":" + std::to_string(c.queued_messages) + ",\"dropped\":" + std::to_string(c.dropped) + "}";
+    j += std::string(i ? "," : "") + "{\"remote\":\"" + c.remote + "\",\"queued_bytes\":" + n(c.queued_bytes) +
+         ",\"queued_messages\":" + n(c.queued_messages) + ",\"dropped\":" + n(c.dropped) + "}";
   }
   return j + "]}";
 }

@@ -936,7 +936,8 @@ std::optional<std::uint64_t> ServerImpl::log_time_ns() {
   std::lock_guard l(clock_mu);
   std::int64_t t = clock.log_ns;
   if (!clock.paused && clock.speed > 0)
-    t += static_cast<std::int64_t>(std::chrono::duration<double, std::nano>(Clock::now() - clock.at).count() * clock.speed);
+    t += static_cast<std::int64_t>(std::chrono::duration<double, std::nano>(Clock::now() - clock.at).count() *
+                                   clock.speed);
   return static_cast<std::uint64_t>(t);
 }
 
