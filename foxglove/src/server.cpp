@@ -88,6 +88,27 @@ std::vector<std::regex> compile(const std::vector<std::string>& patterns, const 
   }
   return out;
 }
+// A name from the network (channel, service) or an error text holding one, for the log: bytes a
+// terminal could act on (controls, DEL, anything not ASCII) as \xNN, a backslash doubled (README
+// "Names from the network"; apps' safe_text.hpp does the same for the verbs' own output).
+std::string printable(std::string_view s) {
+  std::string out;
+  out.reserve(s.size());
+  for (const char ch : s) {
+    const auto c = static_cast<unsigned char>(ch);
+    if (c == '\\') {
+      out += "\\\\";
+    } else if (c >= 0x20 && c < 0x7f) {
+      out += ch;
+    } else {
+      char b[8];
+      std::snprintf(b, sizeof b, "\\x%02x", c);
+      out += b;
+    }
+  }
+  return out;
+}
+
 // lcmx's own channels, never advertised.
 bool reserved_channel(const std::string& ch) {
   return ch == "LCMX_BEACON" || ch == "LCMX_HISTORY" || ch == kPlayClockChannel;
@@ -645,7 +666,7 @@ void ServerImpl::run_discovery() {
     try {
       tick();
     } catch (const std::exception& e) {
-      spdlog::warn("lcmx foxglove: discovery: {}", e.what());
+      spdlog::warn("lcmx foxglove: discovery: {}", printable(e.what()));
     }
     l.lock();
   }
@@ -758,7 +779,7 @@ void ServerImpl::tick() {
         probed.emplace(ch, fp.value_or(0));
       }));
     } catch (const std::exception& e) {
-      spdlog::warn("lcmx foxglove: cannot probe channel '{}': {}", ch, e.what());
+      spdlog::warn("lcmx foxglove: cannot probe channel '{}': {}", printable(ch), printable(e.what()));
     }
   }
   for (auto& [ch, fps] : pubs) fps.erase(0);
@@ -847,7 +868,7 @@ void ServerImpl::tick() {
             e.client = node->create_client_raw(name);
             it = services.emplace(name, std::move(e)).first;
           } catch (const std::exception& ex) {
-            spdlog::warn("lcmx foxglove: service '{}': {}", name, ex.what());
+            spdlog::warn("lcmx foxglove: service '{}': {}", printable(name), printable(ex.what()));
             continue;
           }
         }
@@ -1105,8 +1126,8 @@ void ServerImpl::on_message(Route& r, const RawMessage& m) {
         } catch (const std::exception& e) {
           failed = true;
           if (decode_errors.fetch_add(1) % 1000 == 0)
-            spdlog::warn("lcmx foxglove: channel '{}': a message did not decode as {}: {}", r.lcm, t.type->full_name(),
-                         e.what());
+            spdlog::warn("lcmx foxglove: channel '{}': a message did not decode as {}: {}", printable(r.lcm),
+                         printable(t.type->full_name()), printable(e.what()));
         }
       }
       if (!value) continue;
