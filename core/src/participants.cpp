@@ -116,13 +116,8 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change,
     if (disco_vehicle) disco_vehicle->announce_now();
   }
   send_replays();
-  // A participant of this host that vanished without a goodbye may have left shared memory.
-  if (!vehicle && change == discovery::Change::left && options.reclaim_orphans) {
-    const auto r = shm::reclaim_orphans();
-    if (r.removed > 0)
-      spdlog::info("lcmx: removed {} shared-memory segments of {} pid {}", r.removed,
-                   b.process_name, b.pid);
-  }
+  // A participant of this host that died left shared memory: its registry's speaker reclaims
+  // it (its segments only, by name: discovery::Registry), not every process of the host.
   emit(std::move(events));
 }
 
