@@ -1,10 +1,11 @@
 // bench/discovery peer: a user's kind of program. Publishes 10 topics at 1 Hz and subscribes to
 // the 10 topics of other processes (--sub, repeatable: "<index>:<k>" = topic k of process
 // <index>; default: the 10 topics of process index+1 mod n). Prints "MATCHED <ns>" (CLOCK_MONOTONIC)
-// once every subscription has a publisher, then "READY" lines never again; runs until stdin
+// once every subscription has a publisher (after "READY <ns>" once its endpoints exist); runs until stdin
 // closes (the driver's pipe) or SIGTERM. Discovery options come from the environment
 // (LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL, LCMX_BEACON_PERIOD_MS...), RuntimeOptions::from_env.
 #include <poll.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -29,6 +30,7 @@ std::int64_t mono_ns() {
 }  // namespace
 
 int main(int argc, char** argv) {
+  const auto t_main = mono_ns();
   int index = 0, n = 1, topics = 10;
   std::string prefix = "DB";
   std::vector<std::string> subs;
@@ -57,6 +59,13 @@ int main(int argc, char** argv) {
     pubs.push_back(node.advertise<lcmx_examples::pose_t>(prefix + "_" + std::to_string(index) + "_" + std::to_string(k)));
   std::vector<lcmx::Subscriber<lcmx_examples::pose_t>> ss;
   for (const auto& s : subs) ss.push_back(node.subscribe<lcmx_examples::pose_t>(s, [](const lcmx_examples::pose_t&) {}));
+  rusage ru{};
+  ::getrusage(RUSAGE_SELF, &ru);
+  const long long cpu_us = (ru.ru_utime.tv_sec + ru.ru_stime.tv_sec) * 1000000LL + ru.ru_utime.tv_usec + ru.ru_stime.tv_usec;
+  std::printf("READY %lld %lld %lld\n", static_cast<long long>(mono_ns()), cpu_us,
+              static_cast<long long>(mono_ns() - t_main));  // endpoints created: CPU and wall time so far
+  std::fflush(stdout);
+  std::fflush(stdout);
   bool matched = false;
   auto next_pub = std::chrono::steady_clock::now();
   lcmx_examples::pose_t msg{};

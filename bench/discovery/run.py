@@ -103,7 +103,7 @@ def main():
     results = []
     for run in range(args.runs):
         results.append(one_run(args, run))
-        print(json.dumps(results[-1]), flush=True)
+        print(json.dumps({k: v for k, v in results[-1].items() if k != "match_s"}), flush=True)
     match = [x for r in results for x in r["match_s"]]
     summary = {
         "label": args.label, "hosts": args.hosts, "n": args.n, "runs": args.runs,
@@ -116,6 +116,7 @@ def main():
         "lan_tx_bytes_per_s_per_host": round(statistics.median(r["lan_Bps_per_host"] for r in results)) if args.hosts > 1 else None,
         "lan_bytes_to_match": round(statistics.median(r["lan_bytes_to_match"] for r in results)) if args.hosts > 1 else None,
         "churn_ms_per_other": results[0].get("churn_ms_per_other"),
+        "last_ready_s": round(statistics.median(r["last_ready_s"] for r in results), 3),
     }
     print("SUMMARY " + json.dumps(summary), flush=True)
     if args.json:
@@ -179,7 +180,8 @@ def one_run(args, run):
             procs.append(start(h, i))
         last_start = max(starts.values())
         matched = {}
-        os.set_blocking
+        ready = {}
+        ready_cpu = {}
         for p in procs:
             os.set_blocking(p.stdout.fileno(), False)
         deadline = time.monotonic() + args.timeout
@@ -197,9 +199,14 @@ def one_run(args, run):
                     for line in bufs[k].split(b"\n"):
                         if line.startswith(b"MATCHED "):
                             matched[k] = int(line.split()[1])
+                        elif line.startswith(b"READY "):
+                            ready[k] = int(line.split()[1])
+                            ready_cpu[k] = int(line.split()[2]) / 1000.0
             time.sleep(0.02)
         lan_to_match = sum(net.tx_bytes(h) - lan0[h] for h in range(args.hosts)) if args.hosts > 1 else 0
         match_s = [max(0, t - last_start) / 1e9 for t in matched.values()]
+        # when the last process had its endpoints (start-up: exec, runtime, shm segments)
+        ready_s = (max(ready.values()) - last_start) / 1e9 if ready else float("nan")
         time.sleep(args.settle)
         pids = [p.pid for p in procs]
         # the peer is the child of `ip netns exec` (which execs: same pid)
@@ -212,7 +219,8 @@ def one_run(args, run):
         c1 = sum(cpu_ticks(x) for x in pids)
         g1 = os.path.getsize(logf) if args.logger and os.path.exists(logf) else 0
         l1 = [net.tx_bytes(h) for h in range(args.hosts)] if args.hosts > 1 else []
-        res = {"run": run, "total": len(procs), "matched": len(matched), "match_s": match_s,
+        res = {"run": run, "total": len(procs), "matched": len(matched), "match_s": match_s, "last_ready_s": ready_s,
+               "startup_cpu_ms_p50": pct(list(ready_cpu.values()), 50), "startup_cpu_ms_max": max(ready_cpu.values(), default=0),
                "cpu_pct": 100.0 * (c1 - c0) / TICK / w, "group_Bps": (g1 - g0) / w,
                "lan_Bps_per_host": (sum(l1) - sum(l0)) / w / max(1, args.hosts),
                "lan_bytes_to_match": lan_to_match}

@@ -39,7 +39,7 @@ constexpr auto kStall = std::chrono::milliseconds(100);
 constexpr int kMaxReads = 3;
 // Registry passes: at most one per kCoalesce (a 500-process launch changes the registry
 // thousands of times a second; every reader folds them into few passes).
-constexpr auto kCoalesce = std::chrono::milliseconds(10);
+constexpr auto kCoalesce = std::chrono::milliseconds(20);
 // The speaker polls its participants' pidfds at least this often (death notice).
 constexpr auto kSpeakerTick = std::chrono::milliseconds(20);
 // The speaker sends the records of changed participants this long after the first change.
@@ -112,6 +112,7 @@ struct Discovery::Impl {
   std::int64_t sequence = 0;
   std::atomic<std::int64_t> self_id{0};
   std::atomic<bool> is_speaker{false};
+  bool is_deputy = false;  // discovery thread only
 
   // Orders what on_change is told (see the comment in the header of this class's users):
   // taken around a change of the table *and* its callback. Lock order: deliver_mutex, then mutex.
@@ -140,7 +141,6 @@ struct Discovery::Impl {
   std::vector<Known> known;
   std::uint32_t seen_changes = 0;
   Clock::time_point last_pass{};
-  bool force_pass = true;
   std::vector<std::string> own_topics;
   bool wildcard = false;  // reads every participant (observer, bridge, pattern subscriptions, speaker)
   std::uint64_t own_struct = 0;
@@ -298,8 +298,17 @@ struct Discovery::Impl {
       const bool wc = (flags & reg::kSlotWildcard) != 0;
       if (names != own_topics || wc != wildcard) {
         own_topics = std::move(names);
+        own_bits.clear();
+        std::set<std::uint16_t> words;
+        for (const auto& t : own_topics) {
+          own_bits.push_back(reg::topic_bits(t));
+          words.insert(own_bits.back().bit[0]);
+        }
+        bucket_tokens.clear();
+        for (auto w : words)
+          bucket_tokens.push_back({&reg->buckets[w], reg->buckets[w].load(std::memory_order_acquire), false});
         wildcard = wc || options.observer;
-        force_pass = true;  // participants skipped before may concern us now
+        recheck_skipped = true;  // participants skipped before may concern us now
       }
     }
     std::lock_guard lock(mutex);
@@ -311,10 +320,21 @@ struct Discovery::Impl {
   bool concerns(const reg::Slot& s) const {
     if (wildcard || is_speaker) return true;
     if (s.flags.load(std::memory_order_relaxed) & reg::kSlotWildcard) return true;
-    reg::TopicFilter f;
-    for (std::size_t k = 0; k < reg::kTopicWords; ++k) f.w[k] = s.topics[k].load(std::memory_order_relaxed);
-    return f.intersects_names(own_topics);
+    for (const auto& t : own_bits) {
+      bool all = true;
+      for (auto bit : t.bit)
+        if (!(s.topics[bit / 64].load(std::memory_order_relaxed) & (std::uint64_t{1} << (bit % 64)))) {
+          all = false;
+          break;
+        }
+      if (all) return true;
+    }
+    return false;
   }
+  std::vector<reg::TopicBits> own_bits;
+  // What a non-wildcard reader sleeps on: the words of its topics' first filter bits.
+  std::vector<shm::WaitToken> bucket_tokens;
+  bool sleep_on_buckets() const { return !wildcard && !is_speaker && !own_bits.empty() && own_bits.size() < 120; }
 
   void tell(Change c, Participant p) {
     // deliver_mutex held by the caller
@@ -341,102 +361,54 @@ struct Discovery::Impl {
     k = Known{};
   }
 
-  // Discovery thread: one pass over the slots in use. Cost: a few loads per slot, plus a state
-  // file read per participant whose revision changed and whose topics concern us.
+  // Discovery thread: a pass over the registry. Incremental: only the slots the change log
+  // names since our last pass (and those to retry); full (every slot in use): every period
+  // (leases are judged), after our own topics changed, and when we fell behind the log. Cost
+  // per slot visited: a few loads, plus a state file read when its revision changed and its
+  // topics concern us.
   void registry_pass() {
     if (!reg) return;
     seen_changes = reg->header->changes.load(std::memory_order_acquire);  // pairs with bump_changes
+    for (auto& t : bucket_tokens) t.expected = t.word->load(std::memory_order_acquire);  // likewise
     last_pass = Clock::now();
-    const bool all = force_pass;
-    force_pass = false;
-    const auto now = reg::now_ns();
+    bool full = full_due || recheck_skipped;
+    const bool recheck = recheck_skipped;
+    full_due = recheck_skipped = false;
+    std::vector<std::uint32_t> todo(retry.begin(), retry.end());
+    retry.clear();
+    const auto head = reg->header->log_head.load(std::memory_order_acquire);
+    if (!full) {
+      if (head - log_pos > reg::kLogSize) full = true;
+      for (auto p = log_pos; !full && p < head; ++p) {
+        // acquire: pairs with bump_changes' release store of the entry.
+        const auto e = reg->log[p % reg::kLogSize].load(std::memory_order_acquire);
+        const auto expected = p & ((std::uint64_t{1} << 44) - 1);
+        if (e == ~0ull || (e >> 20) < expected) {  // reserved, not yet written: again soon
+          retry_soon = true;
+          break;
+        }
+        if ((e >> 20) != expected) {  // overwritten: we fell behind
+          full = true;
+          break;
+        }
+        todo.push_back(static_cast<std::uint32_t>(e & 0xfffff));
+        log_pos = p + 1;
+      }
+    }
+    if (full) log_pos = head;
     const auto hw = std::min(reg->header->high_water.load(std::memory_order_acquire), reg->slot_count);
+    if (full) {
+      todo.resize(hw);
+      for (std::uint32_t i = 0; i < hw; ++i) todo[i] = i;
+    } else {
+      std::sort(todo.begin(), todo.end());
+      todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
+    }
+    const auto now = reg::now_ns();
     std::vector<std::pair<Change, Participant>> out;
     std::unique_lock order(deliver_mutex);
-    for (std::uint32_t i = 0; i < reg->slot_count && i < std::max<std::uint32_t>(hw, 1); ++i) {
-      auto& s = reg->slot(i);
-      auto& k = known[i];
-      const auto st = s.state.load(std::memory_order_acquire);  // pairs with join's release
-      if (reg::state_of(st) != reg::kLive) {
-        if (k.id != 0) forget_known(i, out);
-        continue;
-      }
-      const auto id = s.participant_id.load(std::memory_order_relaxed);
-      if (id == self_id.load()) continue;
-      if (k.id != 0 && (k.state != st || k.id != id)) forget_known(i, out);  // reused slot
-      const auto lease = lease_of(s.lease_ms.load(std::memory_order_relaxed));
-      const auto age = now - s.heartbeat_ns.load(std::memory_order_relaxed);
-      if (age > std::chrono::duration_cast<std::chrono::nanoseconds>(lease).count()) {
-        if (k.id != 0) {
-          if (k.told) {
-            std::lock_guard lock(mutex);
-            ++counters.leases_expired;
-          }
-          forget_known(i, out);  // stopped or hung: back when its heartbeat is
-        }
-        continue;
-      }
-      const auto seq = s.seq.load(std::memory_order_acquire);  // pairs with publish's release
-      const auto stats = s.stats_seq.load(std::memory_order_relaxed);
-      const bool observer_refresh = options.observer && k.told && stats != k.stats_seq;
-      if (k.id == id && k.seq == seq && !observer_refresh && !(all && k.skipped)) continue;
-      if (seq & 1) {
-        force_pass = true;  // being written: again soon
-        continue;
-      }
-      k.state = st;
-      k.id = id;
-      if (!concerns(s)) {
-        k.seq = seq;
-        k.skipped = true;
-        std::lock_guard lock(mutex);
-        ++counters.registry_skipped;
-        continue;
-      }
-      auto state = reg->read_state(i, id, seq);
-      if (!state) {
-        force_pass = true;
-        continue;
-      }
-      {
-        std::lock_guard lock(mutex);
-        ++counters.registry_reads;
-      }
-      k.seq = seq;
-      k.stats_seq = stats;
-      k.skipped = false;
-      if (is_speaker)
-        speak_update(id, *state, static_cast<std::int64_t>(state->revision),
-                     s.vehicle_group.load(std::memory_order_relaxed));
-      if (!host_scope || state->host.empty()) continue;  // vehicle scope: this host is known through the host scope
-      if (k.told && state->host_struct == k.host_struct && !observer_refresh) continue;
-      std::string why;
-      auto b = decode_beacon(state->host, &why);
-      if (!b) {
-        std::lock_guard lock(mutex);
-        ++counters.malformed;
-        warn_limited(last_malformed_log, "lcmx discovery: ignored the registry state of participant {}: {}", id, why);
-        continue;
-      }
-      if (b->participant_id != id) continue;
-      b->revision = static_cast<std::int64_t>(state->revision);
-      b->lease_ms = static_cast<std::int32_t>(lease.count());
-      k.host_struct = state->host_struct;
-      Participant p{std::move(*b), Clock::now()};
-      Change c;
-      {
-        std::lock_guard lock(mutex);
-        auto [it, fresh] = peers.try_emplace(id);
-        c = fresh ? Change::joined : Change::updated;
-        table_bytes += state->host.size() - it->second.bytes;
-        it->second.p = p;
-        it->second.host = 0;
-        it->second.bytes = state->host.size();
-        ++counters.beacons_received;
-      }
-      k.told = true;
-      out.emplace_back(c, std::move(p));
-    }
+    for (auto i : todo)
+      if (i < reg->slot_count) visit(i, now, recheck, out);
     for (auto& [c, p] : out) {
       if (c == Change::left)
         spdlog::debug("lcmx discovery: participant {} ({} pid {}) left", p.beacon.participant_id,
@@ -444,6 +416,96 @@ struct Discovery::Impl {
       tell(c, std::move(p));
     }
   }
+
+  void visit(std::uint32_t i, std::int64_t now, bool recheck, std::vector<std::pair<Change, Participant>>& out) {
+    auto& s = reg->slot(i);
+    auto& k = known[i];
+    const auto st = s.state.load(std::memory_order_acquire);  // pairs with join's release
+    if (reg::state_of(st) != reg::kLive) {
+      if (k.id != 0) forget_known(i, out);
+      return;
+    }
+    const auto id = s.participant_id.load(std::memory_order_relaxed);
+    if (id == self_id.load()) return;
+    if (k.id != 0 && (k.state != st || k.id != id)) forget_known(i, out);  // reused slot
+    const auto lease = lease_of(s.lease_ms.load(std::memory_order_relaxed));
+    const auto age = now - s.heartbeat_ns.load(std::memory_order_relaxed);
+    if (age > std::chrono::duration_cast<std::chrono::nanoseconds>(lease).count()) {
+      if (k.id != 0) {
+        if (k.told) {
+          std::lock_guard lock(mutex);
+          ++counters.leases_expired;
+        }
+        forget_known(i, out);  // stopped or hung: back when its heartbeat is
+      }
+      return;
+    }
+    const auto seq = s.seq.load(std::memory_order_acquire);  // pairs with publish's release
+    const auto stats = s.stats_seq.load(std::memory_order_relaxed);
+    const bool observer_refresh = options.observer && k.told && stats != k.stats_seq;
+    if (k.id == id && k.seq == seq && !observer_refresh && !(recheck && k.skipped)) return;
+    if (seq & 1) {  // being written: again soon
+      retry.insert(i);
+      retry_soon = true;
+      return;
+    }
+    k.state = st;
+    k.id = id;
+    if (!concerns(s)) {
+      k.seq = seq;
+      k.skipped = true;
+      std::lock_guard lock(mutex);
+      ++counters.registry_skipped;
+      return;
+    }
+    auto state = reg->read_state(i, id, seq);
+    if (!state) {
+      retry.insert(i);
+      retry_soon = true;
+      return;
+    }
+    {
+      std::lock_guard lock(mutex);
+      ++counters.registry_reads;
+    }
+    k.seq = seq;
+    k.stats_seq = stats;
+    k.skipped = false;
+    if (is_speaker)
+      speak_update(id, *state, static_cast<std::int64_t>(state->revision),
+                   s.vehicle_group.load(std::memory_order_relaxed));
+    if (!host_scope || state->host.empty()) return;  // vehicle scope: this host is known through the host scope
+    if (k.told && state->host_struct == k.host_struct && !observer_refresh) return;
+    std::string why;
+    auto b = decode_beacon(state->host, &why);
+    if (!b) {
+      std::lock_guard lock(mutex);
+      ++counters.malformed;
+      warn_limited(last_malformed_log, "lcmx discovery: ignored the registry state of participant {}: {}", id, why);
+      return;
+    }
+    if (b->participant_id != id) return;
+    b->revision = static_cast<std::int64_t>(state->revision);
+    b->lease_ms = static_cast<std::int32_t>(lease.count());
+    k.host_struct = state->host_struct;
+    Participant p{std::move(*b), Clock::now()};
+    Change c;
+    {
+      std::lock_guard lock(mutex);
+      auto [it, fresh] = peers.try_emplace(id);
+      c = fresh ? Change::joined : Change::updated;
+      table_bytes += state->host.size() - it->second.bytes;
+      it->second.p = p;
+      it->second.host = 0;
+      it->second.bytes = state->host.size();
+      ++counters.beacons_received;
+    }
+    k.told = true;
+    out.emplace_back(c, std::move(p));
+  }
+  std::uint64_t log_pos = 0;
+  bool full_due = true, recheck_skipped = false, retry_soon = false;
+  std::set<std::uint32_t> retry;
 
   // ------------------------------------------------------------ speaker
   // vehicle: only participants of our vehicle group (the slot names it) are spoken for.
@@ -631,10 +693,18 @@ struct Discovery::Impl {
   }
   Clock::time_point next_lock_probe{};
 
+  // Speaker election: the speaker holds an OFD lock (the kernel drops it when it dies). One
+  // deputy (host scope; it holds the deputy lock) tries the speaker's lock every kSpeakerTick,
+  // so a dead speaker is replaced within ~20 ms; everyone else tries the deputy's lock once per period.
   void try_speak() {
     if (options.observer || !reg || !joined_registry) return;
     if (is_speaker) return;
+    if (host_scope && !is_deputy && reg->try_lock(reg::kLockDeputy)) is_deputy = true;
     if (!reg->try_lock(speaker_byte)) return;
+    if (is_deputy) {
+      reg->unlock(reg::kLockDeputy);
+      is_deputy = false;
+    }
     is_speaker = true;
     {
       std::lock_guard lock(mutex);
@@ -649,7 +719,7 @@ struct Discovery::Impl {
     }
     // Read every participant: we speak for all of them.
     for (auto& k : known) k.seq = ~0ull;
-    force_pass = true;
+    full_due = true;
     next_heartbeat = Clock::now();
     spdlog::debug("lcmx discovery: participant {} speaks for {} (scope {})", self_id.load(), reg->path,
                   static_cast<int>(options.scope));
@@ -952,24 +1022,23 @@ struct Discovery::Impl {
         publish_local(periodic);
         if (periodic) {
           next_periodic = now + options.period;
-          force_pass = force_pass || options.observer;
           if (options.observer && reg)  // keep the participants' statistics fresh while we watch
             reg->header->observed_until_ns.store(
                 reg::now_ns() + 3 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count(),
                 std::memory_order_relaxed);
           try_speak();
-          registry_pass_due = true;  // leases are judged every period
+          full_due = true;  // leases are judged every period
         }
       }
+      if (is_deputy) try_speak();
       if (want_query.exchange(false)) {
         send_query();
-        force_pass = true;
+        full_due = true;
       }
       const bool reads = reg && (host_scope || is_speaker);
-      if (reads && (registry_pass_due || force_pass ||
-                  reg->header->changes.load(std::memory_order_acquire) != seen_changes)) {
-        if (Clock::now() - last_pass >= kCoalesce || registry_pass_due) {
-          registry_pass_due = false;
+      if (reads && (full_due || recheck_skipped || retry_soon || changed_since_pass())) {
+        if (Clock::now() - last_pass >= kCoalesce || full_due) {
+          retry_soon = false;
           registry_pass();
         }
       }
@@ -979,7 +1048,9 @@ struct Discovery::Impl {
 
       // Sleep until the next period, a host's lease, a change of the registry, or a wake-up.
       auto until = std::min(next_periodic, next_host_expiry());
+      if (retry_soon) until = std::min(until, last_pass + kCoalesce);
       if (is_speaker) until = std::min({until, Clock::now() + kSpeakerTick, flush_at});
+      if (is_deputy) until = std::min(until, Clock::now() + kSpeakerTick);
       const auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       const auto ms = std::clamp<std::int64_t>(wait.count(), 0, 1000);
       if (is_speaker || !reads) {
@@ -997,23 +1068,31 @@ struct Discovery::Impl {
           const auto rest = std::min<std::int64_t>(ms, std::chrono::duration_cast<std::chrono::milliseconds>(kCoalesce - since).count() + 1);
           shm::WaitToken t{&wake_word, expected_wake, true};
           shm::wait_any(std::span(&t, 1), std::chrono::milliseconds(rest));
-          if (reg->header->changes.load(std::memory_order_acquire) == seen_changes) {
-            // nothing changed meanwhile: sleep for real below
-          } else {
-            continue;
-          }
+          if (changed_since_pass()) continue;  // else: nothing changed meanwhile, sleep for real below
         }
-        shm::WaitToken t[2] = {{&reg->header->changes, seen_changes, false}, {&wake_word, expected_wake, true}};
+        std::vector<shm::WaitToken> t;
+        t.push_back({&wake_word, expected_wake, true});
+        if (sleep_on_buckets()) t.insert(t.end(), bucket_tokens.begin(), bucket_tokens.end());
+        else t.push_back({&reg->header->changes, seen_changes, false});
         std::uint64_t v;
         [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);  // keep the eventfd from filling
-        shm::wait_any(std::span(t, 2), std::chrono::milliseconds(ms));
+        shm::wait_any(std::span(t), std::chrono::milliseconds(ms));
       }
     }
     if (is_speaker && host_scope) reg->header->speaker.store(0, std::memory_order_relaxed);
     if (is_speaker) reg->unlock(speaker_byte);
+    if (is_deputy) reg->unlock(reg::kLockDeputy);
     is_speaker = false;
+    is_deputy = false;
   }
-  bool registry_pass_due = true;
+
+  // A change since our last pass that may concern us.
+  bool changed_since_pass() const {
+    if (!sleep_on_buckets()) return reg->header->changes.load(std::memory_order_acquire) != seen_changes;
+    for (const auto& t : bucket_tokens)
+      if (t.word->load(std::memory_order_acquire) != t.expected) return true;
+    return false;
+  }
 
   void rx_loop() {
     while (!stopping.load()) {

@@ -47,12 +47,15 @@ std::int64_t now_ns() {
   return std::int64_t{ts.tv_sec} * 1000000000 + ts.tv_nsec;
 }
 
-void TopicFilter::add(const std::string& topic) {
+TopicBits topic_bits(const std::string& topic) {
   const auto h = fnv_str(topic);
-  for (int k = 0; k < 3; ++k) {
-    const auto bit = (h >> (k * 10)) & 1023;
-    w[bit / 64] |= std::uint64_t{1} << (bit % 64);
-  }
+  TopicBits b{};
+  for (int k = 0; k < 3; ++k) b.bit[k] = static_cast<std::uint16_t>((h >> (k * 10)) & 1023);
+  return b;
+}
+
+void TopicFilter::add(const std::string& topic) {
+  for (auto bit : topic_bits(topic).bit) w[bit / 64] |= std::uint64_t{1} << (bit % 64);
 }
 
 bool TopicFilter::may_hold(const std::string& topic) const {
@@ -108,7 +111,10 @@ bool byte_held(int fd, off_t byte) {
   return fl.l_type != F_UNLCK;
 }
 
-std::size_t file_size(std::uint32_t slots) { return sizeof(reg::Header) + std::size_t{slots} * sizeof(reg::Slot); }
+std::size_t file_size(std::uint32_t slots) {
+  return sizeof(reg::Header) + std::size_t{slots} * sizeof(reg::Slot) + reg::kLogSize * sizeof(std::uint64_t) +
+         reg::kBuckets * sizeof(std::uint32_t);
+}
 
 }  // namespace
 
@@ -169,6 +175,7 @@ std::shared_ptr<Registry> Registry::open(const RegistryOptions& o) {
         init = true;  // a creator died half-way
       } else if (version != reg::kVersion || h.header_size != sizeof(reg::Header) ||
                  h.slot_size != sizeof(reg::Slot) || h.slot_count < 2 || h.slot_count > 65536 ||
+                 h.log_size != reg::kLogSize ||
                  h.host_id != impl->options.host_id || h.group_hash != ghash ||
                  static_cast<std::size_t>(st.st_size) < file_size(h.slot_count)) {
         ::close(fd);
@@ -197,6 +204,9 @@ std::shared_ptr<Registry> Registry::open(const RegistryOptions& o) {
     impl->header = static_cast<reg::Header*>(p);
     impl->slots = reinterpret_cast<reg::Slot*>(static_cast<char*>(p) + sizeof(reg::Header));
     impl->slot_count = count;
+    impl->log = reinterpret_cast<std::atomic<std::uint64_t>*>(static_cast<char*>(p) + sizeof(reg::Header) +
+                                                              std::size_t{count} * sizeof(reg::Slot));
+    impl->buckets = reinterpret_cast<std::atomic<std::uint32_t>*>(impl->log + reg::kLogSize);
     if (init) {
       auto* h = impl->header;
       h->header_size = sizeof(reg::Header);
@@ -205,6 +215,9 @@ std::shared_ptr<Registry> Registry::open(const RegistryOptions& o) {
       h->host_id = impl->options.host_id;
       h->group_hash = ghash;
       h->registry_id = random_participant_id();
+      h->log_size = reg::kLogSize;
+      // An entry that names position 0 for slot 0 would be taken as written: mark all unwritten.
+      for (std::uint32_t k = 0; k < reg::kLogSize; ++k) impl->log[k].store(~0ull, std::memory_order_relaxed);
       // version last: a reader that sees it sees the fields above (release; paired with the
       // acquire load in a later open(), which runs under the init lock anyway).
       h->version.store(reg::kVersion, std::memory_order_release);
@@ -274,7 +287,7 @@ void Registry::Impl::join(std::int64_t participant, std::int32_t lease_ms) {
     }
     // kLive (release): pairs with readers' acquire load of `state`.
     s.state.store(reg::make_state(reg::epoch_of(cur), reg::kLive), std::memory_order_release);
-    bump_changes();
+    bump_changes(i);
     return;
   }
   ::close(state_fd);
@@ -285,7 +298,22 @@ void Registry::Impl::join(std::int64_t participant, std::int32_t lease_ms) {
                            " participants on this host and group)");
 }
 
-void Registry::Impl::bump_changes() {
+void Registry::Impl::bump_changes(std::uint32_t i, const std::uint64_t* also) {
+  if (i < slot_count) {
+    const auto pos = header->log_head.fetch_add(1, std::memory_order_relaxed);
+    // release: the slot's change is visible to a reader that reads this entry (acquire).
+    log[pos % reg::kLogSize].store(reg::log_entry(pos, i), std::memory_order_release);
+    for (std::size_t k = 0; k < reg::kTopicWords; ++k) {
+      auto w = slots[i].topics[k].load(std::memory_order_relaxed) | (also ? also[k] : 0);
+      while (w) {
+        const auto bit = k * 64 + static_cast<std::size_t>(__builtin_ctzll(w));
+        w &= w - 1;
+        // release: pairs with the reader's acquire load of the word before its pass.
+        buckets[bit].fetch_add(1, std::memory_order_release);
+        shm::futex_wake_all(&buckets[bit]);
+      }
+    }
+  }
   header->changes.fetch_add(1, std::memory_order_release);  // pairs with readers' acquire load
   shm::futex_wake_all(&header->changes);
 }
@@ -325,6 +353,8 @@ bool Registry::Impl::publish(bool vehicle, std::vector<std::byte> bytes, std::ui
   std::atomic_thread_fence(std::memory_order_release);
   bool ok = ::pwrite(state_fd, file.data(), file.size(), 0) == static_cast<ssize_t>(file.size());
   if (ok) ok = ::ftruncate(state_fd, static_cast<off_t>(file.size())) == 0;
+  std::uint64_t before[reg::kTopicWords];
+  for (std::size_t k = 0; k < reg::kTopicWords; ++k) before[k] = s.topics[k].load(std::memory_order_relaxed);
   if (topics && !vehicle)
     for (std::size_t k = 0; k < reg::kTopicWords; ++k) s.topics[k].store(topics->w[k], std::memory_order_relaxed);
   if (!vehicle) {
@@ -337,7 +367,7 @@ bool Registry::Impl::publish(bool vehicle, std::vector<std::byte> bytes, std::ui
   else s.stats_seq.fetch_add(1, std::memory_order_relaxed);
   s.seq.store(seq + 2, std::memory_order_release);  // even: pairs with readers' acquire load
   if (!ok) spdlog::warn("lcmx discovery: cannot write {}: {}", state_path, std::strerror(errno));
-  if (bump) bump_changes();
+  if (bump) bump_changes(static_cast<std::uint32_t>(own), before);
   return bump;
 }
 
@@ -355,8 +385,8 @@ void Registry::Impl::leave() {
   // kFree with the next epoch (release): readers see the slot left.
   s.state.store(reg::make_state(reg::epoch_of(cur) + 1, reg::kFree), std::memory_order_release);
   lock_byte(fd, reg::kLockSlots + own, F_UNLCK, false);
+  bump_changes(static_cast<std::uint32_t>(own));
   own = -1;
-  bump_changes();
   // The last one out removes the file (under the init lock; an opener that finds it removed
   // opens a new one).
   if (lock_byte(fd, reg::kLockInit, F_WRLCK, true)) {
@@ -420,7 +450,7 @@ void Registry::Impl::reclaim(std::uint32_t i, std::uint64_t seen) {
   if (!s.state.compare_exchange_strong(seen, reg::make_state(reg::epoch_of(seen), reg::kDead),
                                        std::memory_order_acq_rel))
     return;
-  bump_changes();
+  bump_changes(i);
   ::unlink(state_path_for(participant).c_str());
   // Its shared memory: only its own segments, by name (core's shm_base_prefix).
   if (pid > 0) {
@@ -432,7 +462,7 @@ void Registry::Impl::reclaim(std::uint32_t i, std::uint64_t seen) {
   auto dead = reg::make_state(reg::epoch_of(seen), reg::kDead);
   s.state.compare_exchange_strong(dead, reg::make_state(reg::epoch_of(seen) + 1, reg::kFree),
                                   std::memory_order_acq_rel);
-  bump_changes();
+  bump_changes(i);
 }
 
 void Registry::remove(std::uint64_t host_id, const udpm::GroupConfig& group, const std::string& directory) {

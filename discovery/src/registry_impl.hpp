@@ -40,6 +40,7 @@ inline constexpr std::uint32_t kSlotWildcard = 1u << 9;   // wants every partici
 // OFD lock bytes (offsets past the file's end; they lock nothing but themselves).
 inline constexpr off_t kLockInit = (off_t{1} << 40) - 2;     // held while creating / removing
 inline constexpr off_t kLockSpeaker = (off_t{1} << 40) - 1;  // the host-local group's speaker
+inline constexpr off_t kLockDeputy = (off_t{1} << 40) - 3;   // its deputy (takes over at once)
 inline constexpr off_t kLockSlots = off_t{1} << 40;          // + slot index: its participant lives
 inline constexpr off_t kLockVehicle = off_t{1} << 41;        // + (group hash & 2^40-1): vehicle speaker
 
@@ -61,10 +62,25 @@ struct alignas(kCacheLine) Header {
   std::atomic<std::int64_t> observed_until_ns;  // CLOCK_MONOTONIC: an observer wants fresh statistics
   std::atomic<std::int64_t> speaker;            // participant id of the host-local speaker (display)
   std::uint64_t reserved3[4];
-  std::uint64_t reserved4[16];
+  // -- line 2: the change log's head (entries: the ring after the slots)
+  std::atomic<std::uint64_t> log_head;  // next change log position (fetch_add by writers)
+  std::uint32_t log_size;               // entries in the ring (a power of two)
+  std::uint32_t reserved5;
+  std::uint64_t reserved4[14];
 };
 static_assert(std::is_standard_layout_v<Header>);
 static_assert(sizeof(Header) == 256 && alignof(Header) == kCacheLine);
+static_assert(offsetof(Header, log_head) == 128);
+
+// Change log entry: (position << 20) | slot index. A reader that finds another position in an
+// entry than the one it expects (not yet written, or overwritten: it fell behind) rescans.
+inline constexpr std::uint32_t kLogSize = 4096;
+// Wake-up words by topic (after the change log): a change of a participant bumps the words of
+// the filter bits its topics set (before and after the change); a reader sleeps on the words
+// of its own topics' first bits, so changes that cannot concern it do not wake it. Readers that
+// want everything (speakers, observers, bridges) sleep on Header::changes.
+inline constexpr std::uint32_t kBuckets = 1024;
+inline constexpr std::uint64_t log_entry(std::uint64_t pos, std::uint32_t slot) { return (pos << 20) | slot; }
 static_assert(offsetof(Header, version) == 0 && offsetof(Header, changes) == 64);
 static_assert(std::atomic<std::uint32_t>::is_always_lock_free && std::atomic<std::uint64_t>::is_always_lock_free);
 
@@ -112,6 +128,12 @@ static_assert(offsetof(StateHeader, version) == 0 && offsetof(StateHeader, check
 
 inline constexpr std::uint32_t kMaxStateBytes = 64u << 20;
 
+// The 3 bits a topic name sets in a TopicFilter (computed once per own topic).
+struct TopicBits {
+  std::uint16_t bit[3];
+};
+TopicBits topic_bits(const std::string& topic);
+
 struct TopicFilter {
   std::uint64_t w[kTopicWords]{};
   void add(const std::string& topic);
@@ -140,6 +162,8 @@ struct Registry::Impl {
   std::size_t size = 0;
   reg::Header* header = nullptr;
   reg::Slot* slots = nullptr;
+  std::atomic<std::uint64_t>* log = nullptr;  // kLogSize entries after the slots
+  std::atomic<std::uint32_t>* buckets = nullptr;  // kBuckets words after the log
   std::uint32_t slot_count = 0;
 
   // This process's membership (one slot for its host and vehicle Discovery).
@@ -174,7 +198,9 @@ struct Registry::Impl {
   bool owner_alive(std::uint32_t i) const;
   bool try_lock(off_t byte);  // OFD write lock, non-blocking
   void unlock(off_t byte);
-  void bump_changes();
+  // Logs slot i's change and wakes its waiters (futex): those of Header::changes, and those of
+  // the topic words of slot i's filter and of `also` (its filter before the change).
+  void bump_changes(std::uint32_t i, const std::uint64_t* also = nullptr);
   // The speaker frees a slot whose owner is dead: state file, shm segments, slot.
   void reclaim(std::uint32_t i, std::uint64_t seen_state);
 };
