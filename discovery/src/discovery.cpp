@@ -132,7 +132,7 @@ struct Discovery::Impl {
   struct Known {
     std::uint64_t state = 0;
     std::int64_t id = 0;
-    std::uint64_t seq = ~0ull;        // slot seq of the last read (or skip)
+    std::uint64_t seq = ~0ull;        // slot revision of the last read (or skip)
     std::uint64_t stats_seq = ~0ull;
     std::uint64_t host_struct = 0;
     bool told = false;                // on_change knows it
@@ -318,7 +318,7 @@ struct Discovery::Impl {
   // ------------------------------------------------------------ registry reader
   // Whether slot i's participant may concern us (its topic filter meets our topics).
   bool concerns(const reg::Slot& s) const {
-    if (wildcard || is_speaker) return true;
+    if (wildcard) return true;
     if (s.flags.load(std::memory_order_relaxed) & reg::kSlotWildcard) return true;
     for (const auto& t : own_bits) {
       bool all = true;
@@ -343,6 +343,7 @@ struct Discovery::Impl {
 
   void forget_known(std::uint32_t i, std::vector<std::pair<Change, Participant>>& out) {
     auto& k = known[i];
+    someone_left = true;
     if (k.told) {
       std::lock_guard lock(mutex);
       auto it = peers.find(k.id);
@@ -415,6 +416,8 @@ struct Discovery::Impl {
                       p.beacon.process_name, p.beacon.pid);
       tell(c, std::move(p));
     }
+    if (someone_left && !is_deputy && !is_speaker) try_speak();  // the deputy may have been the one
+    someone_left = false;
   }
 
   void visit(std::uint32_t i, std::int64_t now, bool recheck, std::vector<std::pair<Change, Participant>>& out) {
@@ -426,7 +429,21 @@ struct Discovery::Impl {
       return;
     }
     const auto id = s.participant_id.load(std::memory_order_relaxed);
-    if (id == self_id.load()) return;
+    if (id == self_id.load()) {
+      // The speaker speaks for itself too (its own state, never told to on_change).
+      const auto seq = s.seq.load(std::memory_order_acquire);  // pairs with publish's release
+      if (!is_speaker || (k.id == id && k.seq == s.revision.load(std::memory_order_relaxed))) return;
+      if (auto state = reg->read_state(i, id, seq)) {
+        k.id = id;
+        k.state = st;
+        k.seq = state->revision;
+        speak_update(id, *state, static_cast<std::int64_t>(state->revision), s.vehicle_group.load(std::memory_order_relaxed));
+      } else {
+        retry.insert(i);
+        retry_soon = true;
+      }
+      return;
+    }
     if (k.id != 0 && (k.state != st || k.id != id)) forget_known(i, out);  // reused slot
     const auto lease = lease_of(s.lease_ms.load(std::memory_order_relaxed));
     const auto age = now - s.heartbeat_ns.load(std::memory_order_relaxed);
@@ -440,10 +457,12 @@ struct Discovery::Impl {
       }
       return;
     }
+    // seq for a consistent read; the revision (structural) and stats_seq (observers) for news.
     const auto seq = s.seq.load(std::memory_order_acquire);  // pairs with publish's release
+    const auto rev = s.revision.load(std::memory_order_relaxed);
     const auto stats = s.stats_seq.load(std::memory_order_relaxed);
     const bool observer_refresh = options.observer && k.told && stats != k.stats_seq;
-    if (k.id == id && k.seq == seq && !observer_refresh && !(recheck && k.skipped)) return;
+    if (k.id == id && k.seq == rev && !observer_refresh && !(recheck && k.skipped)) return;
     if (seq & 1) {  // being written: again soon
       retry.insert(i);
       retry_soon = true;
@@ -451,8 +470,9 @@ struct Discovery::Impl {
     }
     k.state = st;
     k.id = id;
-    if (!concerns(s)) {
-      k.seq = seq;
+    const bool tell_it = k.told || concerns(s);
+    if (!tell_it && !is_speaker) {
+      k.seq = rev;
       k.skipped = true;
       std::lock_guard lock(mutex);
       ++counters.registry_skipped;
@@ -468,13 +488,13 @@ struct Discovery::Impl {
       std::lock_guard lock(mutex);
       ++counters.registry_reads;
     }
-    k.seq = seq;
+    k.seq = state->revision;
     k.stats_seq = stats;
-    k.skipped = false;
+    k.skipped = !tell_it;
     if (is_speaker)
       speak_update(id, *state, static_cast<std::int64_t>(state->revision),
                    s.vehicle_group.load(std::memory_order_relaxed));
-    if (!host_scope || state->host.empty()) return;  // vehicle scope: this host is known through the host scope
+    if (!host_scope || state->host.empty() || !tell_it) return;  // vehicle scope: this host is known through the host scope
     if (k.told && state->host_struct == k.host_struct && !observer_refresh) return;
     std::string why;
     auto b = decode_beacon(state->host, &why);
@@ -504,7 +524,7 @@ struct Discovery::Impl {
     out.emplace_back(c, std::move(p));
   }
   std::uint64_t log_pos = 0;
-  bool full_due = true, recheck_skipped = false, retry_soon = false;
+  bool full_due = true, recheck_skipped = false, retry_soon = false, someone_left = false;
   std::set<std::uint32_t> retry;
 
   // ------------------------------------------------------------ speaker
@@ -747,6 +767,13 @@ struct Discovery::Impl {
     if (m.channel != kBeaconChannel) return;
     const auto fp = fingerprint_of(m.data);
     if (fp == host_beacon_t::getHash()) return on_host_message(m);
+    // A record of this host's own participants (its speaker's, heard by everyone on the group):
+    // known through the registry; dropped before decoding (host_id at offset 20 of a beacon_t).
+    if (fp == beacon_t::getHash() && m.data.size() >= 28) {
+      std::uint64_t h = 0;
+      for (int k = 20; k < 28; ++k) h = (h << 8) | std::to_integer<std::uint8_t>(m.data[static_cast<std::size_t>(k)]);
+      if (h == own_host) return;
+    }
     std::string why;
     auto b = decode_beacon(m.data, &why);
     if (!b) {
@@ -952,14 +979,26 @@ struct Discovery::Impl {
     }
   }
 
+  // An observer's query. With the registry (host scope) this host needs none: only the known
+  // neighbours are asked, each by name (a query of everyone would make every participant of
+  // every registry on the group hear every record). Without it: every host, at once.
   void send_query() {
-    auto h = host_message(host_beacon_t::KIND_REQUEST);
-    h.target_host = 0;
-    h.wanted = {host_beacon_t::WANT_ALL};
-    h.num_wanted = 1;
-    h.digest = 0;
-    h.count = 0;
-    publish_udp(encode_host_beacon(h));
+    std::vector<std::int64_t> targets;
+    if (reg) {
+      std::lock_guard lock(mutex);
+      for (const auto& [id, h] : hosts) targets.push_back(id);
+    } else {
+      targets.push_back(0);
+    }
+    for (auto t : targets) {
+      auto h = host_message(host_beacon_t::KIND_REQUEST);
+      h.target_host = t;
+      h.wanted = {host_beacon_t::WANT_ALL};
+      h.num_wanted = 1;
+      h.digest = 0;
+      h.count = 0;
+      publish_udp(encode_host_beacon(h));
+    }
   }
 
   void drain_queued() {
