@@ -40,6 +40,9 @@ class Net:
             if self.sw:
                 sh("ip", "-n", self.sw, "link", "add", "br0", "type", "bridge", "mcast_snooping", "0")
                 sh("ip", "-n", self.sw, "link", "set", "br0", "up")
+                # the listener (listen.py) hears every host's datagrams on the bridge itself
+                sh("ip", "-n", self.sw, "addr", "add", "10.77.0.250/24", "dev", "br0")
+                sh("ip", "-n", self.sw, "route", "add", "224.0.0.0/4", "dev", "br0")
                 for i, h in enumerate(self.hosts):
                     sh("ip", "link", "add", f"ldb{tag}v{i}", "netns", h, "type", "veth", "peer", "name", f"p{i}", "netns", self.sw)
                     sh("ip", "-n", h, "link", "set", f"ldb{tag}v{i}", "name", "eth0")
@@ -115,6 +118,8 @@ def main():
         "group_bytes_per_s": round(statistics.median(r["group_Bps"] for r in results)),
         "lan_tx_bytes_per_s_per_host": round(statistics.median(r["lan_Bps_per_host"] for r in results)) if args.hosts > 1 else None,
         "lan_bytes_to_match": round(statistics.median(r["lan_bytes_to_match"] for r in results)) if args.hosts > 1 else None,
+        "lan_disc_bytes_to_match": round(statistics.median(r["lan_disc_bytes_to_match"] for r in results)) if args.hosts > 1 else None,
+        "lan_disc_Bps_per_host_max": round(statistics.median(r["lan_disc_Bps_per_host_max"] for r in results)) if args.hosts > 1 else None,
         "churn_ms_per_other": results[0].get("churn_ms_per_other"),
         "last_ready_s": round(statistics.median(r["last_ready_s"] for r in results), 3),
     }
@@ -147,6 +152,27 @@ def one_run(args, run):
             lenv["LCM_DEFAULT_URL"] = local
             logger = subprocess.Popen(["ip", "netns", "exec", net.hosts[0], args.logger, "-q", "-f", logf],
                                       env=lenv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        listen = os.path.join(os.path.dirname(os.path.abspath(__file__)), "listen.py")
+        vg, vp = f"239.255.{salt}.68", 18000 + salt
+
+        def listener():
+            if args.hosts < 2:
+                return None
+            return subprocess.Popen(["ip", "netns", "exec", net.sw, sys.executable, listen, vg, str(vp), "10.77.0.250", "3600"],
+                                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+        def listened(p):
+            if p is None:
+                return {}
+            p.send_signal(signal.SIGTERM)
+            out = p.communicate(timeout=10)[0]
+            try:
+                return json.loads(out.strip().splitlines()[-1])
+            except Exception:
+                return {}
+
+        cold = listener()
+        time.sleep(0.3 if cold else 0)
         total = args.n * args.hosts
         rng = random.Random(run)
         starts = {}
@@ -204,6 +230,7 @@ def one_run(args, run):
                             ready_cpu[k] = int(line.split()[2]) / 1000.0
             time.sleep(0.02)
         lan_to_match = sum(net.tx_bytes(h) - lan0[h] for h in range(args.hosts)) if args.hosts > 1 else 0
+        cold_bytes = listened(cold)
         match_s = [max(0, t - last_start) / 1e9 for t in matched.values()]
         # when the last process had its endpoints (start-up: exec, runtime, shm segments)
         ready_s = (max(ready.values()) - last_start) / 1e9 if ready else float("nan")
@@ -213,9 +240,11 @@ def one_run(args, run):
         c0 = sum(cpu_ticks(x) for x in pids)
         g0 = os.path.getsize(logf) if args.logger and os.path.exists(logf) else 0
         l0 = [net.tx_bytes(h) for h in range(args.hosts)] if args.hosts > 1 else []
+        steady = listener()
         w0 = time.monotonic()
         time.sleep(args.window)
         w = time.monotonic() - w0
+        steady_bytes = listened(steady)
         c1 = sum(cpu_ticks(x) for x in pids)
         g1 = os.path.getsize(logf) if args.logger and os.path.exists(logf) else 0
         l1 = [net.tx_bytes(h) for h in range(args.hosts)] if args.hosts > 1 else []
@@ -223,7 +252,11 @@ def one_run(args, run):
                "startup_cpu_ms_p50": pct(list(ready_cpu.values()), 50), "startup_cpu_ms_max": max(ready_cpu.values(), default=0),
                "cpu_pct": 100.0 * (c1 - c0) / TICK / w, "group_Bps": (g1 - g0) / w,
                "lan_Bps_per_host": (sum(l1) - sum(l0)) / w / max(1, args.hosts),
-               "lan_bytes_to_match": lan_to_match}
+               "lan_bytes_to_match": lan_to_match,
+               # discovery datagrams only (LCMX_BEACON on the vehicle group), heard on the switch
+               "lan_disc_bytes_to_match": sum(v["disc"] for v in cold_bytes.values()),
+               "lan_disc_Bps_per_host_max": max([v["disc"] / w for v in steady_bytes.values()], default=0),
+               "lan_data_Bps_total": sum(v["data"] for v in steady_bytes.values()) / w}
         if args.churn:
             victim = procs[len(procs) // 2]
             others = [p.pid for p in procs if p is not victim]

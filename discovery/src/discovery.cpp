@@ -113,6 +113,7 @@ struct Discovery::Impl {
   std::atomic<std::int64_t> self_id{0};
   std::atomic<bool> is_speaker{false};
   bool is_deputy = false;  // discovery thread only
+  std::uint64_t observer_periods = 0;
 
   // Orders what on_change is told (see the comment in the header of this class's users):
   // taken around a change of the table *and* its callback. Lock order: deliver_mutex, then mutex.
@@ -148,6 +149,7 @@ struct Discovery::Impl {
   // ---- speaker (discovery thread only, except the request state under mutex)
   off_t speaker_byte = 0;
   struct Spoken {
+    std::uint32_t slot = 0;
     std::int64_t revision = 0;
     std::vector<std::byte> record;
     Clock::time_point sent{};
@@ -425,6 +427,12 @@ struct Discovery::Impl {
     auto& k = known[i];
     const auto st = s.state.load(std::memory_order_acquire);  // pairs with join's release
     if (reg::state_of(st) != reg::kLive) {
+      if (k.id != 0 && k.told) {
+        std::lock_guard lock(mutex);
+        // Freed by its owner (a clean exit: its goodbye), or dead (its process exited).
+        if (reg::state_of(st) == reg::kFree && reg::epoch_of(st) == reg::epoch_of(k.state) + 1) ++counters.goodbyes;
+        else ++counters.exits_seen;
+      }
       if (k.id != 0) forget_known(i, out);
       return;
     }
@@ -437,7 +445,7 @@ struct Discovery::Impl {
         k.id = id;
         k.state = st;
         k.seq = state->revision;
-        speak_update(id, *state, static_cast<std::int64_t>(state->revision), s.vehicle_group.load(std::memory_order_relaxed));
+        speak_update(id, *state, static_cast<std::int64_t>(state->revision), s.vehicle_group.load(std::memory_order_relaxed), i);
       } else {
         retry.insert(i);
         retry_soon = true;
@@ -493,7 +501,7 @@ struct Discovery::Impl {
     k.skipped = !tell_it;
     if (is_speaker)
       speak_update(id, *state, static_cast<std::int64_t>(state->revision),
-                   s.vehicle_group.load(std::memory_order_relaxed));
+                   s.vehicle_group.load(std::memory_order_relaxed), i);
     if (!host_scope || state->host.empty() || !tell_it) return;  // vehicle scope: this host is known through the host scope
     if (k.told && state->host_struct == k.host_struct && !observer_refresh) return;
     std::string why;
@@ -529,7 +537,8 @@ struct Discovery::Impl {
 
   // ------------------------------------------------------------ speaker
   // vehicle: only participants of our vehicle group (the slot names it) are spoken for.
-  void speak_update(std::int64_t id, const reg::State& state, std::int64_t revision, std::uint64_t vehicle_group) {
+  void speak_update(std::int64_t id, const reg::State& state, std::int64_t revision, std::uint64_t vehicle_group,
+                    std::uint32_t slot) {
     const auto& section = host_scope ? state.host : state.vehicle;
     if (section.empty() || (!host_scope && vehicle_group != group_hash)) {
       if (spoken.erase(id)) {
@@ -539,6 +548,7 @@ struct Discovery::Impl {
       return;
     }
     auto& sp = spoken[id];
+    sp.slot = slot;
     const bool changed = sp.revision != revision || sp.record.empty();
     sp.revision = revision;
     sp.record = section;
@@ -615,6 +625,15 @@ struct Discovery::Impl {
       want.swap(wanted);
     }
     if (all) {
+      // An observer's "everything": with the statistics as they are now (re-read).
+      for (auto& [id, sp] : spoken) {
+        const auto& slot = reg->slot(sp.slot);
+        if (slot.participant_id.load(std::memory_order_relaxed) != id) continue;
+        if (auto st = reg->read_state(sp.slot, id, slot.seq.load(std::memory_order_acquire))) {
+          auto& section = host_scope ? st->host : st->vehicle;
+          if (!section.empty()) sp.record = std::move(section);
+        }
+      }
       for (const auto& [id, sp] : spoken) send_record(id);
       last_all = now;
       index = true;
@@ -704,11 +723,7 @@ struct Discovery::Impl {
         watches.erase(w);
       }
       if (reg::state_of(st) == reg::kLive && reg->owner_alive(i)) continue;  // pidfd of an exec'd... lock says alive
-      {
-        std::lock_guard lock(mutex);
-        if (reg::state_of(st) == reg::kLive) ++counters.exits_seen;
-      }
-      reg->reclaim(i, st);
+      reg->reclaim(i, st);  // readers count it (Counters::exits_seen) when they see it
     }
   }
   Clock::time_point next_lock_probe{};
@@ -893,6 +908,11 @@ struct Discovery::Impl {
       } else if (h->wanted.size() == 1 && h->wanted[0] == host_beacon_t::WANT_ALL) {
         if (want_all) ++counters.requests_limited;
         want_all = true;
+        // Someone watches: this host's participants keep their statistics fresh meanwhile.
+        if (reg)
+          reg->header->observed_until_ns.store(
+              reg::now_ns() + 3 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count(),
+              std::memory_order_relaxed);
       } else {
         for (auto id : h->wanted)
           if (wanted.size() < 65536) wanted.insert(id);
@@ -1061,6 +1081,7 @@ struct Discovery::Impl {
         publish_local(periodic);
         if (periodic) {
           next_periodic = now + options.period;
+          if (options.observer && !reg && ++observer_periods % 2 == 0) want_query = true;  // other hosts' statistics
           if (options.observer && reg)  // keep the participants' statistics fresh while we watch
             reg->header->observed_until_ns.store(
                 reg::now_ns() + 3 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count(),

@@ -460,7 +460,8 @@ void Registry::Impl::reclaim(std::uint32_t i, std::uint64_t seen) {
     if (r.removed > 0) spdlog::info("lcmx discovery: removed {} shared-memory segments of pid {}", r.removed, pid);
   }
   auto dead = reg::make_state(reg::epoch_of(seen), reg::kDead);
-  s.state.compare_exchange_strong(dead, reg::make_state(reg::epoch_of(seen) + 1, reg::kFree),
+  // epoch + 2: a reader that missed kDead still tells a death from a goodbye (epoch + 1).
+  s.state.compare_exchange_strong(dead, reg::make_state(reg::epoch_of(seen) + 2, reg::kFree),
                                   std::memory_order_acq_rel);
   bump_changes(i);
 }
