@@ -880,9 +880,10 @@ struct Discovery::Impl {
     if (!source_ok(h, ip))
       return "a record or goodbye of participant " + std::to_string(b.participant_id) + " of host " +
              std::to_string(h) + " from another address than its host's";
-    for (const auto* claim : {&b.local_source, &b.vehicle_source})
-      if (!claim->empty() && ip_of(*claim) != ip)
-        return "the source claim '" + *claim + "' of participant " + std::to_string(b.participant_id);
+    // The claim of this group (the other group's address is another interface's).
+    const auto& claim = host_scope ? b.local_source : b.vehicle_source;
+    if (!claim.empty() && ip_of(claim) != ip)
+      return "the source claim '" + claim + "' of participant " + std::to_string(b.participant_id);
     auto it = peers.find(b.participant_id);
     if (it != peers.end() && it->second.host != h)
       return "a record of participant " + std::to_string(b.participant_id) + " claimed by another host";
