@@ -80,6 +80,16 @@ std::uint64_t structural_hash(beacon_t b) {
   return reg::fnv1a(bytes);
 }
 
+std::uint64_t stats_hash(const beacon_t& b) {
+  std::uint64_t h = 1469598103934665603ull;
+  auto mix = [&](const auto& v) { h = reg::fnv1a(std::as_bytes(std::span(&v, 1)), h); };
+  for (const auto& e : b.endpoints) {
+    mix(e.messages), mix(e.drops), mix(e.rate_hz);
+    for (const auto& m : e.matches) mix(m.received), mix(m.drops);
+  }
+  return h;
+}
+
 std::uint64_t digest_of(const std::map<std::int64_t, std::int64_t>& set) {
   std::uint64_t h = 1469598103934665603ull;
   for (const auto& [id, rev] : set) {
@@ -144,7 +154,7 @@ struct Discovery::Impl {
   Clock::time_point last_pass{};
   std::vector<std::string> own_topics;
   bool wildcard = false;  // reads every participant (observer, bridge, pattern subscriptions, speaker)
-  std::uint64_t own_struct = 0;
+  std::uint64_t own_struct = 0, own_stats = 0;
 
   // ---- speaker (discovery thread only, except the request state under mutex)
   off_t speaker_byte = 0;
@@ -254,7 +264,7 @@ struct Discovery::Impl {
 
   // ------------------------------------------------------------ this participant
   // Discovery thread: builds our beacon and puts it into the registry (a structural change
-  // bumps the revision and wakes everyone; statistics alone are written only while observed).
+  // bumps the revision and wakes those it concerns; statistics alone, once per period at most).
   void publish_local(bool periodic) {
     if (options.observer || !reg) return;
     beacon_t b = local();
@@ -275,11 +285,14 @@ struct Discovery::Impl {
                          std::chrono::system_clock::now().time_since_epoch())
                          .count();
     const auto st = structural_hash(b);
-    const bool observed = reg->header->observed_until_ns.load(std::memory_order_relaxed) > reg::now_ns();
-    if (st == own_struct && !(periodic && observed)) {
+    // Statistics are rewritten (no revision bump: nobody is woken) at most once per period and
+    // only when they changed; observers read them (a tool's first look is at most a period old).
+    const auto stats = stats_hash(b);
+    if (st == own_struct && !(periodic && stats != own_stats)) {
       reg->heartbeat();
       return;
     }
+    own_stats = stats;
     const bool structural = st != own_struct;
     own_struct = st;
     reg::TopicFilter topics;

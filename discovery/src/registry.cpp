@@ -111,6 +111,8 @@ bool byte_held(int fd, off_t byte) {
   return fl.l_type != F_UNLCK;
 }
 
+void sweep(const std::string& directory, const std::string& self);
+
 std::size_t file_size(std::uint32_t slots) {
   return sizeof(reg::Header) + std::size_t{slots} * sizeof(reg::Slot) + reg::kLogSize * sizeof(std::uint64_t) +
          reg::kBuckets * sizeof(std::uint32_t);
@@ -149,17 +151,23 @@ std::shared_ptr<Registry> Registry::open(const RegistryOptions& o) {
     if (attempt == 5) throw std::runtime_error("lcmx discovery registry: " + impl->path + " keeps being removed");
     const int fd = ::open(impl->path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0600);
     if (fd < 0) fail("cannot open " + impl->path + " (another user's registry not shared read-write?)");
-    // Creation, initialisation and removal happen under the init lock: a creator that died
-    // half-way leaves version 0 (or a short file), and the next one initialises it again.
-    if (!lock_byte(fd, reg::kLockInit, F_WRLCK, true)) {
+    // A user (read lock, held until we close): whoever removes the file must get the write
+    // lock first, so it cannot remove it under us; if it did just before, we open a new one.
+    if (!lock_byte(fd, reg::kLockUsers, F_RDLCK, true)) {
       ::close(fd);
       fail("cannot lock " + impl->path);
     }
     struct stat st{};
     if (::fstat(fd, &st) != 0) fail("fstat " + impl->path);
-    if (st.st_nlink == 0) {  // removed by its last participant between our open and lock
+    if (st.st_nlink == 0) {  // removed by its last user between our open and lock
       ::close(fd);
       continue;
+    }
+    // Initialisation under the init lock: a creator that died half-way leaves version 0 (or a
+    // short file), and the next one initialises it again.
+    if (!lock_byte(fd, reg::kLockInit, F_WRLCK, true)) {
+      ::close(fd);
+      fail("cannot lock " + impl->path);
     }
     if (!S_ISREG(st.st_mode)) {
       ::close(fd);
@@ -223,6 +231,7 @@ std::shared_ptr<Registry> Registry::open(const RegistryOptions& o) {
       h->version.store(reg::kVersion, std::memory_order_release);
     }
     lock_byte(fd, reg::kLockInit, F_UNLCK, false);
+    if (init) sweep(o.directory, impl->path);  // leftovers of killed processes
     break;
   }
   return std::shared_ptr<Registry>(new Registry(std::move(impl)));
@@ -232,6 +241,8 @@ Registry::Impl::~Impl() {
   if (own >= 0) {
     members = 1;
     leave();
+  } else if (fd >= 0) {
+    remove_if_unused();
   }
   if (header) ::munmap(header, size);
   if (fd >= 0) ::close(fd);
@@ -387,17 +398,57 @@ void Registry::Impl::leave() {
   lock_byte(fd, reg::kLockSlots + own, F_UNLCK, false);
   bump_changes(static_cast<std::uint32_t>(own));
   own = -1;
-  // The last one out removes the file (under the init lock; an opener that finds it removed
-  // opens a new one).
-  if (lock_byte(fd, reg::kLockInit, F_WRLCK, true)) {
-    bool empty = true;
-    const auto hw = std::min(header->high_water.load(std::memory_order_acquire), slot_count);
-    for (std::uint32_t i = 0; i < hw && empty; ++i)
-      if (reg::state_of(slots[i].state.load(std::memory_order_acquire)) != reg::kFree) empty = false;
-    if (empty) ::unlink(path.c_str());
-    lock_byte(fd, reg::kLockInit, F_UNLCK, false);
+  remove_if_unused();  // the last one out
+}
+
+namespace {
+// Removes `path` and its state files if no one has it open (a write lock on kLockUsers through
+// `fd`, which may hold a read lock itself: upgraded, then back to read). Never blocks.
+bool remove_unused(int fd, const std::string& path, bool keep_read_lock) {
+  if (!lock_byte(fd, reg::kLockUsers, F_WRLCK, false)) return false;
+  ::unlink(path.c_str());
+  const auto slash = path.rfind('/');
+  const auto dir = path.substr(0, slash), base = path.substr(slash + 1) + "_p";
+  if (DIR* d = ::opendir(dir.c_str())) {
+    while (auto* e = ::readdir(d)) {
+      const std::string name = e->d_name;
+      if (name.rfind(base, 0) == 0) ::unlink((dir + "/" + name).c_str());
+    }
+    ::closedir(d);
+  }
+  lock_byte(fd, reg::kLockUsers, keep_read_lock ? F_RDLCK : F_UNLCK, false);
+  return true;
+}
+
+// Registries of this directory that no one has open any more (their processes were killed),
+// and state files whose registry is gone: removed. Run when a registry is created (rare).
+void sweep(const std::string& directory, const std::string& self) {
+  DIR* d = ::opendir(directory.c_str());
+  if (!d) return;
+  std::vector<std::string> registries, states;
+  while (auto* e = ::readdir(d)) {
+    const std::string name = e->d_name;
+    if (name.rfind("lcmxreg_", 0) != 0) continue;
+    (name.find("_p") == std::string::npos ? registries : states).push_back(name);
+  }
+  ::closedir(d);
+  for (const auto& r : registries) {
+    const auto path = directory + "/" + r;
+    if (path == self) continue;
+    const int fd = ::open(path.c_str(), O_RDWR | O_CLOEXEC | O_NOFOLLOW);
+    if (fd < 0) continue;
+    remove_unused(fd, path, false);
+    ::close(fd);
+  }
+  for (const auto& st : states) {
+    const auto base = st.substr(0, st.rfind("_p"));
+    struct stat sb{};
+    if (::stat((directory + "/" + base).c_str(), &sb) != 0 && errno == ENOENT) ::unlink((directory + "/" + st).c_str());
   }
 }
+}  // namespace
+
+bool Registry::Impl::remove_if_unused() { return remove_unused(fd, path, true); }
 
 std::optional<reg::State> Registry::Impl::read_state(std::uint32_t i, std::int64_t participant,
                                                      std::uint64_t seq) const {

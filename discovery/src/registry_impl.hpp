@@ -41,6 +41,9 @@ inline constexpr std::uint32_t kSlotWildcard = 1u << 9;   // wants every partici
 inline constexpr off_t kLockInit = (off_t{1} << 40) - 2;     // held while creating / removing
 inline constexpr off_t kLockSpeaker = (off_t{1} << 40) - 1;  // the host-local group's speaker
 inline constexpr off_t kLockDeputy = (off_t{1} << 40) - 3;   // its deputy (takes over at once)
+// Every open Registry holds a read lock on this byte; the file is removed only by whoever gets
+// a write lock on it (no one else has it open): the last one to close, or a sweep.
+inline constexpr off_t kLockUsers = (off_t{1} << 40) - 4;
 inline constexpr off_t kLockSlots = off_t{1} << 40;          // + slot index: its participant lives
 inline constexpr off_t kLockVehicle = off_t{1} << 41;        // + (group hash & 2^40-1): vehicle speaker
 
@@ -201,6 +204,8 @@ struct Registry::Impl {
   // Logs slot i's change and wakes its waiters (futex): those of Header::changes, and those of
   // the topic words of slot i's filter and of `also` (its filter before the change).
   void bump_changes(std::uint32_t i, const std::uint64_t* also = nullptr);
+  // Removes the file (and its state files) if no one else has it open. Returns true if removed.
+  bool remove_if_unused();
   // The speaker frees a slot whose owner is dead: state file, shm segments, slot.
   void reclaim(std::uint32_t i, std::uint64_t seen_state);
 };

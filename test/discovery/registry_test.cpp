@@ -152,10 +152,30 @@ TEST_CASE("registry: created once, joined, left - the last one out removes it - 
     CHECK((st.st_mode & 0777) == 0666);  // several users share it
     for (std::size_t i = 0; i < rs.size(); ++i) rs[i]->impl().join(static_cast<std::int64_t>(100 + i), 1000);
     CHECK(rs[0]->occupied() == 8);
-    for (std::size_t i = 0; i + 1 < rs.size(); ++i) rs[i]->impl().leave();
-    CHECK(std::filesystem::exists(path));
-    rs.back()->impl().leave();
-    CHECK_FALSE(std::filesystem::exists(path));  // the last one out
+    for (auto& r : rs) r->impl().leave();
+    CHECK(std::filesystem::exists(path));  // still open: kept
+    while (rs.size() > 1) {
+      rs.pop_back();
+      CHECK(std::filesystem::exists(path));
+    }
+    rs.clear();
+    CHECK_FALSE(std::filesystem::exists(path));  // the last one to close removes it
+  }
+  // A registry whose users were all killed (nobody holds it open) is swept by the next
+  // registry created on this host.
+  {
+    const auto g2 = group_of(24);
+    RegistryCleanup clean2{g2};
+    const auto dead = Registry::path_for(lcmx::discovery::host_id(), g2);
+    const int fd = ::open(dead.c_str(), O_RDWR | O_CREAT | O_EXCL, 0666);
+    REQUIRE(fd >= 0);
+    ::close(fd);
+    ::close(::open((dead + "_p123").c_str(), O_RDWR | O_CREAT, 0644));
+    lcmx::discovery::RegistryOptions o;
+    o.group = g;
+    auto r = Registry::open(o);
+    CHECK_FALSE(std::filesystem::exists(dead));
+    CHECK_FALSE(std::filesystem::exists(dead + "_p123"));
   }
 }
 
