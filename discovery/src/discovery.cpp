@@ -148,6 +148,7 @@ struct Discovery::Impl {
     std::uint64_t host_struct = 0;
     bool told = false;                // on_change knows it
     bool skipped = false;             // its topics do not concern us (not read)
+    bool dead = false;                // its process is gone (lock free), its slot not yet reclaimed
   };
   std::vector<Known> known;
   std::uint32_t seen_changes = 0;
@@ -271,7 +272,8 @@ struct Discovery::Impl {
     if (b.participant_id == 0) return;  // the owner is going away
     self_id = b.participant_id;
     if (!joined_registry) {
-      reg->join(b.participant_id, static_cast<std::int32_t>(options.lease.count()));
+      reg->join(b.participant_id, static_cast<std::int32_t>(options.lease.count()),
+                static_cast<std::int32_t>(options.period.count()));
       joined_registry = true;
     }
     b.version = kBeaconVersion;
@@ -423,6 +425,7 @@ struct Discovery::Impl {
     const auto now = reg::now_ns();
     std::vector<std::pair<Change, Participant>> out;
     std::unique_lock order(deliver_mutex);
+    full_pass = full;
     for (auto i : todo)
       if (i < reg->slot_count) visit(i, now, recheck, out);
     for (auto& [c, p] : out) {
@@ -468,6 +471,23 @@ struct Discovery::Impl {
     if (k.id != 0 && (k.state != st || k.id != id)) forget_known(i, out);  // reused slot
     const auto lease = lease_of(s.lease_ms.load(std::memory_order_relaxed));
     const auto age = now - s.heartbeat_ns.load(std::memory_order_relaxed);
+    // Missed two heartbeats: dead, or only stopped? Its liveness lock tells (one syscall, on
+    // full passes only). A dead one is gone now even if no speaker runs (the speaker itself
+    // was stopped): its slot stays until a speaker reclaims it.
+    const auto late = 2 * std::int64_t{s.period_ms.load(std::memory_order_relaxed)} * 1000000 + 50000000;
+    if (k.id != 0 && k.told && full_pass && age > late && !reg->owner_alive(i)) {
+      {
+        std::lock_guard lock(mutex);
+        ++counters.exits_seen;
+      }
+      forget_known(i, out);
+      k.id = id;
+      k.state = st;
+      k.seq = s.revision.load(std::memory_order_relaxed);
+      k.dead = true;
+      return;
+    }
+    if (k.dead && k.id == id && k.state == st) return;  // dead, not reclaimed yet
     if (age > std::chrono::duration_cast<std::chrono::nanoseconds>(lease).count()) {
       if (k.id != 0) {
         if (k.told) {
@@ -545,7 +565,7 @@ struct Discovery::Impl {
     out.emplace_back(c, std::move(p));
   }
   std::uint64_t log_pos = 0;
-  bool full_due = true, recheck_skipped = false, retry_soon = false, someone_left = false;
+  bool full_due = true, recheck_skipped = false, retry_soon = false, someone_left = false, full_pass = false;
   std::set<std::uint32_t> retry;
 
   // ------------------------------------------------------------ speaker

@@ -252,7 +252,7 @@ std::string Registry::Impl::state_path_for(std::int64_t participant) const {
   return path + "_p" + hex(static_cast<std::uint64_t>(participant));
 }
 
-void Registry::Impl::join(std::int64_t participant, std::int32_t lease_ms) {
+void Registry::Impl::join(std::int64_t participant, std::int32_t lease_ms, std::int32_t period_ms) {
   std::lock_guard lock(mutex);
   ++members;
   if (own >= 0) return;
@@ -283,6 +283,7 @@ void Registry::Impl::join(std::int64_t participant, std::int32_t lease_ms) {
     s.uid.store(::geteuid(), std::memory_order_relaxed);
     s.flags.store(0, std::memory_order_relaxed);
     s.vehicle_group.store(0, std::memory_order_relaxed);
+    s.period_ms.store(static_cast<std::uint32_t>(std::max(period_ms, 1)), std::memory_order_relaxed);
     for (auto& w : s.topics) w.store(0, std::memory_order_relaxed);
     // Liveness: the kernel drops this lock when we die (any pid namespace).
     if (!lock_byte(fd, reg::kLockSlots + static_cast<off_t>(i), F_WRLCK, false)) {

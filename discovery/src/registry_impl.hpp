@@ -106,13 +106,16 @@ struct alignas(kCacheLine) Slot {
   std::atomic<std::uint32_t> uid;          // owner of its state file
   std::atomic<std::uint32_t> flags;        // beacon FLAG_* | kSlot*
   std::atomic<std::uint64_t> vehicle_group;  // hash of its vehicle group, 0: none
-  std::uint64_t reserved[5];
+  std::atomic<std::uint32_t> period_ms;      // its heartbeat period
+  std::uint32_t reserved0;
+  std::uint64_t reserved[4];
   // -- lines 2-3
   std::atomic<std::uint64_t> topics[kTopicWords];  // filter: 3 bits per topic name
 };
 static_assert(std::is_standard_layout_v<Slot>);
 static_assert(sizeof(Slot) == 256 && alignof(Slot) == kCacheLine);
-static_assert(offsetof(Slot, state) == 0 && offsetof(Slot, pid_namespace) == 64 && offsetof(Slot, topics) == 128);
+static_assert(offsetof(Slot, state) == 0 && offsetof(Slot, pid_namespace) == 64 && offsetof(Slot, period_ms) == 88 &&
+              offsetof(Slot, topics) == 128);
 
 // A state file: this header, then the host-scope beacon, then the vehicle-scope beacon.
 struct StateHeader {
@@ -184,7 +187,7 @@ struct Registry::Impl {
   std::string state_path_for(std::int64_t participant) const;
 
   // Claims a slot for `participant` (idempotent). Throws std::runtime_error when the table is full.
-  void join(std::int64_t participant, std::int32_t lease_ms);
+  void join(std::int64_t participant, std::int32_t lease_ms, std::int32_t period_ms);
   // Rewrites the state file with this scope's beacon. `structural`: its hash without
   // statistics; a change of it (either scope) bumps the revision and wakes everyone.
   // Returns true if the revision was bumped.

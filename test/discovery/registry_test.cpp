@@ -150,7 +150,7 @@ TEST_CASE("registry: created once, joined, left - the last one out removes it - 
     struct stat st{};
     REQUIRE(::stat(path.c_str(), &st) == 0);
     CHECK((st.st_mode & 0777) == 0666);  // several users share it
-    for (std::size_t i = 0; i < rs.size(); ++i) rs[i]->impl().join(static_cast<std::int64_t>(100 + i), 1000);
+    for (std::size_t i = 0; i < rs.size(); ++i) rs[i]->impl().join(static_cast<std::int64_t>(100 + i), 1000, 100);
     CHECK(rs[0]->occupied() == 8);
     for (auto& r : rs) r->impl().leave();
     CHECK(std::filesystem::exists(path));  // still open: kept
@@ -218,13 +218,13 @@ TEST_CASE("registry: a full registry refuses a newcomer clearly - a freed slot i
   o.group = g;
   o.slots = 2;
   auto a = Registry::open(o), b = Registry::open(o), c = Registry::open(o);
-  a->impl().join(1, 1000);
-  b->impl().join(2, 1000);
-  CHECK_THROWS_WITH(c->impl().join(3, 1000), Catch::Contains("is full"));
+  a->impl().join(1, 1000, 100);
+  b->impl().join(2, 1000, 100);
+  CHECK_THROWS_WITH(c->impl().join(3, 1000, 100), Catch::Contains("is full"));
   const auto slot = b->impl().own;
   const auto before = a->impl().slot(slot).state.load();
   b->impl().leave();
-  c->impl().join(3, 1000);
+  c->impl().join(3, 1000, 100);
   CHECK(c->impl().own == slot);
   const auto after = a->impl().slot(slot).state.load();
   CHECK(lcmx::discovery::reg::epoch_of(after) == lcmx::discovery::reg::epoch_of(before) + 1);
@@ -239,7 +239,7 @@ TEST_CASE("registry: a state read torn by a writer, a corrupt or foreign-writabl
   lcmx::discovery::RegistryOptions o;
   o.group = g;
   auto w = Registry::open(o), r = Registry::open(o);
-  w->impl().join(42, 1000);
+  w->impl().join(42, 1000, 100);
   const auto i = static_cast<std::uint32_t>(w->impl().own);
   const auto bytes = lcmx::discovery::encode_beacon(beacon_of(42, 1, {"A"}));
   w->impl().publish(false, bytes, 7, nullptr, 0, 0);
