@@ -913,10 +913,11 @@ struct Discovery::Impl {
     if (!source_ok(h, ip))
       return "a record or goodbye of participant " + std::to_string(b.participant_id) + " of host " +
              std::to_string(h) + " from another address than its host's";
-    // The claim of this group (the other group's address is another interface's).
-    const auto& claim = host_scope ? b.local_source : b.vehicle_source;
-    if (!claim.empty() && ip_of(claim) != ip)
-      return "the source claim '" + claim + "' of participant " + std::to_string(b.participant_id);
+    // The vehicle group: its claim must name the address its host speaks from. (On the
+    // host-local group every sender is of this machine, and a datagram leaves from whichever of
+    // its addresses the group routes through: the runtime matches those by port.)
+    if (!host_scope && !b.vehicle_source.empty() && ip_of(b.vehicle_source) != ip)
+      return "the source claim '" + b.vehicle_source + "' of participant " + std::to_string(b.participant_id);
     auto it = peers.find(b.participant_id);
     if (it != peers.end() && it->second.host != h)
       return "a record of participant " + std::to_string(b.participant_id) + " claimed by another host";
