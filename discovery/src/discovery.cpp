@@ -137,7 +137,8 @@ struct Discovery::Impl {
   std::map<std::int64_t, Peer> peers;
   std::size_t table_bytes = 0;
   Counters counters;
-  Clock::time_point last_malformed_log{}, last_refused_log{}, last_send_error_log{}, last_forged_log{};
+  Clock::time_point last_malformed_log{}, last_refused_log{}, last_send_error_log{}, last_forged_log{},
+      last_twin_log{};
 
   // ---- registry reader (discovery thread only)
   struct Known {
@@ -955,7 +956,20 @@ struct Discovery::Impl {
       wake();
       return;
     }
-    if (static_cast<std::uint64_t>(h->host_id) == own_host) return;  // ourselves
+    if (static_cast<std::uint64_t>(h->host_id) == own_host) {  // ourselves...
+      if (reg && h->registry_id != static_cast<std::int64_t>(reg->header->registry_id)) {
+        // ... or another registry with our host id: processes given one LCMX_HOST_ID that do
+        // not share /dev/shm (containers). They cannot meet: no shared memory, and their
+        // records are taken for ours. Said loudly, as a misconfiguration.
+        std::lock_guard lock(mutex);
+        warn_limited(last_twin_log,
+                     "lcmx discovery: another registry claims this host's id {} on this group (participant {} "
+                     "speaks for it): processes that share LCMX_HOST_ID but not /dev/shm cannot see each other; "
+                     "give each /dev/shm its own host id",
+                     own_host, h->speaker);
+      }
+      return;
+    }
     std::vector<std::int64_t> gone;
     bool ask = false;
     {
