@@ -160,9 +160,34 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   const bool vehicle = scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE;
   if (m.channel == discovery::kBeaconChannel) {
     (vehicle ? disco_vehicle : disco)->deliver(m);
-    // Participants no longer beacon on the groups (docs/discovery.md: only each registry's
-    // speaker sends there, rarely): a gap in a participant's sequence is data, settled at once
-    // below; the speaker's few discovery datagrams are not told apart from its data.
+    // Participants no longer beacon on the groups (docs/discovery.md): only the speaker's few
+    // datagrams and a participant's marker after its data (discovery::Discovery::mark_sequence)
+    // come here. Their host_beacon_t count the sender's discovery datagrams: at each, the gaps
+    // seen since its last one are settled (discovery credited, the rest is data), as v5 did
+    // with every participant's own beacons.
+    {
+      const std::string source = udpm::to_string(m.source);
+      std::optional<lcmx_msgs::beacon_t> b;
+      {
+        std::lock_guard lock(mu);
+        const auto& sources = vehicle ? vehicle_sources : neighbour_sources;
+        const auto& table = vehicle ? vehicle_remotes : neighbour_remotes;
+        if (auto s = sources.find(source); s != sources.end())
+          if (auto it = table.find(s->second); it != table.end()) b = it->second;
+      }
+      if (b) {
+        // A host_beacon_t carries the sender's discovery datagram count: the credit for the
+        // discovery datagrams in the gap. Any other (a record) is one more of them, received.
+        auto& loss = loss_of(scope, source);
+        if (auto h = discovery::decode_host_beacon(m.data)) {
+          b->sequence = h->sequence;
+          settle_loss(scope, source, *b, m.lost_before);  // the gaps since its last: data or discovery
+        } else {
+          loss.pending += m.lost_before;  // settled at its next host_beacon_t
+          if (loss.last_beacon >= 0) ++loss.last_beacon;
+        }
+      }
+    }
     return;
   }
   const auto& group = vehicle ? vehicle_group : local_group;
@@ -173,7 +198,6 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
   }
   const std::string source = udpm::to_string(m.source);
   std::uint32_t foreign_lost = 0;
-  std::optional<lcmx_msgs::beacon_t> loss_beacon;  // a participant's gap: its channels
   std::vector<std::pair<std::shared_ptr<SubscriberCore>, std::shared_ptr<PairCounters>>> targets;
   std::vector<Event> events;
   {
@@ -195,12 +219,8 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     if (m.lost_before > 0) {
       // A participant's gap is settled at its next beacon (some of it may be beacons); a stock
       // LCM sender has no channel list: its loss cannot be given to a pair.
-      if (participant != 0) {
-        const auto& table = vehicle ? vehicle_remotes : neighbour_remotes;
-        if (auto it = table.find(participant); it != table.end()) loss_beacon = it->second;
-      } else {
-        foreign_lost = m.lost_before;
-      }
+      if (participant != 0) loss_of(scope, source).pending += m.lost_before;
+      else foreign_lost = m.lost_before;
     }
     for (auto& [id, sub] : subs) {
       if (sub->channel() != m.channel) continue;
@@ -249,10 +269,6 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     if (disco_vehicle) disco_vehicle->announce_now();
   }
   emit(std::move(events));
-  if (loss_beacon) {
-    loss_beacon->sequence = -1;  // no beacon credit: every missed sequence number was data
-    settle_loss(scope, source, *loss_beacon, m.lost_before);
-  }
   if (foreign_lost > 0 && !targets.empty()) log_foreign_loss(scope, source, foreign_lost);
   if (targets.empty()) return;
   // A reassembled message is handed over in its reassembly buffer; a single datagram's bytes

@@ -120,6 +120,7 @@ struct Discovery::Impl {
   std::atomic<bool> stopping{false};
   std::thread thread, rx_thread;
   std::int64_t sequence = 0;
+  std::int64_t udp_sent = 0;  // discovery thread only
   std::atomic<std::int64_t> self_id{0};
   std::atomic<bool> is_speaker{false};
   bool is_deputy = false;  // discovery thread only
@@ -253,7 +254,11 @@ struct Discovery::Impl {
     spdlog::warn(f, std::forward<A>(a)...);
   }
 
+  // Every discovery datagram this Discovery sends counts in udp_sent; a host_beacon_t carries
+  // the count it is sent as (its `sequence`), so a receiver tells the discovery datagrams it
+  // missed from the data it missed on the same socket (the runtime's loss accounting).
   void publish_udp(const std::vector<std::byte>& bytes) {
+    ++udp_sent;
     try {
       group->publish(kBeaconChannel, bytes);
       std::lock_guard lock(mutex);
@@ -604,7 +609,7 @@ struct Discovery::Impl {
     h.host_id = static_cast<std::int64_t>(own_host);
     h.registry_id = reg ? static_cast<std::int64_t>(reg->header->registry_id) : 0;
     h.speaker = self_id.load();
-    h.sequence = ++sequence;
+    h.sequence = udp_sent + 1;  // the datagram it is about to be (publish_udp)
     h.lease_ms = static_cast<std::int32_t>(options.lease.count());
     h.digest = static_cast<std::int64_t>(digest_of(spoken_set));
     h.count = static_cast<std::int32_t>(spoken_set.size());
@@ -934,6 +939,7 @@ struct Discovery::Impl {
       warn_limited(last_malformed_log, "lcmx discovery: ignored a host beacon: {}", why);
       return;
     }
+    if (h->kind == host_beacon_t::KIND_MARK) return;  // for the runtime's loss accounting only
     if (h->kind == host_beacon_t::KIND_REQUEST) {
       std::lock_guard lock(mutex);
       audience_until = Clock::now() + 3 * options.lease;
@@ -1051,6 +1057,29 @@ struct Discovery::Impl {
   // An observer's query. With the registry (host scope) this host needs none: only the known
   // neighbours are asked, each by name (a query of everyone would make every participant of
   // every registry on the group hear every record). Without it: every host, at once.
+  // After data on the group (its sequence moved since our last marker), once a second, 3 times:
+  // a small marker from this participant's own socket, so a receiver sees the datagrams it
+  // lost at the end of a burst (the gap before the marker). v5 beacons did that every period.
+  void mark_sequence() {
+    if (options.observer || !options.shared_group) return;
+    const auto now = Clock::now();
+    if (now - last_mark < std::max<Clock::duration>(options.period, std::chrono::seconds(1))) return;
+    const auto next = group->next_sequence();
+    if (next != mark_next) mark_repeats = 3;  // data since our last marker: 3 markers, a second apart
+    if (mark_repeats == 0) return;            // (one may be lost with the data it follows)
+    --mark_repeats;
+    last_mark = now;
+    auto h = host_message(host_beacon_t::KIND_MARK);
+    h.speaker = self_id.load();
+    h.digest = 0;
+    h.count = 0;
+    publish_udp(encode_host_beacon(h));
+    mark_next = group->next_sequence();
+  }
+  Clock::time_point last_mark{};
+  std::uint32_t mark_next = 0;
+  int mark_repeats = 0;
+
   void send_query() {
     std::vector<std::int64_t> targets;
     if (reg) {
@@ -1152,6 +1181,7 @@ struct Discovery::Impl {
         }
       }
       if (is_speaker) speaker_duties();
+      mark_sequence();
       send_requests();
       expire_hosts();
 
