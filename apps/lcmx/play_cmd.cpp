@@ -314,14 +314,14 @@ int run_play() {
       if (ch == discovery::kBeaconChannel) {
         // Recorded beacons (lcm-logger records them too) would announce the processes of
         // the recording as alive here: `lcmx nodes` and `topics` would list ghosts.
-        std::cerr << "lcmx play: " << ci.count << " events of " << ch
+        std::cerr << "lcmx play: " << ci.count << " events of " << printable(ch)
                   << " (lcmx's discovery beacons) not played: they would announce the recorded processes as alive\n";
         continue;
       }
       auto it = remap.find(ch);
       const std::string out = it == remap.end() ? ch : it->second;
       if (out.size() > kMaxChannelLength) {
-        std::cerr << "lcmx play: channel '" << ch << "' is longer than 63 bytes: skipped (use --remap)\n";
+        std::cerr << "lcmx play: channel '" << printable(ch) << "' is longer than 63 bytes: skipped (use --remap)\n";
         continue;
       }
       if (!by_out.count(out)) {
