@@ -80,6 +80,22 @@ std::uint64_t structural_hash(beacon_t b) {
   return reg::fnv1a(bytes);
 }
 
+// Writes `revision` into an encoded beacon_t's revision field (after the fixed header and the
+// process name). Records carry the registry's revision, so a receiver's (id, revision) set and
+// its digest agree with the speaker's. False if the bytes are too short.
+bool patch_revision(std::vector<std::byte>& bytes, std::int64_t revision) {
+  // fingerprint 8, version 4, participant_id 8, host_id 8, pid 4, start_time 8, pid_namespace 8
+  constexpr std::size_t kName = 48;
+  if (bytes.size() < kName + 4) return false;
+  std::uint32_t len = 0;
+  for (int k = 0; k < 4; ++k) len = (len << 8) | std::to_integer<std::uint8_t>(bytes[kName + static_cast<std::size_t>(k)]);
+  const std::size_t at = kName + 4 + std::size_t{len} + 8;  // after the name and `sequence`
+  if (len > bytes.size() || at + 8 > bytes.size()) return false;
+  for (int k = 0; k < 8; ++k)
+    bytes[at + static_cast<std::size_t>(k)] = static_cast<std::byte>(static_cast<std::uint64_t>(revision) >> (56 - 8 * k));
+  return true;
+}
+
 std::uint64_t stats_hash(const beacon_t& b) {
   std::uint64_t h = 1469598103934665603ull;
   auto mix = [&](const auto& v) { h = reg::fnv1a(std::as_bytes(std::span(&v, 1)), h); };
@@ -591,6 +607,7 @@ struct Discovery::Impl {
     const bool changed = sp.revision != revision || sp.record.empty();
     sp.revision = revision;
     sp.record = section;
+    patch_revision(sp.record, revision);
     spoken_set[id] = revision;
     if (changed) {
       pending_records.insert(id);
@@ -670,7 +687,10 @@ struct Discovery::Impl {
         if (slot.participant_id.load(std::memory_order_relaxed) != id) continue;
         if (auto st = reg->read_state(sp.slot, id, slot.seq.load(std::memory_order_acquire))) {
           auto& section = host_scope ? st->host : st->vehicle;
-          if (!section.empty()) sp.record = std::move(section);
+          if (!section.empty()) {
+            sp.record = std::move(section);
+            patch_revision(sp.record, sp.revision);
+          }
         }
       }
       for (const auto& [id, sp] : spoken) send_record(id);

@@ -526,6 +526,17 @@ TEST_CASE("vehicle scope: each host's speaker speaks for its participants - reco
   int speakers = 0;
   for (auto& p : a.ps) speakers += p.v->speaking() ? 1 : 0;
   CHECK(speakers == 1);  // one per host and group
+  // Steady state: the hosts' digests agree, no request and no record goes out any more.
+  auto answered = [&] {
+    std::uint64_t n = 0;
+    for (auto* h : {&a, &b})
+      for (auto& p : h->ps) n += p.v->counters().requests_answered;
+    return n;
+  };
+  std::this_thread::sleep_for(300ms);  // let the join's index and records settle (6 periods)
+  const auto settled = answered();
+  std::this_thread::sleep_for(500ms);  // 10 periods: a digest that disagreed would ask every 2
+  CHECK(answered() == settled);
   // A participant of a leaves: b's participants are told by a's speaker.
   auto& leaving = a.ps[0].v->speaking() ? a.ps[1] : a.ps[0];
   const std::int64_t gone = &leaving == &a.ps[0] ? 11 : 12;
