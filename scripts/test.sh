@@ -19,7 +19,7 @@ fi
 stage "plain suite (build/)"
 ctest --test-dir build --output-on-failure -j2 --timeout 300 -LE fuzz
 
-stage "fuzz targets, ${LCMX_FUZZ_SECONDS:=40} s each"
+stage "fuzz targets, ${LCMX_FUZZ_SECONDS:=26} s each"
 export LCMX_FUZZ_SECONDS
 ctest --test-dir build --output-on-failure -j2 -L fuzz
 

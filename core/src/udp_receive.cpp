@@ -12,6 +12,7 @@
 
 #include "internal.hpp"
 #include "lcmx/discovery/beacon_codec.hpp"
+#include "lcmx/lcmtypes/envelope.hpp"
 #include "lcmx_msgs/history_t.hpp"
 
 namespace lcmx::detail {
@@ -320,7 +321,7 @@ void RuntimeImpl::send_replays() {
 // are dropped (SubscriberState::UdpSource).
 void RuntimeImpl::on_history(const udpm::Message& m) {
   lcmx_msgs::history_t h;
-  if (h.decode(m.data.data(), 0, static_cast<int>(m.data.size())) < 0) return;  // not ours to judge
+  if (!lcmtypes::decode(m.data, h)) return;  // malformed, or a hostile count: refused before sizing anything
   if (h.subscriber_participant != static_cast<std::int64_t>(participant_id)) return;
   std::shared_ptr<SubscriberCore> sub;
   std::shared_ptr<PairCounters> stats;
