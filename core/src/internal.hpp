@@ -228,6 +228,11 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   // endpoint `endpoint`. Takes mu. For service clients: a remote server whose pair changed
   // path (UDP -> bridge) is still there.
   bool endpoint_announced(std::uint64_t participant, std::uint64_t endpoint);
+  // Whether `participant` (this one: a subscriber of this process; another: its beacon, not
+  // expired, of either scope or a neighbour's) announces a subscriber of `channel`. Takes mu.
+  // For service servers: a reply channel is made only for a client that subscribes to it.
+  // Defined in core/src/service_hook.cpp.
+  bool subscriber_announced(std::uint64_t participant, const std::string& channel);
   std::uint64_t add_event_tap(std::function<void(const Event&)> tap);
   void remove_event_tap(std::uint64_t id);
   // Housekeeping (service servers forget gone clients): called about once a second on the

@@ -48,6 +48,8 @@ void RuntimeImpl::match_local_locked(PublisherImpl& pub, SubscriberCore& sub,
   m->publisher_participant = participant_id;
   m->publisher_endpoint = pub.id;
   m->path = Path::intra;
+  m->stats->publisher_participant = participant_id;  // who sends through the pair (PairCounters)
+  m->stats->publisher_endpoint = pub.id;
   pub.add_intra(std::static_pointer_cast<SubscriberCore>(subs.at(sub.id)), m->stats);
   {
     std::lock_guard lock(sub.state->mu);
@@ -145,6 +147,9 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
     m->publisher_participant = key.first;
     m->publisher_endpoint = key.second;
     m->path = path;
+    m->stats->publisher_participant = key.first;  // who sends through the pair (PairCounters)
+    m->stats->publisher_endpoint = key.second;
+    m->stats->path = path;
     if (path == Path::shm || path == Path::bridge) {
       const auto fkey = std::make_tuple(sub.id, key.first, key.second);
       try {

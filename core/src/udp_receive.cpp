@@ -256,6 +256,7 @@ void RuntimeImpl::on_udp(std::int8_t scope, const udpm::Message& m) {
     if (sub->udp_inline && !sub->state->removed.load()) {
       RetainSource src;
       src.owner = owner;
+      src.pair = stats.get();
       if (sub->udp_inline(RawMessage{sub->channel(), bytes, &src})) {
         stats->received.fetch_add(1, std::memory_order_relaxed);
         sub->delivered.fetch_add(1, std::memory_order_relaxed);

@@ -127,6 +127,9 @@ struct ClientStats {
   // Replies that completed a blocking call (call(), call_retained(), the future call_async())
   // on the thread that received them from UDP, not handed over through the client's thread.
   std::uint64_t direct_replies = 0;
+  // Replies ignored because they did not come from the server their call went to: another
+  // participant, or another publisher than that server's, sent them (a forgery or a mistake).
+  std::uint64_t foreign_replies = 0;
   std::size_t pending = 0;         // calls waiting for a reply now
   std::size_t servers = 0;         // servers that answered a probe and are still matched
 };
@@ -135,6 +138,11 @@ struct ServerStats {
   std::uint64_t requests = 0;  // requests this server executed
   std::uint64_t failed = 0;    // of which the handler threw or the request did not decode
   std::uint64_t probes = 0;    // probes answered
+  // Requests (probes included) ignored before anything was made for them: their client was
+  // not checked (its reply channel is not its client id's, the participant it names did not
+  // send it or announces no subscriber of that channel) or the server has a reply channel
+  // for kMaxClients clients already, all still subscribed (docs/services.md "Trust").
+  std::uint64_t refused = 0;
   std::size_t clients = 0;     // clients it has a reply channel for now
 };
 
@@ -192,7 +200,10 @@ void close_client(const std::shared_ptr<ClientCore>& client);
 // with server_gone, never over, if the server goes away. With `hands_over`, `done` only hands
 // the result to another thread (a promise: short, never blocks, never calls lcmx): a reply
 // that arrives over UDP may then run it on the thread that received it (the runtime's receive
-// thread) instead of the client's, sparing the caller one thread hand-over.
+// thread) instead of the client's, sparing the caller one thread hand-over. `on_sent` (may be
+// empty) is told each server the call is sent to (again on a fail-over), on the thread that
+// sends it, with the client's lock held: it must be short and take no lock but a leaf of its
+// own (actions: a goal's status is taken only from the server its goal went to).
 using ReplyHandler =
     std::function<void(std::span<const std::byte> response, CallErrc error, bool ok,
                        const std::string& message, const ServerInfo& server, const RawMessage* reply)>;
@@ -203,7 +214,8 @@ inline std::function<void(std::span<std::byte>)> copy_request(std::span<const st
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
                  std::chrono::milliseconds timeout, ReplyHandler done,
-                 const ServerInfo* pin = nullptr, bool hands_over = false);
+                 const ServerInfo* pin = nullptr, bool hands_over = false,
+                 std::function<void(const ServerInfo&)> on_sent = {});
 bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout);
 ClientStats client_stats(const ClientCore& client);
 std::vector<ServerInfo> client_servers(const ClientCore& client);
