@@ -134,13 +134,19 @@ TEST_CASE("service trust: a reply forged by another participant is ignored, the 
     std::mutex mu;
     std::condition_variable cv;
     std::optional<lcmx_msgs::service_request_t> call;
+    bool probed = false;
     auto tap = node.subscribe<lcmx_msgs::service_request_t>("svc_forge/rq", [&](const lcmx_msgs::service_request_t& r) {
       std::lock_guard lock(mu);
+      if (r.request_id == 0) probed = true;
       if (r.request_id != 0 && !call) call = r;
       cv.notify_all();
     });
     pipes.report_char('r');
     std::unique_lock lock(mu);
+    // The client probes every subscriber of its request channel, us too: from then on we get
+    // its calls.
+    if (!cv.wait_for(lock, kTrustWait, [&] { return probed; })) _exit(7);
+    pipes.report_char('p');
     if (!cv.wait_for(lock, kTrustWait, [&] { return call.has_value(); })) _exit(5);
     auto pub = node.advertise_raw(call->reply_channel, lcmx_msgs::service_reply_t::getTypeName(),
                                   lcmx_msgs::service_reply_t::getHash());
@@ -173,6 +179,7 @@ TEST_CASE("service trust: a reply forged by another participant is ignored, the 
   });
   auto client = node.create_client<Pose, Bench>("svc_forge");
   REQUIRE(client.wait_for_service(kTrustWait));
+  REQUIRE(forger.reported('p'));  // it hears our requests
   auto reply = client.call_async(pose(42), kTrustWait);
   REQUIRE(forger.reported('s'));
   // The forged reply arrives (over shared memory, from the attacker's participant) and is
