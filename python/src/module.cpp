@@ -37,7 +37,7 @@
 
 #include <spdlog/spdlog.h>
 
-#include "lcmx/core/runtime.hpp"
+#include "lcmx/core.hpp"  // the runtime and lcmx::services (services, actions)
 
 namespace py = pybind11;
 using namespace std::chrono_literals;

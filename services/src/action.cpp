@@ -1,4 +1,4 @@
-// Actions (lcmx/core/action.hpp, docs/actions.md): three services and two topics per action,
+// Actions (lcmx/services/action.hpp, docs/actions.md): three services and two topics per action,
 // envelopes from lcmtypes/action.lcm (lcm-gen structs, encoded by lcm-gen's code and decoded
 // by lcmx::lcmtypes' checked decoders: every count bounded before anything is sized; actions
 // are not on a hot path that would need the in-place encoding of service.cpp).
@@ -11,7 +11,7 @@
 // (result_retention); each accepted goal's execute runs on a thread of its own.
 // Client: a goal, a cancel and a result service client, and a manual node of its own run by
 // one thread for the status and feedback subscriptions.
-#include "lcmx/core/action.hpp"
+#include "lcmx/services/action.hpp"
 
 #include <algorithm>
 #include <condition_variable>
@@ -24,7 +24,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
-#include "internal.hpp"
+#include "lcmx/core/detail/service_hook.hpp"
 #include "lcmx/core/node.hpp"
 #include "lcmx/lcmtypes/envelope.hpp"
 #include "sender.hpp"
@@ -257,7 +257,7 @@ void ActionServerCore::start() {
   goal_server = create_server(*node, goal_channel(name), service_types<lcmx_msgs::action_goal_t, lcmx_msgs::action_goal_reply_t>(),
                               [raw](std::span<const std::byte> in, ResponseWriter& out) { raw->on_goal(in, out); });
   std::weak_ptr<ActionServerCore> weak = self;
-  tap = node->runtime->add_event_tap([weak](const Event& e) {
+  tap = hook::add_event_tap(*node, [weak](const Event& e) {
     if (e.kind != Event::Kind::participant_left && e.kind != Event::Kind::publisher_unmatched) return;
     if (auto s = weak.lock()) {
       {
@@ -285,7 +285,7 @@ void ActionServerCore::close() {
   publish_status();  // the goals' final states
   close_server(cancel_server);
   close_server(result_server);
-  node->runtime->remove_event_tap(tap);
+  hook::remove_event_tap(*node, tap);
   {
     std::lock_guard lock(mu);
     stopping = true;
@@ -489,7 +489,7 @@ void ActionServerCore::on_result(std::span<const std::byte> in, ResponseWriter& 
 
 void ActionServerCore::publish_status() {
   lcmx_msgs::action_status_t m;
-  m.server_participant = static_cast<std::int64_t>(node->runtime->participant_id);
+  m.server_participant = static_cast<std::int64_t>(hook::participant_id(*node));
   m.goal_server_id = static_cast<std::int64_t>(server_id(*goal_server));
   m.cancel_server_id = static_cast<std::int64_t>(server_id(*cancel_server));
   m.result_server_id = static_cast<std::int64_t>(server_id(*result_server));
@@ -576,7 +576,7 @@ std::shared_ptr<ActionServerCore> create_action_server(NodeImpl& node, std::stri
       options.result_retention < ms(0))
     throw Error(Errc::invalid_argument,
                 "create_action_server '" + name + "': max_goals, status_period and client_timeout must be positive");
-  auto s = std::make_shared<ActionServerCore>(node.shared_from_this(), std::move(name), std::move(types),
+  auto s = std::make_shared<ActionServerCore>(hook::shared(node), std::move(name), std::move(types),
                                               std::move(accept), std::move(execute), options);
   s->start();
   return s;
@@ -590,8 +590,7 @@ const std::string& action_server_name(const ActionServerCore& server) { return s
 
 class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
  public:
-  ActionClientCore(std::shared_ptr<RuntimeImpl> rt, std::string nm, ActionTypes t)
-      : runtime(std::move(rt)), name(std::move(nm)), types(std::move(t)) {}
+  ActionClientCore(std::string nm, ActionTypes t) : name(std::move(nm)), types(std::move(t)) {}
   void start(NodeImpl& user_node);
   void close();
   CallResult<GoalStatus> send_goal(std::size_t size, const std::function<void(std::span<std::byte>)>& encode_goal,
@@ -601,7 +600,6 @@ class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
   CallResult<GoalStatus> cancel(const std::string& id, ms timeout);
   std::vector<GoalStatus> list() const;
 
-  const std::shared_ptr<RuntimeImpl> runtime;
   const std::string name;
   const ActionTypes types;
   std::shared_ptr<ClientCore> goal_client, cancel_client, result_client;
@@ -661,11 +659,7 @@ void ActionClientCore::start(NodeImpl& user_node) {
   // their matches) before it can answer our goal client's probe, so a goal it accepts has its
   // first feedback sent to us (made after the goal client, they sometimes matched the server's
   // feedback publisher only after it accepted a goal sent at once: the first feedback was lost).
-  NodeOptions o;
-  o.executor.kind = ExecutorKind::manual;
-  node = std::make_shared<NodeImpl>(runtime, user_node.name + "/action_client:" + name, o);
-  node->start();
-  runtime->add_node(node);
+  node = hook::create_manual_node(user_node, hook::node_name(user_node) + "/action_client:" + name);
   status_sub = std::make_shared<RawSubscriberCore>(
       status_channel(name), SubscriberOptions{.queue_depth = 64}, [this](const RawMessage& m) { on_status(m); },
       envelope_type<lcmx_msgs::action_status_t>());
@@ -681,13 +675,13 @@ void ActionClientCore::start(NodeImpl& user_node) {
   cancel_client = create_client(user_node, cancel_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_goal_status_t>());
   result_client = create_client(user_node, result_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_result_t>());
   thread = std::thread([this] {
-    while (!stop.load() && !node->stopped()) node->run_once(std::chrono::seconds(1));
+    while (!stop.load() && !hook::stopped(*node)) hook::run_once(*node, std::chrono::seconds(1));
   });
 }
 
 void ActionClientCore::close() {
   if (stop.exchange(true)) return;
-  node->interrupt();
+  hook::interrupt(*node);
   if (thread.joinable()) {
     if (thread.get_id() == std::this_thread::get_id()) thread.detach();  // from a feedback callback
     else thread.join();
@@ -697,7 +691,7 @@ void ActionClientCore::close() {
   close_client(result_client);
   remove_subscriber(status_sub);
   remove_subscriber(feedback_sub);
-  node->stop();
+  hook::stop(*node);
   cv.notify_all();
 }
 
@@ -1020,7 +1014,7 @@ CallResult<GoalStatus> ActionClientCore::cancel(const std::string& id, ms timeou
 
 std::shared_ptr<ActionClientCore> create_action_client(NodeImpl& node, std::string name, ActionTypes types) {
   check_action_name(name, "create_action_client");
-  auto c = std::make_shared<ActionClientCore>(node.runtime, std::move(name), std::move(types));
+  auto c = std::make_shared<ActionClientCore>(std::move(name), std::move(types));
   c->start(node);
   return c;
 }
@@ -1051,6 +1045,15 @@ std::vector<ServerInfo> action_client_servers(const ActionClientCore& client) {
 const std::string& action_client_name(const ActionClientCore& client) { return client.name; }
 
 }  // namespace detail
+
+ActionServer Node::create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute) {
+  return create_action_server_raw(std::move(name), std::move(execute), {}, ActionServerOptions{});
+}
+
+ActionServer Node::create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute,
+                                            std::function<std::string(std::span<const std::byte>)> accept) {
+  return create_action_server_raw(std::move(name), std::move(execute), std::move(accept), ActionServerOptions{});
+}
 
 ActionServer Node::create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute,
                                             std::function<std::string(std::span<const std::byte>)> accept,

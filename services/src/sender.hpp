@@ -1,33 +1,16 @@
-// Who sent a message a raw subscriber received: the publisher of the pair it came through
-// (RetainSource::pair, PairCounters). For services and actions, which take replies and
-// statuses only from the server they asked.
+// Whether a message can come from a given server: services and actions take replies and
+// statuses only from the server they asked (docs/services.md "Trust"). Who sent a message is
+// the runtime's answer (hook::sender_of, lcmx/core/detail/service_hook.hpp).
 #pragma once
 
 #include <cstdint>
-#include <optional>
 
-#include "lcmx/core/subscriber.hpp"
+#include "lcmx/core/detail/service_hook.hpp"
 
 namespace lcmx::detail {
 
-struct Sender {
-  std::uint64_t participant = 0;
-  // The publisher's endpoint id: exact on the intra and shm paths; over UDP the first UDP
-  // match of `participant` on the channel (a datagram names its sender's participant, by its
-  // address, not its endpoint); over the bridge, this host's bridge republisher.
-  std::uint64_t endpoint = 0;
-  Path path = Path::intra;
-};
-
-// nullopt when the message names no pair (made by hand) or its sender is no lcmx
-// participant (a stock LCM program over UDP). Any thread, no lock: the pair's publisher is set
-// before any message goes through it and never changes.
-inline std::optional<Sender> sender_of(const RawMessage& m) {
-  if (m.source == nullptr || m.source->pair == nullptr || m.source->pair->publisher_participant == 0)
-    return std::nullopt;
-  const auto& p = *m.source->pair;
-  return Sender{p.publisher_participant, p.publisher_endpoint, p.path};
-}
+using hook::Sender;
+using hook::sender_of;
 
 // Whether a message from `s` can come from the server endpoint (participant, endpoint) that
 // was reached over a path that leaves the host (`remote`: UDP or the bridges). intra/shm: the

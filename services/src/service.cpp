@@ -1,4 +1,4 @@
-// Services (lcmx/core/service.hpp, docs/services.md): servers and clients on ordinary lcmx
+// Services (lcmx/services/service.hpp, docs/services.md): servers and clients on ordinary lcmx
 // channels. A server is a subscriber of "<name>/rq" plus one publisher per client on
 // "<name>/rp/<client id>"; a client is a publisher of "<name>/rq", a subscriber of its reply
 // channel on a node of its own, and one thread that runs that node (replies), timeouts,
@@ -14,7 +14,7 @@
 // that channel) and keeps a reply channel for at most kMaxClients clients; a client takes a
 // reply only from the server its call went to, checked against the pair the reply came
 // through (sender.hpp).
-#include "lcmx/core/service.hpp"
+#include "lcmx/services/service.hpp"
 
 #include <algorithm>
 #include <condition_variable>
@@ -27,7 +27,7 @@
 
 #include <spdlog/spdlog.h>
 
-#include "internal.hpp"
+#include "lcmx/core/detail/service_hook.hpp"
 #include "lcmx/lcmtypes/envelope.hpp"
 #include "sender.hpp"
 
@@ -135,7 +135,7 @@ class ServerCore {
  public:
   ServerCore(std::shared_ptr<NodeImpl> n, std::string nm, ServiceTypes t, ServerHandler h)
       : node(std::move(n)), name(std::move(nm)), types(std::move(t)), handler(std::move(h)),
-        participant(node->runtime->participant_id) {}
+        participant(hook::participant_id(*node)) {}
 
   // The request subscriber's callback: on the server node's executor, one at a time.
   void on_request(const RawMessage& m);
@@ -234,7 +234,7 @@ std::shared_ptr<PublisherCore> ServerCore::reply_channel(const RequestHeader& h,
   // the bridges are the exception: this host's bridge subscribes to a reply channel only
   // once a publisher of it exists here, so only the bound below applies to them.
   const std::string channel(h.reply_channel);
-  if (!bridged && !node->runtime->subscriber_announced(from->participant, channel))
+  if (!bridged && !hook::subscriber_announced(*node, from->participant, channel))
     return refuse(h, "its client announces no subscriber of its reply channel");
   std::shared_ptr<PublisherCore> evicted;  // destroyed with no lock held
   bool full = false;
@@ -311,7 +311,7 @@ void ServerCore::on_request(const RawMessage& m) {
   rh.request_id = h.request_id;
   rh.server_participant = static_cast<std::int64_t>(participant);
   rh.server_id = static_cast<std::int64_t>(id);
-  rh.reply_endpoint = static_cast<std::int64_t>(static_cast<PublisherImpl*>(pub.get())->id);
+  rh.reply_endpoint = static_cast<std::int64_t>(hook::endpoint_id(*pub));
   rh.request_fingerprint = types.request_fingerprint;
   rh.response_fingerprint = types.response_fingerprint;
   rh.request_type = types.request_name;
@@ -411,7 +411,7 @@ std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, Serv
                                           ServerHandler handler) {
   check_name(name, "create_service");
   if (!handler) throw Error(Errc::invalid_argument, "create_service '" + name + "': empty handler");
-  auto server = std::make_shared<ServerCore>(node.shared_from_this(), name, std::move(types),
+  auto server = std::make_shared<ServerCore>(hook::shared(node), name, std::move(types),
                                              std::move(handler));
   // The subscriber announces the envelope type, so discovery (and `lcmx services`) tell a
   // service's server from a plain subscriber. Its callback uses `server` by address: the
@@ -423,14 +423,14 @@ std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, Serv
   add_subscriber(node, server->request_sub);
   // Without it a gone client's reply segment stayed until the next new client came.
   std::weak_ptr<ServerCore> weak = server;
-  server->housekeeping = node.runtime->add_housekeeping([weak] {
+  server->housekeeping = hook::add_housekeeping(node, [weak] {
     if (auto s = weak.lock()) s->sweep();
   });
   return server;
 }
 
 void close_server(const std::shared_ptr<ServerCore>& server) {
-  server->node->runtime->remove_housekeeping(server->housekeeping);
+  hook::remove_housekeeping(*server->node, server->housekeeping);
   remove_subscriber(server->request_sub);
 }
 
@@ -445,13 +445,14 @@ bool server_client_connected(const ServerCore& server, std::uint64_t client_id) 
 
 class ClientCore : public std::enable_shared_from_this<ClientCore> {
  public:
-  ClientCore(std::shared_ptr<RuntimeImpl> rt, std::string nm, ServiceTypes t, ServersGone gone)
-      : runtime(std::move(rt)), name(std::move(nm)), types(std::move(t)),
+  ClientCore(std::string nm, ServiceTypes t, ServersGone gone)
+      : name(std::move(nm)), types(std::move(t)),
         client_id(random_nonzero()),
         reply_channel(fmt::format("{}{:016x}", reply_prefix(name), client_id)),
         on_servers_gone(std::move(gone)) {}
 
-  void start(const std::string& node_name);
+  // Makes the client's node (beside `user_node`, in its runtime), endpoints and thread.
+  void start(NodeImpl& user_node);
   void close();
   void call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
             std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin, bool hands_over,
@@ -460,7 +461,6 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   ClientStats stats() const;
   std::vector<ServerInfo> servers_now() const;
 
-  const std::shared_ptr<RuntimeImpl> runtime;
   const std::string name;
   const ServiceTypes types;
   const std::uint64_t client_id;
@@ -512,7 +512,7 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   RequestHeader request_header() const {
     RequestHeader h;
     h.client_id = static_cast<std::int64_t>(client_id);
-    h.client_participant = static_cast<std::int64_t>(runtime->participant_id);
+    h.client_participant = static_cast<std::int64_t>(participant);
     h.request_fingerprint = types.request_fingerprint;
     h.response_fingerprint = types.response_fingerprint;
     h.reply_channel = reply_channel;
@@ -545,6 +545,7 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   static void finish(std::vector<Finished>& finished);
 
   std::shared_ptr<NodeImpl> node;  // manual executor, run by `thread`
+  std::uint64_t participant = 0;   // node's (set by start)
   std::shared_ptr<PublisherCore> request_pub;
   std::shared_ptr<SubscriberCore> reply_sub;
   std::uint64_t tap = 0;
@@ -575,16 +576,13 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   ClientStats counters;
 };
 
-void ClientCore::start(const std::string& node_name) {
-  NodeOptions o;
-  o.executor.kind = ExecutorKind::manual;
-  node = std::make_shared<NodeImpl>(runtime, node_name + "/client:" + name, o);
-  node->start();
-  runtime->add_node(node);
+void ClientCore::start(NodeImpl& user_node) {
+  node = hook::create_manual_node(user_node, hook::node_name(user_node) + "/client:" + name);
+  participant = hook::participant_id(*node);
   request_pub = create_publisher(*node, request_channel(name), request_type_info(), PublisherOptions{});
   // A new server's subscriber wakes our thread to probe it (matched before this line: the
   // thread's first pass sees the count).
-  static_cast<PublisherImpl&>(*request_pub).interrupt_on_match.store(true);
+  hook::interrupt_on_match(*request_pub);
   std::weak_ptr<ClientCore> weak = weak_from_this();
   reply_sub = std::make_shared<RawSubscriberCore>(
       reply_channel, SubscriberOptions{.queue_depth = 64},
@@ -596,11 +594,11 @@ void ClientCore::start(const std::string& node_name) {
   };
   add_subscriber(*node, reply_sub);
   // Our reply channel's publishers come and go (a server leaves): re-check at once.
-  tap = runtime->add_event_tap([weak, channel = reply_channel](const Event& e) {
+  tap = hook::add_event_tap(*node, [weak, channel = reply_channel](const Event& e) {
     if (e.channel != channel && e.kind != Event::Kind::participant_left) return;
     if (auto self = weak.lock()) {
       self->matches_changed.store(true);
-      self->node->interrupt();
+      hook::interrupt(*self->node);
     }
   });
   const RequestHeader h = request_header();
@@ -617,12 +615,12 @@ void ClientCore::close() {
     closed = true;
   }
   cv.notify_all();
-  node->interrupt();
+  hook::interrupt(*node);
   if (thread.joinable()) {
     if (thread.get_id() == std::this_thread::get_id()) thread.detach();  // from a done callback
     else thread.join();
   }
-  runtime->remove_event_tap(tap);
+  hook::remove_event_tap(*node, tap);
   std::vector<Finished> finished;
   {
     std::lock_guard lock(mu);
@@ -634,7 +632,7 @@ void ClientCore::close() {
   finish(finished);
   remove_subscriber(reply_sub);
   request_pub.reset();
-  node->stop();
+  hook::stop(*node);
 }
 
 void ClientCore::finish(std::vector<Finished>& finished) {
@@ -684,7 +682,7 @@ void ClientCore::loop() {
         wait = std::min<std::chrono::nanoseconds>(wait, p.deadline - now);
       wait = std::max<std::chrono::nanoseconds>(wait, std::chrono::nanoseconds(0));
       wake_at = now + wait;
-      if (node->stopped()) {  // the runtime shut down: nothing will answer any more
+      if (hook::stopped(*node)) {  // the runtime shut down: nothing will answer any more
         closed = true;
         for (auto& [id, p] : pending)
           finished.push_back({std::move(p.done), CallErrc::shutdown,
@@ -701,8 +699,8 @@ void ClientCore::loop() {
       }
     }
     gone_servers.clear();
-    if (node->stopped()) return;
-    node->run_once(wait);
+    if (hook::stopped(*node)) return;
+    hook::run_once(*node, wait);
   }
 }
 
@@ -731,7 +729,7 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished,
     if (m == matched.end()) m = matched.find({k.info.participant, k.server_reply_endpoint});
     const bool remote = k.info.path != Path::intra && k.info.path != Path::shm;
     if (m == matched.end() && bridge != nullptr && remote) m = matched.find(*bridge);
-    if (m == matched.end() && remote && runtime->endpoint_announced(k.info.participant, k.info.id)) {
+    if (m == matched.end() && remote && hook::endpoint_announced(*node, k.info.participant, k.info.id)) {
       ++it;  // between two paths (its reply channel turned large; the bridges take over)
       continue;
     }
@@ -1015,7 +1013,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
     wake = slot.deadline < wake_at;  // the client thread must time it out earlier than planned
   }
   lock.unlock();
-  if (wake) node->interrupt();
+  if (wake) hook::interrupt(*node);
 }
 
 bool ClientCore::wait_for_service(std::chrono::milliseconds timeout) {
@@ -1023,7 +1021,7 @@ bool ClientCore::wait_for_service(std::chrono::milliseconds timeout) {
   std::unique_lock lock(mu);
   ++waiters;
   lock.unlock();
-  node->interrupt();
+  hook::interrupt(*node);
   lock.lock();
   // Ready once a server answered and either every request subscriber has answered or
   // kServerGrace passed since the first answer: servers that start together are all known
@@ -1070,9 +1068,8 @@ std::vector<ServerInfo> ClientCore::servers_now() const {
 std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types,
                                           ServersGone on_servers_gone) {
   check_name(name, "create_client");
-  auto client = std::make_shared<ClientCore>(node.runtime, std::move(name), std::move(types),
-                                             std::move(on_servers_gone));
-  client->start(node.name);
+  auto client = std::make_shared<ClientCore>(std::move(name), std::move(types), std::move(on_servers_gone));
+  client->start(node);
   return client;
 }
 

@@ -34,6 +34,9 @@
 // server's status) by id.
 // Errors: creation throws lcmx::Error (invalid_argument for a bad name, at most 36 bytes);
 // calls return CallResult, never throw for call errors. All members are thread-safe.
+//
+// lcmx::services, like service.hpp; this header also defines Node's action member templates
+// (declared in lcmx/core/node.hpp). Include <lcmx/core.hpp>.
 #pragma once
 
 #include <chrono>
@@ -48,7 +51,8 @@
 #include <vector>
 
 #include "lcmx/core/error.hpp"
-#include "lcmx/core/service.hpp"
+#include "lcmx/core/node.hpp"
+#include "lcmx/services/service.hpp"
 
 namespace lcmx {
 
@@ -348,5 +352,64 @@ class RawActionClient : public detail::ActionClientHandle {
   friend class Node;
   explicit RawActionClient(std::shared_ptr<detail::ActionClientCore> c) : ActionClientHandle(std::move(c)) {}
 };
+
+}  // namespace lcmx
+
+// --- Node's action members (declared in lcmx/core/node.hpp) -----------------------------------
+
+namespace lcmx {
+
+template <class G, class F, class R, class E>
+ActionServer Node::create_action_server(std::string name, E&& execute) {
+  return create_action_server<G, F, R>(std::move(name), std::forward<E>(execute), ActionServerOptions{});
+}
+
+template <class G, class F, class R, class E>
+ActionServer Node::create_action_server(std::string name, E&& execute, ActionServerOptions options) {
+  return create_action_server<G, F, R>(std::move(name), std::forward<E>(execute), [](const G&) { return true; },
+                                       options);
+}
+
+template <class G, class F, class R, class E, class A>
+ActionServer Node::create_action_server(std::string name, E&& execute, A&& accept) {
+  return create_action_server<G, F, R>(std::move(name), std::forward<E>(execute), std::forward<A>(accept),
+                                       ActionServerOptions{});
+}
+
+template <class G, class F, class R, class E, class A>
+ActionServer Node::create_action_server(std::string name, E&& execute, A&& accept, ActionServerOptions options) {
+  static_assert(std::is_invocable_v<E&, ActionGoal<G, F, R>&>,
+                "create_action_server<G, F, R>: execute must be void(ActionGoal<G, F, R>&)");
+  detail::ActionTypes types{G::getTypeName(), F::getTypeName(), R::getTypeName(),
+                            G::getHash(),     F::getHash(),     R::getHash()};
+  auto decode = [](std::span<const std::byte> in) {
+    G goal;
+    if (in.size() > static_cast<std::size_t>(INT32_MAX) || goal.decode(in.data(), 0, static_cast<int>(in.size())) < 0)
+      throw detail::BadRequest(std::string("the goal did not decode as ") + G::getTypeName());
+    return goal;
+  };
+  detail::GoalAcceptor a = [decode, f = std::forward<A>(accept)](std::span<const std::byte> in) mutable {
+    static_assert(std::is_invocable_v<A&, const G&>,
+                  "create_action_server: accept must be bool(const G&) or std::string(const G&)");
+    const G goal = decode(in);
+    if constexpr (std::is_same_v<std::invoke_result_t<A&, const G&>, bool>)
+      return f(goal) ? std::string() : std::string("rejected by the server");
+    else
+      return std::string(f(goal));
+  };
+  detail::GoalExecutor e = [decode, f = std::forward<E>(execute)](RawActionGoal& raw) mutable {
+    ActionGoal<G, F, R> goal(raw, decode(raw.goal()));
+    f(goal);
+  };
+  return ActionServer(detail::create_action_server(*impl_, std::move(name), std::move(types), std::move(a),
+                                                   std::move(e), options));
+}
+
+template <class G, class F, class R>
+ActionClient<G, F, R> Node::create_action_client(std::string name) {
+  return ActionClient<G, F, R>(detail::create_action_client(
+      *impl_, std::move(name),
+      {G::getTypeName(), F::getTypeName(), R::getTypeName(), G::getHash(), F::getHash(), R::getHash()}));
+}
 
 }  // namespace lcmx

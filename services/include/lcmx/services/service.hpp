@@ -24,6 +24,10 @@
 // too: keep it short. All members are thread-safe.
 // Errors: creating a service or client throws lcmx::Error (invalid_argument for a bad name);
 // calls never throw for call errors - they return them in CallResult.
+//
+// lcmx::services: a layer above the runtime (core/), built on its publish/subscribe API and
+// one hook (lcmx/core/detail/service_hook.hpp). This header also defines Node's service
+// member templates (declared in lcmx/core/node.hpp). Include <lcmx/core.hpp>.
 #pragma once
 
 #include <algorithm>
@@ -36,10 +40,12 @@
 #include <span>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
 #include "lcmx/core/error.hpp"
+#include "lcmx/core/node.hpp"
 #include "lcmx/core/stats.hpp"
 #include "lcmx/core/subscriber.hpp"
 
@@ -419,5 +425,66 @@ class RawClient : public detail::ClientHandle {
         nullptr, hands_over);
   }
 };
+
+}  // namespace lcmx
+
+// --- Node's service members (declared in lcmx/core/node.hpp) ----------------------------------
+
+namespace lcmx {
+
+template <class Req, class Resp, class F>
+Service Node::create_service(std::string name, F&& handler) {
+  if constexpr (std::is_constructible_v<bool, const std::remove_reference_t<F>&>)
+    if (!static_cast<bool>(handler))
+      throw Error(Errc::invalid_argument, "create_service '" + name + "': empty handler");
+  detail::ServiceTypes types{Req::getTypeName(), Resp::getTypeName(), Req::getHash(), Resp::getHash()};
+  detail::ServerHandler h = [f = std::forward<F>(handler)](std::span<const std::byte> in,
+                                                           ResponseWriter& out) mutable {
+    Req request;
+    if (in.size() > static_cast<std::size_t>(INT32_MAX) ||
+        request.decode(in.data(), 0, static_cast<int>(in.size())) < 0)
+      throw detail::BadRequest(std::string("the request did not decode as ") + Req::getTypeName());
+    Resp response;
+    if constexpr (std::is_invocable_v<F&, const Req&, Resp&>) {
+      f(request, response);
+    } else {
+      static_assert(std::is_invocable_r_v<Resp, F&, const Req&>,
+                    "create_service<Req, Resp>: handler must be Resp(const Req&) or "
+                    "void(const Req&, Resp&)");
+      response = f(request);
+    }
+    const auto size = static_cast<std::size_t>(response.getEncodedSize());
+    auto bytes = out.allocate(size);
+    response.encode(bytes.data(), 0, static_cast<int>(size));
+  };
+  return Service(detail::create_server(*impl_, std::move(name), std::move(types), std::move(h)));
+}
+
+template <class F>
+Service Node::create_service_raw(std::string name, F&& handler) {
+  if constexpr (std::is_constructible_v<bool, const std::remove_reference_t<F>&>)
+    if (!static_cast<bool>(handler))  // an empty std::function or a null function pointer
+      throw Error(Errc::invalid_argument, "create_service_raw '" + name + "': empty handler");
+  detail::ServerHandler h;
+  if constexpr (std::is_invocable_v<F&, std::span<const std::byte>, ResponseWriter&>) {
+    h = std::forward<F>(handler);
+  } else {
+    static_assert(std::is_invocable_r_v<Bytes, F&, std::span<const std::byte>>,
+                  "create_service_raw: handler must be Bytes(std::span<const std::byte>) or "
+                  "void(std::span<const std::byte>, ResponseWriter&)");
+    h = [f = std::forward<F>(handler)](std::span<const std::byte> in, ResponseWriter& out) mutable {
+      const Bytes response = f(in);
+      auto bytes = out.allocate(response.size());
+      std::copy(response.begin(), response.end(), bytes.begin());
+    };
+  }
+  return Service(detail::create_server(*impl_, std::move(name), {}, std::move(h)));
+}
+
+template <class Req, class Resp>
+Client<Req, Resp> Node::create_client(std::string name) {
+  return Client<Req, Resp>(detail::create_client(
+      *impl_, std::move(name), {Req::getTypeName(), Resp::getTypeName(), Req::getHash(), Resp::getHash()}));
+}
 
 }  // namespace lcmx
