@@ -147,13 +147,13 @@ int run_actions() {
     return 0;
   }
   for (const auto& [name, a] : actions) {
-    std::cout << name;
+    std::cout << printable(name);  // names and types from the network: escaped (safe_text.hpp)
     auto it = status.find(name);
     if (it != status.end()) {
       const auto& s = it->second;
-      std::cout << "  goal " << type_name(reg, s.goal_type, s.goal_fingerprint) << ", feedback "
-                << type_name(reg, s.feedback_type, s.feedback_fingerprint) << ", result "
-                << type_name(reg, s.result_type, s.result_fingerprint);
+      std::cout << "  goal " << printable(type_name(reg, s.goal_type, s.goal_fingerprint)) << ", feedback "
+                << printable(type_name(reg, s.feedback_type, s.feedback_fingerprint)) << ", result "
+                << printable(type_name(reg, s.result_type, s.result_fingerprint));
     } else if (!a.servers.empty()) {
       std::cout << "  (types unknown: no status heard)";
     }
@@ -161,8 +161,8 @@ int run_actions() {
     print_endpoints_text(std::cout, a);
     if (it != status.end())
       for (const auto& gs : it->second.goals)
-        std::cout << "  goal " << gs.goal_id << "  " << state_name(gs.state)
-                  << (gs.message.empty() ? "" : "  (" + gs.message + ")") << "\n";
+        std::cout << "  goal " << printable(gs.goal_id) << "  " << state_name(gs.state)
+                  << (gs.message.empty() ? "" : "  (" + printable(gs.message) + ")") << "\n";
   }
   return 0;
 }
@@ -221,7 +221,7 @@ int run_send() {
     } else {
       const auto* type = reg.find(static_cast<std::uint64_t>(s.goal_fingerprint));
       if (type == nullptr) {
-        std::cerr << "lcmx action send: the server takes goals of " << s.goal_type << " ("
+        std::cerr << "lcmx action send: the server takes goals of " << printable(s.goal_type) << " ("
                   << hex_fingerprint(static_cast<std::uint64_t>(s.goal_fingerprint)) << "), which is not in the type path"
                   << (reg.size() == 0 ? " (give --types DIR|FILE or set LCMX_TYPES_PATH)" : "") << "\n";
         return 1;
@@ -252,12 +252,12 @@ int run_send() {
     if (!o.quiet) on_feedback = [&](std::span<const std::byte> b) { print("feedback", b, ftype); };
     auto sent = client.send_goal(goal, find, on_feedback);
     if (!sent.ok()) {
-      std::cerr << "lcmx action send: " << to_string(sent.error()) << ": " << sent.message() << "\n";
+      std::cerr << "lcmx action send: " << to_string(sent.error()) << ": " << printable(sent.message()) << "\n";
       return 1;
     }
     auto handle = sent.value();
     if (!handle.accepted()) {
-      std::cerr << "lcmx action send: goal rejected: " << handle.message() << "\n";
+      std::cerr << "lcmx action send: goal rejected: " << printable(handle.message()) << "\n";
       return 1;
     }
     {
@@ -281,12 +281,12 @@ int run_send() {
                     << ",\"message\":" << json_str(oc.status.message) << "}" << std::endl;
         else
           std::cout << "goal " << handle.id() << " " << to_string(oc.status.state)
-                    << (oc.status.message.empty() ? "" : ": " + oc.status.message) << "\n" << std::flush;
+                    << (oc.status.message.empty() ? "" : ": " + printable(oc.status.message)) << "\n" << std::flush;
         if (canceled) return 130;
         return oc.status.state == GoalState::succeeded ? 0 : 1;
       }
       if (outcome.error() != CallErrc::timeout) {
-        std::cerr << "lcmx action send: " << to_string(outcome.error()) << ": " << outcome.message() << "\n";
+        std::cerr << "lcmx action send: " << to_string(outcome.error()) << ": " << printable(outcome.message()) << "\n";
         return 1;
       }
       if (Clock::now() >= end && !canceled) {
@@ -294,7 +294,7 @@ int run_send() {
         canceled = true;  // exit 130 after the cancel: stopped by us
         auto c = handle.cancel(find);
         if (!c.ok()) {
-          std::cerr << "lcmx action send: cancel: " << to_string(c.error()) << ": " << c.message() << "\n";
+          std::cerr << "lcmx action send: cancel: " << to_string(c.error()) << ": " << printable(c.message()) << "\n";
           return 1;
         }
       }
@@ -306,7 +306,7 @@ int run_send() {
         }
         auto c = handle.cancel(find);
         if (!c.ok()) {
-          std::cerr << "lcmx action send: cancel: " << to_string(c.error()) << ": " << c.message() << "\n";
+          std::cerr << "lcmx action send: cancel: " << to_string(c.error()) << ": " << printable(c.message()) << "\n";
           return 1;
         }
       }

@@ -148,19 +148,21 @@ int bridge_run(const std::string& config_path, bool check_only, bool json) {
   return 0;
 }
 
+// Status messages come from the host-local group (any process of the host can send one): every
+// name in them is escaped for the terminal (safe_text.hpp).
 void print_bridge_status(std::ostream& out, const lcmx_msgs::bridge_status_t& s) {
   char host[32];
   std::snprintf(host, sizeof host, "%016llx", static_cast<unsigned long long>(s.host_id));
-  out << "bridge " << s.name << "  pid " << s.pid << "  host " << host << (s.curve ? "  CURVE" : "")
+  out << "bridge " << printable(s.name) << "  pid " << s.pid << "  host " << host << (s.curve ? "  CURVE" : "")
       << "  bad frames " << s.bad_frames << "  sent zero-copy " << s.zero_copy_sends << "  copied "
       << s.copied_sends << "  lost before sending " << s.lost_local << "\n";
   out << "  this host wants: ";
   if (s.demand.empty()) out << "-";
-  for (std::size_t i = 0; i < s.demand.size(); ++i) out << (i ? ", " : "") << s.demand[i];
+  for (std::size_t i = 0; i < s.demand.size(); ++i) out << (i ? ", " : "") << printable(s.demand[i]);
   out << "\n";
   for (const auto& p : s.peers) {
-    out << "  peer " << p.name << "  " << (p.up ? "UP" : "DOWN") << "  active link "
-        << (p.active_link.empty() ? "-" : p.active_link) << "  failovers " << p.failovers << "\n";
+    out << "  peer " << printable(p.name) << "  " << (p.up ? "UP" : "DOWN") << "  active link "
+        << (p.active_link.empty() ? "-" : printable(p.active_link)) << "  failovers " << p.failovers << "\n";
     out << "    " << pad("link", 10) << pad("address", 17) << pad("state", 12) << pad("sent", 13) << pad("received", 13)
         << pad("heartbeat", 11) << "rtt\n";
     for (const auto& l : p.links) {
@@ -168,18 +170,18 @@ void print_bridge_status(std::ostream& out, const lcmx_msgs::bridge_status_t& s)
       if (l.active) state += ",active";
       const std::string age = l.heartbeat_age_ms < 0 ? "never" : std::to_string(l.heartbeat_age_ms) + " ms";
       const std::string rtt = l.rtt_us < 0 ? "-" : std::to_string(l.rtt_us) + " us";
-      out << "    " << pad(l.name, 10) << pad(l.address, 17) << pad(state, 12) << pad(human_bytes(l.bytes_sent), 13)
+      out << "    " << pad(printable(l.name), 10) << pad(printable(l.address), 17) << pad(state, 12) << pad(human_bytes(l.bytes_sent), 13)
           << pad(human_bytes(l.bytes_received), 13) << pad(age, 11) << rtt << "\n";
     }
     out << "    " << pad("channel", 10) << pad("sent msgs", 11) << pad("sent", 13) << pad("drops", 8) << pad("queued", 8)
         << pad("recv msgs", 11) << pad("received", 13) << "lost\n";
     for (const auto& c : p.channels)
-      out << "    " << pad(c.name, 10) << pad(std::to_string(c.messages_sent), 11) << pad(human_bytes(c.bytes_sent), 13)
+      out << "    " << pad(printable(c.name), 10) << pad(std::to_string(c.messages_sent), 11) << pad(human_bytes(c.bytes_sent), 13)
           << pad(std::to_string(c.drops), 8) << pad(std::to_string(c.queued), 8)
           << pad(std::to_string(c.messages_received), 11) << pad(human_bytes(c.bytes_received), 13) << c.lost << "\n";
     out << "    serves: ";
     if (p.served.empty()) out << "-";
-    for (std::size_t i = 0; i < p.served.size(); ++i) out << (i ? ", " : "") << p.served[i];
+    for (std::size_t i = 0; i < p.served.size(); ++i) out << (i ? ", " : "") << printable(p.served[i]);
     out << "\n";
   }
 }

@@ -29,11 +29,12 @@ std::string pad(std::string s, std::size_t w) {
   return s;
 }
 
+// Names in a status message (the host-local group: any process can send one) are escaped.
 void print_status(std::ostream& out, const lcmx_msgs::dds_gateway_status_t& s) {
   char host[32];
   std::snprintf(host, sizeof host, "%016llx", static_cast<unsigned long long>(s.host_id));
-  out << "dds-gateway " << s.name << "  pid " << s.pid << "  host " << host << "  domain " << s.domain
-      << "  partition " << (s.partition.empty() ? "-" : s.partition) << "\n";
+  out << "dds-gateway " << printable(s.name) << "  pid " << s.pid << "  host " << host << "  domain " << s.domain
+      << "  partition " << (s.partition.empty() ? "-" : printable(s.partition)) << "\n";
   out << "  " << pad("channel", 18) << pad("topic", 20) << pad("mode", 7) << pad("dir", 9) << pad("state", 18)
       << pad("out msgs", 10) << pad("out bytes", 12) << pad("out drop", 9) << pad("in msgs", 9) << pad("in bytes", 12)
       << pad("in drop", 8) << "loops\n";
@@ -43,12 +44,13 @@ void print_status(std::ostream& out, const lcmx_msgs::dds_gateway_status_t& s) {
     if (m.direction != "to_dds")
       state += m.importing ? "in:" + std::to_string(m.lcmx_subscribers) + "sub/" + std::to_string(m.dds_writers) + "wr"
                            : "in:idle";
-    out << "  " << pad(m.channel, 18) << pad(m.topic, 20) << pad(m.mode, 7) << pad(m.direction, 9) << pad(state, 18)
+    out << "  " << pad(printable(m.channel), 18) << pad(printable(m.topic), 20) << pad(printable(m.mode), 7)
+        << pad(printable(m.direction), 9) << pad(state, 18)
         << pad(std::to_string(m.exported), 10) << pad(std::to_string(m.exported_bytes), 12)
         << pad(std::to_string(m.export_drops), 9) << pad(std::to_string(m.imported), 9)
         << pad(std::to_string(m.imported_bytes), 12) << pad(std::to_string(m.import_drops), 8) << m.suppressed << "\n";
-    out << "      DDS type " << m.dds_type << "\n";
-    for (const auto& e : m.errors) out << "      ERROR: " << e << "\n";
+    out << "      DDS type " << printable(m.dds_type) << "\n";
+    for (const auto& e : m.errors) out << "      ERROR: " << printable(e) << "\n";
   }
 }
 

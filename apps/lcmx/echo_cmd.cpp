@@ -132,10 +132,12 @@ class Printer {
     const Decoded d = decode(m);
     std::string out;
     if (!o_.no_header || !d.error.empty()) {
-      out = "--- " + std::string(m.channel) + "  " + format_us(now) + "  " + std::to_string(m.data.size()) + " bytes";
-      if (d.type) out += "  " + d.type->full_name();
+      // The channel name is whatever the sender chose: escaped (safe_text.hpp), as every name
+      // from the network or a file the tools print.
+      out = "--- " + printable(m.channel) + "  " + format_us(now) + "  " + std::to_string(m.data.size()) + " bytes";
+      if (d.type) out += "  " + printable(d.type->full_name());
       else if (d.fingerprint) out += "  fingerprint " + hex_fingerprint(*d.fingerprint);
-      if (!d.error.empty()) out += "  (" + d.error + ")";
+      if (!d.error.empty()) out += "  (" + printable(d.error) + ")";
       out += '\n';
     }
     if (o_.raw) {
@@ -207,8 +209,11 @@ int run_echo() {
     std::cerr << "lcmx echo: " << e.what() << "\n";
     return 1;
   }
-  std::cerr << "lcmx echo: listening (" << (reg.size() ? std::to_string(reg.size()) + " types" : "no types")
-            << ")" << std::endl;
+  // One write: the executor thread may already print messages on stdout (a terminal, or one
+  // pipe for both), and a line written in pieces would be cut by them.
+  const std::string listening =
+      "lcmx echo: listening (" + (reg.size() ? std::to_string(reg.size()) + " types" : std::string("no types")) + ")\n";
+  std::cerr << listening << std::flush;
   stop.wait(std::chrono::nanoseconds(-1));
   std::uint64_t drops = 0;
   for (const auto& [ch, st] : tap->stats()) drops += st.drops;

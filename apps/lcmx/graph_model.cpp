@@ -21,16 +21,22 @@ std::string host_hex(std::int64_t h) {
   return b;
 }
 
-// A DOT double-quoted string.
+// A DOT string. Each line of `s` is escaped as for a terminal first (safe_text.hpp printable:
+// control characters, which DOT would pass on to a terminal or into labels, as \xNN; a backslash
+// as \\, which DOT reads as one), then its quotes; the lines are joined with DOT's \n (labels of
+// several lines: a topic and its types).
 std::string q(const std::string& s) {
   std::string o = "\"";
-  for (char c : s) {
-    if (c == '"' || c == '\\') o += '\\';
-    if (c == '\n') {
-      o += "\\n";
-      continue;
+  std::size_t start = 0;
+  for (;;) {
+    const auto nl = s.find('\n', start);
+    for (char c : printable(std::string_view(s).substr(start, nl == std::string::npos ? nl : nl - start))) {
+      if (c == '"') o += '\\';
+      o += c;
     }
-    o += c;
+    if (nl == std::string::npos) break;
+    o += "\\n";
+    start = nl + 1;
   }
   return o + "\"";
 }

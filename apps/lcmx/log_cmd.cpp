@@ -110,7 +110,7 @@ int run_info() {
                   "min B", "mean B", "max B");
     std::cout << line;
     for (const auto& [name, s] : ch) {
-      std::snprintf(line, sizeof line, "  %-40s %10llu %10.2f %10zu %12.1f %10zu\n", name.c_str(),
+      std::snprintf(line, sizeof line, "  %-40s %10llu %10.2f %10zu %12.1f %10zu\n", printable(name).c_str(),
                     static_cast<unsigned long long>(s.count), rate(s), s.min,
                     static_cast<double>(s.bytes) / static_cast<double>(s.count), s.max);
       std::cout << line;

@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "safe_text.hpp"
+
 namespace lcmx::cli {
 
 // Channel selection as lcm-logger's -c: a regular expression (ECMAScript) that must match
@@ -31,28 +33,8 @@ class ChannelFilter {
   std::vector<std::regex> exclude_;
 };
 
-// JSON string literal.
-inline std::string json_str(const std::string& s) {
-  std::string o = "\"";
-  for (unsigned char c : s) {
-    switch (c) {
-      case '"': o += "\\\""; break;
-      case '\\': o += "\\\\"; break;
-      case '\n': o += "\\n"; break;
-      case '\r': o += "\\r"; break;
-      case '\t': o += "\\t"; break;
-      default:
-        if (c < 0x20) {
-          char b[8];
-          std::snprintf(b, sizeof b, "\\u%04x", c);
-          o += b;
-        } else {
-          o += static_cast<char>(c);
-        }
-    }
-  }
-  return o + "\"";
-}
+// JSON string literal (safe_text.hpp json_text: also DEL, C1 controls and non-UTF-8 bytes escaped).
+inline std::string json_str(const std::string& s) { return json_text(s); }
 
 inline std::string fmt(const char* f, double v) {
   char b[64];

@@ -63,13 +63,15 @@ std::string csv_cell(const std::string& s) {
 }
 
 // A scalar as a CSV cell: integers in decimal, floats shortest round-trip (nan, inf, -inf),
-// booleans true/false, strings as they are; anything else as its JSON.
+// booleans true/false, strings as they are unless they start like a formula (=, +, -, @, tab,
+// CR: then with a leading apostrophe, safe_text.hpp formula_safe); anything else as its JSON
+// (an array or a struct: starts with [ or {).
 std::string scalar_cell(const types::Value& v) {
   if (const auto* d = std::get_if<double>(&v.data))
     if (!std::isfinite(*d)) return std::isnan(*d) ? "nan" : (*d > 0 ? "inf" : "-inf");
   if (const auto* f = std::get_if<float>(&v.data))
     if (!std::isfinite(*f)) return std::isnan(*f) ? "nan" : (*f > 0 ? "inf" : "-inf");
-  if (const auto* s = std::get_if<std::string>(&v.data)) return *s;
+  if (const auto* s = std::get_if<std::string>(&v.data)) return formula_safe(*s);
   return types::to_json(v);
 }
 
@@ -476,14 +478,15 @@ int run_export() {
     for (const auto& [ch, r] : report) {
       std::string types;
       for (const auto& t : r.types) types += (types.empty() ? "" : " | ") + t;
-      std::cout << "  " << ch << "  [" << (types.empty() ? "-" : types) << "]  " << r.exported << " exported";
+      std::cout << "  " << printable(ch) << "  [" << (types.empty() ? "-" : types) << "]  " << r.exported << " exported";
       if (r.unknown) {
         std::cout << ", " << r.unknown << " of unknown type skipped (" << r.unknown_bytes << " bytes; fingerprint";
         for (auto fp : r.unknown_fps) std::cout << " " << hex_fp(fp);
         if (r.short_messages) std::cout << " none: shorter than 8 bytes";
         std::cout << ")";
       }
-      if (r.undecodable) std::cout << ", " << r.undecodable << " undecodable skipped (first: " << r.first_error << ")";
+      if (r.undecodable)
+        std::cout << ", " << r.undecodable << " undecodable skipped (first: " << printable(r.first_error) << ")";
       std::cout << "\n";
     }
     if (filtered) std::cout << "  " << filtered << " events on channels left out by -c/-x\n";

@@ -307,8 +307,9 @@ class Ui {
     top_ = std::max(0, std::min(top_, std::max(0, static_cast<int>(rows_.size()) - visible)));
     for (int i = 0; i < visible && top_ + i < static_cast<int>(rows_.size()); ++i) {
       const Row& r = rows_[static_cast<std::size_t>(top_ + i)];
-      std::string line = cell(r.channel, wc) + " " + cell(r.type, wt) + " " + cell(r.publishers, wpub) + " " +
-                         cell(r.paths, wp) + " " + rcell(r.age_s < 0 ? "-" : fixed(r.hz, "%.1f"), wz) + " " +
+      // Names from beacons and datagrams: escaped (safe_text.hpp) before they are cut to width.
+      std::string line = cell(printable(r.channel), wc) + " " + cell(printable(r.type), wt) + " " +
+                         cell(printable(r.publishers), wpub) + " " + cell(printable(r.paths), wp) + " " + rcell(r.age_s < 0 ? "-" : fixed(r.hz, "%.1f"), wz) + " " +
                          rcell(r.age_s < 0 ? "-" : fixed(r.jitter_ms, "%.2f"), wj) + " " +
                          rcell(monitor::human(r.bytes_per_s), wb) + " " + rcell(std::to_string(r.drops), wd) + " " +
                          rcell(age_text(r.age_s), wa);
@@ -323,8 +324,8 @@ class Ui {
     const Row* row = nullptr;
     for (const auto& r : rows_)
       if (r.channel == ch) row = &r;
-    std::string h = ch;
-    if (row) h += "  " + row->type + "  " + fixed(row->hz, "%.1f") + " Hz  " + std::to_string(row->messages) +
+    std::string h = printable(ch);
+    if (row) h += "  " + printable(row->type) + "  " + fixed(row->hz, "%.1f") + " Hz  " + std::to_string(row->messages) +
                   " msgs  last " + std::to_string(size_) + " B  age " + age_text(row->age_s);
     header(h);
     const auto hist = m_.rate_history(ch);
@@ -335,7 +336,7 @@ class Ui {
     const int sw = std::max(0, COLS - static_cast<int>(label.size()) - 1);
     put(1, static_cast<int>(label.size()), monitor::sparkline(hist, static_cast<std::size_t>(sw), utf8_));
     int y = 2;
-    if (!note_.empty()) put(y++, 0, note_, A_DIM);
+    if (!note_.empty()) put(y++, 0, printable(note_), A_DIM);
     const int first = y, visible = LINES - 2 - first + 1 - 1;
     if (cursor_ < top_) top_ = cursor_;
     if (cursor_ >= top_ + visible) top_ = cursor_ - visible + 1;
@@ -394,9 +395,9 @@ void print_snapshot(const std::vector<Row>& rows, bool json) {
                 "PATH", "HZ", "JIT_MS", "BW_B/s", "DROPS", "AGE");
   std::cout << line;
   for (const auto& r : rows) {
-    std::snprintf(line, sizeof line, "%-32s %-24s %-28s %-8s %8.1f %8.2f %8s %6llu %7s\n", r.channel.c_str(),
-                  r.type.c_str(), r.publishers.empty() ? "-" : r.publishers.c_str(),
-                  r.paths.empty() ? "-" : r.paths.c_str(), r.hz, r.jitter_ms, monitor::human(r.bytes_per_s).c_str(),
+    std::snprintf(line, sizeof line, "%-32s %-24s %-28s %-8s %8.1f %8.2f %8s %6llu %7s\n", printable(r.channel).c_str(),
+                  printable(r.type).c_str(), r.publishers.empty() ? "-" : printable(r.publishers).c_str(),
+                  r.paths.empty() ? "-" : printable(r.paths).c_str(), r.hz, r.jitter_ms, monitor::human(r.bytes_per_s).c_str(),
                   static_cast<unsigned long long>(r.drops), age_text(r.age_s).c_str());
     std::cout << line;
   }

@@ -99,7 +99,7 @@ std::string report(Kind kind, const std::string& name, const Channel& c, bool js
   const std::uint64_t fresh = c.total - c.reported;
   if (n < 2) {
     if (json) return "";
-    return name + ": " + (n == 0 ? "no messages yet" : "1 message, waiting for the next") + "\n";
+    return printable(name) + ": " + (n == 0 ? "no messages yet" : "1 message, waiting for the next") + "\n";
   }
   const double span = static_cast<double>(c.window.back().ns - c.window.front().ns) / 1e9;
   if (kind == Kind::hz) {
@@ -120,7 +120,7 @@ std::string report(Kind kind, const std::string& name, const Channel& c, bool js
              fmt("%.6g", mn) + ",\"period_max_s\":" + fmt("%.6g", mx) + ",\"period_std_dev_s\":" + fmt("%.6g", sd) +
              ",\"window\":" + std::to_string(n) + ",\"new\":" + std::to_string(fresh) +
              ",\"total\":" + std::to_string(c.total) + "}\n";
-    return name + ": " + fmt("%.3f Hz", rate) + "  min " + seconds_text(mn) + "  max " + seconds_text(mx) +
+    return printable(name) + ": " + fmt("%.3f Hz", rate) + "  min " + seconds_text(mn) + "  max " + seconds_text(mx) +
            "  std dev " + seconds_text(sd) + "  window " + std::to_string(n) + (fresh == 0 ? "  (no new messages)" : "") +
            "\n";
   }
@@ -139,7 +139,7 @@ std::string report(Kind kind, const std::string& name, const Channel& c, bool js
            fmt("%.6g", mean) + ",\"size_min\":" + fmt("%.0f", mn) + ",\"size_max\":" + fmt("%.0f", mx) +
            ",\"window\":" + std::to_string(n) + ",\"new\":" + std::to_string(fresh) +
            ",\"total\":" + std::to_string(c.total) + "}\n";
-  return name + ": " + bytes_text(bps) + "/s  mean " + bytes_text(mean) + "  min " + bytes_text(mn) + "  max " +
+  return printable(name) + ": " + bytes_text(bps) + "/s  mean " + bytes_text(mean) + "  min " + bytes_text(mn) + "  max " +
          bytes_text(mx) + "  window " + std::to_string(n) + (fresh == 0 ? "  (no new messages)" : "") + "\n";
 }
 

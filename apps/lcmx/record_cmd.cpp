@@ -521,7 +521,7 @@ int run_record() {
       if (!dropping.empty()) {
         line << "  drops:";
         for (std::size_t i = 0; i < std::min<std::size_t>(3, dropping.size()); ++i)
-          line << " " << dropping[i].second << "=" << dropping[i].first;
+          line << " " << printable(dropping[i].second) << "=" << dropping[i].first;
         if (dropping.size() > 3) line << " (+" << dropping.size() - 3 << " channels)";
       }
       std::cerr << line.str() << std::flush;
@@ -575,7 +575,7 @@ int run_record() {
       std::snprintf(line, sizeof line, "  %-40s %10s %12s %10s\n", "channel", "messages", "MB", "lost");
       std::cout << line;
       for (const auto& [ch, c] : s.counts) {
-        std::snprintf(line, sizeof line, "  %-40s %10llu %12.3f %10llu\n", ch.c_str(),
+        std::snprintf(line, sizeof line, "  %-40s %10llu %12.3f %10llu\n", printable(ch).c_str(),
                       static_cast<unsigned long long>(c.messages), static_cast<double>(c.bytes) / 1e6,
                       static_cast<unsigned long long>(drops_of(st, ch, c)));
         std::cout << line;

@@ -106,10 +106,10 @@ int run_services() {
     return 0;
   }
   for (const auto& [name, s] : services) {
-    std::cout << name;
+    std::cout << printable(name);  // names and types from the network: escaped (safe_text.hpp)
     if (s.probed)
-      std::cout << "  " << type_name(reg, s.probed->request_type, s.probed->request_fingerprint) << " -> "
-                << type_name(reg, s.probed->response_type, s.probed->response_fingerprint);
+      std::cout << "  " << printable(type_name(reg, s.probed->request_type, s.probed->request_fingerprint)) << " -> "
+                << printable(type_name(reg, s.probed->response_type, s.probed->response_fingerprint));
     else if (!o.no_probe)
       std::cout << "  (types unknown: no server answered a probe)";
     std::cout << "\n";
@@ -168,7 +168,7 @@ int run_call() {
     } else {
       const auto* type = reg.find(static_cast<std::uint64_t>(server.request_fingerprint));
       if (type == nullptr) {
-        std::cerr << "lcmx call: the server takes " << server.request_type << " ("
+        std::cerr << "lcmx call: the server takes " << printable(server.request_type) << " ("
                   << hex_fingerprint(static_cast<std::uint64_t>(server.request_fingerprint))
                   << "), which is not in the type path"
                   << (reg.size() == 0 ? " (give --types DIR|FILE or set LCMX_TYPES_PATH)" : "") << "\n";
@@ -181,7 +181,7 @@ int run_call() {
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now());
     auto r = client.call(request, std::max(left, std::chrono::milliseconds(1)));
     if (!r.ok()) {
-      std::cerr << "lcmx call: " << to_string(r.error()) << ": " << r.message() << "\n";
+      std::cerr << "lcmx call: " << to_string(r.error()) << ": " << printable(r.message()) << "\n";
       return 1;
     }
     const auto& resp = r.value();
@@ -191,7 +191,7 @@ int run_call() {
     }
     const auto* rtype = reg.find(static_cast<std::uint64_t>(server.response_fingerprint));
     if (rtype == nullptr) {
-      std::cerr << "lcmx call: the response (" << resp.size() << " bytes) is a " << server.response_type
+      std::cerr << "lcmx call: the response (" << resp.size() << " bytes) is a " << printable(server.response_type)
                 << " (" << hex_fingerprint(static_cast<std::uint64_t>(server.response_fingerprint))
                 << "), not in the type path; printed in hex\n";
       std::cout << to_hex(resp) << std::endl;

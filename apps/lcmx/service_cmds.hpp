@@ -87,7 +87,7 @@ inline void print_endpoints_json(std::ostream& out, const SeenServersClients& s)
 // One line per server, then the number of clients (text output).
 inline void print_endpoints_text(std::ostream& out, const SeenServersClients& s) {
   for (const auto& e : s.servers)
-    out << "  server  pid " << e.pid << " " << e.process << ", node " << e.node << " (host "
+    out << "  server  pid " << e.pid << " " << printable(e.process) << ", node " << printable(e.node) << " (host "
         << hex_fingerprint(static_cast<std::uint64_t>(e.host)) << ")\n";
   out << "  clients " << s.clients.size() << "\n";
 }

@@ -23,6 +23,10 @@ std::string who(const Beacon& b, const Endpoint& e) {
   return b.process_name + "[" + std::to_string(b.pid) + "]/" + e.node;
 }
 
+// Every name below comes from a beacon (whoever can send on the group chose it): escaped for
+// the text output (safe_text.hpp); the JSON output escapes by JSON's rules (json_str).
+std::string P(const std::string& s) { return printable(s); }
+
 std::string host_hex(std::int64_t h) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
@@ -92,30 +96,30 @@ void print_nodes(std::ostream& out, const std::vector<discovery::Participant>& p
   }
   for (const auto& p : ps) {
     const auto& b = p.beacon;
-    out << "participant " << b.process_name << " pid " << b.pid << "  host " << host_hex(b.host_id)
+    out << "participant " << P(b.process_name) << " pid " << b.pid << "  host " << host_hex(b.host_id)
         << "  id " << b.participant_id << "  seen on "
         << (b.scope == Beacon::SCOPE_VEHICLE ? "vehicle group" : "host-local group");
-    if (!b.vehicle_source.empty()) out << "  vehicle address " << b.vehicle_source;
+    if (!b.vehicle_source.empty()) out << "  vehicle address " << P(b.vehicle_source);
     if (b.flags & Beacon::FLAG_BRIDGE) {
       out << "  MESSAGE BRIDGE";
       if (!b.carried.empty()) {
         out << " (carries";
-        for (const auto& c : b.carried) out << " " << c;
+        for (const auto& c : b.carried) out << " " << P(c);
         out << ")";
       }
     }
     out << "\n";
     for (const auto& n : b.nodes) {
-      out << "  node " << n << "\n";
+      out << "  node " << P(n) << "\n";
       for (const auto& e : b.endpoints) {
         if (e.node != n) continue;
         const bool pub = e.kind == Endpoint::KIND_PUBLISHER;
-        out << "    " << (pub ? "pub " : "sub ") << e.topic << "  ["
-            << type_label(e, types) << "]  " << e.messages << " msgs  "
+        out << "    " << (pub ? "pub " : "sub ") << P(e.topic) << "  ["
+            << P(type_label(e, types)) << "]  " << e.messages << " msgs  "
             << fmt("%.1f Hz", e.rate_hz);
         if (!pub) out << "  drops " << e.drops;
         out << "\n";
-        for (const auto& err : e.errors) out << "      ERROR: " << err << "\n";
+        for (const auto& err : e.errors) out << "      ERROR: " << P(err) << "\n";
       }
     }
   }
@@ -143,30 +147,30 @@ void print_topics(std::ostream& out, const std::vector<discovery::Participant>& 
     // Endpoints of DDS gateways (FLAG_DDS_GATEWAY): the channel is mapped to a DDS topic.
     std::set<std::string> gateways;
     for (const auto& r : refs)
-      if (r.b->flags & Beacon::FLAG_DDS_GATEWAY) gateways.insert(r.b->process_name + " pid " + std::to_string(r.b->pid));
+      if (r.b->flags & Beacon::FLAG_DDS_GATEWAY) gateways.insert(P(r.b->process_name) + " pid " + std::to_string(r.b->pid));
     std::string dds;
     for (const auto& g : gateways) dds += (dds.empty() ? "  DDS-mapped by " : ", ") + g;
-    out << topic << "  [" << type << "]  " << npub << " publisher(s), " << nsub
+    out << P(topic) << "  [" << P(type) << "]  " << npub << " publisher(s), " << nsub
         << " subscriber(s)" << (names.size() > 1 ? "  CONFLICT: different types" : "") << dds << "\n";
     for (const auto& r : refs) {
       if (r.e->kind != Endpoint::KIND_PUBLISHER) continue;
-      out << "  pub " << who(*r.b, *r.e) << "  host " << host_hex(r.b->host_id) << "  "
+      out << "  pub " << P(who(*r.b, *r.e)) << "  host " << host_hex(r.b->host_id) << "  "
           << r.e->messages << " msgs  " << fmt("%.1f Hz", r.e->rate_hz)
           << (r.e->large ? "  class large" : "  class small") << "\n";
     }
     for (const auto& r : refs) {
       if (r.e->kind != Endpoint::KIND_SUBSCRIBER) continue;
-      out << "  sub " << who(*r.b, *r.e) << "  host " << host_hex(r.b->host_id) << "  "
+      out << "  sub " << P(who(*r.b, *r.e)) << "  host " << host_hex(r.b->host_id) << "  "
           << r.e->messages << " msgs  " << fmt("%.1f Hz", r.e->rate_hz) << "  drops " << r.e->drops
           << "\n";
       for (const auto& m : r.e->matches) {
         auto it = pub_index.find({m.publisher_participant, m.publisher_endpoint});
         const std::string from = it == pub_index.end() ? "participant " + std::to_string(m.publisher_participant)
                                                        : who(*it->second.b, *it->second.e);
-        out << "      <- " << from << "  path " << m.path << "  received " << m.received
+        out << "      <- " << P(from) << "  path " << P(m.path) << "  received " << m.received
             << "  drops " << m.drops << "\n";
       }
-      for (const auto& err : r.e->errors) out << "      ERROR: " << err << "\n";
+      for (const auto& err : r.e->errors) out << "      ERROR: " << P(err) << "\n";
     }
   }
 }

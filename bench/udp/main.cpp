@@ -1,124 +1,39 @@
-// lcmx_bench_udp: one-way latency and loss between two emulated hosts (network namespaces joined
-// by lcmx::test::Emulation's bridge), lcmx's UDP path (Publisher<bench_t> -> Subscriber<bench_t>
-// on another host over the vehicle group) side by side with raw liblcm udpm between the same
-// namespaces, in one run (DESIGN.md "Benchmarks", experiment 1, UDP row).
+// lcmx_bench_udp: one-way latency and loss between two emulated hosts (bench/harness/hosts.hpp),
+// lcmx's UDP path (Publisher<bench_t> -> Subscriber<bench_t> on another host over the vehicle
+// group) side by side with raw liblcm udpm between the same namespaces, in one run (DESIGN.md
+// "Benchmarks", experiment 1, UDP row).
 //
-//  - ping-pong per size: the publisher sends the next message only after the subscriber acked the
-//    previous one (or after --timeout-ms: lost). Acks go through a pipe the orchestrator creates
-//    and hands to both children (pipes do not care about network namespaces), so the link only
-//    carries the measured traffic. Hosts share CLOCK_MONOTONIC: latency = receive - send.
-//    The methods run in --rounds rounds, in alternating order (liblcm, lcmx / lcmx, liblcm, ...),
-//    and each method's rounds are pooled: slow drifts of a shared machine hit both alike.
+//  - ping-pong per size (the harness's protocol, bench/harness/pingpong.hpp): acks go through a
+//    pipe (pipes do not care about network namespaces), so the link only carries the measured
+//    traffic. The methods run in --rounds rounds, in alternating order (liblcm, lcmx / lcmx,
+//    liblcm, ...), and each method's rounds are pooled: slow drifts of a shared machine hit both
+//    alike.
 //  - stream, two scenarios per method: "idle" (--stream-messages messages of --stream-size at
 //    --stream-rate Hz to an idle receiving host) and "busy" (the same messages in bursts of
 //    --stream-burst back to back per tick, like a camera's frame set, while --stream-hogs CPU
 //    hog processes run in the receiving host's namespace at the same nice level, started before
 //    the subscriber for both methods alike). No acks; loss = sent - received.
 // Without --role this is the orchestrator: Markdown on stdout, progress on stderr. Root needed.
-#include <sched.h>
-#include <signal.h>
-#include <sys/prctl.h>
-#include <sys/utsname.h>
-#include <sys/wait.h>
-#include <fcntl.h>
-#include <poll.h>
 #include <unistd.h>
 
-#include <CLI/CLI.hpp>
-
-#include <algorithm>
-#include <atomic>
-#include <cerrno>
-#include <cmath>
-#include <cstring>
-#include <ctime>
 #include <fstream>
 #include <iostream>
-#include <map>
-#include <optional>
 #include <sstream>
 
-#include "lcmx/test/netns.hpp"
-#include "roles.hpp"
+#include "harness/hosts.hpp"
+#include "harness/options.hpp"
+#include "harness/report.hpp"
+#include "udp/roles.hpp"
 
 namespace lcmxbench::udp {
 namespace {
 
-std::atomic<int> g_signal{0};
-void on_signal(int sig) { g_signal.store(sig); }
+const char* const kProgram = "lcmx_bench_udp";
+void say(const std::string& s) { progress("bench-udp", s); }
 
-// Starts this binary's role `argv` inside network namespace `netns_fd` (see spawn_child).
-pid_t spawn_in(int netns_fd, const std::vector<std::string>& argv, const std::vector<int>& fds, int cpu) {
-  return spawn_child(argv, fds, cpu, netns_fd);
-}
-
-
-
-// ---- results ----
-
-struct SizeResult {
-  std::optional<int> sent;
-  std::optional<std::vector<std::int64_t>> lat;
-};
-struct MethodResult {
-  std::string method;
-  std::vector<std::string> errors, notes;
-  std::map<std::size_t, SizeResult> sizes;
-};
-struct Cell {
-  bool ok = false;
-  std::size_t n = 0;
-  int sent = 0, lost = 0;
-  double p50 = 0, p99 = 0;
-};
-
-Cell cell_of(const MethodResult& m, std::size_t size) {
-  Cell c;
-  const auto it = m.sizes.find(size);
-  if (it == m.sizes.end() || !it->second.sent || !it->second.lat) return c;
-  auto v = *it->second.lat;
-  c.ok = true;
-  c.sent = *it->second.sent;
-  c.n = v.size();
-  c.lost = std::max(0, c.sent - static_cast<int>(c.n));
-  if (!v.empty()) {
-    std::sort(v.begin(), v.end());
-    auto rank = [&](double q) {
-      const auto k = static_cast<std::size_t>(std::ceil(q * static_cast<double>(v.size())));
-      return static_cast<double>(v[std::clamp<std::size_t>(k, 1, v.size()) - 1]) / 1000.0;
-    };
-    c.p50 = rank(0.5), c.p99 = rank(0.99);
-  }
-  return c;
-}
-
-void parse_line(MethodResult& r, const std::string& line) {
-  std::istringstream in(line);
-  std::string kind;
-  in >> kind;
-  auto rest = [&] {
-    std::string s;
-    std::getline(in, s);
-    return s.empty() ? s : s.substr(1);
-  };
-  if (kind == "error") r.errors.push_back(rest());
-  else if (kind == "note") r.notes.push_back(rest());
-  else if (kind == "sent") {
-    std::size_t size = 0;
-    int n = 0;
-    if (in >> size >> n) r.sizes[size].sent = n;
-  } else if (kind == "lat") {
-    std::size_t size = 0, n = 0;
-    if (in >> size >> n) {
-      std::vector<std::int64_t> v;
-      v.reserve(n);
-      for (std::int64_t x; v.size() < n && in >> x;) v.push_back(x);
-      r.sizes[size].lat = std::move(v);
-    }
-  }
-}
-
-// ---- orchestration ----
+constexpr const char* kDiscoveryUrl = "udpm://239.255.77.221:17721?ttl=0";  // each host's own lo
+constexpr const char* kVehicleUrl = "udpm://239.255.77.222:17722?ttl=1&iface=eth";
+constexpr const char* kLcmUrl = "udpm://239.255.77.223:17723?ttl=1";  // liblcm: the 224/4 route (eth)
 
 struct Options {
   std::vector<std::string> sizes{"1K", "10K", "100K", "1M", "2M", "6M"};
@@ -129,48 +44,37 @@ struct Options {
   int stream_burst = 4, stream_hogs = 2;  // "busy" scenario
   int rounds = 3;
   bool no_stream = false;
-  std::string link_rate;  // tc tbf rate on the link ("" = none)
+  LinkOptions link;  // rate: tc tbf on the link ("" = none)
   std::string pin = "none";
   std::string markdown;
 };
-
-std::size_t parse_size(const std::string& text) { return lcmxbench::parse_size(text, 16); }
-
-void progress(const std::string& s) { std::cerr << "[bench-udp] " << s << std::endl; }
-
-constexpr const char* kDiscoveryUrl = "udpm://239.255.77.221:17721?ttl=0";  // each host's own lo
-constexpr const char* kVehicleUrl = "udpm://239.255.77.222:17722?ttl=1&iface=eth";
-constexpr const char* kLcmUrl = "udpm://239.255.77.223:17723?ttl=1";  // liblcm: the 224/4 route (eth)
 
 struct Run {
   Options opt;
   std::vector<SizePlan> plan, stream_plan;
   lcmx::test::Emulation* emu = nullptr;
   std::string exe;
-  int pub_cpu = -1, sub_cpu = -1;
+  Pinning cpus;
   int serial = 0;
 };
 
-// method: "liblcm" | "lcmx-udp" (ping-pong), "liblcm-stream" | "lcmx-udp-stream".
 // Stream scenario: messages per tick and CPU hogs on the receiving host.
 struct Scenario {
   std::string name = "idle";
   int burst = 1, hogs = 0;
 };
 
+// method: "liblcm" | "lcmx-udp" (ping-pong), "liblcm-stream" | "lcmx-udp-stream".
 MethodResult run_method(Run& run, const std::string& method, const Scenario& sc = {}) {
-  MethodResult res;
-  res.method = method;
   const bool stream = method.find("stream") != std::string::npos;
   const bool liblcm = method.rfind("liblcm", 0) == 0;
   const auto& plan = stream ? run.stream_plan : run.plan;
-  progress(method + ": starting");
+  say(method + ": starting");
   const std::int64_t t0 = now_ns();
   std::int64_t budget_ms = 40'000;
   for (const auto& p : plan)
     budget_ms += stream ? static_cast<std::int64_t>(p.messages * 1000 / run.opt.stream_rate) + 5000
                         : static_cast<std::int64_t>(p.warmup + p.messages) * (run.opt.timeout_ms + 50);
-  const std::int64_t deadline = t0 + budget_ms * 1'000'000;
   const std::string name = "UDP_" + std::to_string(::getpid()) + "_" + std::to_string(++run.serial);
   auto args = [&](const std::string& role) {
     return std::vector<std::string>{
@@ -180,83 +84,25 @@ MethodResult run_method(Run& run, const std::string& method, const Scenario& sc 
         "--stream-burst", std::to_string(sc.burst)};
   };
   const std::string base = liblcm ? "liblcm" : "lcmx-udp";
-  const std::string sub_role = base + (stream ? "-stream-sub" : "-sub");
-  const std::string pub_role = base + (stream ? "-stream-pub" : "-pub");
-  std::vector<pid_t> pids, hogs;
-  LineReader sub, pub;
-  bool timed_out = false;
-  try {
-    // Hogs first, unpinned, so the subscriber starts on an already busy host.
-    for (int i = 0; i < sc.hogs; ++i) hogs.push_back(spawn_in(run.emu->ns_fd(1), {run.exe, "--role", "hog"}, {}, -1));
-    Pipe rep_sub, rep_pub, ack, ctl;
-    pids.push_back(spawn_in(run.emu->ns_fd(1), args(sub_role), {rep_sub.w, ack.w, ctl.r}, run.sub_cpu));
-    rep_sub.close_w();
-    sub.fd = std::exchange(rep_sub.r, -1);
-    const auto ready = [&] { return sub.has("ready") || sub.has("error"); };
-    if (!pump_until({&sub}, std::min(deadline, now_ns() + 20'000'000'000), ready, g_signal) || !sub.has("ready"))
-      throw std::runtime_error("subscriber not ready (or failed) within 20 s");
-    pids.push_back(spawn_in(run.emu->ns_fd(0), args(pub_role), {rep_pub.w, ack.r, ctl.w}, run.pub_cpu));
-    rep_pub.close_w();
-    ack.close_r(), ack.close_w(), ctl.close_r(), ctl.close_w();
-    pub.fd = std::exchange(rep_pub.r, -1);
-    timed_out = !pump_until({&sub, &pub}, deadline, [] { return false; }, g_signal);
-  } catch (const std::exception& e) {
-    res.errors.push_back(e.what());
-  }
-  for (auto p : hogs) reap_child(p, 0, g_signal);  // SIGKILLed and reaped
-  for (auto p : pids) {
-    const int st = reap_child(p, timed_out ? 0 : 5000, g_signal);
-    if (WIFEXITED(st) && WEXITSTATUS(st) >= 125) res.errors.push_back("a child could not start (exit " + std::to_string(WEXITSTATUS(st)) + ")");
-    else if (WIFSIGNALED(st) && !timed_out) res.errors.push_back("a child died of signal " + std::to_string(WTERMSIG(st)));
-  }
-  for (LineReader* r : {&sub, &pub}) {
-    for (const auto& l : r->lines)
-      if (l != "ready" && l != "done") parse_line(res, l);
-    if (r->fd >= 0) ::close(r->fd);
-  }
-  if (timed_out) res.errors.push_back("timed out after " + std::to_string(budget_ms / 1000) + " s; children killed");
-  for (const auto& p : plan) {
-    const Cell c = cell_of(res, p.size);
-    if (!c.ok) continue;
-    char buf[200];
-    std::snprintf(buf, sizeof buf, "%s %s: p50 %.1f us, p99 %.1f us, received %zu/%d", method.c_str(),
-                  size_label(p.size).c_str(), c.p50, c.p99, c.n, c.sent);
-    progress(buf);
-  }
-  for (const auto& e : res.errors) progress(method + ": FAILED: " + e);
-  for (const auto& n : res.notes) progress(method + ": " + n);
+  Pair pair;
+  pair.method = method;
+  pair.sub_argv = args(base + (stream ? "-stream-sub" : "-sub"));
+  pair.pub_argv = args(base + (stream ? "-stream-pub" : "-pub"));
+  pair.sub_netns = run.emu->ns_fd(1);
+  pair.pub_netns = run.emu->ns_fd(0);
+  pair.sub_cpu = run.cpus.sub;
+  pair.pub_cpu = run.cpus.pub;
+  pair.deadline_ms = static_cast<int>(budget_ms);
+  // Hogs first, unpinned, so the subscriber starts on an already busy host.
+  std::vector<pid_t> hogs;
+  for (int i = 0; i < sc.hogs; ++i) hogs.push_back(spawn_child({run.exe, "--role", "hog"}, {}, -1, run.emu->ns_fd(1)));
+  MethodResult res = run_pair(pair).result;
+  for (auto p : hogs) reap_child(p, 0);  // SIGKILLed and reaped
+  progress_of("bench-udp", res, plan);
   char t[64];
   std::snprintf(t, sizeof t, "%.1f s", static_cast<double>(now_ns() - t0) / 1e9);
-  progress(method + ": finished in " + t);
+  say(method + ": finished in " + t);
   return res;
-}
-
-// Pools another round of the same method into `into`.
-void merge(MethodResult& into, MethodResult&& more) {
-  for (auto& e : more.errors) into.errors.push_back(std::move(e));
-  for (auto& n : more.notes)
-    if (std::find(into.notes.begin(), into.notes.end(), n) == into.notes.end()) into.notes.push_back(std::move(n));
-  for (auto& [size, r] : more.sizes) {
-    auto& t = into.sizes[size];
-    if (r.sent) t.sent = t.sent.value_or(0) + *r.sent;
-    if (r.lat) {
-      if (!t.lat) t.lat.emplace();
-      t.lat->insert(t.lat->end(), r.lat->begin(), r.lat->end());
-    }
-  }
-}
-
-std::string fmt_ratio(double r) {
-  char b[32];
-  std::snprintf(b, sizeof b, "%.2fx", r);
-  return b;
-}
-std::string cell_text(const MethodResult& m, std::size_t size) {
-  const Cell c = cell_of(m, size);
-  if (!c.ok) return m.errors.empty() ? "—" : "failed";
-  std::string s = c.n ? fmt_us(c.p50) + " / " + fmt_us(c.p99) : "—";
-  s += " (lost " + std::to_string(c.lost) + "/" + std::to_string(c.sent) + ")";
-  return s;
 }
 
 struct StreamResult {
@@ -274,16 +120,10 @@ std::string sysctl(const char* path) {
 std::string report(const Run& run, const MethodResult& lcm, const MethodResult& lx,
                    const std::vector<StreamResult>& streams) {
   std::ostringstream md;
-  char date[64];
-  const std::time_t now = std::time(nullptr);
-  std::strftime(date, sizeof date, "%Y-%m-%d %H:%M:%S %Z", std::localtime(&now));
-  utsname u{};
-  ::uname(&u);
   md << "## lcmx UDP vs raw liblcm udpm between two emulated hosts\n\n";
-  md << "- " << date << ", " << u.nodename << ", Linux " << u.release << ", "
-     << ::sysconf(_SC_NPROCESSORS_ONLN) << " CPUs online; pinning `--pin " << run.opt.pin << "`\n";
+  md << "- " << machine_line() << "; pinning `--pin " << run.opt.pin << "`\n";
   md << "- 2 network namespaces joined by a veth/bridge link"
-     << (run.opt.link_rate.empty() ? " (no rate limit)" : " shaped to " + run.opt.link_rate + " (tbf)")
+     << (run.opt.link.rate.empty() ? " (no rate limit)" : " shaped to " + run.opt.link.rate + " (tbf)")
      << "; publisher on host 0, subscriber on host 1\n";
   md << "- lcmx: Publisher<bench_t> -> Subscriber<bench_t>, vehicle group `" << kVehicleUrl
      << "` (path udp; messages > udp_limit make the topic large and go as LC03 fragments), receive "
@@ -295,47 +135,42 @@ std::string report(const Run& run, const MethodResult& lcm, const MethodResult& 
      << " per method, alternating order (liblcm first in odd rounds, lcmx first in even ones), "
         "pooled\n";
   md << "- ping-pong: next message after the ack (pipe side channel, not on the link) or after "
-     << run.opt.timeout_ms << " ms = lost; messages per size (warmup + measured): ";
-  for (std::size_t i = 0; i < run.plan.size(); ++i)
-    md << (i ? ", " : "") << size_label(run.plan[i].size) << " " << run.plan[i].warmup << "+" << run.plan[i].messages;
+     << run.opt.timeout_ms << " ms = lost; messages per size (warmup + measured): " << plan_text(run.plan);
   md << "\n- cells: p50 / p99 one-way µs (send_ns before encode -> after decode, shared "
         "CLOCK_MONOTONIC), lost/sent; ratio = lcmx p50 / liblcm p50\n\n";
-  md << "| size | liblcm udpm | lcmx UDP | lcmx/liblcm |\n|---|---|---|---|\n";
+  Table table({"size", "liblcm udpm", "lcmx UDP", "lcmx/liblcm"});
   double worst = 0;
   std::size_t worst_size = 0;
   bool compared = false, missing = false;
   for (const auto& p : run.plan) {
     const Cell a = cell_of(lcm, p.size), b = cell_of(lx, p.size);
     std::string ratio = "—";
-    if (a.ok && b.ok && a.n && b.n) {
-      ratio = fmt_ratio(b.p50 / a.p50);
+    if (a.ok && b.ok && a.st.n && b.st.n) {
+      ratio = fmt_ratio(b.st.p50 / a.st.p50);
       if (a.lost == 0) {
         compared = true;
-        if (b.p50 / a.p50 > worst) worst = b.p50 / a.p50, worst_size = p.size;
+        if (b.st.p50 / a.st.p50 > worst) worst = b.st.p50 / a.st.p50, worst_size = p.size;
       }
     } else if (a.ok && a.lost == 0) {
       missing = true;
     }
-    md << "| " << size_label(p.size) << " | " << cell_text(lcm, p.size) << " | " << cell_text(lx, p.size)
-       << " | " << ratio << " |\n";
+    table.row({size_label(p.size), cell_text(lcm, p.size, true), cell_text(lx, p.size, true), ratio});
   }
+  md << table.markdown();
   md << "\n**Targets**\n";
   md << "- lcmx UDP within 1.1x of raw liblcm at every size where liblcm loses nothing: ";
   if (!compared) md << "not measured (no size where both delivered and liblcm lost nothing)";
-  else md << (worst <= 1.1 && !missing ? "**holds**" : "**FAILS**") << " (worst " << fmt_ratio(worst) << " at "
-          << size_label(worst_size) << (missing ? "; lcmx has no result at a size where liblcm lost nothing" : "")
-          << ")";
+  else md << verdict(worst <= 1.1 && !missing) << " (worst " << fmt_ratio(worst) << " at " << size_label(worst_size)
+          << (missing ? "; lcmx has no result at a size where liblcm lost nothing" : "") << ")";
   md << "\n";
   if (!streams.empty()) {
     const auto& sp = run.stream_plan.front();
-    std::ostringstream table;
-    table << "\nStream: " << sp.messages << " messages of " << size_label(sp.size) << ", "
-          << run.opt.stream_rate << " ticks/s, no acks; cells: p50 / p99 one-way µs (lost/sent)\n\n"
-          << "| scenario | liblcm udpm | lcmx UDP |\n|---|---|---|\n";
+    Table table({"scenario", "liblcm udpm", "lcmx UDP"});
     for (const auto& r : streams) {
-      table << "| " << r.sc.name << ": " << r.sc.burst << " message" << (r.sc.burst > 1 ? "s" : "")
-            << " per tick, " << r.sc.hogs << " CPU hog" << (r.sc.hogs == 1 ? "" : "s")
-            << " on the receiving host | " << cell_text(r.lcm, sp.size) << " | " << cell_text(r.lx, sp.size) << " |\n";
+      table.row({r.sc.name + ": " + std::to_string(r.sc.burst) + " message" + (r.sc.burst > 1 ? "s" : "") +
+                     " per tick, " + std::to_string(r.sc.hogs) + " CPU hog" + (r.sc.hogs == 1 ? "" : "s") +
+                     " on the receiving host",
+                 cell_text(r.lcm, sp.size, true), cell_text(r.lx, sp.size, true)});
       const Cell a = cell_of(r.lcm, sp.size), b = cell_of(r.lx, sp.size);
       md << "- no loss at " << size_label(sp.size) << " and " << run.opt.stream_rate << " Hz where liblcm "
          << "with default buffers loses some (" << r.sc.name << "): ";
@@ -345,29 +180,21 @@ std::string report(const Run& run, const MethodResult& lcm, const MethodResult& 
       else md << "**holds** (lcmx lost 0/" << b.sent << ", liblcm lost " << a.lost << "/" << a.sent << ")";
       md << "\n";
     }
-    md << table.str() << "\n";
+    md << "\nStream: " << sp.messages << " messages of " << size_label(sp.size) << ", " << run.opt.stream_rate
+       << " ticks/s, no acks; cells: p50 / p99 one-way µs (lost/sent)\n\n"
+       << table.markdown() << "\n";
   } else {
     md << "- stream target: not measured (--no-stream)\n";
   }
   md << "- (differences under 1.3x are noise on this 2-vCPU machine, DESIGN.md \"Measuring\")\n";
-  bool any = false;
   std::vector<const MethodResult*> all = {&lcm, &lx};
   for (const auto& r : streams) all.push_back(&r.lcm), all.push_back(&r.lx);
+  std::vector<std::pair<std::string, std::string>> failures, notes;
   for (const MethodResult* m : all) {
-    for (const auto& e : m->errors) {
-      if (!any) md << "\n**Failures**\n";
-      any = true;
-      md << "- " << m->method << ": " << e << "\n";
-    }
+    for (const auto& e : m->errors) failures.emplace_back(m->method, e);
+    for (const auto& n : m->notes) notes.emplace_back(m->method, n);
   }
-  any = false;
-  for (const MethodResult* m : all) {
-    for (const auto& n : m->notes) {
-      if (!any) md << "\n**Notes**\n";
-      any = true;
-      md << "- " << m->method << ": " << n << "\n";
-    }
-  }
+  md << list_section("Failures", failures) << list_section("Notes", notes);
   return md.str();
 }
 
@@ -375,43 +202,29 @@ int orchestrate(const Options& opt) {
   Run run;
   run.opt = opt;
   try {
-    for (const auto& s : opt.sizes) {
-      SizePlan p;
-      p.size = parse_size(s);
-      if (p.size <= 100 * 1024) p.warmup = 10, p.messages = 100;
-      else if (p.size <= 2 * 1024 * 1024) p.warmup = 5, p.messages = 50;
-      else p.warmup = 3, p.messages = 30;
-      if (opt.messages > 0) p.messages = opt.messages;
-      if (opt.warmup >= 0) p.warmup = opt.warmup;
-      run.plan.push_back(p);
-    }
-    run.stream_plan.push_back({parse_size(opt.stream_size), 0, opt.stream_messages});
+    run.plan = make_plan(opt.sizes, {{10, 5, 3}, {100, 50, 30}}, opt.messages, opt.warmup);
+    run.stream_plan.push_back({parse_size(opt.stream_size, 16), 0, opt.stream_messages});
   } catch (const std::exception& e) {
-    std::cerr << "lcmx_bench_udp: " << e.what() << "\n";
-    return 2;
+    return bad_options(kProgram, e.what());
   }
-  if (opt.pin == "same") run.pub_cpu = 0, run.sub_cpu = 0;
-  else if (opt.pin == "split") run.pub_cpu = 0, run.sub_cpu = 1;
-  std::string why;
-  if (!lcmx::test::netns_available(&why)) {
-    std::cerr << "lcmx_bench_udp: cannot emulate hosts: " << why << "\n";
+  if (const auto why = bad_link_options(opt.link)) return bad_options(kProgram, *why);
+  if (opt.pin == "split")
+    if (const auto why = split_unavailable()) return bad_options(kProgram, *why);
+  run.cpus = pinning(opt.pin);
+  if (const auto why = hosts_unavailable()) {
+    std::cerr << kProgram << ": " << *why << "\n";
     return 1;
   }
-  struct sigaction sa {};
-  sa.sa_handler = on_signal;
-  for (int s : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(s, &sa, nullptr);
-  ::signal(SIGPIPE, SIG_IGN);
+  on_stop_signals(OnStop::flag);
   run.exe = self_exe();
-  lcmx::test::LinkSpec link;
-  link.name = "eth";
-  if (!opt.link_rate.empty()) link.rate = opt.link_rate;
-  auto emu = lcmx::test::Emulation::create({.hosts = 2, .links = {link}});
+  LinkOptions link = opt.link;
+  link.tcp_congestion = "cubic";
+  auto emu = emulate_hosts(link);
   run.emu = &emu;
-  progress("hosts: " + emu.ns(0) + " (" + emu.address(0, "eth") + ") -> " + emu.ns(1) + " (" +
-           emu.address(1, "eth") + ")");
+  say("hosts: " + hosts_line(emu));
   MethodResult lcm{"liblcm", {}, {}, {}}, lx{"lcmx-udp", {}, {}, {}};
-  for (int r = 0; r < opt.rounds && !g_signal.load(); ++r) {
-    progress("round " + std::to_string(r + 1) + " of " + std::to_string(opt.rounds));
+  for (int r = 0; r < opt.rounds && !stopped(); ++r) {
+    say("round " + std::to_string(r + 1) + " of " + std::to_string(opt.rounds));
     if (r % 2 == 0) {
       merge(lcm, run_method(run, "liblcm"));
       merge(lx, run_method(run, "lcmx-udp"));
@@ -421,21 +234,19 @@ int orchestrate(const Options& opt) {
     }
   }
   std::vector<StreamResult> streams;
-  if (!opt.no_stream && !g_signal.load()) {
+  if (!opt.no_stream && !stopped()) {
     for (const Scenario& sc : {Scenario{"idle", 1, 0}, Scenario{"busy", opt.stream_burst, opt.stream_hogs}}) {
-      progress("stream scenario " + sc.name);
+      say("stream scenario " + sc.name);
       StreamResult r{sc, run_method(run, "liblcm-stream", sc), run_method(run, "lcmx-udp-stream", sc)};
       streams.push_back(std::move(r));
     }
   }
-  if (g_signal.load()) {
-    std::cerr << "lcmx_bench_udp: interrupted\n";
-    return 128 + g_signal.load();
+  if (stopped()) {
+    std::cerr << kProgram << ": interrupted\n";
+    return 128 + stop_flag().load();
   }
-  const std::string md = report(run, lcm, lx, streams);
-  std::cout << md << std::flush;
-  if (!opt.markdown.empty()) std::ofstream(opt.markdown) << md;
-  bool ok = lx.errors.empty() && lcm.errors.empty();
+  bool ok = print_report(kProgram, report(run, lcm, lx, streams), opt.markdown);
+  ok = ok && lx.errors.empty() && lcm.errors.empty();
   for (const auto& r : streams) ok = ok && r.lcm.errors.empty() && r.lx.errors.empty();
   return ok ? 0 : 1;
 }
@@ -467,18 +278,17 @@ int main(int argc, char** argv) {
   app.add_option("--rounds", opt.rounds, "ping-pong rounds per method, alternating order, pooled")
       ->check(CLI::Range(1, 100))->capture_default_str();
   app.add_flag("--no-stream", opt.no_stream, "skip the stream runs");
-  app.add_option("--link-rate", opt.link_rate, "shape the link with tc tbf (e.g. 10gbit, 1gbit); default: none");
-  app.add_option("--pin", opt.pin, "CPU pinning: none, same (both on CPU 0), split (pub 0, sub 1)")
-      ->check(CLI::IsMember({"none", "same", "split"}))->capture_default_str();
+  add_link_options(app, opt.link, "shape the link with tc tbf (e.g. 10gbit, 1gbit); default: none", false);
+  add_pin_option(app, opt.pin, {"none", "same", "split"}, "CPU pinning: none, same (both on CPU 0), split (pub 0, sub 1)");
   app.add_option("--markdown", opt.markdown, "also write the Markdown report to this file");
-  // Hidden: child roles.
+  // The children.
   UdpConfig u;
   std::string plan;
-  app.add_option("--role", u.base.role)->group("");
-  app.add_option("--plan", plan)->group("");
-  app.add_option("--name", u.base.name)->group("");
-  app.add_option("--url", u.base.url)->group("");
-  app.add_option("--vehicle-url", u.vehicle_url)->group("");
+  add_hidden(app, "--role", u.base.role);
+  add_hidden(app, "--plan", plan);
+  add_hidden(app, "--name", u.base.name);
+  add_hidden(app, "--url", u.base.url);
+  add_hidden(app, "--vehicle-url", u.vehicle_url);
   CLI11_PARSE(app, argc, argv);
   if (u.base.role.empty()) return orchestrate(opt);
   if (u.base.role == "hog") return run_hog();

@@ -18,6 +18,13 @@ Bridge::Impl::Impl(Config c, RuntimeOptions o)
   if (instance == 0) instance = 1;
 }
 
+std::string routing_id(const std::string& prefix) {
+  static thread_local std::mt19937_64 rng{std::random_device{}() ^ static_cast<std::uint64_t>(now_ns())};
+  std::uint64_t r = rng();
+  if (r == 0) r = 1;
+  return prefix + "/" + hex64(r);
+}
+
 // A Config built in code (not by load_config) gets the same limits.
 Config Bridge::Impl::check_limits(Config c) {
   if (c.channels.empty() || c.channels.size() > kMaxChannels)
@@ -60,10 +67,15 @@ void Bridge::Impl::server_options(zmq::socket_t& s) {
   common_options(s);
   s.set(zmq::sockopt::router_handover, 1);
   s.set(zmq::sockopt::router_mandatory, 1);
+  // Every connection is put to the ZAP handler (zap_loop), with or without CURVE: with a ZAP
+  // domain set, libzmq asks it under the NULL mechanism too, before the connection may carry a
+  // message. That is where a connection from an address that is no configured peer's is
+  // refused, and where each admitted one gets its peer's name (User-Id) that every message's
+  // claimed name is checked against (docs/bridge.md "Trust").
+  s.set(zmq::sockopt::zap_domain, "lcmx-bridge");
   if (cfg.security.curve) {
     s.set(zmq::sockopt::curve_server, 1);
     s.set(zmq::sockopt::curve_secretkey, cfg.security.secret_key);
-    s.set(zmq::sockopt::zap_domain, "lcmx-bridge");
   }
 }
 
@@ -116,19 +128,22 @@ void Bridge::Impl::start() {
     peers.push_back(std::move(p));
   }
 
-  // ZAP first: CURVE servers ask it about every connection.
-  if (cfg.security.curve) {
-    zap = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::rep);
-    zap->set(zmq::sockopt::linger, 0);
-    zap->bind("inproc://zeromq.zap.01");
-    zap_thread = std::thread([this] { zap_loop(); });
-  }
+  // ZAP first: every ROUTER asks it about every connection (server_options). Bound before any
+  // ROUTER exists, so no connection is ever admitted without it.
+  zap = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::rep);
+  zap->set(zmq::sockopt::linger, 0);
+  zap->set(zmq::sockopt::rcvhwm, 1000);
+  zap->bind("inproc://zeromq.zap.01");
+  zap_thread = std::thread([this] { zap_loop(); });
 
   // Sockets. Binding happens here, on the starting thread, so a bad address fails start().
   ctl_router = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::router);
   server_options(*ctl_router);
   ctl_router->set(zmq::sockopt::affinity, std::uint64_t{1} << channels.size());
   ctl_router->set(zmq::sockopt::maxmsgsize, static_cast<std::int64_t>(wire::kMaxControlFrame));
+  // Per connection: a peer pings once per heartbeat per link; what it sends beyond 16 unread
+  // pings waits in TCP (at most 16 x 4 MiB per admitted connection).
+  ctl_router->set(zmq::sockopt::rcvhwm, kControlRcvHwm);
   bind_all(*ctl_router, cfg.control_port);
   for (auto& ch : channels) {
     ch->router = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::router);
@@ -143,8 +158,10 @@ void Bridge::Impl::start() {
     for (auto& l : p->links) {
       l->ctl = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::dealer);
       client_options(*l->ctl, *p);
-      l->ctl->set(zmq::sockopt::routing_id, cfg.name + "/" + l->cfg.link);
+      l->ctl->set(zmq::sockopt::routing_id, routing_id(cfg.name + "/" + l->cfg.link));
       l->ctl->set(zmq::sockopt::sndhwm, 4);
+      l->ctl->set(zmq::sockopt::rcvhwm, kControlRcvHwm);  // pongs
+      l->ctl->set(zmq::sockopt::maxmsgsize, static_cast<std::int64_t>(wire::kMaxControlFrame));
       l->ctl->set(zmq::sockopt::affinity, std::uint64_t{1} << channels.size());
       l->ctl->connect("tcp://" + l->cfg.address + ":" + std::to_string(cfg.control_port));
     }
@@ -192,9 +209,10 @@ void Bridge::Impl::stop() {
   if (observer) observer->stop();
   spdlog::info(
       "bridge {}: stopping; local messages sent zero-copy {}, copied {}; waited for a pin {} times; "
-      "handed to peers' sockets by the shm callback {}, from the queues {}; lost before the bridge read them {}",
+      "handed to peers' sockets by the shm callback {}, from the queues {}; lost before the bridge read them {}; "
+      "connections refused {}, bad messages {}",
       cfg.name, zero_copy_msgs.load(), copied_msgs.load(), pin_waits.load(), sent_from_callback.load(),
-      sent_from_queue.load(), lost_local.load());
+      sent_from_queue.load(), lost_local.load(), refused.load(), bad_frames.load());
   // Subscriptions first (their callbacks touch peers' queues), then publishers, then the
   // runtime (goodbye).
   for (auto& [t, s] : served) s->sub.reset();

@@ -18,8 +18,11 @@ using namespace std::chrono_literals;
 std::unique_ptr<zmq::socket_t> Bridge::Impl::make_data_dealer(const Peer& p, const Channel& ch, const Link& l) {
   auto s = std::make_unique<zmq::socket_t>(ctx, zmq::socket_type::dealer);
   client_options(*s, p);
-  s->set(zmq::sockopt::routing_id, cfg.name);
+  s->set(zmq::sockopt::routing_id, routing_id(cfg.name));
   s->set(zmq::sockopt::sndhwm, 2);  // our own queue holds the rest (drop policy)
+  // Nothing is read from a data DEALER: whatever a peer sends back waits in TCP.
+  s->set(zmq::sockopt::rcvhwm, 1);
+  s->set(zmq::sockopt::maxmsgsize, std::int64_t{4096});
   s->set(zmq::sockopt::affinity, std::uint64_t{1} << ch.index);
   s->set(zmq::sockopt::tos, ch.cfg.priority << 5);
   s->connect("tcp://" + l.cfg.address + ":" + std::to_string(ch.cfg.port));
@@ -295,22 +298,30 @@ void Bridge::Impl::receive_data(Channel& ch) {
       count_bad("channel " + ch.cfg.name + ": " + std::to_string(count) + " frames (expected 4)");
       continue;
     }
-    const std::string id = parts[0].to_string();
-    auto it = peer_by_name.find(id);
+    // The front door: sizes first (nothing is copied out of a frame before its size is
+    // checked), then the sender's name against its connection's, then the contents.
+    const std::string_view id_view = routing_name(parts[0].to_string_view());
+    auto it = id_view.size() <= 32 ? peer_by_name.find(std::string(id_view)) : peer_by_name.end();
     if (it == peer_by_name.end()) {
-      count_bad("channel " + ch.cfg.name + ": data from unknown bridge '" + id.substr(0, 40) + "'");
+      count_bad("channel " + ch.cfg.name + ": data from unknown bridge '" + printable(parts[0].to_string_view(), 40) +
+                "'");
       continue;
     }
+    const std::string& id = it->first;
+    // The routing id names the sender; the ZAP handler named the connection (by its address,
+    // and with CURVE its key): they must agree, or a peer (or anyone) could publish into this
+    // host's shared memory in another peer's name.
     if (!authentic(parts[3], id)) {
-      count_bad("channel " + ch.cfg.name + ": data claiming to be from " + id + " with another peer's key");
+      count_bad("channel " + ch.cfg.name + ": data from " + user_of(parts[3]) + "'s connection claiming to be " + id);
       continue;
     }
     Peer& p = *peers[it->second];
-    const std::string topic = parts[1].to_string();
-    if (!wire::valid_topic(topic) || parts[2].size() != wire::kDataHeader) {
+    if (parts[1].size() > wire::kMaxTopic || parts[2].size() != wire::kDataHeader ||
+        !wire::valid_topic(parts[1].to_string_view())) {
       count_bad("channel " + ch.cfg.name + ": bad topic or header from " + id);
       continue;
     }
+    const std::string topic = parts[1].to_string();
     const auto h = wire::decode_header(static_cast<const unsigned char*>(parts[2].data()));
     PeerChannel& pc = *p.chans[ch.index];
     const auto lost = pc.rx.accept(h);
@@ -324,7 +335,8 @@ void Bridge::Impl::receive_data(Channel& ch) {
     pc.recv_bytes.fetch_add(bytes, std::memory_order_relaxed);
     if (int l = link_of(p, peer_address(parts[3])); l >= 0)
       p.links[static_cast<std::size_t>(l)]->bytes_received.fetch_add(bytes, std::memory_order_relaxed);
-    republish(topic, parts[3], static_cast<std::uint32_t>(std::min<std::uint64_t>(h.keep, wire::Control::kMaxKeep)));
+    // A peer's keep sizes a ring of this host: at most this channel's max_keep (docs/bridge.md "Trust").
+    republish(topic, parts[3], static_cast<std::uint32_t>(std::min<std::uint64_t>(h.keep, ch.cfg.max_keep)));
   }
 }
 
@@ -346,7 +358,7 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
     r = ensure_republisher(topic, keep, true);
     if (!r) return;
   }
-  r->last_message = Clock::now();
+  r->touch();
   try {
     r->pub.publish(std::span<const std::byte>(static_cast<const std::byte*>(payload.data()), payload.size()));
   } catch (const std::exception& e) {
@@ -389,7 +401,7 @@ std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(cons
                                  : repub_node->advertise_raw(topic, type.name, type.fingerprint, po);
       r->history = po.history;
       r->type = type;
-      r->last_message = Clock::now();
+      r->touch();
       slot = std::move(r);
     } catch (const std::exception& e) {
       spdlog::warn("bridge {}: cannot republish {}: {}", cfg.name, topic, e.what());

@@ -9,13 +9,16 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 #include <toml++/toml.h>
 
 #include "lcmx/bridge/detail/toml_check.hpp"
+#include "lcmx/bridge/detail/wire.hpp"
 
 namespace lcmx::bridge {
 namespace {
@@ -33,9 +36,10 @@ using detail::valid_ipv4;
 using detail::valid_name;
 
 // A CURVE key file named by config key `key_name`; its errors name that key.
-std::string key_of(const Checker& c, const std::string& key_name, const std::filesystem::path& p) {
+std::string key_of(const Checker& c, const std::string& key_name, const std::filesystem::path& p,
+                   KeyFile kind = KeyFile::public_key) {
   try {
-    return read_key_file(p);
+    return read_key_file(p, kind);
   } catch (const ConfigError& e) {
     c.fail(key_name, e.what());
   }
@@ -63,7 +67,7 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
   // The pre-scan against toml++ 3.3.0's non-ASCII bug, then the parse (detail/toml_check.hpp).
   const toml::table root = detail::parse_toml(text, file);
   c.only(root, "", {"name", "listen", "control_port", "carry", "heartbeat_ms", "link_timeout_ms",
-                    "failback_hold_ms", "status_period_ms", "channel", "peer", "security"});
+                    "failback_hold_ms", "status_period_ms", "max_catalogue", "channel", "peer", "security"});
   Config cfg;
   cfg.file = file;
   cfg.name = c.string(root, "", "name", true);
@@ -92,6 +96,9 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
            root.get("link_timeout_ms") ? root.get("link_timeout_ms") : root.get("heartbeat_ms"));
   cfg.failback_hold = std::chrono::milliseconds(c.integer(root, "", "failback_hold_ms", false, 1000, 0, kMaxMs));
   cfg.status_period = std::chrono::milliseconds(c.integer(root, "", "status_period_ms", false, 1000, 50, kMaxMs));
+  cfg.max_catalogue = static_cast<std::size_t>(c.integer(root, "", "max_catalogue", false,
+                                                         static_cast<std::int64_t>(kDefaultMaxCatalogue), 0,
+                                                         static_cast<std::int64_t>(wire::kMaxCatalogue)));
 
   // Channels.
   const auto chans = c.tables(root, "", "channel");
@@ -100,7 +107,7 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
   for (std::size_t i = 0; i < chans.size(); ++i) {
     const auto& t = *chans[i];
     const std::string p = "channel[" + std::to_string(i) + "].";
-    c.only(t, p, {"name", "port", "priority", "hwm", "drop", "topics"});
+    c.only(t, p, {"name", "port", "priority", "hwm", "drop", "topics", "max_keep"});
     ChannelConfig ch;
     ch.name = c.string(t, p, "name", true);
     if (!valid_name(ch.name, 32)) c.fail(p + "name", "must be 1 to 32 characters of [A-Za-z0-9_-]", t.get("name"));
@@ -111,6 +118,8 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
              t.get("port"));
     ch.priority = static_cast<int>(c.integer(t, p, "priority", false, 0, 0, 7));
     ch.hwm = static_cast<std::size_t>(c.integer(t, p, "hwm", false, 16, 1, 1000000));
+    ch.max_keep = static_cast<std::uint32_t>(
+        c.integer(t, p, "max_keep", false, kDefaultMaxKeep, 0, wire::Control::kMaxKeep));
     const std::string drop = c.string(t, p, "drop", false, "oldest");
     if (drop == "oldest") ch.drop = DropPolicy::oldest;
     else if (drop == "newest") ch.drop = DropPolicy::newest;
@@ -144,7 +153,7 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
       if (!curve_available()) c.fail("security.curve", "this libzmq was built without CURVE support", t->get("curve"));
       cfg.security.secret_key_file = c.path(sk);
       cfg.security.public_key_file = c.path(pk);
-      cfg.security.secret_key = key_of(c, "security.secret_key_file", cfg.security.secret_key_file);
+      cfg.security.secret_key = key_of(c, "security.secret_key_file", cfg.security.secret_key_file, KeyFile::secret);
       cfg.security.public_key = key_of(c, "security.public_key_file", cfg.security.public_key_file);
       char derived[41] = {};
       if (::zmq_curve_public(derived, cfg.security.secret_key.c_str()) != 0 || cfg.security.public_key != derived)
@@ -157,6 +166,11 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
     c.fail("peer", "at most " + std::to_string(kMaxPeers) + " peers (got " + std::to_string(peers.size()) + ")",
            root.get("peer"));
   std::set<std::string> peer_names;
+  // Every address names one host: without CURVE a peer is told apart from the others (and from
+  // any other machine) by the address its connections come from (docs/bridge.md "Trust"), so
+  // two peers (or a peer and this bridge) may not share one.
+  std::map<std::string, std::string> owner_of;  // address -> "peer NAME" or "listen"
+  for (const auto& a : cfg.listen) owner_of.emplace(a, "this bridge's listen");
   for (std::size_t i = 0; i < peers.size(); ++i) {
     const auto& t = *peers[i];
     const std::string p = "peer[" + std::to_string(i) + "].";
@@ -182,6 +196,10 @@ Config parse_config(std::string_view text, const std::filesystem::path& file) {
       e.address = c.string(*eps[k], q, "address", true);
       if (!valid_ipv4(e.address))
         c.fail(q + "address", "not an IPv4 address: \"" + e.address + "\"", eps[k]->get("address"));
+      if (auto [it, fresh] = owner_of.emplace(e.address, "peer " + peer.name); !fresh)
+        c.fail(q + "address", "duplicate address " + e.address + " (already " + it->second +
+                                  "): each address must name one host",
+               eps[k]->get("address"));
       peer.endpoints.push_back(std::move(e));
     }
     const auto pk = c.string(t, p, "public_key_file", cfg.security.curve);
@@ -216,21 +234,46 @@ KeyPair generate_key_pair() {
 }
 
 void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bool overwrite) {
+  // Written to a new file (O_EXCL) beside the target and renamed over it: a rename replaces the
+  // directory entry, never what a symbolic link there points to. A target that exists is
+  // refused unless `overwrite`, and refused even then when it is not a regular file (a link
+  // planted at chipA.key would otherwise be followed, or silently replaced).
+  const std::filesystem::path secret(prefix.string() + ".key"), pub(prefix.string() + ".pub");
+  // Both targets are checked before either is written.
+  for (const auto& p : {secret, pub}) {
+    struct stat st {};
+    if (::lstat(p.c_str(), &st) == 0) {
+      if (S_ISLNK(st.st_mode)) throw ConfigError(p.string() + ": is a symbolic link: refused (remove it first)");
+      if (!S_ISREG(st.st_mode)) throw ConfigError(p.string() + ": exists and is not a regular file: refused");
+      if (!overwrite) throw ConfigError(p.string() + ": cannot create: " + std::strerror(EEXIST));
+    } else if (errno != ENOENT) {
+      throw ConfigError(p.string() + ": cannot create: " + std::strerror(errno));
+    }
+  }
   auto write = [&](const std::filesystem::path& p, const std::string& key, mode_t mode, const char* what) {
-    const int flags = O_WRONLY | O_CREAT | O_CLOEXEC | (overwrite ? O_TRUNC : O_EXCL);
-    const int fd = ::open(p.c_str(), flags, mode);
+    std::string tmp = p.string() + ".XXXXXX";
+    const int fd = ::mkostemp(tmp.data(), O_CLOEXEC);  // mode 0600, O_EXCL
     if (fd < 0) throw ConfigError(p.string() + ": cannot create: " + std::strerror(errno));
-    if (overwrite) ::fchmod(fd, mode);
     const std::string text = "# lcmx bridge CURVE " + std::string(what) + " key (Z85)\n" + key + "\n";
-    const bool ok = ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size());
+    const bool ok = ::fchmod(fd, mode) == 0 &&
+                    ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) && ::fsync(fd) == 0;
+    const int e = errno;
     ::close(fd);
-    if (!ok) throw ConfigError(p.string() + ": write failed");
+    if (!ok) {
+      ::unlink(tmp.c_str());
+      throw ConfigError(p.string() + ": write failed: " + std::strerror(e));
+    }
+    // Without overwrite, link() fails with EEXIST if the name appeared meanwhile (no race).
+    const int r = overwrite ? ::rename(tmp.c_str(), p.c_str()) : ::link(tmp.c_str(), p.c_str());
+    const int re = errno;
+    if (!overwrite || r != 0) ::unlink(tmp.c_str());
+    if (r != 0) throw ConfigError(p.string() + ": cannot create: " + std::strerror(re));
   };
-  write(std::filesystem::path(prefix.string() + ".key"), keys.secret_key, 0600, "secret");
-  write(std::filesystem::path(prefix.string() + ".pub"), keys.public_key, 0644, "public");
+  write(secret, keys.secret_key, 0600, "secret");
+  write(pub, keys.public_key, 0644, "public");
 }
 
-std::string read_key_file(const std::filesystem::path& file) {
+std::string read_key_file(const std::filesystem::path& file, KeyFile kind) {
   // Not an ifstream: a device or FIFO (/dev/zero, /dev/stdin) would be read without end.
   const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
   if (fd < 0) throw ConfigError(file.string() + ": cannot read: " + std::strerror(errno));
@@ -239,6 +282,23 @@ std::string read_key_file(const std::filesystem::path& file) {
     ::close(fd);
     throw ConfigError(file.string() + ": not a key file (expected a regular file of at most " +
                       std::to_string(kMaxKeyFileBytes) + " bytes, as `lcmx bridge keygen` writes)");
+  }
+  // Owner and mode of the file opened (fstat: no race with a rename meanwhile). A secret key
+  // anyone else can read is no secret; a public key anyone else can write is a key they chose.
+  const uid_t me = ::geteuid();
+  char mode[8];
+  std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(st.st_mode & 07777));
+  if (kind == KeyFile::secret && (st.st_uid != me || (st.st_mode & 077) != 0)) {
+    ::close(fd);
+    throw ConfigError(file.string() + ": a secret key must be owned by this user (uid " + std::to_string(me) +
+                      ") and readable by nobody else (mode " + mode + ", owner uid " + std::to_string(st.st_uid) +
+                      "): chmod 600 it (and chown it to this user)");
+  }
+  if (kind == KeyFile::public_key && ((st.st_uid != me && st.st_uid != 0) || (st.st_mode & 022) != 0)) {
+    ::close(fd);
+    throw ConfigError(file.string() + ": a public key must be owned by this user or root and writable by nobody "
+                      "else (mode " + std::string(mode) + ", owner uid " + std::to_string(st.st_uid) +
+                      "): chmod go-w it");
   }
   std::string text(kMaxKeyFileBytes + 1, '\0');
   std::size_t got = 0;

@@ -4,6 +4,7 @@
 #include "engine.hpp"
 
 #include <algorithm>
+#include <iterator>
 
 #include <spdlog/spdlog.h>
 
@@ -80,6 +81,14 @@ void Bridge::Impl::send_pings() {
     want = demand;
     have = catalogue_locked();
   }
+  // A frame holds at most wire::kMaxDemand want lines (peers refuse more).
+  if (want.size() > wire::kMaxDemand) {
+    if (!demand_cut_logged)
+      spdlog::warn("bridge {}: this host subscribes to more than {} topics: peers are asked for the first {} by name",
+                   cfg.name, wire::kMaxDemand, wire::kMaxDemand);
+    demand_cut_logged = true;
+    want.erase(std::next(want.begin(), static_cast<std::ptrdiff_t>(wire::kMaxDemand)), want.end());
+  }
   const auto now = Clock::now();
   for (auto& p : peers) {
     const int active = p->active.load();
@@ -93,7 +102,8 @@ void Bridge::Impl::send_pings() {
       std::lock_guard lock(view_mu);
       for (const auto& t : p->served) {
         offer.insert(t);
-        if (auto it = kept.find(t); it != kept.end() && it->second > 0) keep[t] = it->second;
+        if (auto it = kept.find(t); it != kept.end() && it->second > 0 && keep.size() < wire::kMaxCatalogue)
+          keep[t] = it->second;
       }
       for (const auto* topics : {&offer, &have})
         for (const auto& t : *topics)
@@ -177,8 +187,14 @@ void Bridge::Impl::receive_control() {
       count_bad("control: ping from unknown bridge '" + c->from + "' (not in this bridge's peers)");
       continue;
     }
-    if (body.size() > 0 && !authentic(body, c->from)) {
-      count_bad("control: ping claiming to be from " + c->from + " with another peer's key");
+    // The name a ping claims (`from`) must be the connection's: the peer the ZAP handler
+    // admitted it as (User-Id: its address, and with CURVE its key), and the routing id its
+    // control DEALER set ("<name>/<link>/<random>", engine.hpp routing_id), which our pong goes
+    // back to.
+    const std::string claimed_id = c->from + "/" + c->link + "/";
+    if (id.to_string_view().substr(0, claimed_id.size()) != claimed_id || !authentic(body, c->from)) {
+      count_bad("control: ping from " + user_of(body) + "'s connection claiming to be " + c->from + " (routing id '" +
+                printable(id.to_string_view()) + "')");
       continue;
     }
     Peer& p = *peers[it->second];

@@ -53,12 +53,17 @@ void Bridge::Impl::refresh_view() {
   channel_subscribers = patterns;
 }
 
+std::uint32_t Bridge::Impl::max_keep_of(const std::string& topic) const {
+  const auto ch = cfg.channel_of(topic);
+  return ch ? cfg.channels[*ch].max_keep : 0;
+}
+
 std::uint32_t Bridge::Impl::keep_of_locked(const std::string& topic) const {
   std::uint32_t n = 0;
   for (const auto& p : peers)
     if (p->active.load() >= 0)
       if (auto it = p->keeps.find(topic); it != p->keeps.end()) n = std::max(n, it->second);
-  return n;
+  return std::min(n, max_keep_of(topic));  // a peer's keep sizes our ring: our cap (Trust)
 }
 
 wire::Control::TopicType Bridge::Impl::type_of_locked(const std::string& topic) const {
@@ -137,14 +142,21 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
           p.served.insert(t);
         }
       if (p.active.load() >= 0) offered.insert(p.offers.begin(), p.offers.end());
-      if (channel_subscribers && p.active.load() >= 0)
+      // Each peer's catalogue: its first max_catalogue topics by name (an idle republisher
+      // each: a peer's catalogue costs this host at most that many), and all peers' together at
+      // most wire::kMaxCatalogue.
+      if (channel_subscribers && p.active.load() >= 0) {
+        std::size_t from_peer = 0;
         for (const auto& t : p.has) {
-          if (announce.size() >= wire::kMaxCatalogue && !announce.count(t)) {
+          if (from_peer >= cfg.max_catalogue ||
+              (announce.size() >= wire::kMaxCatalogue && !announce.count(t))) {
             announce_cut = true;
             break;
           }
           announce.insert(t);
+          ++from_peer;
         }
+      }
     }
     for (const auto& [t, v] : want) {
       large[t] = is_large_locked(t);
@@ -205,9 +217,9 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
   // our beacon is how those subscriptions learn the name (they subscribe by name to what they
   // accept, which is demand as usual); it is republished only once demanded and offered.
   if (announce_cut && !announce_cut_logged)
-    spdlog::warn("bridge {}: peers' catalogues hold more than {} topics: only {} are announced on this host "
-                 "to pattern subscribers",
-                 cfg.name, wire::kMaxCatalogue, wire::kMaxCatalogue);
+    spdlog::warn("bridge {}: a peer's catalogue holds more than max_catalogue = {} topics (or all peers' "
+                 "together more than {}): the rest are not announced on this host to pattern subscribers",
+                 cfg.name, cfg.max_catalogue, wire::kMaxCatalogue);
   announce_cut_logged = announce_cut_logged || announce_cut;
   // Made with the keep the peers' offers give; never remade here for its keep (the data
   // headers' keep decides that, in republish: an offer may lag behind the data), only when the
@@ -221,7 +233,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
     std::lock_guard lock(repub_mu);
     for (auto it = repubs.begin(); it != repubs.end();) {
       const bool keep = (local_demand.count(it->first) &&
-                         (offered.count(it->first) || now - it->second->last_message < 3 * cfg.link_timeout + 1s)) ||
+                         (offered.count(it->first) || now - it->second->last() < 3 * cfg.link_timeout + 1s)) ||
                         announce.count(it->first);
       if (keep) {
         ++it;

@@ -9,10 +9,13 @@
 //                 (shm subscriptions) and the republishers' lifetime
 //   channels.cpp  data channels: the shm callback queueing to peers, the channel threads
 //                 (send, receive, republish into shm) (queue and sequence rules: channels.hpp)
-//   security.cpp  CURVE: the ZAP thread and the User-Id check (the decision: security.hpp)
+//   security.cpp  who may connect (with or without CURVE): the ZAP thread and the User-Id
+//                 check of every message's claimed name (the decision: security.hpp)
 //   status.cpp    the status snapshot (lcmx_msgs::bridge_status_t)
 //
 // Threads (docs/bridge.md has the why):
+//   ZAP thread      : answers every ROUTER's connection requests (security.cpp), with or
+//                     without CURVE: a connection is admitted only from a configured peer.
 //   control thread  : control ROUTER (pings from peers -> pongs, their demand/offers/hello),
 //                     one control DEALER per (peer, link) (our pings, their pongs), link states
 //                     and the active link per peer, local discovery view, shm subscriptions of
@@ -51,6 +54,7 @@
 #include <optional>
 #include <set>
 #include <string>
+#include <string_view>
 #include <thread>
 #include <vector>
 #include <zmq.hpp>
@@ -69,9 +73,28 @@ using Clock = std::chrono::steady_clock;
 inline constexpr auto kDemandRefresh = std::chrono::seconds(1);  // full ping at least this often
 inline constexpr std::int64_t kMaxDataMessage = (64ll << 20) + 4096;  // = PublisherOptions default + slack
 inline constexpr std::size_t kRecvBatch = 64;
+inline constexpr int kControlRcvHwm = 16;  // messages per connection on control sockets
 
 inline std::int64_t now_ns() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(Clock::now().time_since_epoch()).count();
+}
+
+// Text from the network for a log line: bytes outside printable ASCII as \xNN (a routing id
+// is any bytes; a terminal reading the log must not get escape sequences from a peer).
+inline std::string printable(std::string_view s, std::size_t max = 64) {
+  std::string o;
+  for (std::size_t i = 0; i < s.size() && i < max; ++i) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    if (c >= 0x20 && c < 0x7f && c != '\\') {
+      o += static_cast<char>(c);
+    } else {
+      char b[8];
+      std::snprintf(b, sizeof b, "\\x%02x", c);
+      o += b;
+    }
+  }
+  if (s.size() > max) o += "...";
+  return o;
 }
 
 inline std::string hex64(std::uint64_t v) {
@@ -79,6 +102,15 @@ inline std::string hex64(std::uint64_t v) {
   std::snprintf(b, sizeof b, "%016llx", static_cast<unsigned long long>(v));
   return b;
 }
+
+// A DEALER's routing id: "<prefix>/<16 hex random digits>", new for every socket. The receiver
+// reads only the name before the first '/' (routing_name) and checks it against the connection's
+// peer (User-Id); the random part is what makes the routing id unguessable, so that another
+// peer cannot connect with it and take this socket's connection over (ZMQ_ROUTER_HANDOVER:
+// docs/bridge.md "Trust"). It is never sent in a message, only in the ZMTP handshake.
+std::string routing_id(const std::string& prefix);
+// The bridge name a routing id claims (up to its first '/').
+inline std::string_view routing_name(std::string_view id) { return id.substr(0, id.find('/')); }
 
 // Lowers the calling thread's scheduling priority by `nice` (Linux: per-thread niceness).
 // Raising it would need CAP_SYS_NICE; lowering never fails for lack of rights.
@@ -235,9 +267,15 @@ struct Bridge::Impl {
 
   struct Republisher {
     RawPublisher pub;
-    std::uint32_t history = 0;  // PublisherOptions::history: the peers' keep for the topic
+    std::uint32_t history = 0;  // PublisherOptions::history: the peers' keep, capped by max_keep
     wire::Control::TopicType type;  // announced; {0, ""}: raw bytes
-    Clock::time_point last_message{};
+    // Clock ticks of the last message republished: written by channel threads (republish),
+    // read by the control thread (reconcile), neither holding a lock for it.
+    std::atomic<Clock::rep> last_message{0};
+    void touch() { last_message.store(Clock::now().time_since_epoch().count(), std::memory_order_relaxed); }
+    Clock::time_point last() const {
+      return Clock::time_point(Clock::duration(last_message.load(std::memory_order_relaxed)));
+    }
   };
 
   struct Channel {
@@ -255,6 +293,7 @@ struct Bridge::Impl {
   std::uint64_t instance = 0;
   std::atomic<bool> stopping{false};
   std::atomic<std::uint64_t> bad_frames{0};
+  std::atomic<std::uint64_t> refused{0};  // connections the ZAP handler refused
   // Local messages queued for peers: sent straight from their pinned slot / copied out of it.
   std::atomic<std::uint64_t> zero_copy_msgs{0}, copied_msgs{0};
   std::atomic<std::uint64_t> pin_waits{0};  // on_local_message waited for a pin (link moving)
@@ -299,7 +338,7 @@ struct Bridge::Impl {
   std::map<std::string, std::unique_ptr<Served>> served;
   std::set<std::string> no_channel_logged;
   std::set<std::int64_t> other_bridges_warned;  // participant ids of other bridges on this host
-  bool catalogue_cut_logged = false, announce_cut_logged = false;
+  bool catalogue_cut_logged = false, announce_cut_logged = false, demand_cut_logged = false;
 
   std::mutex repub_mu;
   std::map<std::string, std::shared_ptr<Republisher>> repubs;
@@ -323,8 +362,14 @@ struct Bridge::Impl {
   // Which link of `p` the address belongs to (-1 if none).
   static int link_of(const Peer& p, const char* address);
   static const char* peer_address(zmq::message_t& m);
-  // With CURVE, the authenticated user id (the peer name the ZAP handler assigned) must match.
+  // The connection's authenticated user id (the peer name the ZAP handler assigned, with or
+  // without CURVE) is `claimed`. False when it differs or the message has none.
   bool authentic(zmq::message_t& m, const std::string& claimed);
+  // That user id for a log line ("?" when none).
+  static std::string user_of(zmq::message_t& m);
+  // The largest keep last N a republisher of `topic` takes from peers: the max_keep of its
+  // channel (0 when no channel carries it).
+  std::uint32_t max_keep_of(const std::string& topic) const;
   void zap_loop();
   void on_local_message(Served& s, const RawMessage& m);
   zmq::message_t retained_payload(Served& s, const RawMessage& m, const std::size_t* targets, std::size_t n);

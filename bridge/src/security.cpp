@@ -1,5 +1,5 @@
-// CURVE authentication: the ZAP handler thread (which peers may connect, as whom) and the
-// User-Id check of every received message. The decision itself: security.hpp.
+// Who may connect, with or without CURVE: the ZAP handler thread (which peers may connect, from
+// where, as whom) and the User-Id check of every received message. The decision: security.hpp.
 #include "engine.hpp"
 #include "security.hpp"
 
@@ -14,28 +14,60 @@ namespace lcmx::bridge {
 using namespace std::chrono_literals;
 
 security::ZapAnswer security::zap_decide(std::string_view mechanism, std::span<const std::byte> client_key,
-                                         const std::vector<PeerConfig>& peers) {
-  ZapAnswer a{"400", "not a configured peer", "", ""};
-  if (mechanism != "CURVE" || client_key.size() != 32) return a;
+                                         std::string_view address, bool curve, const std::vector<PeerConfig>& peers) {
+  ZapAnswer a{"400", "not a configured peer", "", "", ""};
+  const PeerConfig* by_address = nullptr;
+  for (const auto& p : peers)
+    for (const auto& e : p.endpoints)
+      if (e.address == address) by_address = &p;
+  const std::string addr(address);
+  if (!curve) {
+    if (mechanism != "NULL") {
+      a.reason = "mechanism " + std::string(mechanism) + " (this bridge runs without CURVE)";
+    } else if (!by_address) {
+      a.reason = "not an address of a configured peer";
+    } else {
+      a.status = "200", a.text = "OK", a.user = by_address->name;
+    }
+    return a;
+  }
+  if (mechanism != "CURVE" || client_key.size() != 32) {
+    a.reason = "mechanism " + std::string(mechanism) + " (CURVE required)";
+    return a;
+  }
   char z85[41] = {};
   ::zmq_z85_encode(z85, reinterpret_cast<const std::uint8_t*>(client_key.data()), 32);
   a.key = z85;
+  const PeerConfig* by_key = nullptr;
   for (const auto& p : peers)
-    if (!p.public_key.empty() && p.public_key == a.key) {
-      a.status = "200", a.text = "OK", a.user = p.name;
-      break;
-    }
+    if (!p.public_key.empty() && p.public_key == a.key) by_key = &p;
+  if (!by_key) {
+    a.reason = "public key " + a.key + " is not a configured peer's";
+  } else if (by_key != by_address) {
+    a.reason = "the key is " + by_key->name + "'s, but " + addr + " is not one of " + by_key->name + "'s addresses";
+  } else {
+    a.status = "200", a.text = "OK", a.user = by_key->name;
+  }
   return a;
 }
 
-// With CURVE, the authenticated user id (the peer name the ZAP handler assigned) must match.
+// The authenticated User-Id (the peer name the ZAP handler assigned to the connection, with or
+// without CURVE) must be the name the message claims.
 bool Bridge::Impl::authentic(zmq::message_t& m, const std::string& claimed) {
-  if (!cfg.security.curve) return true;
   try {
     const char* uid = m.gets("User-Id");
     return uid && claimed == uid;
   } catch (const zmq::error_t&) {
     return false;
+  }
+}
+
+std::string Bridge::Impl::user_of(zmq::message_t& m) {
+  try {
+    const char* uid = m.gets("User-Id");
+    return uid ? printable(uid) : std::string("?");
+  } catch (const zmq::error_t&) {
+    return "?";
   }
 }
 
@@ -60,16 +92,15 @@ void Bridge::Impl::zap_loop() {
     const std::string version = req[0].to_string(), request_id = req[1].to_string(),
                       address = req[3].to_string(), mechanism = req[5].to_string();
     const auto answer = security::zap_decide(
-        mechanism, std::span<const std::byte>(static_cast<const std::byte*>(req[6].data()), req[6].size()), cfg.peers);
+        mechanism, std::span<const std::byte>(static_cast<const std::byte*>(req[6].data()), req[6].size()), address,
+        cfg.security.curve, cfg.peers);
     const std::string &status = answer.status, &text = answer.text, &user = answer.user;
     if (refused_log.size() > 1024) refused_log.clear();  // one limiter per address: bounded
-    if (status != "200" && refused_log[address].allow()) {
-      if (mechanism == "CURVE")
-        spdlog::warn("bridge {}: refused a CURVE connection from {}: public key {} is not a configured peer's",
-                     cfg.name, address, answer.key);
-      else
-        spdlog::warn("bridge {}: refused a connection from {}: mechanism {} (CURVE required)", cfg.name, address,
-                     mechanism);
+    if (status != "200") {
+      refused.fetch_add(1, std::memory_order_relaxed);
+      if (refused_log[address].allow())
+        spdlog::warn("bridge {}: refused a {}connection from {}: {}", cfg.name, cfg.security.curve ? "CURVE " : "",
+                     printable(address), answer.reason);
     }
     try {
       zap->send(zmq::buffer(version), zmq::send_flags::sndmore);

@@ -102,8 +102,9 @@ std::optional<Control> decode(std::string_view f) {
     } else if (key == "demand" && val.empty()) {
       c.has_demand = true;
     } else if ((key == "want" || key == "offer") && c.has_demand) {
-      if (!valid_topic(val)) return std::nullopt;
-      (key == "want" ? c.want : c.offer).emplace(val);
+      auto& set = key == "want" ? c.want : c.offer;
+      if (!valid_topic(val) || set.size() >= kMaxDemand) return std::nullopt;
+      set.emplace(val);
     } else if (key == "keep" && c.has_demand) {
       const auto sp2 = val.find(' ');
       std::uint32_t n = 0;

@@ -1,107 +1,120 @@
-// Path selection (docs/ARCHITECTURE.md "Path selection"): which publisher each subscriber
-// receives from and over which path (intra, shm, udp, bridge), type checks, and the remote
-// subscriber counts publishers go by. RuntimeImpl::mu held throughout.
+// Pairs, path selection (docs/ARCHITECTURE.md "Path selection"): which publisher each
+// subscriber receives from and over which path (intra, shm, udp, bridge), type checks, and the
+// remote subscriber counts publishers go by. Pairs::mu_ held throughout the *_locked helpers.
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <cstdlib>
 
-#include "internal.hpp"
+#include "pairs.hpp"
 
 namespace lcmx::detail {
 namespace {
 bool compatible(std::int64_t a, std::int64_t b) { return a == 0 || b == 0 || a == b; }
 }  // namespace
 
-void RuntimeImpl::report_mismatch_locked(std::uint64_t local_endpoint,
-                                         std::uint64_t remote_participant,
-                                         std::uint64_t remote_endpoint,
-                                         const std::string& channel, const std::string& text,
-                                         std::vector<std::string>& errors,
-                                         std::vector<Event>& events) {
-  if (!mismatches_reported.insert({local_endpoint, remote_participant, remote_endpoint}).second)
-    return;
-  errors.push_back(text);
-  events.push_back({Event::Kind::type_mismatch, channel, text});
+Pairs::Pairs(Context context) : ctx_(context) {}
+
+std::vector<std::shared_ptr<SubscriberCore>> Pairs::subscribers_of_locked(const std::string& channel) {
+  std::vector<std::shared_ptr<SubscriberCore>> out;
+  auto [a, b] = subs_by_channel_.equal_range(channel);
+  for (auto it = a; it != b; ++it)
+    if (auto s = subs_.find(it->second); s != subs_.end()) out.push_back(s->second);
+  return out;
 }
 
-void RuntimeImpl::match_local_locked(PublisherImpl& pub, SubscriberCore& sub,
-                                     std::vector<Event>& events) {
+std::vector<PublisherImpl*> Pairs::publishers_of_locked(const std::string& channel) {
+  std::vector<PublisherImpl*> out;
+  auto [a, b] = pubs_by_channel_.equal_range(channel);
+  for (auto it = a; it != b; ++it)
+    if (auto p = pubs_.find(it->second); p != pubs_.end()) out.push_back(p->second);
+  return out;
+}
+
+// Publishers count subscribers by the matches subscribers announce: any change of ours is
+// announced at once (versions only grow, so their sum tells).
+std::uint64_t Pairs::match_versions_locked() {
+  std::uint64_t v = 0;
+  for (auto& [id, sub] : subs_) v += sub->state->version.load();
+  return v;
+}
+
+void Pairs::report_mismatch_locked(std::uint64_t local_endpoint, std::uint64_t remote_participant,
+                                   std::uint64_t remote_endpoint, const std::string& channel,
+                                   const std::string& text, std::vector<std::string>& errors,
+                                   Outcome& out) {
+  if (!mismatches_reported_.insert({local_endpoint, remote_participant, remote_endpoint}).second) return;
+  if (mismatches_reported_.size() > 65536) mismatches_reported_.clear();  // bounded (hostile beacons)
+  if (errors.size() < 64) errors.push_back(text);
+  out.events.push_back({Event::Kind::type_mismatch, channel, text});
+}
+
+void Pairs::match_local_locked(PublisherImpl& pub, SubscriberCore& sub, Outcome& out) {
   if (pub.channel() != sub.channel()) return;
-  if (options.bridge && !sub.options().from_bridges) return;  // our own republished messages
-  if (options.dds_gateway && !sub.options().from_dds_gateways) return;  // our own imports
+  if (ctx_.options.bridge && !sub.options().from_bridges) return;  // our own republished messages
+  if (ctx_.options.dds_gateway && !sub.options().from_dds_gateways) return;  // our own imports
   if (!compatible(pub.type.fingerprint, sub.type().fingerprint)) {
     const std::string text = "type mismatch on channel '" + sub.channel() + "': publisher (node '" +
                              pub.node->name + "') has " + pub.type.name + ", subscriber (node '" +
-                             sub.state->node_name + "') wants " + sub.type().name +
-                             "; not matched";
+                             sub.state->node_name + "') wants " + sub.type().name + "; not matched";
     {
       std::lock_guard lock(sub.state->mu);
-      report_mismatch_locked(sub.id, participant_id, pub.id, sub.channel(), text,
-                             sub.state->errors, events);
+      report_mismatch_locked(sub.id, ctx_.participant_id, pub.id, sub.channel(), text, sub.state->errors, out);
     }
-    report_mismatch_locked(pub.id, participant_id, sub.id, pub.channel(), text, pub.errors,
-                           events);
+    report_mismatch_locked(pub.id, ctx_.participant_id, sub.id, pub.channel(), text, pub.errors, out);
     return;
   }
   auto m = std::make_shared<Match>();
-  m->publisher_participant = participant_id;
+  m->publisher_participant = ctx_.participant_id;
   m->publisher_endpoint = pub.id;
   m->path = Path::intra;
-  m->stats->publisher_participant = participant_id;  // who sends through the pair (PairCounters)
+  m->stats->publisher_participant = ctx_.participant_id;  // who sends through the pair (PairCounters)
   m->stats->publisher_endpoint = pub.id;
-  pub.add_intra(std::static_pointer_cast<SubscriberCore>(subs.at(sub.id)), m->stats);
+  pub.add_intra(subs_.at(sub.id), m->stats);
   {
     std::lock_guard lock(sub.state->mu);
     sub.state->matches.push_back(m);
     ++sub.state->version;
     sub.state->matched_cv.notify_all();
   }
-  events.push_back({Event::Kind::publisher_matched, sub.channel(),
-                    "channel '" + sub.channel() + "': node '" + sub.state->node_name +
-                        "' receives from node '" + pub.node->name + "' (intra)"});
+  out.events.push_back({Event::Kind::publisher_matched, sub.channel(),
+                        "channel '" + sub.channel() + "': node '" + sub.state->node_name +
+                            "' receives from node '" + pub.node->name + "' (intra)"});
 }
 
-// Brings one local subscriber's shm matches in line with what the other participants of
-// this host publish: opens readers for new publishers, drops those that went away.
-void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& events) {
+// Brings one local subscriber's matches with other participants in line with what they
+// publish on its channel now: opens readers for new publishers, retires those that went away.
+void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
   auto& st = *sub.state;
   std::set<std::pair<std::uint64_t, std::uint64_t>> wanted;
-  std::vector<std::shared_ptr<Match>> added;
   struct Candidate {
-    const lcmx_msgs::beacon_t* b;
-    const lcmx_msgs::endpoint_t* e;
+    PeerTable::Endpoint p;
     Path path;
   };
   std::vector<Candidate> candidates;
-  for (const auto* scope_map : {&remotes, &vehicle_remotes, &neighbour_remotes})
-  for (const auto& [pid, b] : *scope_map) {
-    const Path path = scope_map == &remotes ? Path::shm : Path::udp;
-    const bool from_bridge = (b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) != 0;
+  for (auto& p : ctx_.peers.endpoints_on(sub.channel(), lcmx_msgs::endpoint_t::KIND_PUBLISHER)) {
+    const Path path = p.scope == Scope::host ? Path::shm : Path::udp;
+    const bool from_bridge = (p.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) != 0;
     if (from_bridge && !sub.options().from_bridges) continue;
-    if ((b.flags & lcmx_msgs::beacon_t::FLAG_DDS_GATEWAY) && !sub.options().from_dds_gateways) continue;
-    for (const auto& e : b.endpoints) {
-      if (e.kind != lcmx_msgs::endpoint_t::KIND_PUBLISHER || e.topic != sub.channel()) continue;
-      if (!compatible(e.fingerprint, sub.type().fingerprint)) {
-        const std::string text = "type mismatch on channel '" + sub.channel() +
-                                 "': publisher (process " + b.process_name + " pid " +
-                                 std::to_string(b.pid) + ", node '" + e.node + "') has " +
-                                 e.type_name + ", subscriber (node '" + st.node_name +
-                                 "') wants " + sub.type().name + "; not matched";
-        std::lock_guard lock(st.mu);
-        report_mismatch_locked(sub.id, static_cast<std::uint64_t>(b.participant_id),
-                               static_cast<std::uint64_t>(e.id), sub.channel(), text, st.errors,
-                               events);
-        continue;
-      }
-      if (path == Path::shm && e.shm_segment.empty()) continue;  // bridges' segments too
-      // Its writer died (OwnerWatch) but its beacon has not expired yet: gone.
-      if (path == Path::shm &&
-          dead_publishers.count({static_cast<std::uint64_t>(b.participant_id), static_cast<std::uint64_t>(e.id)}))
-        continue;
-      wanted.insert({static_cast<std::uint64_t>(b.participant_id), static_cast<std::uint64_t>(e.id)});
-      candidates.push_back({&b, &e, path == Path::shm && from_bridge ? Path::bridge : path});
+    if ((p.flags & lcmx_msgs::beacon_t::FLAG_DDS_GATEWAY) && !sub.options().from_dds_gateways) continue;
+    const auto& e = p.e;
+    if (!compatible(e.fingerprint, sub.type().fingerprint)) {
+      const std::string text = "type mismatch on channel '" + sub.channel() + "': publisher (process " +
+                               p.process_name + " pid " + std::to_string(p.pid) + ", node '" + e.node +
+                               "') has " + e.type_name + ", subscriber (node '" + st.node_name + "') wants " +
+                               sub.type().name + "; not matched";
+      std::lock_guard lock(st.mu);
+      report_mismatch_locked(sub.id, static_cast<std::uint64_t>(p.participant), static_cast<std::uint64_t>(e.id),
+                             sub.channel(), text, st.errors, out);
+      continue;
     }
+    if (path == Path::shm && e.shm_segment.empty()) continue;  // bridges' segments too
+    // Its writer died (DeathWatch) but its beacon has not expired yet: gone.
+    if (path == Path::shm &&
+        dead_publishers_.count({static_cast<std::uint64_t>(p.participant), static_cast<std::uint64_t>(e.id)}))
+      continue;
+    wanted.insert({static_cast<std::uint64_t>(p.participant), static_cast<std::uint64_t>(e.id)});
+    const Path chosen = path == Path::shm && from_bridge ? Path::bridge : path;
+    candidates.push_back({std::move(p), chosen});
   }
   std::lock_guard lock(st.mu);
   const auto before = st.matches.size();
@@ -117,14 +130,13 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
     }
     return true;
   });
-  for (const auto& [b, e, path] : candidates) {
-    const auto key = std::make_pair(static_cast<std::uint64_t>(b->participant_id),
-                                    static_cast<std::uint64_t>(e->id));
+  for (const auto& [p, path] : candidates) {
+    const auto& e = p.e;
+    const auto key = std::make_pair(static_cast<std::uint64_t>(p.participant), static_cast<std::uint64_t>(e.id));
     const auto same = [&](const std::shared_ptr<Match>& m) {
       return m->publisher_participant == key.first && m->publisher_endpoint == key.second;
     };
-    if (std::any_of(st.matches.begin(), st.matches.end(),
-                    [&](const auto& m) { return !m->retiring && same(m); }))
+    if (std::any_of(st.matches.begin(), st.matches.end(), [&](const auto& m) { return !m->retiring && same(m); }))
       continue;
     // The publisher is back (e.g. it was stopped past its lease): its retiring match is still
     // registered in its segment and has every message since, so it carries on. A second
@@ -136,11 +148,10 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
       (*it)->retiring = false;
       std::erase_if(removed, [&](const auto& m) { return m == *it; });
       ++revived;
-      events.push_back({Event::Kind::publisher_matched, sub.channel(),
-                        "channel '" + sub.channel() + "': node '" + st.node_name +
-                            "' receives again from process " + b->process_name + " pid " +
-                            std::to_string(b->pid) + " node '" + e->node + "' (" +
-                            to_string((*it)->path) + ")"});
+      out.events.push_back({Event::Kind::publisher_matched, sub.channel(),
+                            "channel '" + sub.channel() + "': node '" + st.node_name +
+                                "' receives again from process " + p.process_name + " pid " +
+                                std::to_string(p.pid) + " node '" + e.node + "' (" + to_string((*it)->path) + ")"});
       continue;
     }
     auto m = std::make_shared<Match>();
@@ -156,42 +167,38 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
         // Keep last N: the publisher's kept messages are still in its ring (bounded: the
         // beacon is not trusted).
         const auto backlog = static_cast<std::uint32_t>(
-            std::clamp<std::int32_t>(e->history, 0, static_cast<std::int32_t>(PublisherOptions::kMaxHistory)));
-        m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e->shm_segment, backlog));
-        open_failures.erase(fkey);
-        watch_owner_locked(*b, *e);
+            std::clamp<std::int32_t>(e.history, 0, static_cast<std::int32_t>(PublisherOptions::kMaxHistory)));
+        m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e.shm_segment, backlog));
+        open_failures_.erase(fkey);
+        ctx_.deaths.watch(key.first, key.second, p.pid_namespace, e.shm_segment);
       } catch (const shm::Error& err) {
         // The publisher may be gone or be creating a new generation: retried on its next
         // beacon. Failing on several beacons in a row is no transient: an error Event, once.
-        spdlog::debug("lcmx: channel '{}': cannot open {} yet: {}", sub.channel(), e->shm_segment,
-                      err.what());
-        if (open_failures.size() >= 4096) open_failures.clear();  // bounded
+        spdlog::debug("lcmx: channel '{}': cannot open {} yet: {}", sub.channel(), e.shm_segment, err.what());
+        if (open_failures_.size() >= 4096) open_failures_.clear();  // bounded
         // A file refused as untrusted (foreign owner, writable by others) is no transient:
         // said at once.
-        const int failures = ++open_failures[fkey];
-        if (failures == kOpenFailuresReported ||
-            (failures == 1 && err.code() == shm::Errc::untrusted))
-          events.push_back({Event::Kind::error, sub.channel(),
-                            "channel '" + sub.channel() + "': node '" + st.node_name +
-                                "' cannot open the shared memory '" + e->shm_segment +
-                                "' of process " + b->process_name + " pid " +
-                                std::to_string(b->pid) + ": " + err.what() +
-                                "; not matched (retried on its next beacons)"});
+        const int failures = ++open_failures_[fkey];
+        if (failures == kOpenFailuresReported || (failures == 1 && err.code() == shm::Errc::untrusted))
+          out.events.push_back({Event::Kind::error, sub.channel(),
+                                "channel '" + sub.channel() + "': node '" + st.node_name +
+                                    "' cannot open the shared memory '" + e.shm_segment + "' of process " +
+                                    p.process_name + " pid " + std::to_string(p.pid) + ": " + err.what() +
+                                    "; not matched (retried on its next beacons)"});
         continue;
       }
     }
     st.matches.push_back(m);
-    events.push_back({Event::Kind::publisher_matched, sub.channel(),
-                      "channel '" + sub.channel() + "': node '" + st.node_name +
-                          "' receives from process " + b->process_name + " pid " +
-                          std::to_string(b->pid) + " node '" + e->node + "' (" +
-                          to_string(path) + ")"});
+    out.events.push_back({Event::Kind::publisher_matched, sub.channel(),
+                          "channel '" + sub.channel() + "': node '" + st.node_name + "' receives from process " +
+                              p.process_name + " pid " + std::to_string(p.pid) + " node '" + e.node + "' (" +
+                              to_string(path) + ")"});
   }
   for (auto& m : removed)
-    events.push_back({Event::Kind::publisher_unmatched, sub.channel(),
-                      "channel '" + sub.channel() + "': node '" + st.node_name +
-                          "' lost a shm publisher (participant " +
-                          std::to_string(m->publisher_participant) + ")"});
+    out.events.push_back({Event::Kind::publisher_unmatched, sub.channel(),
+                          "channel '" + sub.channel() + "': node '" + st.node_name +
+                              "' lost a shm publisher (participant " + std::to_string(m->publisher_participant) +
+                              ")"});
   if (st.matches.size() != before || !removed.empty() || revived > 0) {
     ++st.version;
     st.matched_cv.notify_all();
@@ -202,173 +209,154 @@ void RuntimeImpl::sync_remote_locked(SubscriberCore& sub, std::vector<Event>& ev
 }
 
 // Counts subscribers of other processes that report a match with `pub` (they opened its
-// segment), and reports remote subscribers of another type.
-void RuntimeImpl::count_remote_locked(PublisherImpl& pub, std::vector<Event>& events) {
+// segment, or receive it over UDP), and reports remote subscribers of another type.
+void Pairs::count_remote_locked(PublisherImpl& pub, Outcome& out) {
   std::size_t counts[3] = {0, 0, 0};  // shm (this host), udp (other hosts), neighbours
   std::size_t unbridged = 0;          // of counts[1]: no bridge republisher matched yet
   std::set<std::pair<std::int64_t, std::int64_t>> seen;  // subscribers given a replay, still here
-  for (const auto* scope_map : {&remotes, &vehicle_remotes, &neighbour_remotes})
-  for (const auto& [pid, b] : *scope_map) {
-    auto& n = counts[scope_map == &remotes ? 0 : scope_map == &vehicle_remotes ? 1 : 2];
-    for (const auto& e : b.endpoints) {
-      if (e.kind != lcmx_msgs::endpoint_t::KIND_SUBSCRIBER || e.topic != pub.channel()) continue;
-      if (!compatible(e.fingerprint, pub.type.fingerprint)) {
-        const std::string text = "type mismatch on channel '" + pub.channel() +
-                                 "': publisher (node '" + pub.node->name + "') has " +
-                                 pub.type.name + ", subscriber (process " + b.process_name +
-                                 " pid " + std::to_string(b.pid) + ", node '" + e.node +
-                                 "') wants " + e.type_name + "; not matched";
-        report_mismatch_locked(pub.id, static_cast<std::uint64_t>(b.participant_id),
-                               static_cast<std::uint64_t>(e.id), pub.channel(), text, pub.errors,
-                               events);
-        continue;
-      }
-      for (const auto& m : e.matches)
-        if (static_cast<std::uint64_t>(m.publisher_participant) == participant_id &&
-            static_cast<std::uint64_t>(m.publisher_endpoint) == pub.id) {
-          ++n;
-          if (scope_map == &vehicle_remotes &&
-              std::none_of(e.matches.begin(), e.matches.end(), [](const lcmx_msgs::match_t& o) { return o.path == "bridge"; }))
-            ++unbridged;
-          if (pub.options.history > 0 && scope_map != &remotes) {
-            const auto key = std::make_pair(b.participant_id, e.id);
-            seen.insert(key);
-            if (pub.replayed.insert(key).second)
-              replay_jobs.push_back({pub.id, b.participant_id, e.id, scope_map == &vehicle_remotes});
-          }
-        }
+  for (const auto& p : ctx_.peers.endpoints_on(pub.channel(), lcmx_msgs::endpoint_t::KIND_SUBSCRIBER)) {
+    const auto& e = p.e;
+    auto& n = counts[p.scope == Scope::host ? 0 : p.scope == Scope::vehicle ? 1 : 2];
+    if (!compatible(e.fingerprint, pub.type.fingerprint)) {
+      const std::string text = "type mismatch on channel '" + pub.channel() + "': publisher (node '" +
+                               pub.node->name + "') has " + pub.type.name + ", subscriber (process " +
+                               p.process_name + " pid " + std::to_string(p.pid) + ", node '" + e.node +
+                               "') wants " + e.type_name + "; not matched";
+      report_mismatch_locked(pub.id, static_cast<std::uint64_t>(p.participant), static_cast<std::uint64_t>(e.id),
+                             pub.channel(), text, pub.errors, out);
+      continue;
     }
+    for (const auto& m : e.matches)
+      if (static_cast<std::uint64_t>(m.publisher_participant) == ctx_.participant_id &&
+          static_cast<std::uint64_t>(m.publisher_endpoint) == pub.id) {
+        ++n;
+        if (p.scope == Scope::vehicle &&
+            std::none_of(e.matches.begin(), e.matches.end(), [](const lcmx_msgs::match_t& o) { return o.path == "bridge"; }))
+          ++unbridged;
+        if (pub.options.history > 0 && p.scope != Scope::host) {
+          const auto key = std::make_pair(p.participant, e.id);
+          seen.insert(key);
+          if (!pub.replayed.count(key) &&
+              ctx_.replays.queue({pub.id, p.participant, e.id, p.scope == Scope::vehicle}))
+            pub.replayed.insert(key);
+        }
+        break;
+      }
   }
-  // Sent after this (send_replays): the subscriber counts are set first, so every message
+  // Sent after this (Replays::send): the subscriber counts are set first, so every message
   // published after the replay's snapshot is sent live.
   const bool was_bridged_only = pub.bridged_only();
   pub.set_remote_subscribers(counts[0], counts[1], counts[2], unbridged);
   // Leaving the vehicle beacon (bridged_only) is announced at once.
-  if (pub.bridged_only() != was_bridged_only) {
-    ++revision;
-    announce_pending = true;
-  }
+  if (pub.bridged_only() != was_bridged_only) out.announce = true;
   std::erase_if(pub.replayed, [&](const auto& k) { return !seen.count(k); });
 }
 
 // The bridges of this host (DESIGN.md "Message Bridge"): while one runs, large topics reach
 // other hosts only through it, and the topics it carries besides the large class become large
 // here (sticky, announced).
-void RuntimeImpl::update_bridges_locked() {
-  bool seen = false;
-  std::vector<std::string> globs = options.bridge_carry;
-  for (const auto& [pid, b] : remotes) {
-    if (!(b.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE)) continue;
-    seen = true;
-    for (const auto& g : b.carried)
-      if (!g.empty() && std::find(globs.begin(), globs.end(), g) == globs.end()) globs.push_back(g);
-  }
-  if (seen != bridge_seen.exchange(seen))
-    spdlog::info("lcmx: {} Message Bridge on this host", seen ? "a" : "no");
-  {
-    std::lock_guard lock(carried_mu);
-    carried = std::move(globs);
-  }
-  for (auto& [id, pub] : pubs)
-    if (!pub->large() && class_of(pub->channel()) == TopicClass::large) {
+void Pairs::update_bridges_locked(Outcome& out) {
+  auto bridges = ctx_.peers.host_bridges();
+  std::vector<std::string> globs = ctx_.options.bridge_carry;
+  for (auto& g : bridges.carried)
+    if (std::find(globs.begin(), globs.end(), g) == globs.end()) globs.push_back(std::move(g));
+  if (ctx_.policy.set_bridges(bridges.seen, std::move(globs)))
+    spdlog::info("lcmx: {} Message Bridge on this host", bridges.seen ? "a" : "no");
+  for (auto& [id, pub] : pubs_)
+    if (!pub->large() && ctx_.policy.class_of(pub->channel()) == TopicClass::large) {
       pub->mark_large();
-      ++revision;
-      announce_pending = true;
+      out.announce = true;
     }
 }
 
-// A publisher in another pid namespace (no pidfd for it): watch its writer (OwnerWatch) so
-// that its death is noticed in milliseconds, not after its lease. One watch per publisher.
-void RuntimeImpl::watch_owner_locked(const lcmx_msgs::beacon_t& b, const lcmx_msgs::endpoint_t& e) {
-  if (!owner_watch || b.pid_namespace == 0 ||
-      static_cast<std::uint64_t>(b.pid_namespace) == own_pid_namespace)
-    return;  // same pid namespace: discovery's pidfd says it at once
-  const std::pair<std::uint64_t, std::uint64_t> pub{static_cast<std::uint64_t>(b.participant_id),
-                                                    static_cast<std::uint64_t>(e.id)};
-  if (owner_watched.count(pub) || owner_watched.size() >= 4096) return;  // bounded
-  try {
-    const auto key = owner_watch->watch(e.shm_segment);
-    owner_keys[key] = {pub.first, pub.second, e.shm_segment};
-    owner_watched.insert(pub);
-  } catch (const shm::Error& err) {
-    spdlog::debug("lcmx: cannot watch the writer of {}: {} (its lease applies)", e.shm_segment,
-                  err.what());
+// A peer joined, changed shape, or left: only the topics it touched are matched again.
+Pairs::Outcome Pairs::on_peer(const PeerTable::Delta& d, const lcmx_msgs::beacon_t& b,
+                              const std::function<bool(std::uint32_t)>& is_local_address) {
+  Outcome out;
+  const bool left = d.change == discovery::Change::left;
+  const std::string where = d.scope == Scope::vehicle ? " on host " + std::to_string(b.host_id) : "";
+  if (left)
+    out.events.push_back({Event::Kind::participant_left, "",
+                          "participant " + b.process_name + " pid " + std::to_string(b.pid) + where + " left"});
+  else if (d.change == discovery::Change::joined)
+    out.events.push_back({Event::Kind::participant_joined, "",
+                          "participant " + b.process_name + " pid " + std::to_string(b.pid) + where + " joined"});
+  std::lock_guard lock(mu_);
+  if (!d.structural) {
+    // Nothing it announces changed, but a segment of it we could not open is tried again on
+    // each of its beacons (the error Event comes after kOpenFailuresReported in a row).
+    std::set<std::uint64_t> retry;
+    for (const auto& [key, failures] : open_failures_)
+      if (std::get<1>(key) == static_cast<std::uint64_t>(b.participant_id)) retry.insert(std::get<0>(key));
+    for (const auto id : retry)
+      if (auto it = subs_.find(id); it != subs_.end()) sync_remote_locked(*it->second, out);
+    return out;
   }
+  if (left && d.scope == Scope::host) {
+    ctx_.deaths.forget(static_cast<std::uint64_t>(b.participant_id));
+    std::erase_if(dead_publishers_, [&](const auto& p) { return p.first == static_cast<std::uint64_t>(b.participant_id); });
+  }
+  const auto v0 = match_versions_locked();
+  if (!left) {
+    // Its messages may have arrived before its beacon and been taken for a stock LCM sender's:
+    // now that we know who it is, that foreign match goes (its real one, if its type matches,
+    // comes from the beacon). Its sources: its sockets, and (host-local group) its port from
+    // any address of this host (the mirror).
+    const auto local = parse_source(b.local_source);
+    const auto vehicle = parse_source(b.vehicle_source);
+    auto is_its = [&](const udpm::Source& s) {
+      if ((local && s == *local) || (vehicle && s == *vehicle)) return true;
+      return d.scope != Scope::vehicle && local && s.port_be == local->port_be && is_local_address(s.address_be);
+    };
+    for (auto& [id, sub] : subs_) {
+      auto& st = *sub->state;
+      std::lock_guard l2(st.mu);
+      if (std::erase_if(st.matches, [&](const auto& m) { return m->foreign && is_its(m->foreign_source); })) {
+        ++st.version;
+        st.matched_cv.notify_all();
+        out.announce = true;
+      }
+    }
+    if (!channel_subs_.empty())
+      for (const auto& e : b.endpoints)
+        if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) expand_locked(e.topic, out);
+  }
+  if (d.scope == Scope::host && d.bridge) update_bridges_locked(out);
+  for (const auto& topic : d.publisher_topics)
+    for (auto& sub : subscribers_of_locked(topic)) sync_remote_locked(*sub, out);
+  if (d.scope == Scope::host && d.bridge) {
+    // A bridge came or went: every large publisher may now (or no longer) reach other hosts
+    // only through it (bridged_only), whatever its topic.
+    for (auto& [id, pub] : pubs_) count_remote_locked(*pub, out);
+  } else {
+    for (const auto& topic : d.subscriber_topics)
+      for (auto* pub : publishers_of_locked(topic)) count_remote_locked(*pub, out);
+  }
+  if (match_versions_locked() != v0) out.announce = true;
+  return out;
 }
 
-void RuntimeImpl::forget_owner_locked(std::uint64_t participant) {
-  for (auto it = owner_keys.begin(); it != owner_keys.end();) {
-    if (it->second.participant != participant) {
-      ++it;
+Pairs::Outcome Pairs::writers_died(const std::vector<DeathWatch::Dead>& dead) {
+  Outcome out;
+  std::lock_guard lock(mu_);
+  std::set<std::string> channels;
+  for (const auto& d : dead) {
+    auto now = ctx_.peers.host_endpoint(d.participant, d.endpoint);
+    if (d.grew) {  // grew (or closed an old generation): watch the current one
+      if (now && !now->e.shm_segment.empty())
+        ctx_.deaths.watch(d.participant, d.endpoint, now->pid_namespace, now->e.shm_segment);
       continue;
     }
-    if (owner_watch) owner_watch->unwatch(it->first);
-    owner_watched.erase({it->second.participant, it->second.endpoint});
-    it = owner_keys.erase(it);
+    dead_publishers_.insert({d.participant, d.endpoint});
+    if (now) channels.insert(now->e.topic);
+    else
+      for (auto& [id, sub] : subs_) channels.insert(sub->channel());  // gone from the table: look everywhere
   }
-  std::erase_if(dead_publishers, [&](const auto& p) { return p.first == participant; });
-}
-
-namespace {
-// Whether the writer of `segment` ("<base>_g<N>") or of one of its next generations runs: a
-// writer that grew closes older generations without dying.
-bool writer_runs(const std::string& segment) {
-  const auto g = segment.rfind("_g");
-  if (g == std::string::npos) return shm::owner_alive(segment);
-  const std::string base = segment.substr(0, g + 2);
-  const long n = std::strtol(segment.c_str() + g + 2, nullptr, 10);
-  for (long k = n; k < n + 8; ++k)
-    if (shm::owner_alive(base + std::to_string(k))) return true;
-  return false;
-}
-}  // namespace
-
-// Receive thread: OwnerWatch says writers died (or closed). A writer that only moved to a
-// newer generation is watched there instead; the others' publishers are gone at once, as on a
-// goodbye: their matches retire (the executor still reads what they committed).
-void RuntimeImpl::on_owner_death() {
-  std::vector<Event> events;
-  bool any = false;
-  {
-    std::lock_guard lock(mu);
-    if (!owner_watch) return;
-    std::vector<std::uint64_t> keys;
-    try {
-      keys = owner_watch->take_dead();
-    } catch (const std::exception& e) {
-      spdlog::warn("lcmx: OwnerWatch: {}", e.what());
-      return;
-    }
-    for (const auto key : keys) {
-      auto it = owner_keys.find(key);
-      if (it == owner_keys.end()) continue;
-      const auto w = it->second;
-      owner_keys.erase(it);
-      owner_watched.erase({w.participant, w.endpoint});
-      if (writer_runs(w.segment)) {  // grew (or closed an old generation): watch the current one
-        if (auto b = remotes.find(static_cast<std::int64_t>(w.participant)); b != remotes.end())
-          for (const auto& e : b->second.endpoints)
-            if (static_cast<std::uint64_t>(e.id) == w.endpoint && !e.shm_segment.empty())
-              watch_owner_locked(b->second, e);
-        continue;
-      }
-      dead_publishers.insert({w.participant, w.endpoint});
-      any = true;
-      spdlog::info("lcmx: the writer of {} died: its publisher is gone", w.segment);
-    }
-    if (any) {
-      for (auto& [id, sub] : subs) sync_remote_locked(*sub, events);
-      ++revision;
-      announce_pending = true;
-    }
-  }
-  if (!any) return;
-  if (announce_pending.exchange(false)) {
-    if (disco) disco->announce_now();
-    if (disco_vehicle) disco_vehicle->announce_now();
-  }
-  if (options.reclaim_orphans) shm::reclaim_orphans(own_shm_prefix);
-  emit(std::move(events));
+  if (channels.empty()) return out;
+  for (const auto& c : channels)
+    for (auto& sub : subscribers_of_locked(c)) sync_remote_locked(*sub, out);
+  out.announce = true;
+  return out;
 }
 
 }  // namespace lcmx::detail

@@ -1,8 +1,6 @@
-// RuntimeImpl: lifetime (create, transports, shutdown), the registry of endpoints and nodes,
-// announcements and events; and the public Runtime. Path selection is in matching.cpp, UDP
-// receive in udp_receive.cpp, discovery glue (participants, beacons) in participants.cpp,
-// RuntimeOptions::from_env in runtime_options.cpp.
-#include <fnmatch.h>
+// RuntimeImpl: lifetime (create, transports, shutdown) and the wiring of its components
+// (runtime_impl.hpp); the public Runtime. Discovery glue (participants, beacons) is in
+// participants.cpp, RuntimeOptions::from_env in runtime_options.cpp.
 #include <spdlog/cfg/env.h>
 #include <spdlog/spdlog.h>
 #include <sys/epoll.h>
@@ -29,19 +27,14 @@ std::string hex(std::uint64_t v) {
 
 RuntimeImpl::RuntimeImpl(RuntimeOptions o)
     : options(std::move(o)), participant_id(discovery::random_participant_id()),
-      host(discovery::host_id()), own_pid_namespace(discovery::pid_namespace()) {
+      host(discovery::host_id()), own_pid_namespace(discovery::pid_namespace()),
+      policy(options), deaths(own_pid_namespace), replays(options.lease),
+      pairs(Pairs::Context{options, participant_id, peers, policy, deaths, replays}) {
   // Segment names: "lcmx_<host id hex>_<pid>n<pid-namespace inode hex>_<endpoint>_g<N>".
   // shm::process_tag() ("<pid>n<pidns>") keeps processes of several pid namespaces sharing
   // /dev/shm (containers) apart: equal pids, never equal names.
   own_shm_prefix = std::string(shm::kPrefix) + hex(host) + "_";
   shm_base_prefix = own_shm_prefix + shm::process_tag() + "_";
-  for (const auto& glob : options.bridge_carry)
-    if (glob.empty() || glob.size() > 255)
-      throw Error(Errc::invalid_argument, "bridge_carry: a topic pattern must have 1..255 characters");
-  carried = options.bridge_carry;
-  for (const auto& glob : options.mirror_channels)
-    if (glob.empty() || glob.size() > 255)
-      throw Error(Errc::invalid_argument, "mirror_channels: a channel pattern must have 1..255 characters");
   if (options.reclaim_orphans) {
     // Every lcmx segment whose writer is dead (shm's liveness is exact across pid namespaces).
     const auto r = shm::reclaim_orphans();
@@ -49,10 +42,7 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
   }
 }
 
-RuntimeImpl::~RuntimeImpl() {
-  shutdown();
-  if (rx_wake_fd >= 0) ::close(rx_wake_fd);
-}
+RuntimeImpl::~RuntimeImpl() { shutdown(); }
 
 // Stock LCM programs follow LCM_DEFAULT_URL; lcmx's host-local group is discovery_url
 // (LCMX_DISCOVERY_URL, or LCM's default). When the two name different groups, those programs
@@ -78,9 +68,9 @@ void RuntimeImpl::start_transports() {
   auto open_group = [](const std::string& what, const std::string& url) {
     try {
       auto cfg = udpm::parse_url(url);
-      // Our own looped-back packets would only be dropped in on_udp(); dropping them in the
-      // kernel spares a wake-up of the receive thread per message sent (it competed for a CPU
-      // with the subscribers' threads: ~15 µs per small message on 2 vCPUs).
+      // Our own looped-back packets would only be dropped by the front door; dropping them in
+      // the kernel spares a wake-up of the receive thread per message sent (it competed for a
+      // CPU with the subscribers' threads: ~15 µs per small message on 2 vCPUs).
       cfg.receive_own = false;
       return std::make_shared<udpm::Group>(udpm::Group::open(cfg));
     } catch (const udpm::Error& e) {
@@ -93,8 +83,6 @@ void RuntimeImpl::start_transports() {
   };
   local_group = open_group("discovery_url", options.discovery_url);
   warn_lcm_default_url();
-  host_addresses = local_addresses();
-  routes_checked = std::chrono::steady_clock::now();
   if (!options.vehicle_url.empty()) {  // naming an interface (RuntimeOptions::check)
     vehicle_group = open_group("vehicle_url", options.vehicle_url);
     // Our sockets hear only the groups they joined (IP_MULTICAST_ALL = 0), but liblcm's do not
@@ -107,30 +95,19 @@ void RuntimeImpl::start_transports() {
                    "(e.g. 7668)",
                    options.vehicle_url, local_group->config().port);
   }
-  rx_wake_fd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-  if (rx_wake_fd < 0) throw Error(Errc::transport, "eventfd failed");
-  rx_epoll = ::epoll_create1(EPOLL_CLOEXEC);
-  if (rx_epoll < 0) throw Error(Errc::transport, "epoll_create1 failed");
-  epoll_event ev{};
-  ev.events = EPOLLIN;
-  ev.data.fd = rx_wake_fd;
-  if (::epoll_ctl(rx_epoll, EPOLL_CTL_ADD, rx_wake_fd, &ev) != 0)
-    throw Error(Errc::transport, "epoll_ctl failed");
-  add_udp_waiter(-1);  // the receive thread's own registration
-  try {
-    owner_watch = std::make_unique<shm::OwnerWatch>();
-    epoll_event oev{};
-    oev.events = EPOLLIN;
-    oev.data.fd = owner_watch->fd();
-    if (::epoll_ctl(rx_epoll, EPOLL_CTL_ADD, owner_watch->fd(), &oev) != 0)
-      throw shm::Error(shm::Errc::system, "epoll_ctl failed");
-  } catch (const shm::Error& e) {
-    owner_watch.reset();
-    spdlog::warn("lcmx: no fast death notice for publishers in other pid namespaces (their "
-                 "lease applies): {}", e.what());
-  }
 
   std::weak_ptr<RuntimeImpl> weak = weak_from_this();
+  front_door = std::make_unique<FrontDoor>(FrontDoor::Context{
+      local_group, vehicle_group, peers, pairs,
+      [this](bool vehicle, const udpm::Message& m) {
+        auto& d = vehicle ? disco_vehicle_ : disco_;
+        if (d) d->deliver(m);
+      },
+      [this](Pairs::Outcome o) { settle(std::move(o)); },
+      [this] { every_second(); },
+      deaths.fd(),
+      [this] { on_death_fd(); }});
+
   auto make = [&](std::int8_t scope, std::shared_ptr<udpm::Group> group) {
     discovery::Options d;
     d.shared_group = std::move(group);
@@ -141,9 +118,8 @@ void RuntimeImpl::start_transports() {
     // have been stopped and resumed: its receive thread has not read them yet).
     d.drain_before_expiry = [weak] {
       auto self = weak.lock();
-      if (!self || self->stopped.load()) return;
-      std::lock_guard lock(self->recv_mu);
-      self->drain_locked(true);
+      if (!self || self->stopped_.load() || !self->front_door) return;
+      self->front_door->drain(true);
     };
     return std::make_unique<discovery::Discovery>(
         d,
@@ -155,203 +131,48 @@ void RuntimeImpl::start_transports() {
           if (auto self = weak.lock()) self->on_participant(scope, c, p);
         });
   };
-  disco = make(lcmx_msgs::beacon_t::SCOPE_HOST, local_group);
-  if (vehicle_group) disco_vehicle = make(lcmx_msgs::beacon_t::SCOPE_VEHICLE, vehicle_group);
-  rx_thread = std::thread([this] { receive_loop(); });
-}
-
-bool RuntimeImpl::mirrored(const std::string& channel) const {
-  if (options.mirror) return true;
-  for (const auto& glob : options.mirror_channels)
-    if (::fnmatch(glob.c_str(), channel.c_str(), 0) == 0) return true;
-  return false;
-}
-
-TopicClass RuntimeImpl::class_of(const std::string& channel) const {
-  if (auto it = options.topic_class.find(channel); it != options.topic_class.end()) return it->second;
-  std::lock_guard lock(carried_mu);
-  for (const auto& glob : carried)
-    if (::fnmatch(glob.c_str(), channel.c_str(), 0) == 0) return TopicClass::large;
-  return TopicClass::automatic;
+  disco_ = make(lcmx_msgs::beacon_t::SCOPE_HOST, local_group);
+  if (vehicle_group) disco_vehicle_ = make(lcmx_msgs::beacon_t::SCOPE_VEHICLE, vehicle_group);
+  front_door->start();
 }
 
 void RuntimeImpl::shutdown() {
-  if (stopped.exchange(true)) return;
-  if (rx_thread.joinable()) {
-    const std::uint64_t one = 1;
-    [[maybe_unused]] auto n = ::write(rx_wake_fd, &one, sizeof one);
-    rx_thread.join();
-  }
-  {
-    std::lock_guard lock(rx_epoll_mu);
-    if (rx_epoll >= 0) ::close(rx_epoll), rx_epoll = -1;
-  }
-  // rx_wake_fd stays open until the destructor: an executor may still drain until its node
-  // stops (the beacons it would forward are dropped once stopped).
-  if (disco_vehicle) disco_vehicle->stop();  // goodbyes
-  if (disco) disco->stop();
-  std::vector<std::shared_ptr<NodeImpl>> live;
-  {
-    std::lock_guard lock(mu);
-    for (auto& w : nodes)
-      if (auto n = w.lock()) live.push_back(std::move(n));
-  }
-  for (auto& n : live) n->stop();
+  if (stopped_.exchange(true)) return;
+  if (front_door) front_door->stop();
+  // Executors may still drain until their node stops (the beacons they would forward are
+  // dropped once stopped).
+  if (disco_vehicle_) disco_vehicle_->stop();  // goodbyes
+  if (disco_) disco_->stop();
+  for (auto& n : pairs.live_nodes()) n->stop();
   g_runtime_alive.store(false);
 }
 
 void RuntimeImpl::changed() {
-  ++revision;
-  if (disco) disco->announce_now();
-  if (disco_vehicle) disco_vehicle->announce_now();
+  ++revision_;
+  if (disco_) disco_->announce_now();
+  if (disco_vehicle_) disco_vehicle_->announce_now();
 }
 
-void RuntimeImpl::emit(std::vector<Event> events) {
-  if (events.empty()) return;
-  std::function<void(const Event&)> cb;
-  {
-    std::lock_guard lock(event_mu);
-    cb = on_event;
-  }
-  std::vector<std::shared_ptr<const std::function<void(const Event&)>>> taps;
-  {
-    std::lock_guard lock(event_mu);
-    for (const auto& [id, t] : event_taps) taps.push_back(t);
-  }
-  for (const auto& e : events) {
-    for (const auto& t : taps) (*t)(e);
-    if (e.kind == Event::Kind::type_mismatch || e.kind == Event::Kind::error)
-      spdlog::error("lcmx: {}", e.message);
-    else
-      spdlog::debug("lcmx: {}", e.message);
-    // The user's callback runs on lcmx's threads: what it throws must not end them.
-    try {
-      if (cb) cb(e);
-    } catch (const std::exception& x) {
-      spdlog::error("lcmx: the on_event callback threw: {}", x.what());
-    } catch (...) {
-      spdlog::error("lcmx: the on_event callback threw");
-    }
-  }
+void RuntimeImpl::settle(Pairs::Outcome outcome) {
+  if (outcome.announce) changed();
+  events.emit(std::move(outcome.events));
 }
 
-bool RuntimeImpl::endpoint_announced(std::uint64_t participant, std::uint64_t endpoint) {
-  std::lock_guard lock(mu);
-  const auto id = static_cast<std::int64_t>(participant);
-  for (const auto* table : {&remotes, &vehicle_remotes, &neighbour_remotes}) {
-    auto it = table->find(id);
-    if (it == table->end()) continue;
-    for (const auto& e : it->second.endpoints)
-      if (static_cast<std::uint64_t>(e.id) == endpoint) return true;
-  }
-  return false;
+// Once a second on the receive thread, no lock held: housekeeping jobs (services), stock LCM
+// senders silent for a minute forgotten.
+void RuntimeImpl::every_second() {
+  events.run_housekeeping();
+  settle(pairs.expire_foreign(std::chrono::seconds(60)));
 }
 
-std::uint64_t RuntimeImpl::add_event_tap(std::function<void(const Event&)> tap) {
-  std::lock_guard lock(event_mu);
-  const auto id = ++last_tap;
-  event_taps[id] = std::make_shared<const std::function<void(const Event&)>>(std::move(tap));
-  return id;
-}
-
-std::uint64_t RuntimeImpl::add_housekeeping(std::function<void()> job) {
-  std::lock_guard lock(event_mu);
-  const auto id = ++last_tap;
-  housekeeping[id] = std::make_shared<const std::function<void()>>(std::move(job));
-  return id;
-}
-
-void RuntimeImpl::remove_housekeeping(std::uint64_t id) {
-  std::lock_guard lock(event_mu);
-  housekeeping.erase(id);
-}
-
-void RuntimeImpl::run_housekeeping() {
-  std::vector<std::shared_ptr<const std::function<void()>>> jobs;
-  {
-    std::lock_guard lock(event_mu);
-    for (const auto& [id, j] : housekeeping) jobs.push_back(j);
-  }
-  for (const auto& j : jobs) {
-    try {
-      (*j)();
-    } catch (const std::exception& e) {
-      spdlog::warn("lcmx: housekeeping failed: {}", e.what());
-    }
-  }
-}
-
-void RuntimeImpl::remove_event_tap(std::uint64_t id) {
-  std::lock_guard lock(event_mu);
-  event_taps.erase(id);
-}
-
-void RuntimeImpl::add_node(const std::shared_ptr<NodeImpl>& node) {
-  {
-    std::lock_guard lock(mu);
-    std::erase_if(nodes, [](const auto& w) { return w.expired(); });
-    nodes.push_back(node);
-  }
-  changed();
-}
-
-void RuntimeImpl::add_publisher(PublisherImpl* pub) {
-  std::vector<Event> events;
-  {
-    std::lock_guard lock(mu);
-    expand_locked(pub->channel(), events);  // before: the loop below matches the new subscribers
-    pubs[pub->id] = pub;
-    for (auto& [id, sub] : subs) match_local_locked(*pub, *sub, events);
-    count_remote_locked(*pub, events);
-  }
-  changed();
-  emit(std::move(events));
-}
-
-void RuntimeImpl::remove_publisher(PublisherImpl* pub) {
-  std::vector<Event> events;
-  {
-    std::lock_guard lock(mu);
-    pubs.erase(pub->id);
-    rates.erase(pub->id * 2), rates.erase(pub->id * 2 + 1);
-    for (auto& [id, sub] : subs) {
-      auto& st = *sub->state;
-      std::lock_guard l2(st.mu);
-      const auto n = std::erase_if(st.matches, [&](const auto& m) {
-        return m->path == Path::intra && m->publisher_endpoint == pub->id;
-      });
-      if (n) {
-        ++st.version;
-        st.matched_cv.notify_all();
-        events.push_back({Event::Kind::publisher_unmatched, sub->channel(),
-                          fmt::format("'{}': in-process publisher {} is gone", sub->channel(), pub->id)});
-      }
-    }
-  }
-  changed();
-  emit(std::move(events));
-}
-
-void RuntimeImpl::add_subscriber(const std::shared_ptr<SubscriberCore>& sub) {
-  std::vector<Event> events;
-  {
-    std::lock_guard lock(mu);
-    subs[sub->id] = sub;
-    for (auto& [id, pub] : pubs) match_local_locked(*pub, *sub, events);
-    sync_remote_locked(*sub, events);
-  }
-  changed();
-  emit(std::move(events));
-}
-
-void RuntimeImpl::remove_subscriber(const SubscriberCore* sub) {
-  {
-    std::lock_guard lock(mu);
-    for (auto& [id, pub] : pubs) pub->remove_intra(sub);
-    subs.erase(sub->id);
-    rates.erase(sub->id * 2), rates.erase(sub->id * 2 + 1);
-  }
-  changed();
+// The receive thread: DeathWatch's fd is readable.
+void RuntimeImpl::on_death_fd() {
+  auto dead = deaths.take_dead();
+  if (dead.empty()) return;
+  auto out = pairs.writers_died(dead);
+  const bool any = out.announce;
+  settle(std::move(out));
+  if (any && options.reclaim_orphans) shm::reclaim_orphans(own_shm_prefix);
 }
 
 }  // namespace detail
@@ -389,8 +210,7 @@ Node Runtime::create_node(std::string name, NodeOptions options) {
 }
 
 void Runtime::on_event(std::function<void(const Event&)> callback) {
-  std::lock_guard lock(impl_->event_mu);
-  impl_->on_event = std::move(callback);
+  impl_->events.set_callback(std::move(callback));
 }
 
 std::uint64_t Runtime::participant_id() const { return impl_->participant_id; }

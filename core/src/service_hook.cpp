@@ -4,26 +4,7 @@
 
 #include "internal.hpp"
 
-namespace lcmx::detail {
-
-bool RuntimeImpl::subscriber_announced(std::uint64_t participant, const std::string& channel) {
-  std::lock_guard lock(mu);
-  if (participant == participant_id) {
-    for (const auto& [id, sub] : subs)
-      if (sub->channel() == channel) return true;
-    return false;
-  }
-  const auto id = static_cast<std::int64_t>(participant);
-  for (const auto* table : {&remotes, &vehicle_remotes, &neighbour_remotes}) {
-    auto it = table->find(id);
-    if (it == table->end()) continue;
-    for (const auto& e : it->second.endpoints)
-      if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER && e.topic == channel) return true;
-  }
-  return false;
-}
-
-namespace hook {
+namespace lcmx::detail::hook {
 
 std::uint64_t participant_id(const NodeImpl& node) noexcept { return node.runtime->participant_id; }
 const std::string& node_name(const NodeImpl& node) noexcept { return node.name; }
@@ -60,8 +41,10 @@ bool endpoint_announced(NodeImpl& node, std::uint64_t participant, std::uint64_t
   return node.runtime->endpoint_announced(participant, endpoint);
 }
 bool subscriber_announced(NodeImpl& node, std::uint64_t participant, const std::string& channel) {
-  return node.runtime->subscriber_announced(participant, channel);
+  if (participant == node.runtime->participant_id) return true;  // this process trusts itself
+  for (const auto& e : node.runtime->peers.endpoints_on(channel, lcmx_msgs::endpoint_t::KIND_SUBSCRIBER))
+    if (static_cast<std::uint64_t>(e.participant) == participant) return true;
+  return false;
 }
 
-}  // namespace hook
-}  // namespace lcmx::detail
+}  // namespace lcmx::detail::hook

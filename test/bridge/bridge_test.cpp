@@ -1075,10 +1075,13 @@ TEST_CASE("lcmx hz, bw, monitor --once and graph on host B see a large topic of 
   while (!(report && bw_report) && Clock::now() < deadline) {
     pub.send(pub_cmd(1, 0));
     published_total(pub);
+    // With -n 1 each tool prints its first report with data (a window of 2 messages or more)
+    // and exits: that one, whatever its window (it was "window 5" only, and failed when the
+    // first report came with fewer).
     while (auto line = hz.read_line(10ms))
-      if (!line->empty() && (*line)[0] == '{' && line->find("\"window\":5") != std::string::npos) report = line;
+      if (!line->empty() && (*line)[0] == '{') report = line;
     while (auto line = bw.read_line(10ms))
-      if (!line->empty() && (*line)[0] == '{' && line->find("\"window\":5") != std::string::npos) bw_report = line;
+      if (!line->empty() && (*line)[0] == '{') bw_report = line;
   }
   INFO(hz.text() << bw.text());
   REQUIRE(report);
@@ -1431,4 +1434,253 @@ TEST_CASE("a burst faster than the link: messages sent from the shm callback and
   REQUIRE(q != std::string::npos);
   CHECK(std::stoll(log.substr(cb + 20)) >= kAfter);
   CHECK(std::stoll(log.substr(q + 16)) > 0);
+}
+
+// ---- Attacks (issue 34 "The host is the boundary"): a machine on the LAN that is not part of
+// the robot (host 2, in no bridge's config), or a configured peer speaking in another peer's
+// name. Without CURVE (the default) a bridge admits a connection only from a configured peer's
+// address (its ZAP handler, docs/bridge.md "Trust"), and a message only in the name of the
+// peer that address belongs to; what a peer may ask of the receiving host is capped by that
+// host's own config.
+namespace {
+
+constexpr int kMallory = 2;  // the LAN machine: an address on the link, in nobody's config
+
+Child& attacker(World& w, int host, std::vector<std::string> args) {
+  args.insert(args.begin(), LCMX_BRIDGE_ATTACKER);
+  Child& c = w.spawn(host, args);
+  REQUIRE(c.expect("READY", 10000ms));
+  return c;
+}
+
+std::string refused_from(World& w, int host) { return "refused a connection from " + w.emu().address(host, "eth"); }
+
+// Topics named `prefix`... that `host`'s participants announce (`lcmx topics --json` there).
+int topics_named(World& w, int host, const std::string& prefix) {
+  auto& t = w.spawn(host, {LCMX_TOOL, "topics", "--json", "--wait", "600"}, true);
+  REQUIRE(t.wait(15000ms) == 0);
+  const std::string text = t.text(), needle = "{\"topic\":\"" + prefix;
+  int n = 0;
+  for (auto p = text.find(needle); p != std::string::npos; p = text.find(needle, p + 1)) ++n;
+  return n;
+}
+
+// Waits until the subscriber shows a message of source `id` (the attack got through: true) or
+// `bridge` logs `refused` (false), whichever comes first; fails the test when neither does.
+bool injected_or_refused(Child& sub, const std::string& ch, const std::string& id, Child& bridge,
+                         const std::string& refused) {
+  const auto deadline = Clock::now() + 10000ms;
+  for (;;) {
+    if (sources_of(status_of(sub, ch)).count(id)) return true;
+    if (log_has(bridge, refused, 0ms)) return false;
+    if (Clock::now() >= deadline) FAIL("neither injected nor refused:\n" << bridge.output());
+    std::this_thread::sleep_for(20ms);  // polling a condition with a deadline
+  }
+}
+
+}  // namespace
+
+TEST_CASE("attack: a LAN machine's pings in a peer's name neither clear its demand nor stop its traffic",
+          "[bridge][multihost][attack]") {
+  LCMX_REQUIRE_NETNS();
+  World w(3, 60, {{.name = "eth"}});
+  const auto ch = w.channel("ATK_PING");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 70000, "A");
+  const long long warm = warm_up(pub, {&sub}, ch);
+  auto [st0, drained] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm - 1; }, 5000ms);
+  REQUIRE(drained);
+  // Mallory tells A, in B's name, that B wants nothing (a new instance, an empty demand), 100
+  // times in 2 s, while A publishes 100 messages B's subscriber wants.
+  auto& atk = attacker(w, kMallory, {"ping", "--to", w.emu().address(0, "eth"), "--port", "7700", "--as", "chipB",
+                                     "--count", "100", "--interval-ms", "20"});
+  constexpr long kN = 100;
+  pub.send(pub_cmd(kN, 50));
+  REQUIRE(published_total(pub) == warm + kN);
+  REQUIRE(atk.expect("DONE", 15000ms));
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= st0.num("received") + kN; },
+                           10000ms);
+  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output()
+                       << "\nattacker:\n" << atk.output());
+  CHECK(ok);
+  check_clean(st);
+  CHECK(atk.seen("PONGS 0"));                     // A never answered it
+  CHECK(log_has(ba, refused_from(w, kMallory), 0ms));
+  CHECK_FALSE(log_has(ba, "peer chipB restarted", 0ms));
+  pub.send("quit");
+}
+
+TEST_CASE("attack: a LAN machine's DEALER with a peer's routing id injects nothing into the host's shared memory",
+          "[bridge][multihost][attack]") {
+  LCMX_REQUIRE_NETNS();
+  World w(3, 61, {{.name = "eth"}});
+  const auto ch = w.channel("ATK_DATA");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 70000, "A");
+  warm_up(pub, {&sub}, ch);
+  // Mallory sends B 20 messages on the topic B's subscriber reads, with A's routing id.
+  auto& atk = attacker(w, kMallory, {"data", "--to", w.emu().address(1, "eth"), "--port", "7701", "--as", "chipA",
+                                     "--topic", ch, "--count", "20", "--interval-ms", "10", "--id", "EVIL"});
+  REQUIRE(atk.expect("DONE", 15000ms));
+  INFO("subscriber:\n" << sub.output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  CHECK_FALSE(injected_or_refused(sub, ch, "EVIL", bb, refused_from(w, kMallory)));
+  // A's own traffic still arrives, once and in order.
+  const long long r0 = status_of(sub, ch).num("received");
+  pub.send(pub_cmd(20, 100));
+  published_total(pub);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("received") >= r0 + 20; }, 10000ms);
+  CHECK(ok);
+  check_clean(st);
+  CHECK(sources_of(st).count("EVIL") == 0);
+  pub.send("quit");
+}
+
+TEST_CASE("attack: a LAN machine's data with keep 1000 sizes no ring on the host: a late subscriber there gets nothing of it",
+          "[bridge][multihost][attack][history]") {
+  LCMX_REQUIRE_NETNS();
+  World w(3, 62, {{.name = "eth"}});
+  const auto ch = w.channel("ATK_KEEP");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 70000, "A");
+  warm_up(pub, {&sub}, ch);
+  // In A's name, with keep 1000: B's republisher would keep 1000 messages of 70 KB (6 GB for a
+  // 6 MB topic) and hand them to every late subscriber.
+  auto& atk = attacker(w, kMallory, {"data", "--to", w.emu().address(1, "eth"), "--port", "7701", "--as", "chipA",
+                                     "--topic", ch, "--count", "20", "--interval-ms", "10", "--keep", "1000",
+                                     "--id", "EVIL"});
+  REQUIRE(atk.expect("DONE", 15000ms));
+  INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  CHECK_FALSE(injected_or_refused(sub, ch, "EVIL", bb, refused_from(w, kMallory)));
+  // A late subscriber on B: what B's republisher kept (A keeps nothing: nothing), then A's live
+  // messages.
+  auto& late = w.sub(1, {ch});
+  warm_up(pub, {&late}, ch);
+  const auto st = status_of(late, ch);
+  INFO("late subscriber:\n" << late.output());
+  CHECK(sources_of(st).count("EVIL") == 0);
+  check_clean(st);
+  pub.send("quit");
+}
+
+TEST_CASE("attack: a LAN machine's flood of catalogues in a peer's name creates no republisher on the host",
+          "[bridge][multihost][attack]") {
+  LCMX_REQUIRE_NETNS();
+  World w(3, 63, {{.name = "eth"}});
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  // A pattern subscriber on B: B's bridge announces its peers' catalogues there.
+  auto& echo = w.spawn(1, {LCMX_TOOL, "echo", "ATKH_*", "--json"});
+  (void)echo;
+  auto& atk = attacker(w, kMallory, {"ping", "--to", w.emu().address(1, "eth"), "--port", "7700", "--as", "chipA",
+                                     "--count", "100", "--interval-ms", "20", "--have", "1024", "--prefix", "ATKH_"});
+  REQUIRE(atk.expect("DONE", 15000ms));
+  INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output() << "\nattacker:\n" << atk.output());
+  const auto deadline = Clock::now() + 10000ms;
+  int announced = 0;
+  bool refused = false;
+  while (Clock::now() < deadline && announced == 0 && !refused) {
+    announced = topics_named(w, 1, "ATKH_");
+    refused = log_has(bb, refused_from(w, kMallory), 0ms);
+  }
+  if (refused) announced = topics_named(w, 1, "ATKH_");  // after the refusal, still none
+  CHECK(announced == 0);
+  CHECK(refused);
+  CHECK(atk.seen("PONGS 0"));
+}
+
+TEST_CASE("a peer's keep last N is capped by the receiving host's channel max_keep (default 16)",
+          "[bridge][multihost][attack][history]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 64, {{.name = "eth"}});
+  const auto ch = w.channel("CAP_KEEP");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  // A's publisher keeps its last 1000 (A's choice, A's memory); B keeps at most 16 of them.
+  auto& pub = w.spawn(0, {LCMX_BRIDGE_PUB, "--channel", ch, "--size", "70000", "--id", "A", "--history", "1000"});
+  REQUIRE(pub.expect("READY", 10000ms));
+  warm_up(pub, {&sub}, ch);
+  pub.send(pub_cmd(40, 100));
+  const long long total = published_total(pub);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == total - 1; }, 10000ms);
+  REQUIRE(ok);
+  // A late subscriber on B gets what B's republisher kept: 16, not 40.
+  auto& late = w.sub(1, {ch});
+  auto [kept, got] = wait_sub(late, ch, [](const Summary& x) { return x.num("received") > 0; }, 10000ms);
+  REQUIRE(got);
+  pub.send(pub_cmd(1, 0));
+  REQUIRE(published_total(pub) == total + 1);
+  auto [fin, live] = wait_sub(late, ch, [&](const Summary& x) { return x.num("last") == total; }, 10000ms);
+  INFO("late subscriber:\n" << late.output() << "\nbridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  REQUIRE(live);
+  check_clean(fin);
+  CHECK(fin.num("received") == 16 + 1);
+  CHECK(fin.num("min") == total - 16);
+  pub.send("quit");
+}
+
+TEST_CASE("a peer's catalogue is capped by the receiving host's max_catalogue (default 256)",
+          "[bridge][multihost][attack]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 65, {{.name = "eth"}});
+  auto& ba = w.bridge(0, {1});
+  // chipB is a configured peer of A, but a fake one: it answers A's pings and sends a catalogue
+  // of 1024 topics.
+  auto& fake = attacker(w, 1, {"peer", "--name", "chipB", "--listen", w.emu().address(1, "eth"), "--to",
+                               w.emu().address(0, "eth"), "--have", "1024", "--prefix", "ATKC_", "--seconds", "40"});
+  auto& echo = w.spawn(0, {LCMX_TOOL, "echo", "ATKC_*", "--json"});
+  (void)echo;
+  REQUIRE_LOG(ba, "link eth to chipB", 10000ms);
+  const auto deadline = Clock::now() + 15000ms;
+  int announced = 0;
+  while (Clock::now() < deadline && announced < 256) announced = topics_named(w, 0, "ATKC_");
+  INFO("bridge A:\n" << ba.output());
+  CHECK(announced == 256);
+  CHECK(topics_named(w, 0, "ATKC_") == 256);  // and no more later
+  fake.send("quit");
+}
+
+TEST_CASE("a configured peer cannot speak in another peer's name, on control or on data",
+          "[bridge][multihost][attack]") {
+  LCMX_REQUIRE_NETNS();
+  World w(3, 66, {{.name = "eth"}});
+  const auto ch = w.channel("ATK_NAME");
+  // C (host 2) is a peer of both and runs no bridge: only the attacker, from C's own address.
+  auto& ba = w.bridge(0, {1, 2});
+  auto& bb = w.bridge(1, {0, 2});
+  auto& sub = w.sub(1, {ch});
+  auto& pub = w.pub(0, ch, 70000, "A");
+  warm_up(pub, {&sub}, ch);
+  INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output());
+  // Data into B's shared memory in A's name.
+  auto& data = attacker(w, 2, {"data", "--to", w.emu().address(1, "eth"), "--port", "7701", "--as", "chipA",
+                               "--topic", ch, "--count", "20", "--interval-ms", "10", "--id", "EVIL"});
+  REQUIRE(data.expect("DONE", 15000ms));
+  CHECK_FALSE(injected_or_refused(sub, ch, "EVIL", bb, "claiming to be chipA"));
+  // Pings to A in B's name: B's demand at A stays (no "restarted", no answer to C).
+  auto& ping = attacker(w, 2, {"ping", "--to", w.emu().address(0, "eth"), "--port", "7700", "--as", "chipB",
+                               "--count", "50", "--interval-ms", "20"});
+  REQUIRE(ping.expect("DONE", 15000ms));
+  CHECK(ping.seen("PONGS 0"));
+  CHECK(log_has(ba, "claiming to be chipB", 5000ms));
+  CHECK_FALSE(log_has(ba, "peer chipB restarted", 0ms));
+  // (Connecting with another peer's routing id may take over that peer's connection
+  // (ZMQ_ROUTER_HANDOVER) until it reconnects: docs/bridge.md "Trust". Traffic resumes.)
+  // (A message in flight when a connection is taken over is lost: what is asserted is that
+  // A's traffic reaches B again, once and in order, and that nothing of C's ever does.)
+  const long long warm = warm_up(pub, {&sub}, ch);
+  pub.send(pub_cmd(20, 100));
+  REQUIRE(published_total(pub) == warm + 20);
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm + 19; }, 10000ms);
+  INFO("subscriber:\n" << sub.output());
+  CHECK(ok);
+  check_clean(st);
+  CHECK(sources_of(st).count("EVIL") == 0);
+  pub.send("quit");
 }

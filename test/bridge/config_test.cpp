@@ -4,12 +4,14 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <string>
 
 #include "lcmx/bridge/config.hpp"
 #include "lcmx/bridge/detail/wire.hpp"
+#include "lcmx/test/skip.hpp"
 
 using namespace lcmx::bridge;
 namespace fs = std::filesystem;
@@ -64,6 +66,9 @@ TEST_CASE("the example config is valid and means what its comments say", "[bridg
   CHECK(c.channels[0].priority == 1);
   CHECK(c.channels[0].hwm == 100);
   CHECK(c.channels[1].hwm == 4);
+  CHECK(c.channels[0].max_keep == 16);
+  CHECK(c.channels[1].max_keep == 2);
+  CHECK(c.max_catalogue == 256);
   REQUIRE(c.peers.size() == 1);
   CHECK(c.peers[0].endpoints.size() == 2);
   CHECK(c.peers[0].endpoints[0].link == "pcie");
@@ -86,6 +91,8 @@ TEST_CASE("defaults: one channel on control_port+1 for every topic", "[bridge][c
   CHECK(c.channels[0].port == 7701);
   CHECK(c.channels[0].hwm == 16);
   CHECK(c.channels[0].drop == DropPolicy::oldest);
+  CHECK(c.channels[0].max_keep == 16);
+  CHECK(c.max_catalogue == 256);
   CHECK(c.channel_of("ANYTHING") == 0u);
   CHECK(c.carry.empty());
 }
@@ -217,10 +224,7 @@ TEST_CASE("a missing config file or a directory is a clear error", "[bridge][con
 }
 
 TEST_CASE("CURVE keys: keygen files, config with keys, wrong pairs and bad files", "[bridge][config][curve]") {
-  if (!curve_available()) {
-    WARN("skipped: libzmq without CURVE");
-    return;
-  }
+  if (!curve_available()) LCMX_SKIP("libzmq without CURVE");
   TempDir dir;
   const auto a = generate_key_pair(), b = generate_key_pair();
   CHECK(a.public_key.size() == 40);
@@ -309,8 +313,31 @@ TEST_CASE("control wire format: round trip, and hostile frames are rejected", "[
   CHECK_FALSE(wire::decode("LCMXB1 PING\nfrom a\ninstance 1\nlink l\nt 1\n"));       // short instance
   CHECK_FALSE(wire::decode("LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nwant X\n"));  // no demand
   CHECK_FALSE(wire::decode(std::string(wire::kMaxControlFrame + 1, 'x')));
-  // Truncations of a valid frame never crash (and never decode to something else's fields).
-  for (std::size_t n = 0; n < text.size(); ++n) (void)wire::decode(text.substr(0, n));
+  // Truncations of a valid frame never crash, and what still decodes (a cut at the end of a
+  // line, or inside a topic, which leaves a shorter valid one: ZeroMQ never delivers a cut
+  // frame, so this is only the parser's robustness) says nothing the frame did not: the same
+  // sender, instance, link and port, and every topic a prefix of one the frame named.
+  auto subset = [](const auto& part, const auto& whole) {
+    return std::all_of(part.begin(), part.end(), [&](const std::string& t) {
+      return std::any_of(whole.begin(), whole.end(), [&](const std::string& w) { return w.rfind(t, 0) == 0; });
+    });
+  };
+  std::size_t decoded = 0;
+  for (std::size_t n = 0; n < text.size(); ++n) {
+    const auto t = wire::decode(text.substr(0, n));
+    if (!t) continue;
+    ++decoded;
+    INFO("cut at " << n);
+    CHECK(t->from == "chipA");
+    CHECK(t->instance == c.instance);
+    CHECK(t->link == "pcie");
+    if (t->has_demand) CHECK(t->control_port == 7700);  // else a heartbeat without the state: 0
+    CHECK(subset(t->want, c.want));
+    CHECK(subset(t->offer, c.offer));
+    CHECK(subset(t->have, c.have));
+    CHECK(t->types.size() <= c.types.size());
+  }
+  CHECK(decoded > 0);  // the frame is cut after whole lines too, and those decode
 
   // A heartbeat without the full state ("active" only) is small: the idle link stays quiet.
   wire::Control light;
@@ -472,4 +499,134 @@ TEST_CASE("control wire format: keep lines (keep last N of offered topics) belon
   CHECK(d.instance == 7u);
   CHECK(d.seq == 8u);
   CHECK(d.keep == 9u);
+}
+
+TEST_CASE("what a peer may ask of this host is capped by its config: max_keep, max_catalogue", "[bridge][config]") {
+  const std::string b = kBase;
+  const auto c = parse_config(b + "max_catalogue = 10\n[[channel]]\nname = \"bulk\"\nport = 7702\nmax_keep = 2\n"
+                                  "[[channel]]\nname = \"ctl\"\nport = 7703\nmax_keep = 1000\n" + kPeer,
+                              "x.toml");
+  CHECK(c.max_catalogue == 10u);
+  CHECK(c.channels[0].max_keep == 2u);
+  CHECK(c.channels[1].max_keep == 1000u);
+  CHECK(parse_config(b + "max_catalogue = 0\n[[channel]]\nname = \"c\"\nport = 7702\nmax_keep = 0\n", "x.toml")
+            .channels[0]
+            .max_keep == 0u);
+  CHECK(error_of(b + "max_catalogue = 1025\n").find("max_catalogue: must be an integer from 0 to 1024") !=
+        std::string::npos);
+  CHECK(error_of(b + "max_catalogue = -1\n").find("max_catalogue: must be an integer from 0 to 1024") !=
+        std::string::npos);
+  CHECK(error_of(b + "[[channel]]\nname = \"c\"\nport = 7702\nmax_keep = 1001\n")
+            .find("channel[0].max_keep: must be an integer from 0 to 1000") != std::string::npos);
+  CHECK(error_of(b + "[[channel]]\nname = \"c\"\nport = 7702\nmax_keep = \"all\"\n")
+            .find("channel[0].max_keep: must be an integer") != std::string::npos);
+}
+
+TEST_CASE("an address names one host: a peer's address shared with another peer or this bridge is refused",
+          "[bridge][config]") {
+  const std::string b = kBase;
+  const std::string peer_c = "[[peer]]\nname = \"chipC\"\nendpoints = [ { link = \"eth\", address = \"10.0.0.2\" } ]\n";
+  const auto shared = error_of(b + kPeer + peer_c);
+  INFO(shared);
+  CHECK(shared.find("peer[1].endpoints[0].address: duplicate address 10.0.0.2 (already peer chipB)") !=
+        std::string::npos);
+  CHECK(shared.find("(line ") != std::string::npos);
+  const auto own = error_of(b + "[[peer]]\nname = \"chipB\"\nendpoints = [ { link = \"eth\", address = \"10.1.0.1\" } ]\n");
+  CHECK(own.find("peer[0].endpoints[0].address: duplicate address 10.1.0.1 (already this bridge's listen)") !=
+        std::string::npos);
+  const auto twice = error_of(b + "[[peer]]\nname = \"chipB\"\nendpoints = [ { link = \"eth\", address = \"10.0.0.2\" }, "
+                                  "{ link = \"pcie\", address = \"10.0.0.2\" } ]\n");
+  CHECK(twice.find("peer[0].endpoints[1].address: duplicate address 10.0.0.2 (already peer chipB)") !=
+        std::string::npos);
+}
+
+TEST_CASE("key files: a secret key readable by others or owned by another user, a public key writable by others, "
+          "are refused",
+          "[bridge][config][curve]") {
+  if (!curve_available()) LCMX_SKIP("libzmq without CURVE");
+  TempDir dir;
+  write_key_pair(dir.path / "chipA", generate_key_pair());
+  write_key_pair(dir.path / "chipB", generate_key_pair());
+  const std::string text = std::string(kBase) + kPeer + "public_key_file = \"chipB.pub\"\n" +
+                           "[security]\ncurve = true\nsecret_key_file = \"chipA.key\"\npublic_key_file = \"chipA.pub\"\n";
+  const auto file = dir.path / "a.toml";
+  CHECK(parse_config(text, file).security.curve);
+  const auto key = dir.path / "chipA.key", pub = dir.path / "chipB.pub";
+  for (mode_t m : {0640, 0604, 0644, 0660}) {
+    REQUIRE(::chmod(key.c_str(), m) == 0);
+    const auto e = error_of(text, file);
+    INFO("mode " << std::oct << m << ": " << e);
+    CHECK(e.find("security.secret_key_file: " + key.string() + ": a secret key must be owned by this user") !=
+          std::string::npos);
+    CHECK(e.find("chmod 600") != std::string::npos);
+  }
+  REQUIRE(::chmod(key.c_str(), 0400) == 0);
+  CHECK(parse_config(text, file).security.curve);  // read-only for its owner: fine
+  REQUIRE(::chmod(key.c_str(), 0600) == 0);
+  if (::geteuid() == 0) {  // root can give it away: a key owned by another user is refused too
+    REQUIRE(::chown(key.c_str(), 12345, 12345) == 0);
+    CHECK(error_of(text, file).find("a secret key must be owned by this user (uid 0)") != std::string::npos);
+    REQUIRE(::chown(key.c_str(), 0, 0) == 0);
+    REQUIRE(::chown(pub.c_str(), 12345, 12345) == 0);
+    CHECK(error_of(text, file).find("peer[0].public_key_file: " + pub.string() + ": a public key must be owned") !=
+          std::string::npos);
+    REQUIRE(::chown(pub.c_str(), 0, 0) == 0);
+  }
+  for (mode_t m : {0664, 0646}) {
+    REQUIRE(::chmod(pub.c_str(), m) == 0);
+    CHECK(error_of(text, file).find("peer[0].public_key_file: " + pub.string() +
+                                    ": a public key must be owned by this user or root and writable by nobody else") !=
+          std::string::npos);
+  }
+  REQUIRE(::chmod(pub.c_str(), 0644) == 0);
+  CHECK(parse_config(text, file).security.curve);
+}
+
+TEST_CASE("keygen never writes through a symbolic link, with --force neither", "[bridge][config][curve]") {
+  if (!curve_available()) LCMX_SKIP("libzmq without CURVE");
+  TempDir dir;
+  const auto target = dir.path / "precious";
+  std::ofstream(target) << "do not overwrite\n";
+  fs::create_symlink(target, dir.path / "chipA.key");
+  for (bool force : {false, true}) {
+    INFO("force " << force);
+    CHECK_THROWS_WITH(write_key_pair(dir.path / "chipA", generate_key_pair(), force),
+                      Catch::Contains((dir.path / "chipA.key").string() + ": is a symbolic link: refused"));
+  }
+  std::ifstream in(target);
+  std::string line;
+  std::getline(in, line);
+  CHECK(line == "do not overwrite");
+  CHECK(fs::is_symlink(dir.path / "chipA.key"));
+  // A link to nowhere (a file the attacker would have created) as well.
+  fs::create_symlink(dir.path / "nowhere", dir.path / "chipB.pub");
+  CHECK_THROWS_WITH(write_key_pair(dir.path / "chipB", generate_key_pair(), true),
+                    Catch::Contains("chipB.pub: is a symbolic link: refused"));
+  CHECK_FALSE(fs::exists(dir.path / "nowhere"));
+  // --force replaces a regular file, keeping the modes; no temporary file is left behind.
+  const auto k1 = generate_key_pair(), k2 = generate_key_pair();
+  write_key_pair(dir.path / "chipC", k1);
+  write_key_pair(dir.path / "chipC", k2, true);
+  CHECK(read_key_file(dir.path / "chipC.key", KeyFile::secret) == k2.secret_key);
+  CHECK(read_key_file(dir.path / "chipC.pub") == k2.public_key);
+  struct stat st {};
+  REQUIRE(::stat((dir.path / "chipC.key").c_str(), &st) == 0);
+  CHECK((st.st_mode & 0777) == 0600);
+  REQUIRE(::stat((dir.path / "chipC.pub").c_str(), &st) == 0);
+  CHECK((st.st_mode & 0777) == 0644);
+  int files = 0;
+  for ([[maybe_unused]] const auto& e : fs::directory_iterator(dir.path)) ++files;
+  CHECK(files == 5);  // precious, the links chipA.key and chipB.pub, chipC.key, chipC.pub
+}
+
+TEST_CASE("control wire format: want and offer lines are bounded", "[bridge][wire]") {
+  std::string f = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\ncontrol 7700\ndemand\n";
+  for (std::size_t i = 0; i < wire::kMaxDemand; ++i) f += "want W" + std::to_string(i) + "\n";
+  const auto d = wire::decode(f);
+  REQUIRE(d);
+  CHECK(d->want.size() == wire::kMaxDemand);
+  CHECK_FALSE(wire::decode(f + "want ONE_MORE\n"));
+  std::string o = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\ncontrol 7700\ndemand\n";
+  for (std::size_t i = 0; i <= wire::kMaxDemand; ++i) o += "offer O" + std::to_string(i) + "\n";
+  CHECK_FALSE(wire::decode(o));
 }

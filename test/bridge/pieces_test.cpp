@@ -12,6 +12,7 @@
 #include "channels.hpp"
 #include "failover.hpp"
 #include "lcmx/bridge/config.hpp"
+#include "lcmx/test/skip.hpp"
 #include "security.hpp"
 
 using namespace lcmx::bridge;
@@ -87,16 +88,41 @@ TEST_CASE("channel sequence check: in order once, gaps counted, a restart starts
   CHECK(first.accept(H{1, 42}) == 0u);        // joining mid-stream is not a loss
 }
 
-TEST_CASE("ZAP: only CURVE with a configured peer's public key, as that peer", "[bridge][security][curve]") {
-  if (!curve_available()) {
-    WARN("skipped: this libzmq has no CURVE");
-    return;
+TEST_CASE("ZAP without CURVE: only from a configured peer's address, as that peer", "[bridge][security]") {
+  PeerConfig b, c;
+  b.name = "chipB";
+  b.endpoints = {{"pcie", "10.1.0.2"}, {"eth", "10.0.0.2"}};
+  c.name = "chipC";
+  c.endpoints = {{"eth", "10.0.0.3"}};
+  const std::vector<PeerConfig> peers{b, c};
+  for (const char* addr : {"10.1.0.2", "10.0.0.2"}) {
+    const auto ok = security::zap_decide("NULL", {}, addr, false, peers);
+    CHECK(ok.status == "200");
+    CHECK(ok.user == "chipB");  // the name its messages must claim
   }
-  const auto b = generate_key_pair(), stranger = generate_key_pair();
-  PeerConfig peer;
+  CHECK(security::zap_decide("NULL", {}, "10.0.0.3", false, peers).user == "chipC");
+  // A LAN machine that is not part of the robot.
+  const auto lan = security::zap_decide("NULL", {}, "10.0.0.99", false, peers);
+  CHECK(lan.status == "400");
+  CHECK(lan.user.empty());
+  CHECK(lan.reason == "not an address of a configured peer");
+  CHECK(security::zap_decide("NULL", {}, "", false, peers).status == "400");
+  CHECK(security::zap_decide("PLAIN", {}, "10.0.0.2", false, peers).status == "400");
+  CHECK(security::zap_decide("NULL", {}, "10.0.0.2", false, {}).status == "400");  // no peers: nobody
+}
+
+TEST_CASE("ZAP with CURVE: only a configured peer's public key, from that peer's address, as that peer",
+          "[bridge][security][curve]") {
+  if (!curve_available()) LCMX_SKIP("this libzmq has no CURVE");
+  const auto b = generate_key_pair(), stranger = generate_key_pair(), kc = generate_key_pair();
+  PeerConfig peer, other;
   peer.name = "chipB";
   peer.public_key = b.public_key;
-  const std::vector<PeerConfig> peers{peer};
+  peer.endpoints = {{"eth", "10.0.0.2"}};
+  other.name = "chipC";
+  other.public_key = kc.public_key;
+  other.endpoints = {{"eth", "10.0.0.3"}};
+  const std::vector<PeerConfig> peers{peer, other};
   auto raw = [](const std::string& z85) {
     std::array<std::byte, 32> k{};
     REQUIRE(::zmq_z85_decode(reinterpret_cast<std::uint8_t*>(k.data()), z85.c_str()) != nullptr);
@@ -104,21 +130,31 @@ TEST_CASE("ZAP: only CURVE with a configured peer's public key, as that peer", "
   };
   const auto kb = raw(b.public_key), ks = raw(stranger.public_key);
 
-  const auto ok = security::zap_decide("CURVE", kb, peers);
+  const auto ok = security::zap_decide("CURVE", kb, "10.0.0.2", true, peers);
   CHECK(ok.status == "200");
   CHECK(ok.user == "chipB");
   CHECK(ok.key == b.public_key);
 
-  const auto refused = security::zap_decide("CURVE", ks, peers);
+  const auto refused = security::zap_decide("CURVE", ks, "10.0.0.2", true, peers);
   CHECK(refused.status == "400");
   CHECK(refused.user.empty());
   CHECK(refused.key == stranger.public_key);  // logged, so the operator sees who tried
+  CHECK(refused.reason == "public key " + stranger.public_key + " is not a configured peer's");
 
-  CHECK(security::zap_decide("NULL", {}, peers).status == "400");
-  CHECK(security::zap_decide("PLAIN", kb, peers).status == "400");
-  CHECK(security::zap_decide("CURVE", std::span<const std::byte>(kb.data(), 31), peers).status == "400");
+  // B's key from C's address (or a LAN machine's): a stolen key is not enough.
+  for (const char* addr : {"10.0.0.3", "10.0.0.99"}) {
+    const auto elsewhere = security::zap_decide("CURVE", kb, addr, true, peers);
+    CHECK(elsewhere.status == "400");
+    CHECK(elsewhere.reason == "the key is chipB's, but " + std::string(addr) + " is not one of chipB's addresses");
+  }
+
+  CHECK(security::zap_decide("NULL", {}, "10.0.0.2", true, peers).status == "400");  // CURVE required
+  CHECK(security::zap_decide("PLAIN", kb, "10.0.0.2", true, peers).status == "400");
+  CHECK(security::zap_decide("CURVE", std::span<const std::byte>(kb.data(), 31), "10.0.0.2", true, peers).status ==
+        "400");
   // A peer without a key (CURVE off in its config) is never matched by an empty key.
   PeerConfig keyless;
-  keyless.name = "chipC";
-  CHECK(security::zap_decide("CURVE", ks, {keyless}).status == "400");
+  keyless.name = "chipD";
+  keyless.endpoints = {{"eth", "10.0.0.4"}};
+  CHECK(security::zap_decide("CURVE", ks, "10.0.0.4", true, {keyless}).status == "400");
 }

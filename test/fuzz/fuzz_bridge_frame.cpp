@@ -1,6 +1,6 @@
 // libFuzzer target: the Message Bridge's wire format (bridge/src/wire.cpp,
-// lcmx/bridge/detail/wire.hpp) on hostile bytes, as a peer (or anyone reaching a bridge's TCP
-// ports without CURVE) can send them.
+// lcmx/bridge/detail/wire.hpp) on hostile bytes, as a configured peer (or, without CURVE, a
+// machine that sends from a peer's address) can send them.
 //
 // The whole input is one control frame for wire::decode. Checks:
 //  - an accepted frame has every required field valid (names, topics, ports, bounded counts);
@@ -61,6 +61,7 @@ void check_control(std::string_view frame) {
   for (const auto& t : c->offer) FUZZ_CHECK(wire::valid_topic(t));
   for (const auto& t : c->have) FUZZ_CHECK(wire::valid_topic(t));
   FUZZ_CHECK(c->have.size() <= wire::kMaxCatalogue);
+  FUZZ_CHECK(c->want.size() <= wire::kMaxDemand && c->offer.size() <= wire::kMaxDemand);
   FUZZ_CHECK(c->keep.size() <= wire::kMaxCatalogue);
   for (const auto& [t, n] : c->keep) FUZZ_CHECK(wire::valid_topic(t) && n <= wire::Control::kMaxKeep);
   FUZZ_CHECK(c->types.size() <= wire::kMaxCatalogue);

@@ -219,6 +219,49 @@ TEST_CASE("lcmx nodes: a clean exit disappears at once (goodbye) - a kill -9 aft
   CHECK(contains(out, "node charlie"));       // killed, lease (8 s) not expired yet
 }
 
+
+// Issue 34 item 6: a name from the network is whatever its sender chose. An escape sequence in
+// a channel or node name (here: retitle the terminal, clear the screen, ring the bell) must not
+// reach the terminal from any verb's text output; JSON output escapes it by JSON's rules.
+TEST_CASE("lcmx nodes, topics, echo and hz print names from the network with their control characters escaped",
+          "[integration][cli][trust]") {
+  Session s(160);
+  const std::string evil = "\x1b]0;owned\x07\x1b[2J";
+  const auto ch = unique_channel("ESC", 160) + evil;
+  const std::string node = "cam\x1b[31mera\x9b";  // and a stray byte that is not UTF-8
+  auto& pub = s.peer({"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "50", "--node", node});
+  REQUIRE(pub.expect("READY"));
+  auto clean = [](const std::string& out) {
+    return out.find('\x1b') == std::string::npos && out.find('\x07') == std::string::npos &&
+           out.find('\x9b') == std::string::npos;
+  };
+  const std::string ch_shown = unique_channel("ESC", 160) + "\\x1b]0;owned\\x07\\x1b[2J";
+  for (const char* verb : {"nodes", "topics"}) {
+    const auto r = s.run({LCMX_TOOL, "--url", s.url, verb});
+    INFO("lcmx " << verb << ":\n" << r.out);
+    CHECK(r.rc == 0);
+    CHECK(clean(r.out));
+    CHECK(contains(r.out, ch_shown));
+    if (std::string(verb) == "nodes") CHECK(contains(r.out, "  node cam\\x1b[31mera\\x9b\n"));
+    const auto j = s.run({LCMX_TOOL, "--url", s.url, verb, "--json"});
+    INFO("lcmx " << verb << " --json:\n" << j.out);
+    CHECK(j.rc == 0);
+    CHECK(clean(j.out));
+    CHECK(contains(j.out, "\\u001b]0;owned\\u0007\\u001b[2J"));
+  }
+  const auto echo = s.run({LCMX_TOOL, "--url", s.url, "echo", ch, "-n", "1"});
+  INFO("lcmx echo:\n" << echo.out);
+  CHECK(echo.rc == 0);
+  CHECK(clean(echo.out));
+  CHECK(contains(echo.out, "--- " + ch_shown + "  "));
+  const auto hz = s.run({LCMX_TOOL, "--url", s.url, "hz", ch, "-n", "1"});
+  INFO("lcmx hz:\n" << hz.out);
+  CHECK(hz.rc == 0);
+  CHECK(clean(hz.out));
+  CHECK(contains(hz.out, ch_shown + ": "));
+  pub.send("quit");
+}
+
 #else
-TEST_CASE("lcmx tool tests", "[integration][cli]") { WARN("lcmx tool not built (LCMX_BUILD_APPS=OFF)"); }
+TEST_CASE("lcmx tool tests", "[integration][cli]") { LCMX_SKIP("lcmx tool not built (LCMX_BUILD_APPS=OFF)"); }
 #endif

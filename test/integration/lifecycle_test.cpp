@@ -179,8 +179,7 @@ std::string vehicle_url(int index) {
 TEST_CASE("containers sharing the network namespace but not /dev/shm: no shm path - UDP on the host-local or vehicle group",
           "[integration][lifecycle][containers]") {
   if (!can_unshare()) {
-    WARN("cannot create mount/pid namespaces here: skipped");
-    return;
+    LCMX_SKIP("cannot create mount/pid namespaces here");
   }
   Session s(43, 40000ms);
   SECTION("default options (no vehicle group): matched over UDP on the host-local group, every message delivered") {
@@ -241,8 +240,7 @@ TEST_CASE("containers sharing the network namespace but not /dev/shm: no shm pat
 TEST_CASE("keep last N to a neighbour (a container with its own /dev/shm): the last N once over the host-local group",
           "[integration][lifecycle][containers][history]") {
   if (!can_unshare()) {
-    WARN("cannot create mount/pid namespaces here: skipped");
-    return;
+    LCMX_SKIP("cannot create mount/pid namespaces here");
   }
   Session s(141, 40000ms);
   const auto ch = unique_channel("KEEP_NEIGHBOUR", 141);
@@ -266,8 +264,7 @@ TEST_CASE("keep last N to a neighbour (a container with its own /dev/shm): the l
 TEST_CASE("containers sharing /dev/shm but not the pid namespace: shm works, nobody is taken for dead",
           "[integration][lifecycle][containers]") {
   if (!can_unshare()) {
-    WARN("cannot create mount/pid namespaces here: skipped");
-    return;
+    LCMX_SKIP("cannot create mount/pid namespaces here");
   }
   // Destroyed after the Session (which kills the publishers): removes what they may leave,
   // named with their pid inside their namespaces.

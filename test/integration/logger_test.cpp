@@ -40,14 +40,7 @@ LogScan scan_log(const std::string& path, int pid, const std::string& node) {
 TEST_CASE("lcm-logger on LCM's default URL records lcmx discovery beacons (LCMX_BEACON)", "[integration][interop]") {
   Session s(60);
   Netns ns;
-  if (!ns.ok()) {
-    if (contains_any(ns.error(), {"Operation not permitted", "Permission denied"})) {
-      WARN("skipped: cannot create a network namespace here (no privilege): " << ns.error());
-      SUCCEED();
-      return;
-    }
-    FAIL("ip netns add failed: " << ns.error());
-  }
+  REQUIRE_NETNS_OR_SKIP(ns);
   char dir_template[] = "/tmp/lcmx_it_log_XXXXXX";
   REQUIRE(::mkdtemp(dir_template) != nullptr);
   struct RemoveDir {

@@ -35,6 +35,7 @@
 #include <thread>
 #include <vector>
 
+#include "lcmx/test/skip.hpp"
 #include "lcmx/test/tmp_dir.hpp"
 
 extern char** environ;
@@ -138,15 +139,14 @@ inline double json_num(const std::string& j, const std::string& key) {
   return std::stod(j.substr(p + key.size() + 3));
 }
 
-// A test that needs a network namespace it could not create: skipped (with a warning) where
-// namespaces are not permitted, failed on any other error. `ns` has ok() and error().
-#define REQUIRE_NETNS_OR_SKIP(ns)                                                              \
-  if (!(ns).ok()) {                                                                            \
-    if (::lcmx::it::contains_any((ns).error(), {"Operation not permitted", "Permission denied"})) { \
-      WARN("skipped: cannot create a network namespace here: " << (ns).error());              \
-      return;                                                                                  \
-    }                                                                                          \
-    FAIL("ip netns add failed: " << (ns).error());                                             \
+// A test that needs a network namespace it could not create: skipped (LCMX_SKIP: CTest shows
+// "Skipped") where namespaces are not permitted, failed on any other error. `ns` has ok() and
+// error().
+#define REQUIRE_NETNS_OR_SKIP(ns)                                                                 \
+  if (!(ns).ok()) {                                                                               \
+    if (::lcmx::it::contains_any((ns).error(), {"Operation not permitted", "Permission denied"})) \
+      LCMX_SKIP("cannot create a network namespace here: " << (ns).error());                     \
+    FAIL("ip netns add failed: " << (ns).error());                                                \
   }
 
 // ---- key=value lines ----

@@ -1,5 +1,5 @@
 // lcmx::test::Emulation: emulated hosts (network namespaces joined by bridges).
-// Every test needs root; without it each test passes with a "skipped: <why>" warning.
+// Every test needs root; without it each test is reported "Skipped" (lcmx/test/skip.hpp) with its reason.
 #include <arpa/inet.h>
 #include <dirent.h>
 #include <fcntl.h>

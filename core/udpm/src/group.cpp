@@ -534,12 +534,15 @@ Group Group::open(const GroupConfig& cfg) {
     spdlog::warn("lcmx::udpm {}: receive buffer is {} bytes, asked for {} (raise net.core.rmem_max)",
                  to_url(cfg), impl->effective_rcvbuf / 2, cfg.recv_buffer_bytes);
 
+  // Bound to the group's address, not INADDR_ANY: only datagrams sent to the group reach this
+  // socket, never unicast to the port (a LAN machine sending to this host's address:port). The
+  // kernel still delivers the group's datagrams to liblcm's INADDR_ANY sockets on the port too.
   sockaddr_in bind_addr{};
   bind_addr.sin_family = AF_INET;
-  bind_addr.sin_addr.s_addr = htonl(INADDR_ANY);
+  bind_addr.sin_addr = group;
   bind_addr.sin_port = htons(cfg.port);
   if (::bind(r.get(), reinterpret_cast<const sockaddr*>(&bind_addr), sizeof bind_addr) != 0)
-    throw_errno("udpm group: bind 0.0.0.0:" + std::to_string(cfg.port) + where, errno);
+    throw_errno("udpm group: bind " + cfg.address + ":" + std::to_string(cfg.port) + where, errno);
   try {
     join(r.get(), group, ifindex);
   } catch (const Error& e) {

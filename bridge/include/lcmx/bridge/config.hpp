@@ -25,6 +25,11 @@ inline constexpr std::size_t kMaxChannels = 32;
 inline constexpr std::size_t kMaxPeers = 64;
 inline constexpr std::size_t kMaxEndpoints = 8;       // links per peer
 inline constexpr std::size_t kMaxKeyFileBytes = 4096;  // a key file is one 40-character line
+// What a peer may ask of this host, at most (docs/bridge.md "Trust"): the keep last N of a
+// republisher (ChannelConfig::max_keep) and the topics of a peer's catalogue announced here
+// (Config::max_catalogue). The wire format's own limits: wire::Control::kMaxKeep, wire::kMaxCatalogue.
+inline constexpr std::uint32_t kDefaultMaxKeep = 16;
+inline constexpr std::size_t kDefaultMaxCatalogue = 256;
 
 class ConfigError : public std::runtime_error {
  public:
@@ -44,6 +49,9 @@ struct ChannelConfig {
   std::size_t hwm = 16;      // messages queued per peer before dropping
   DropPolicy drop = DropPolicy::oldest;
   std::vector<std::string> topics{"*"};  // fnmatch globs; first matching channel wins
+  // The largest keep last N this host's republisher of a topic on this channel takes from a
+  // peer (its `keep`), 0..1000: a ring of max_keep + 1 slots of the topic's size at most.
+  std::uint32_t max_keep = kDefaultMaxKeep;
 };
 
 struct EndpointConfig {
@@ -74,6 +82,9 @@ struct Config {
   std::chrono::milliseconds link_timeout{500};
   std::chrono::milliseconds failback_hold{1000};
   std::chrono::milliseconds status_period{1000};
+  // How many topics of each peer's catalogue this bridge announces on its host to pattern
+  // subscribers (an idle republisher each), 0..1024; the rest is left out (logged once).
+  std::size_t max_catalogue = kDefaultMaxCatalogue;
   std::vector<ChannelConfig> channels;  // never empty after loading
   std::vector<PeerConfig> peers;
   SecurityConfig security;
@@ -96,12 +107,20 @@ struct KeyPair {
 };
 KeyPair generate_key_pair();
 // Writes PREFIX.key (secret, mode 0600) and PREFIX.pub. Refuses to overwrite existing files
-// unless `overwrite`. Throws ConfigError naming the file.
+// unless `overwrite`, and refuses a path that is a symbolic link (or anything but a regular
+// file) even then: each file is written to a new temporary file in the same folder and renamed
+// over the old one, so nothing is ever written through a link. Throws ConfigError naming the file.
 void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bool overwrite = false);
+// Which key a key file holds: a secret key must be owned by this process's user and readable
+// by nobody else (no group or other permission bits, like ssh's private keys); a public key
+// must be owned by this user or root and writable by nobody else (whoever can write it can
+// make this bridge trust another key).
+enum class KeyFile { secret, public_key };
 // Reads a key file: the first line that is neither empty nor a '#' comment, which must be a
-// 40-character Z85 key. The file must be a regular file of at most kMaxKeyFileBytes. Throws
-// ConfigError naming the file.
-std::string read_key_file(const std::filesystem::path& file);
+// 40-character Z85 key. The file must be a regular file of at most kMaxKeyFileBytes, with the
+// owner and mode `kind` asks for (checked on the opened file). Throws ConfigError naming the
+// file (and what to run: chmod 600 / chown).
+std::string read_key_file(const std::filesystem::path& file, KeyFile kind = KeyFile::public_key);
 // Whether this libzmq supports CURVE.
 bool curve_available();
 

@@ -24,6 +24,7 @@
 #include <string>
 #include <type_traits>
 
+#include "lcmx/core/error.hpp"
 #include "lcmx/core/options.hpp"
 #include "lcmx/core/publisher.hpp"
 #include "lcmx/core/subscriber.hpp"

@@ -27,6 +27,9 @@ inline constexpr std::size_t kDataHeader = 24;
 // The catalogue ("have" lines): the large topics a bridge's host publishes, which peers with
 // pattern subscribers announce on their hosts. More in a frame is malformed.
 inline constexpr std::size_t kMaxCatalogue = 1024;
+// "want" and "offer" lines, each: more in a frame is malformed. With kMaxControlFrame, kMaxTopic,
+// kMaxCatalogue and the 256 channels they bound what decode() allocates for one frame.
+inline constexpr std::size_t kMaxDemand = 4096;
 
 struct Control {
   enum class Kind { ping, pong } kind = Kind::ping;
@@ -68,7 +71,9 @@ bool valid_topic(std::string_view t);
 bool valid_type_name(std::string_view name);
 
 std::string encode(const Control& c);
-// nullopt for anything malformed (unknown kind or key, bad numbers, oversize, bad topics).
+// nullopt for anything malformed (unknown kind or key, bad numbers, oversize, bad topics, more
+// lines of a kind than its limit). Bounded: the frame's size is checked before anything is
+// parsed, and every collection against its limit before it grows.
 std::optional<Control> decode(std::string_view frame);
 
 struct DataHeader {

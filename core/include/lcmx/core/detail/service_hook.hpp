@@ -73,9 +73,8 @@ void remove_housekeeping(NodeImpl& node, std::uint64_t id);
 // Whether a participant of another process is known (its beacon not expired, either scope or
 // a neighbour) and announces endpoint `endpoint`.
 bool endpoint_announced(NodeImpl& node, std::uint64_t participant, std::uint64_t endpoint);
-// Whether `participant` announces a subscriber of `channel`: for this participant, a
-// subscriber of this process; for another, its beacon (not expired, either scope or a
-// neighbour's).
+// Whether `participant` announces a subscriber of `channel` in its beacon (not expired, either
+// scope or a neighbour's). Always true for `node`'s own participant: a process trusts itself.
 bool subscriber_announced(NodeImpl& node, std::uint64_t participant, const std::string& channel);
 
 // --- Who sent a message -------------------------------------------------------------------------

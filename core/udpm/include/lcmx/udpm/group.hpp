@@ -56,9 +56,10 @@ struct Counters {
   std::uint64_t duplicates_dropped = 0;  // messages whose (source, sequence) was delivered already
 };
 
-// Move-only owner of the receive socket (bound to INADDR_ANY:port with SO_REUSEADDR and
-// SO_REUSEPORT, so stock liblcm and other Groups share the port; joined on the interface) and
-// the send socket (bound to the interface's IPv4 address and an ephemeral port).
+// Move-only owner of the receive socket (bound to the group's address and port, so unicast to
+// the port never reaches it; SO_REUSEADDR and SO_REUSEPORT, so stock liblcm and other Groups
+// share the port; joined on the interface) and the send socket (bound to the interface's IPv4
+// address and an ephemeral port).
 //
 // Host-local mode (GroupConfig::interface empty; LCM's default URL has no iface=). liblcm joins
 // with INADDR_ANY and sends with no IP_MULTICAST_IF, so the kernel picks the interface the group

@@ -21,7 +21,7 @@
 //
 // Use (link lcmx::test_netns):
 //   std::string why;
-//   if (!lcmx::test::netns_available(&why)) { WARN("skipped: " << why); return; }
+//   LCMX_REQUIRE_NETNS();  // lcmx/test/catch_netns.hpp: skipped (CTest "Skipped") without namespaces
 //   auto emu = lcmx::test::Emulation::create({.hosts = 2, .links = {{.name = "eth"},
 //                                            {.name = "pcie", .rate = "8gbit"}}});
 //   auto peer = emu.spawn(1, {"/path/to/app", "--iface", emu.interface(1, "eth")});

@@ -1,0 +1,409 @@
+#include "front_door.hpp"
+
+#include <arpa/inet.h>
+#include <ifaddrs.h>
+#include <netinet/in.h>
+#include <spdlog/spdlog.h>
+#include <sys/epoll.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include "lcmx/discovery/beacon_codec.hpp"
+#include "lcmx/lcmtypes/envelope.hpp"
+#include "lcmx_msgs/history_t.hpp"
+
+namespace lcmx::detail {
+
+// Serial number order (RFC 1982) of LCM's 32-bit sequence numbers: a comes before b.
+bool serial_before(std::uint32_t a, std::uint32_t b) { return static_cast<std::int32_t>(a - b) < 0; }
+
+// The LCM encoding starts with the type's fingerprint, big-endian.
+bool fingerprint_is(std::span<const std::byte> data, std::int64_t fingerprint) {
+  if (data.size() < 8) return false;
+  std::uint64_t v = 0;
+  for (int i = 0; i < 8; ++i) v = (v << 8) | std::to_integer<std::uint8_t>(data[i]);
+  return static_cast<std::int64_t>(v) == fingerprint;
+}
+
+// ---------------------------------------------------------------- HostAddresses
+
+namespace {
+std::set<std::uint32_t> read_local_addresses() {
+  std::set<std::uint32_t> out;
+  ifaddrs* list = nullptr;
+  if (::getifaddrs(&list) != 0) return out;
+  for (ifaddrs* i = list; i != nullptr; i = i->ifa_next)
+    if (i->ifa_addr != nullptr && i->ifa_addr->sa_family == AF_INET)
+      out.insert(reinterpret_cast<const sockaddr_in*>(i->ifa_addr)->sin_addr.s_addr);
+  ::freeifaddrs(list);
+  return out;
+}
+// 127.0.0.0/8 is this host's. So is 0.0.0.0: a program that sends to a multicast group routed
+// to lo in a namespace with no other interface (liblcm's unbound socket) goes out with no source
+// address, 127.0.0.1 being of host scope; the kernel refuses a zero source arriving from any
+// network for a group beyond 224.0.0.x (ip_mc_validate_source), so it cannot come from the LAN.
+bool loopback(std::uint32_t address_be) {
+  const auto a = ntohl(address_be) >> 24;
+  return a == 127 || address_be == 0;
+}
+}  // namespace
+
+HostAddresses::HostAddresses() { refresh(); }
+
+void HostAddresses::refresh() {
+  auto a = read_local_addresses();
+  std::lock_guard lock(mu_);
+  read_at_ = std::chrono::steady_clock::now();
+  if (!a.empty()) addresses_ = std::move(a);
+}
+
+bool HostAddresses::is_local(std::uint32_t address_be) {
+  if (loopback(address_be)) return true;
+  {
+    std::lock_guard lock(mu_);
+    if (addresses_.count(address_be)) return true;
+    // An address added since the last read (a link that came up): read again, not too often.
+    if (std::chrono::steady_clock::now() - read_at_ < std::chrono::milliseconds(100)) return false;
+  }
+  refresh();
+  std::lock_guard lock(mu_);
+  return addresses_.count(address_be) > 0;
+}
+
+// ---------------------------------------------------------------- FrontDoor
+
+FrontDoor::FrontDoor(Context context) : ctx_(std::move(context)) { check_accept_local(); }
+
+FrontDoor::~FrontDoor() {
+  stop();
+  if (wake_fd_ >= 0) ::close(wake_fd_);
+}
+
+// The host-local group is the host's own because the kernel refuses, on a LAN interface, a
+// packet whose source is one of this host's addresses (a "martian") — unless accept_local is
+// set on that interface. Said once at start.
+void FrontDoor::check_accept_local() {
+  std::error_code ec;
+  std::vector<std::string> on;
+  for (const auto& dir : std::filesystem::directory_iterator("/proc/sys/net/ipv4/conf", ec)) {
+    std::ifstream f(dir.path() / "accept_local");
+    int v = 0;
+    if (f >> v && v != 0 && dir.path().filename() != "lo") on.push_back(dir.path().filename().string());
+  }
+  if (on.empty()) return;
+  std::string list;
+  for (const auto& n : on) list += (list.empty() ? "" : ", ") + n;
+  spdlog::warn("lcmx: net.ipv4.conf.{{{}}}.accept_local is set: a machine on that network can send packets "
+               "with this host's own address as source, which lcmx's host-local group takes as local "
+               "(host scope). Unset it (sysctl -w net.ipv4.conf.<if>.accept_local=0) unless you need it",
+               list);
+}
+
+void FrontDoor::start() {
+  wake_fd_ = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+  if (wake_fd_ < 0) throw Error(Errc::transport, "eventfd failed");
+  epoll_ = ::epoll_create1(EPOLL_CLOEXEC);
+  if (epoll_ < 0) throw Error(Errc::transport, "epoll_create1 failed");
+  auto add = [&](int fd) {
+    epoll_event ev{};
+    ev.events = EPOLLIN;
+    ev.data.fd = fd;
+    if (::epoll_ctl(epoll_, EPOLL_CTL_ADD, fd, &ev) != 0) throw Error(Errc::transport, "epoll_ctl failed");
+  };
+  add(wake_fd_);
+  if (ctx_.death_fd >= 0) add(ctx_.death_fd);
+  add_udp_waiter(-1);  // the receive thread's own registration
+  routes_checked_ = std::chrono::steady_clock::now();
+  thread_ = std::thread([this] { receive_loop(); });
+}
+
+void FrontDoor::stop() {
+  if (stopped_.exchange(true)) return;
+  if (thread_.joinable()) {
+    const std::uint64_t one = 1;
+    [[maybe_unused]] auto n = ::write(wake_fd_, &one, sizeof one);
+    thread_.join();
+  }
+  std::lock_guard lock(epoll_mu_);
+  if (epoll_ >= 0) ::close(epoll_), epoll_ = -1;
+}
+
+FrontDoor::Counters FrontDoor::counters() const {
+  std::lock_guard lock(counters_mu_);
+  return counters_;
+}
+
+// The receive thread: beacons go to discovery, messages to subscribers' queues. An idle node
+// executor with UDP matches waits on the same sockets (NodeImpl::wait_udp) and is woken
+// first, so it receives and runs its callbacks with no second wake-up; this thread gets the
+// datagrams that arrive while no executor waits, and the beacons executors drained.
+void FrontDoor::receive_loop() {
+  while (!stopped_.load()) {
+    epoll_event evs[4];
+    const int n = ::epoll_wait(epoll_, evs, 4, 1000);
+    if (std::chrono::steady_clock::now() - routes_checked_ >= std::chrono::seconds(1)) {
+      {
+        std::lock_guard lock(recv_mu_);
+        routes_checked_ = std::chrono::steady_clock::now();
+        // Routes change (a laptop joins a network, a robot's DHCP comes late): stock programs
+        // started since then join and send where the group routes now.
+        ctx_.local->refresh();
+        addresses_.refresh();
+        // A drain also expires partial messages past their reassembly timeout: with no datagram
+        // arriving after them (a sender whose large messages never complete), nothing else would.
+        drain_locked(true);
+        check_group_drops(*ctx_.local, local_drops_, "host-local");
+        if (ctx_.vehicle) check_group_drops(*ctx_.vehicle, vehicle_drops_, "vehicle");
+      }
+      if (!stopped_.load() && ctx_.every_second) ctx_.every_second();
+    }
+    if (n <= 0) continue;
+    bool death = false;
+    for (int i = 0; i < n; ++i) {
+      if (evs[i].data.fd == wake_fd_) {
+        std::uint64_t v;
+        [[maybe_unused]] auto r = ::read(wake_fd_, &v, sizeof v);
+      }
+      if (ctx_.death_fd >= 0 && evs[i].data.fd == ctx_.death_fd) death = true;
+    }
+    if (stopped_.load()) break;
+    if (death && ctx_.on_death_fd) ctx_.on_death_fd();
+    std::lock_guard lock(recv_mu_);
+    drain_locked(true);
+  }
+}
+
+bool FrontDoor::drain(bool handle_beacons, bool try_only) {
+  std::unique_lock lock(recv_mu_, std::defer_lock);
+  if (try_only) {
+    if (!lock.try_lock()) return false;
+  } else {
+    lock.lock();
+  }
+  drain_locked(handle_beacons);
+  return true;
+}
+
+void FrontDoor::drain_locked(bool handle_beacons) {
+  if (handle_beacons) {
+    // Beacons other threads drained first: they arrived before anything drained now.
+    auto pending = std::move(forwarded_);
+    forwarded_.clear();
+    for (const auto& f : pending) {
+      const udpm::Message m{f.channel, f.data, f.source, f.sequence, f.lost_before, nullptr};
+      try {
+        dispatch(f.vehicle, m);
+      } catch (const std::exception& e) {
+        spdlog::warn("lcmx: beacon handling failed: {}", e.what());
+      }
+    }
+  }
+  auto one = [&](udpm::Group& group, bool vehicle) {
+    try {
+      group.drain([&](const udpm::Message& m) {
+        if (!handle_beacons && m.channel == discovery::kBeaconChannel) {
+          // Only from a source the front door takes (checked again when handled).
+          if (!vehicle && !addresses_.is_local(m.source.address_be)) return refuse_not_local(m.source);
+          // Beacons repeat every period: dropping some when the receive thread lags (or has
+          // stopped) loses nothing for good, and keeps this bounded.
+          if (stopped_.load() || forwarded_.size() >= 256) return;
+          forwarded_.push_back({vehicle, std::string(m.channel), {m.data.begin(), m.data.end()}, m.source,
+                                m.sequence, m.lost_before});
+          const std::uint64_t v = 1;
+          [[maybe_unused]] auto r = ::write(wake_fd_, &v, sizeof v);
+          return;
+        }
+        dispatch(vehicle, m);
+      });
+    } catch (const std::exception& e) {
+      spdlog::warn("lcmx: UDP receive failed: {}", e.what());
+    }
+  };
+  one(*ctx_.local, false);
+  if (ctx_.vehicle) one(*ctx_.vehicle, true);
+}
+
+// EPOLLEXCLUSIVE entries are woken in the order they were added to a socket's wait queue,
+// skipping epoll sets nobody waits on; re-adding the receive thread's entries puts them last.
+void FrontDoor::add_udp_waiter(int epfd) {
+  std::lock_guard lock(epoll_mu_);
+  if (epoll_ < 0) return;
+  for (const auto& g : {ctx_.local, ctx_.vehicle}) {
+    if (!g) continue;
+    epoll_event ev{};
+    ev.events = EPOLLIN | EPOLLEXCLUSIVE;
+    ev.data.fd = g->fd();
+    if (epfd >= 0 && ::epoll_ctl(epfd, EPOLL_CTL_ADD, g->fd(), &ev) != 0)
+      throw Error(Errc::transport, std::string("epoll_ctl: ") + std::strerror(errno));
+    if (epfd >= 0) ::epoll_ctl(epoll_, EPOLL_CTL_DEL, g->fd(), nullptr);
+    // A socket already readable wakes the receive thread at once (no datagram is stranded).
+    if (::epoll_ctl(epoll_, EPOLL_CTL_ADD, g->fd(), &ev) != 0)
+      throw Error(Errc::transport, std::string("epoll_ctl: ") + std::strerror(errno));
+  }
+}
+
+void FrontDoor::refuse_not_local(const udpm::Source& source) {
+  {
+    std::lock_guard lock(counters_mu_);
+    ++counters_.refused_not_local;
+  }
+  ++refused_total_;
+  if (refused_sources_.size() < 4096 || refused_sources_.count(source.address_be)) ++refused_sources_[source.address_be];
+  const auto now = std::chrono::steady_clock::now();
+  if (now - refused_logged_ < std::chrono::seconds(5)) return;
+  refused_logged_ = now;
+  spdlog::warn("lcmx: refused datagrams on the host-local group from {} (not an address of this host; {} refused "
+               "so far): the host-local group is this host's own; other hosts use the vehicle group",
+               udpm::to_string(source), refused_total_);
+}
+
+namespace {
+// A keep-last-N replay, decoded bounded: nothing is sized from the datagram before it is
+// checked against the bytes there are.
+std::optional<lcmx_msgs::history_t> decode_history(std::span<const std::byte> data) {
+  lcmx_msgs::history_t h;
+  if (!lcmtypes::decode(data, h)) return std::nullopt;  // lcmx/lcmtypes/envelope.hpp
+  return h;
+}
+}  // namespace
+
+void FrontDoor::dispatch(bool vehicle, const udpm::Message& m) {
+  // 1. Source: the host-local group is this host's.
+  const bool local_address = addresses_.is_local(m.source.address_be);
+  if (!vehicle && !local_address) return refuse_not_local(m.source);
+  auto& group = vehicle ? *ctx_.vehicle : *ctx_.local;
+  // 2. By channel.
+  if (m.channel == discovery::kBeaconChannel) {
+    ctx_.beacon(vehicle, m);
+    // Loss accounting needs every beacon's sequence: decoded a second time (small, a few per
+    // second per participant).
+    if (auto b = discovery::decode_beacon(m.data)) settle_loss(vehicle, udpm::to_string(m.source), *b, m.lost_before);
+    return;
+  }
+  if (group.is_own(m.source)) return;  // our own, looped back
+  const auto sender = ctx_.peers.sender(vehicle, m.source, local_address);
+  if (sender.same_host) return;  // a participant of this host: its subscribers here read shm
+  if (m.channel == kHistoryChannel) {
+    auto h = decode_history(m.data);
+    if (!h) return;  // not ours to judge
+    for (auto& [target, bytes] : ctx_.pairs.accept_history(vehicle, m.source, *h)) {
+      const std::span<const std::byte> view(*bytes);
+      push_intra(*target.first, IntraItem{std::move(bytes), &raw_type_info(), target.second, view});
+    }
+    return;
+  }
+  const std::string source = udpm::to_string(m.source);
+  std::uint32_t foreign_lost = 0;
+  if (m.lost_before > 0) {
+    // A participant's gap is settled at its next beacon (some of it may be beacons); a stock
+    // LCM sender has no channel list: its loss cannot be given to a pair.
+    if (sender.participant != 0) loss_of(vehicle, source).pending += m.lost_before;
+    else foreign_lost = m.lost_before;
+  }
+  std::vector<Pairs::Target> targets;
+  ctx_.settle(ctx_.pairs.deliver_udp(vehicle, sender.participant, m.source, m, targets));
+  if (foreign_lost > 0 && !targets.empty()) log_foreign_loss(vehicle, source, foreign_lost);
+  if (targets.empty()) return;
+  // A reassembled message is handed over in its reassembly buffer; a single datagram's bytes
+  // live in the socket's receive slot, reused by the next read: copied.
+  std::shared_ptr<const void> owner = m.buffer;
+  if (!owner) owner = make_bytes(m.data);
+  const auto bytes = m.buffer ? m.data : std::span<const std::byte>(*std::static_pointer_cast<const Bytes>(owner));
+  for (auto& [sub, stats] : targets) {
+    if (sub->udp_inline && !sub->state->removed.load()) {
+      RetainSource src;
+      src.owner = owner;
+      src.pair = stats.get();  // who sent it (services take replies only from their server)
+      if (sub->udp_inline(RawMessage{sub->channel(), bytes, &src})) {
+        stats->received.fetch_add(1, std::memory_order_relaxed);
+        sub->delivered.fetch_add(1, std::memory_order_relaxed);
+        continue;
+      }
+    }
+    push_intra(*sub, IntraItem{owner, &raw_type_info(), stats, bytes});
+  }
+}
+
+void FrontDoor::settle_loss(bool vehicle, const std::string& source, const lcmx_msgs::beacon_t& b,
+                            std::uint32_t lost_before) {
+  auto& s = loss_of(vehicle, source);
+  struct ForgetOnGoodbye {  // at return: `s` is used until then
+    decltype(source_loss_)& map;
+    std::pair<bool, std::string> key;
+    bool goodbye;
+    ~ForgetOnGoodbye() {
+      if (goodbye) map.erase(key);
+    }
+  } forget{source_loss_, {vehicle, source}, (b.flags & lcmx_msgs::beacon_t::FLAG_GOODBYE) != 0};
+  s.pending += lost_before;
+  if (s.last_beacon >= 0 && b.sequence > s.last_beacon)
+    s.beacon_credit += static_cast<std::uint64_t>(std::min<std::int64_t>(b.sequence - s.last_beacon - 1, 1 << 30));
+  s.last_beacon = b.sequence;
+  const std::uint64_t beacons = std::min(s.pending, s.beacon_credit);
+  const std::uint64_t lost = s.pending - beacons;
+  s.beacon_credit -= beacons;
+  s.pending = 0;
+  if (lost == 0) return;
+  std::set<std::string> channels;
+  for (const auto& e : b.endpoints)
+    if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) channels.insert(e.topic);
+  const auto subscribed = ctx_.pairs.charge_loss(b.participant_id, channels, lost);
+  const char* which = vehicle ? "vehicle" : "host-local";
+  if (channels.size() == 1) {
+    if (!subscribed.empty())
+      spdlog::warn("lcmx: {} message(s) on channel '{}' from {} pid {} ({}) lost on the {} group; counted in its "
+                   "subscribers' drops",
+                   lost, *channels.begin(), b.process_name, b.pid, source, which);
+    return;
+  }
+  if (subscribed.empty()) return;  // none of its channels is received here: nobody here lost
+  s.unattributed += lost;
+  const auto now = std::chrono::steady_clock::now();
+  if (now - s.logged < std::chrono::seconds(5)) return;
+  s.logged = now;
+  std::string list;
+  for (const auto& c : channels) list += (list.empty() ? "" : ", ") + c;
+  spdlog::warn("lcmx: {} message(s) from {} pid {} ({}) lost on the {} group ({} so far); it sends several channels "
+               "({}), so the loss cannot be given to one subscription (UDP sequence numbers are per socket)",
+               lost, b.process_name, b.pid, source, which, s.unattributed, list);
+}
+
+// Bounded: a sender that says goodbye is forgotten (settle_loss); one killed without a
+// goodbye, or a stock LCM sender, stays until kMaxSources senders were seen, then all start
+// over (their pending gaps, at most one beacon period's, and unattributed totals are lost).
+FrontDoor::SourceLoss& FrontDoor::loss_of(bool vehicle, const std::string& source) {
+  if (source_loss_.size() >= kMaxSources && !source_loss_.count({vehicle, source})) source_loss_.clear();
+  return source_loss_[{vehicle, source}];
+}
+
+void FrontDoor::check_group_drops(const udpm::Group& group, GroupDrops& last, const char* which) {
+  // Not kernel_dropped: the socket's drop count includes this participant's own datagrams,
+  // which its socket filter drops by design (udpm/group.cpp drop_own_datagrams).
+  const auto& c = group.counters();
+  if (c.incomplete_dropped == last.incomplete && c.oversize_dropped == last.oversize) return;
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last.logged < std::chrono::seconds(5)) return;  // a later check reports the sum
+  spdlog::warn("lcmx: {} UDP group: {} incomplete message(s) dropped (fragments lost, e.g. a receive buffer too "
+               "small: net.core.rmem_max) and {} over the reassembly limit ({} bytes) since the last report ({} / {} "
+               "in all). A subscription counts such a loss only when its sender's next message arrives",
+               which, c.incomplete_dropped - last.incomplete, c.oversize_dropped - last.oversize,
+               group.config().max_reassembly_bytes, c.incomplete_dropped, c.oversize_dropped);
+  last = {c.incomplete_dropped, c.oversize_dropped, now};
+}
+
+void FrontDoor::log_foreign_loss(bool vehicle, const std::string& source, std::uint32_t lost) {
+  auto& s = loss_of(vehicle, source);
+  s.unattributed += lost;
+  const auto now = std::chrono::steady_clock::now();
+  if (now - s.logged < std::chrono::seconds(5)) return;
+  s.logged = now;
+  spdlog::warn("lcmx: {} message(s) from LCM sender {} lost on the {} group ({} so far); a stock LCM sender "
+               "announces no channel list, so the loss cannot be given to one subscription",
+               lost, source, vehicle ? "vehicle" : "host-local", s.unattributed);
+}
+
+}  // namespace lcmx::detail

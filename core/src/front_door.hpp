@@ -1,0 +1,156 @@
+// FrontDoor: the one place every datagram of the groups enters (DESIGN.md "Trust"). It owns
+// the receive side of both groups and the receive thread, and for each datagram, in this order:
+//  1. checks its source: on the host-local group only this host's own addresses are taken (the
+//     kernel drops a LAN packet that claims a local source unless accept_local is set, checked
+//     at start), so nothing from the LAN reaches host scope; the receive socket is bound to the
+//     group address, so unicast to the port never arrives at all;
+//  2. dispatches by channel: beacons to discovery of that scope (on the receive thread only;
+//     executors forward them), keep-last-N replays to Pairs::accept_history (decoded bounded),
+//     messages to the subscribers Pairs matched with the sender;
+//  3. accounts UDP loss per sender socket (LCM sequence gaps, settled at the sender's beacon).
+//
+// Who drains: the receive thread, and idle node executors waiting for UDP (NodeImpl::wait_udp,
+// EPOLLEXCLUSIVE entries ahead of the receive thread's: a datagram wakes one thread). Whoever
+// drains holds recv_mu_ (a Group's receive side has one user at a time; arrival order is kept).
+// Lock order: recv_mu_ -> discovery's delivery lock -> Pairs::mu -> ...; the host address set
+// has a leaf lock of its own.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "lcmx/udpm/udpm.hpp"
+#include "lcmx_msgs/beacon_t.hpp"
+#include "pairs.hpp"
+#include "peers.hpp"
+
+namespace lcmx::detail {
+
+// This host's IPv4 addresses (every interface's, all of 127.0.0.0/8, and 0.0.0.0: see loopback()), re-read once a
+// second and at once (at most every 100 ms) when a source is not among them.
+// Threads: thread-safe; leaf lock.
+class HostAddresses {
+ public:
+  HostAddresses();
+  bool is_local(std::uint32_t address_be);
+  void refresh();
+
+ private:
+  std::mutex mu_;
+  std::set<std::uint32_t> addresses_;
+  std::chrono::steady_clock::time_point read_at_{};
+};
+
+class FrontDoor {
+ public:
+  struct Context {
+    std::shared_ptr<udpm::Group> local;    // host-local group (always)
+    std::shared_ptr<udpm::Group> vehicle;  // vehicle group, or null
+    PeerTable& peers;
+    Pairs& pairs;
+    // A beacon, to the discovery of its scope. Receive thread (or a discovery thread draining
+    // before a lease expires), recv_mu_ held.
+    std::function<void(bool vehicle, const udpm::Message&)> beacon;
+    // What Pairs said: emit its events, announce if asked. recv_mu_ may be held.
+    std::function<void(Pairs::Outcome)> settle;
+    // About once a second on the receive thread, no lock held.
+    std::function<void()> every_second;
+    // DeathWatch's fd (-1: none) and what to do when it is readable (receive thread, no lock).
+    int death_fd = -1;
+    std::function<void()> on_death_fd;
+  };
+  explicit FrontDoor(Context context);
+  ~FrontDoor();  // stop()
+  FrontDoor(const FrontDoor&) = delete;
+  FrontDoor& operator=(const FrontDoor&) = delete;
+
+  // Starts the receive thread. Throws Error(transport) if its epoll set cannot be made.
+  void start();
+  // Stops and joins the receive thread. Idempotent. Executors may still drain afterwards
+  // (the beacons they would forward are dropped).
+  void stop();
+
+  // Drains both groups and dispatches what arrived. Beacons are handled here only when
+  // `handle_beacons` (the receive thread, a discovery thread before a lease expires); other
+  // callers copy them for the receive thread and wake it. Takes recv_mu_ (blocking, or only
+  // if free when `try_only`); call with no lock held. Returns false if try_only and another
+  // thread was draining.
+  bool drain(bool handle_beacons, bool try_only = false);
+  // Adds the group sockets to `epfd` (EPOLLEXCLUSIVE) ahead of the receive thread's entries.
+  void add_udp_waiter(int epfd);
+
+  bool is_local_address(std::uint32_t address_be) { return addresses_.is_local(address_be); }
+
+  struct Counters {
+    std::uint64_t refused_not_local = 0;  // host-local datagrams from a non-local source
+  };
+  Counters counters() const;
+
+ private:
+  void receive_loop();
+  void drain_locked(bool handle_beacons);
+  void dispatch(bool vehicle, const udpm::Message& m);
+  void refuse_not_local(const udpm::Source& source);
+  void check_accept_local();
+
+  // UDP loss per sender socket (issue 15): LCM sequence gaps (udpm::Message::lost_before) count
+  // data and beacons alike; the beacon's own sequence tells how many were beacons. Settled at
+  // each beacon of the sender: the rest is data it lost, given to the pair when the sender
+  // publishes one channel, else logged as not attributable. recv_mu_ held.
+  struct SourceLoss {
+    std::uint64_t pending = 0;        // sequence numbers missed since the last settlement
+    std::uint64_t beacon_credit = 0;  // beacons known lost, not yet matched by a gap
+    std::int64_t last_beacon = -1;    // beacon sequence of the sender's last beacon
+    std::uint64_t unattributed = 0;   // data messages lost, sender with several channels
+    std::chrono::steady_clock::time_point logged{};
+  };
+  static constexpr std::size_t kMaxSources = 4096;  // source_loss_ entries (see loss_of)
+  SourceLoss& loss_of(bool vehicle, const std::string& source);
+  void settle_loss(bool vehicle, const std::string& source, const lcmx_msgs::beacon_t& b, std::uint32_t lost_before);
+  void log_foreign_loss(bool vehicle, const std::string& source, std::uint32_t lost);
+  // Warns when a group dropped messages no sequence gap reports yet (incomplete, oversize).
+  struct GroupDrops {
+    std::uint64_t incomplete = 0, oversize = 0;  // last logged counters
+    std::chrono::steady_clock::time_point logged{};
+  };
+  void check_group_drops(const udpm::Group& group, GroupDrops& last, const char* which);
+
+  const Context ctx_;
+  HostAddresses addresses_;
+  std::atomic<bool> stopped_{false};
+
+  std::mutex recv_mu_;  // guards everything below (whoever drains)
+  struct Forwarded {    // a beacon another thread drained, for the receive thread
+    bool vehicle;
+    std::string channel;
+    std::vector<std::byte> data;
+    udpm::Source source;
+    std::uint32_t sequence;
+    std::uint32_t lost_before;
+  };
+  std::vector<Forwarded> forwarded_;  // handled before anything drained later
+  std::map<std::pair<bool, std::string>, SourceLoss> source_loss_;  // (vehicle, "ip:port")
+  GroupDrops local_drops_, vehicle_drops_;
+  std::chrono::steady_clock::time_point routes_checked_{};
+  std::map<std::uint32_t, std::uint64_t> refused_sources_;  // address -> datagrams (bounded)
+  std::uint64_t refused_total_ = 0;
+  std::chrono::steady_clock::time_point refused_logged_{};
+
+  std::thread thread_;
+  int wake_fd_ = -1;
+  int epoll_ = -1;           // wake_fd_ + the group sockets (EPOLLEXCLUSIVE, last) + death_fd
+  std::mutex epoll_mu_;      // serialises re-registrations of the sockets in epoll_
+  mutable std::mutex counters_mu_;
+  Counters counters_;
+};
+
+}  // namespace lcmx::detail
