@@ -37,7 +37,7 @@ if netns_possible; then
 fi
 ((rc == 0)) || exit "$rc"
 
-stage "fuzz targets, ${LCMX_FUZZ_SECONDS:=40} s each"
+stage "fuzz targets, ${LCMX_FUZZ_SECONDS:=26} s each"
 export LCMX_FUZZ_SECONDS
 ctest --test-dir build --output-on-failure -j2 -L fuzz
 

@@ -13,6 +13,7 @@
 #include <fstream>
 
 #include "lcmx/discovery/beacon_codec.hpp"
+#include "lcmx/lcmtypes/envelope.hpp"
 #include "lcmx_msgs/history_t.hpp"
 
 namespace lcmx::detail {
@@ -265,7 +266,7 @@ namespace {
 // checked against the bytes there are.
 std::optional<lcmx_msgs::history_t> decode_history(std::span<const std::byte> data) {
   lcmx_msgs::history_t h;
-  if (h.decode(data.data(), 0, static_cast<int>(data.size())) < 0) return std::nullopt;
+  if (!lcmtypes::decode(data, h)) return std::nullopt;  // lcmx/lcmtypes/envelope.hpp
   return h;
 }
 }  // namespace
@@ -339,6 +340,7 @@ void FrontDoor::dispatch(bool vehicle, const udpm::Message& m) {
     if (sub->udp_inline && !sub->state->removed.load()) {
       RetainSource src;
       src.owner = owner;
+      src.pair = stats.get();  // who sent it (services take replies only from their server)
       if (sub->udp_inline(RawMessage{sub->channel(), bytes, &src})) {
         stats->received.fetch_add(1, std::memory_order_relaxed);
         sub->delivered.fetch_add(1, std::memory_order_relaxed);

@@ -313,7 +313,7 @@ std::size_t NodeImpl::poll_one(SubscriberCore& sub) {
       if (!s) break;
       m->stats->received.fetch_add(1, std::memory_order_relaxed);
       bool torn = false;
-      if (sub.deliver_bytes({s->data(), s->size()}, &*s, &torn)) {
+      if (sub.deliver_bytes({s->data(), s->size()}, &*s, &torn, m->stats.get())) {
         sub.delivered.fetch_add(1, std::memory_order_relaxed);
         ++n;
       }
@@ -588,6 +588,7 @@ RawSubscriberCore::RawSubscriberCore(std::string channel, SubscriberOptions o,
 
 bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
   RetainSource src;
+  src.pair = item.pair.get();
   if (item.type->carries_bytes()) {
     src.owner = item.object;  // retain() shares the publisher's (or UDP receiver's) buffer
     return deliver(item.bytes, src, nullptr, nullptr);
@@ -603,9 +604,10 @@ bool RawSubscriberCore::deliver_intra(const IntraItem& item) {
 // have read a torn view; delivered, and counted as a drop). After a retain() the sample lives
 // on as a DetachedSample: the check after the callback is made on that.
 bool RawSubscriberCore::deliver_bytes(std::span<const std::byte> bytes, shm::ReadSample* sample,
-                                      bool* torn) {
+                                      bool* torn, const PairCounters* pair) {
   RetainSource src;
   src.sample = sample;
+  src.pair = pair;
   return deliver(bytes, src, sample, torn);
 }
 

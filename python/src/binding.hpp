@@ -41,7 +41,7 @@
 
 #include <spdlog/spdlog.h>
 
-#include "lcmx/core/runtime.hpp"
+#include "lcmx/core.hpp"  // the runtime and lcmx::services (services, actions)
 
 namespace lcmxpy {
 

@@ -5,13 +5,16 @@
 
 #include <atomic>
 #include <cstring>
+#include <fstream>
 #include <mutex>
 #include <set>
 #include <thread>
 #include <vector>
 
 #include "core_support.hpp"
+#include "lcmx/udpm/udpm.hpp"
 #include "lcmx_examples/pose_t.hpp"
+#include "lcmx_msgs/history_t.hpp"
 
 using namespace lcmx::core_test;
 
@@ -167,4 +170,55 @@ TEST_CASE("keep last N, in-process: subscribers joining while a thread publishes
     CHECK(got.size() >= 5);
     CHECK_FALSE(seen[k]->bad);
   }
+}
+
+// This process's peak resident set (VmHWM), in KiB.
+static long peak_rss_kib() {
+  std::ifstream in("/proc/self/status");
+  std::string key;
+  while (in >> key) {
+    if (key == "VmHWM:") {
+      long kib = 0;
+      in >> kib;
+      return kib;
+    }
+    std::getline(in, key);
+  }
+  return -1;
+}
+
+// Issue 34: twenty 70-byte LCMX_HISTORY datagrams took a subscriber to 1.29 GB peak RSS (the
+// replay's lcm-gen decode sized its vector to the count first). Every runtime reads the
+// replays of its groups before it looks at whom they are for.
+TEST_CASE("keep last N over UDP: replay datagrams whose count says 50,000,000 messages allocate nothing",
+          "[core][history][trust]") {
+  auto opts = test_options();
+  auto rt = lcmx::Runtime::create(opts);
+  auto node = rt.create_node("bomb", manual());
+  std::atomic<int> after{0};
+  auto sub = node.subscribe_raw("HISTORY_BOMB_AFTER", [&](const lcmx::RawMessage&) { ++after; });
+  // A sender on the host-local group that is no participant (its datagrams are handled in
+  // the order they were sent).
+  auto stock = lcmx::udpm::Group::open(lcmx::udpm::parse_url(opts.discovery_url));
+  lcmx_msgs::history_t h{};
+  h.publisher_participant = 1;
+  h.subscriber_participant = static_cast<std::int64_t>(rt.participant_id());
+  h.channel = "POSE";
+  h.num_messages = 0;
+  std::vector<std::byte> bomb(static_cast<std::size_t>(h.getEncodedSize()));
+  h.encode(bomb.data(), 0, static_cast<int>(bomb.size()));
+  const std::uint32_t count = 50000000;  // num_messages, the last field written
+  for (int i = 0; i < 4; ++i) bomb[bomb.size() - 4 + i] = static_cast<std::byte>(count >> (24 - 8 * i));
+  bomb.resize(70, std::byte{0x41});
+  const long before = peak_rss_kib();
+  REQUIRE(before > 0);
+  for (int i = 0; i < 20; ++i) stock.publish("LCMX_HISTORY", bomb);  // core/src: kHistoryChannel
+  const std::vector<std::byte> marker(8, std::byte{1});
+  stock.publish("HISTORY_BOMB_AFTER", marker);  // arrives after the twenty: they were handled
+  REQUIRE(eventually([&] {
+    node.spin_once(5ms);
+    return after.load() >= 1;
+  }));
+  INFO("peak RSS before " << before << " KiB, after " << peak_rss_kib() << " KiB");
+  CHECK(peak_rss_kib() - before < 64 * 1024);
 }

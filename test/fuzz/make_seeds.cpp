@@ -1,5 +1,7 @@
 // Writes the seed corpora of the fuzz targets: make_seeds <dir> creates <dir>/beacon/*.bin
 // (beacons from encode_beacon, so they follow beacon.lcm and its fingerprint as it changes),
+// <dir>/{history,service_envelope,action_envelope,bridge_status}/*.bin (a selector byte and an
+// lcm-gen encoding, so they follow the .lcm files too),
 // <dir>/udpm_datagram/*.bin (inputs in the layout of udpm_input.hpp) and
 // <dir>/regressions/beacon/*.bin (kept reproducers that depend on beacon.lcm). Exit status 0,
 // or 1 with a message when a file cannot be written.
@@ -15,6 +17,7 @@
 #include <vector>
 
 #include "lcmx/discovery/beacon_codec.hpp"
+#include "lcmx/lcmtypes/envelope.hpp"
 #include "lcmx/udpm/wire.hpp"
 #include "udpm_input.hpp"
 
@@ -127,6 +130,169 @@ bool write(const std::filesystem::path& path, std::span<const std::byte> bytes) 
 
 }  // namespace
 
+// The envelope targets' seeds: a selector byte (which type), then lcm-gen's encoding of one
+// message of that type (fuzz_history, fuzz_service_envelope, fuzz_action_envelope,
+// fuzz_bridge_status).
+template <class T>
+bool envelope_seed(const std::filesystem::path& dir, const char* name, std::uint8_t selector, const T& m) {
+  Bytes in{std::byte{selector}};
+  const Bytes b = lcmx::lcmtypes::encode(m);
+  in.insert(in.end(), b.begin(), b.end());
+  return write(dir / name, in);
+}
+
+std::vector<std::uint8_t> u8(std::size_t n, std::uint8_t seed) {
+  std::vector<std::uint8_t> v(n);
+  for (std::size_t i = 0; i < n; ++i) v[i] = static_cast<std::uint8_t>(seed + i * 13);
+  return v;
+}
+
+bool write_envelope_seeds(const std::filesystem::path& dir) {
+  using namespace lcmx_msgs;
+  bool ok = true;
+  for (const char* d : {"history", "service_envelope", "action_envelope", "bridge_status"})
+    std::filesystem::create_directories(dir / d);
+  {
+    history_t h{};
+    h.publisher_participant = 0x1234;
+    h.publisher_endpoint = 3;
+    h.subscriber_participant = 0x5678;
+    h.subscriber_endpoint = 9;
+    h.channel = "POSE";
+    for (int i = 0; i < 3; ++i) {
+      history_message_t m{};
+      m.sent = static_cast<std::int8_t>(i % 2);
+      m.sequence = 100 + i;
+      m.data = u8(static_cast<std::size_t>(8 + 4 * i), static_cast<std::uint8_t>(i));
+      m.size = static_cast<std::int32_t>(m.data.size());
+      h.messages.push_back(m);
+    }
+    h.num_messages = 3;
+    ok &= envelope_seed(dir / "history", "three.bin", 0, h);
+    ok &= envelope_seed(dir / "history", "message.bin", 1, h.messages[1]);
+    h.messages.clear();
+    h.num_messages = 0;
+    ok &= envelope_seed(dir / "history", "empty.bin", 0, h);
+  }
+  {
+    service_request_t q{};
+    q.client_id = 0x0123456789abcdef;
+    q.request_id = 5;
+    q.server_participant = 0x42;
+    q.server_id = 7;
+    q.client_participant = 0x43;
+    q.request_fingerprint = 0x1111;
+    q.response_fingerprint = 0x2222;
+    q.reply_channel = "plan/rp/0123456789abcdef";
+    q.payload = u8(24, 1);
+    q.size = 24;
+    ok &= envelope_seed(dir / "service_envelope", "request.bin", 0, q);
+    q.request_id = 0;
+    q.payload.clear();
+    q.size = 0;
+    ok &= envelope_seed(dir / "service_envelope", "probe.bin", 0, q);
+    service_reply_t r{};
+    r.client_id = q.client_id;
+    r.request_id = 5;
+    r.server_participant = 0x42;
+    r.server_id = 7;
+    r.reply_endpoint = 12;
+    r.request_type = "lcmx_examples.pose_t";
+    r.response_type = "lcmx_examples.bench_t";
+    r.status = service_reply_t::OK;
+    r.payload = u8(16, 2);
+    r.size = 16;
+    ok &= envelope_seed(dir / "service_envelope", "reply.bin", 1, r);
+    r.status = service_reply_t::HANDLER_FAILED;
+    r.error = "the handler threw";
+    r.payload.clear();
+    r.size = 0;
+    ok &= envelope_seed(dir / "service_envelope", "reply_error.bin", 1, r);
+  }
+  {
+    action_goal_t g{};
+    g.goal_id = "0123456789abcdef0123456789abcdef";
+    g.client_id = 77;
+    g.goal = u8(10, 3);
+    g.size = 10;
+    ok &= envelope_seed(dir / "action_envelope", "goal.bin", 0, g);
+    action_goal_reply_t gr{};
+    gr.accepted = true;
+    gr.types_ok = true;
+    gr.message = "ok";
+    gr.cancel_server_id = 4;
+    gr.result_server_id = 5;
+    gr.goal_type = "pose_t";
+    ok &= envelope_seed(dir / "action_envelope", "goal_reply.bin", 1, gr);
+    action_goal_ref_t ref{};
+    ref.goal_id = g.goal_id;
+    ok &= envelope_seed(dir / "action_envelope", "ref.bin", 2, ref);
+    action_goal_status_t st{};
+    st.goal_id = g.goal_id;
+    st.state = action_goal_status_t::EXECUTING;
+    st.feedback_count = 3;
+    ok &= envelope_seed(dir / "action_envelope", "goal_status.bin", 3, st);
+    action_result_t res{};
+    res.status = st;
+    res.status.state = action_goal_status_t::SUCCEEDED;
+    res.result = u8(6, 4);
+    res.size = 6;
+    ok &= envelope_seed(dir / "action_envelope", "result.bin", 4, res);
+    action_feedback_t fb{};
+    fb.goal_id = g.goal_id;
+    fb.feedback = u8(5, 5);
+    fb.size = 5;
+    ok &= envelope_seed(dir / "action_envelope", "feedback.bin", 5, fb);
+    action_status_t s{};
+    s.server_participant = 0x42;
+    s.goal_server_id = 1;
+    s.cancel_server_id = 2;
+    s.result_server_id = 3;
+    s.goal_type = "pose_t";
+    s.goals = {st, st};
+    s.goals[1].state = action_goal_status_t::ABORTED;
+    s.goals[1].message = "why";
+    s.num_goals = 2;
+    ok &= envelope_seed(dir / "action_envelope", "status.bin", 6, s);
+  }
+  {
+    bridge_status_t b{};
+    b.name = "a";
+    b.host_id = 9;
+    b.pid = 100;
+    bridge_peer_status_t p{};
+    p.name = "b";
+    p.up = 1;
+    p.active_link = "eth";
+    bridge_link_status_t l{};
+    l.name = "eth";
+    l.address = "10.0.0.2";
+    l.up = 1;
+    l.active = 1;
+    l.rtt_us = 80;
+    p.links = {l};
+    p.num_links = 1;
+    bridge_channel_status_t c{};
+    c.name = "images";
+    c.messages_sent = 10;
+    p.channels = {c};
+    p.num_channels = 1;
+    p.served = {"CAM"};
+    p.num_served = 1;
+    p.wanted = {"LIDAR", "POSE"};
+    p.num_wanted = 2;
+    b.peers = {p};
+    b.num_peers = 1;
+    b.demand = {"LIDAR"};
+    b.num_demand = 1;
+    ok &= envelope_seed(dir / "bridge_status", "status.bin", 0, b);
+    ok &= envelope_seed(dir / "bridge_status", "peer.bin", 1, p);
+    ok &= envelope_seed(dir / "bridge_status", "link.bin", 2, l);
+    ok &= envelope_seed(dir / "bridge_status", "channel.bin", 3, c);
+  }
+  return ok;
+}
+
 int main(int argc, char** argv) {
   if (argc != 2) {
     std::fprintf(stderr, "usage: make_seeds <dir>\n");
@@ -205,5 +371,6 @@ int main(int argc, char** argv) {
     append_record(in, 3 | lcmx::fuzz::kControlExpire | (31 << lcmx::fuzz::kControlAdvanceShift), f[2]);
     ok &= write(dir / "udpm_datagram" / "lc02_lc03_mixed.bin", in);
   }
+  ok &= write_envelope_seeds(dir);
   return ok ? 0 : 1;
 }

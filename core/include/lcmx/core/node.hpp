@@ -9,21 +9,44 @@
 //  - manual: no thread; callbacks run inside spin_once(), on the caller's thread.
 // Errors: advertise/subscribe throw lcmx::Error (channel_too_long, invalid_argument).
 // Move-only handle; the node lives while the handle or any of its endpoints does.
+//
+// Services and actions (create_service, create_client, create_action_server,
+// create_action_client) are a layer above this library, lcmx::services (services/): their
+// members are declared here and defined there (lcmx/services/service.hpp, action.hpp, and
+// services/src). Include <lcmx/core.hpp> and link lcmx::core, which bring both.
 #pragma once
 
 #include <chrono>
+#include <cstddef>
 #include <functional>
 #include <memory>
+#include <span>
 #include <string>
 #include <type_traits>
 
-#include "lcmx/core/action.hpp"
+#include "lcmx/core/error.hpp"
 #include "lcmx/core/options.hpp"
 #include "lcmx/core/publisher.hpp"
-#include "lcmx/core/service.hpp"
 #include "lcmx/core/subscriber.hpp"
 
 namespace lcmx {
+
+// lcmx::services' types (lcmx/services/service.hpp, action.hpp).
+class Service;
+class RawClient;
+template <class Req, class Resp>
+class Client;
+class ResponseWriter;
+class ActionServer;
+class RawActionClient;
+template <class G, class F, class R>
+class ActionClient;
+class RawActionGoal;
+struct ActionServerOptions;
+namespace detail {
+struct ServiceTypes;
+struct ActionTypes;
+}  // namespace detail
 
 class Node {
  public:
@@ -87,123 +110,54 @@ class Node {
                                          SubscriberOptions options = {},
                                          std::size_t max_channels = 10000);
 
-  // Services (service.hpp). `handler`: Resp(const Req&) or void(const Req&, Resp&); it runs
-  // on this node's executor. What it throws reaches the client as CallErrc::handler_failed.
-  // Throws Error(invalid_argument / channel_too_long) for a bad name (at most 43 bytes).
+  // Services (lcmx/services/service.hpp). `handler`: Resp(const Req&) or
+  // void(const Req&, Resp&); it runs on this node's executor. What it throws reaches the client
+  // as CallErrc::handler_failed. Throws Error(invalid_argument / channel_too_long) for a bad
+  // name (at most 43 bytes).
   template <class Req, class Resp, class F>
-  Service create_service(std::string name, F&& handler) {
-    if constexpr (std::is_constructible_v<bool, const std::remove_reference_t<F>&>)
-      if (!static_cast<bool>(handler))
-        throw Error(Errc::invalid_argument, "create_service '" + name + "': empty handler");
-    detail::ServiceTypes types{Req::getTypeName(), Resp::getTypeName(), Req::getHash(),
-                               Resp::getHash()};
-    detail::ServerHandler h = [f = std::forward<F>(handler)](std::span<const std::byte> in,
-                                                             ResponseWriter& out) mutable {
-      Req request;
-      if (in.size() > static_cast<std::size_t>(INT32_MAX) ||
-          request.decode(in.data(), 0, static_cast<int>(in.size())) < 0)
-        throw detail::BadRequest(std::string("the request did not decode as ") + Req::getTypeName());
-      Resp response;
-      if constexpr (std::is_invocable_v<F&, const Req&, Resp&>) {
-        f(request, response);
-      } else {
-        static_assert(std::is_invocable_r_v<Resp, F&, const Req&>,
-                      "create_service<Req, Resp>: handler must be Resp(const Req&) or "
-                      "void(const Req&, Resp&)");
-        response = f(request);
-      }
-      const auto size = static_cast<std::size_t>(response.getEncodedSize());
-      auto bytes = out.allocate(size);
-      response.encode(bytes.data(), 0, static_cast<int>(size));
-    };
-    return Service(detail::create_server(*impl_, std::move(name), std::move(types), std::move(h)));
-  }
+  Service create_service(std::string name, F&& handler);
   // A server over raw bytes. `handler` gets the request payload (valid during the call) and
   // either returns the response, Bytes(std::span<const std::byte>), or writes it in place,
   // void(std::span<const std::byte>, ResponseWriter&) (no copy: see ResponseWriter).
   template <class F>
-  Service create_service_raw(std::string name, F&& handler) {
-    if constexpr (std::is_constructible_v<bool, const std::remove_reference_t<F>&>)
-      if (!static_cast<bool>(handler))  // an empty std::function or a null function pointer
-        throw Error(Errc::invalid_argument, "create_service_raw '" + name + "': empty handler");
-    detail::ServerHandler h;
-    if constexpr (std::is_invocable_v<F&, std::span<const std::byte>, ResponseWriter&>) {
-      h = std::forward<F>(handler);
-    } else {
-      static_assert(std::is_invocable_r_v<Bytes, F&, std::span<const std::byte>>,
-                    "create_service_raw: handler must be Bytes(std::span<const std::byte>) or "
-                    "void(std::span<const std::byte>, ResponseWriter&)");
-      h = [f = std::forward<F>(handler)](std::span<const std::byte> in, ResponseWriter& out) mutable {
-        const Bytes response = f(in);
-        auto bytes = out.allocate(response.size());
-        std::copy(response.begin(), response.end(), bytes.begin());
-      };
-    }
-    return Service(detail::create_server(*impl_, std::move(name), {}, std::move(h)));
-  }
+  Service create_service_raw(std::string name, F&& handler);
 
   template <class Req, class Resp>
-  Client<Req, Resp> create_client(std::string name) {
-    return Client<Req, Resp>(detail::create_client(
-        *impl_, std::move(name),
-        {Req::getTypeName(), Resp::getTypeName(), Req::getHash(), Resp::getHash()}));
-  }
+  Client<Req, Resp> create_client(std::string name);
   // A client over raw bytes: matches servers of any type.
   RawClient create_client_raw(std::string name);
   // A raw server / client that announce lcm-gen types (names and fingerprints, as typed ones
   // do), so a peer of other types gets CallErrc::type_mismatch. Bytes are not checked here.
-  // Used by the Python binding (lcm-gen's Python types).
-  Service create_service_raw(std::string name, detail::ServiceTypes types, detail::ServerHandler handler);
+  // Used by the Python binding (lcm-gen's Python types). `handler` is a
+  // detail::ServerHandler.
+  Service create_service_raw(std::string name, detail::ServiceTypes types,
+                             std::function<void(std::span<const std::byte>, ResponseWriter&)> handler);
   RawClient create_client_raw(std::string name, detail::ServiceTypes types);
 
-  // Actions (action.hpp). `execute`: void(ActionGoal<G, F, R>&), on a thread of its own per
-  // goal. `accept` (optional): bool(const G&), or std::string(const G&) ("" accepts, anything
-  // else rejects with that reason), on this node's executor; without it every goal is
-  // accepted (up to ActionServerOptions::max_goals at once). Throws Error(invalid_argument /
-  // channel_too_long) for a bad name (at most 36 bytes).
+  // Actions (lcmx/services/action.hpp). `execute`: void(ActionGoal<G, F, R>&), on a thread of
+  // its own per goal. `accept` (optional): bool(const G&), or std::string(const G&) (""
+  // accepts, anything else rejects with that reason), on this node's executor; without it
+  // every goal is accepted (up to ActionServerOptions::max_goals at once). `options` default
+  // to ActionServerOptions{}. Throws Error(invalid_argument / channel_too_long) for a bad name
+  // (at most 36 bytes).
   template <class G, class F, class R, class E>
-  ActionServer create_action_server(std::string name, E&& execute, ActionServerOptions options = {}) {
-    return create_action_server<G, F, R>(std::move(name), std::forward<E>(execute),
-                                         [](const G&) { return true; }, options);
-  }
+  ActionServer create_action_server(std::string name, E&& execute);
+  template <class G, class F, class R, class E>
+  ActionServer create_action_server(std::string name, E&& execute, ActionServerOptions options);
   template <class G, class F, class R, class E, class A>
-  ActionServer create_action_server(std::string name, E&& execute, A&& accept, ActionServerOptions options = {}) {
-    static_assert(std::is_invocable_v<E&, ActionGoal<G, F, R>&>,
-                  "create_action_server<G, F, R>: execute must be void(ActionGoal<G, F, R>&)");
-    detail::ActionTypes types{G::getTypeName(), F::getTypeName(), R::getTypeName(),
-                              G::getHash(),     F::getHash(),     R::getHash()};
-    auto decode = [](std::span<const std::byte> in) {
-      G goal;
-      if (in.size() > static_cast<std::size_t>(INT32_MAX) || goal.decode(in.data(), 0, static_cast<int>(in.size())) < 0)
-        throw detail::BadRequest(std::string("the goal did not decode as ") + G::getTypeName());
-      return goal;
-    };
-    detail::GoalAcceptor a = [decode, f = std::forward<A>(accept)](std::span<const std::byte> in) mutable {
-      static_assert(std::is_invocable_v<A&, const G&>,
-                    "create_action_server: accept must be bool(const G&) or std::string(const G&)");
-      const G goal = decode(in);
-      if constexpr (std::is_same_v<std::invoke_result_t<A&, const G&>, bool>)
-        return f(goal) ? std::string() : std::string("rejected by the server");
-      else
-        return std::string(f(goal));
-    };
-    detail::GoalExecutor e = [decode, f = std::forward<E>(execute)](RawActionGoal& raw) mutable {
-      ActionGoal<G, F, R> goal(raw, decode(raw.goal()));
-      f(goal);
-    };
-    return ActionServer(detail::create_action_server(*impl_, std::move(name), std::move(types), std::move(a),
-                                                     std::move(e), options));
-  }
-  // Over raw bytes: `execute` void(RawActionGoal&); `accept` as GoalAcceptor (may be empty).
+  ActionServer create_action_server(std::string name, E&& execute, A&& accept);
+  template <class G, class F, class R, class E, class A>
+  ActionServer create_action_server(std::string name, E&& execute, A&& accept, ActionServerOptions options);
+  // Over raw bytes: `execute` void(RawActionGoal&); `accept` as detail::GoalAcceptor (may be
+  // empty: every goal accepted).
+  ActionServer create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute);
   ActionServer create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute,
-                                        std::function<std::string(std::span<const std::byte>)> accept = {},
-                                        ActionServerOptions options = {});
+                                        std::function<std::string(std::span<const std::byte>)> accept);
+  ActionServer create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute,
+                                        std::function<std::string(std::span<const std::byte>)> accept,
+                                        ActionServerOptions options);
   template <class G, class F, class R>
-  ActionClient<G, F, R> create_action_client(std::string name) {
-    return ActionClient<G, F, R>(detail::create_action_client(
-        *impl_, std::move(name),
-        {G::getTypeName(), F::getTypeName(), R::getTypeName(), G::getHash(), F::getHash(), R::getHash()}));
-  }
+  ActionClient<G, F, R> create_action_client(std::string name);
   RawActionClient create_action_client_raw(std::string name);
   // The same with lcm-gen types announced (Python binding): peers of other types get
   // CallErrc::type_mismatch.

@@ -50,7 +50,7 @@ class TypedSubscriberCore final : public SubscriberCore {
   }
 
   bool deliver_bytes(std::span<const std::byte> bytes, shm::ReadSample* sample = nullptr,
-                     bool* torn = nullptr) override {
+                     bool* torn = nullptr, const PairCounters* = nullptr) override {
     // Reuse the last decoded object when nobody kept it: decoding into the same object
     // reuses its buffers (no allocation for same-sized images).
     if (!scratch_ || scratch_.use_count() > 1) scratch_ = std::make_shared<T>();
@@ -121,8 +121,12 @@ struct RetainedBytes {
 };
 
 namespace detail {
-// Where RawMessage::retain() takes the message from (set by the runtime; nullptr: copy).
+// Where RawMessage::retain() takes the message from (set by the runtime; nullptr: copy), and
+// the pair it came through.
 struct RetainSource {
+  // The publisher->subscriber pair the message came through: who sent it (its publisher's
+  // participant and endpoint, and the path). nullptr when unknown (a RawMessage made by hand).
+  const PairCounters* pair = nullptr;
   shm::ReadSample* sample = nullptr;           // shm path: detached on the first retain()
   std::shared_ptr<const void> owner;           // intra-process/UDP path: the shared buffer
   std::shared_ptr<const shm::DetachedSample> detached;  // after a successful detach
@@ -167,7 +171,7 @@ class RawSubscriberCore final : public SubscriberCore {
                     const TypeInfo& type = raw_type_info());
   bool deliver_intra(const IntraItem& item) override;
   bool deliver_bytes(std::span<const std::byte> bytes, shm::ReadSample* sample = nullptr,
-                     bool* torn = nullptr) override;
+                     bool* torn = nullptr, const PairCounters* pair = nullptr) override;
   // retain() calls that copied (pins exhausted, or encoded from a typed publisher).
   std::uint64_t retain_copies() const noexcept { return copies_.load(std::memory_order_relaxed); }
 

@@ -19,11 +19,12 @@ inline constexpr int kHostBeaconVersion = 1;
 // Encodes a beacon (lcm-gen encoding with its fingerprint, as LCM tools expect).
 std::vector<std::byte> encode_beacon(const lcmx_msgs::beacon_t& beacon);
 
-// Decodes a beacon received from the network. Before handing the bytes to lcm-gen's decoder
-// it walks the encoding and checks every count and string length against the bytes that are
-// left, so a malformed or hostile datagram can neither crash nor make it allocate more than
-// the datagram's size. Returns nullopt and sets *why (if given) for anything malformed, for a
-// wrong fingerprint and for an unsupported version.
+// Decodes a beacon received from the network with lcmx's checked decoder
+// (lcmx/lcmtypes/envelope.hpp): every count and string length is checked against the bytes
+// that are left before anything is sized, so a malformed or hostile datagram can neither
+// crash nor make it allocate more than a small multiple of the datagram's size. Accepts
+// exactly lcm-gen's encoding of a beacon_t (nothing after it). Returns nullopt and sets *why
+// (if given) for anything malformed, for a wrong fingerprint and for an unsupported version.
 std::optional<lcmx_msgs::beacon_t> decode_beacon(std::span<const std::byte> bytes,
                                                  std::string* why = nullptr);
 

@@ -57,10 +57,18 @@ const TypeInfo& type_info_of() {
 // Raw payloads travel intra-process as a shared immutable byte vector.
 using Bytes = std::vector<std::byte>;
 
-// Per publisher->subscriber pair statistics (see lcmx_msgs::match_t).
+// Per publisher->subscriber pair statistics (see lcmx_msgs::match_t), and the pair's
+// publisher: set when the match is made, before any message goes through it, and never
+// changed after (so read without a lock by whoever holds a message of the pair). 0 and 0 for
+// a sender that is no lcmx participant (a stock LCM program over UDP). Over UDP a message
+// names its sender's participant (its address) but not the endpoint: a participant's
+// messages on one channel all come through its first UDP match there.
 struct PairCounters {
   std::atomic<std::uint64_t> received{0};
   std::atomic<std::uint64_t> drops{0};
+  std::uint64_t publisher_participant = 0;
+  std::uint64_t publisher_endpoint = 0;
+  Path path = Path::intra;
 };
 
 // A message handed to a subscriber on the intra-process path (or queued from UDP).
@@ -89,9 +97,11 @@ class SubscriberCore {
   // and after their zero-copy callback. A sample found not intact sets `*torn` (a drop for
   // the caller to count); withheld unless found only after a raw callback.
   // A raw subscriber's callback may detach `sample` (RawMessage::retain): *sample is then
-  // empty when deliver_bytes returns.
+  // empty when deliver_bytes returns. `pair`: the pair the bytes came through (who sent
+  // them, RawMessage's source), or nullptr.
   virtual bool deliver_bytes(std::span<const std::byte> bytes,
-                             shm::ReadSample* sample = nullptr, bool* torn = nullptr) = 0;
+                             shm::ReadSample* sample = nullptr, bool* torn = nullptr,
+                             const PairCounters* pair = nullptr) = 0;
 
   const std::string& channel() const { return channel_; }
   const TypeInfo& type() const { return type_; }

@@ -1,14 +1,20 @@
-// Services (lcmx/core/service.hpp, docs/services.md): servers and clients on ordinary lcmx
+// Services (lcmx/services/service.hpp, docs/services.md): servers and clients on ordinary lcmx
 // channels. A server is a subscriber of "<name>/rq" plus one publisher per client on
 // "<name>/rp/<client id>"; a client is a publisher of "<name>/rq", a subscriber of its reply
 // channel on a node of its own, and one thread that runs that node (replies), timeouts,
 // probes and fail-over.
 //
-// The envelopes (lcmtypes/service.lcm) are encoded and parsed here, field by field as lcm-gen
-// lays them out, so the payload is encoded in place and read where it lies (in shared memory)
-// instead of being copied into the generated struct's byte vector. test/core/service_test.cpp
-// checks the layout against lcm-gen's code.
-#include "lcmx/core/service.hpp"
+// The envelopes (lcmtypes/service.lcm) go through lcmx::lcmtypes' bounded codec
+// (lcmx/lcmtypes/envelope.hpp) as a header before a payload, so the payload is encoded in
+// place and read where it lies (in shared memory) instead of being copied into the generated
+// struct's byte vector.
+//
+// Trust (docs/services.md "Trust"): a server makes nothing for a request before it is checked
+// (its reply channel is its client id's, the participant it names sent it and subscribes to
+// that channel) and keeps a reply channel for at most kMaxClients clients; a client takes a
+// reply only from the server its call went to, checked against the pair the reply came
+// through (sender.hpp).
+#include "lcmx/services/service.hpp"
 
 #include <algorithm>
 #include <condition_variable>
@@ -21,9 +27,9 @@
 
 #include <spdlog/spdlog.h>
 
-#include "internal.hpp"
-#include "lcmx_msgs/service_reply_t.hpp"
-#include "lcmx_msgs/service_request_t.hpp"
+#include "lcmx/core/detail/service_hook.hpp"
+#include "lcmx/lcmtypes/envelope.hpp"
+#include "sender.hpp"
 
 namespace lcmx {
 
@@ -45,158 +51,17 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-// --- Envelope encoding (big-endian, as LCM) -------------------------------------------------
+// --- Envelopes (lcmtypes/service.lcm) ---------------------------------------------------------
+// Encoded and decoded with lcmx::lcmtypes' bounded codec, header by header, so the payload is
+// written in place (a loaned slot) and read where it lies (envelope.hpp).
 
-class Out {
- public:
-  explicit Out(std::byte* p) : p_(p) {}
-  void i64(std::int64_t v) {
-    for (int i = 7; i >= 0; --i) *p_++ = static_cast<std::byte>((static_cast<std::uint64_t>(v) >> (8 * i)) & 0xff);
-  }
-  void i32(std::int32_t v) {
-    for (int i = 3; i >= 0; --i) *p_++ = static_cast<std::byte>((static_cast<std::uint32_t>(v) >> (8 * i)) & 0xff);
-  }
-  void i8(std::int8_t v) { *p_++ = static_cast<std::byte>(v); }
-  void str(const std::string& s) {  // length with the NUL, the bytes, the NUL
-    i32(static_cast<std::int32_t>(s.size() + 1));
-    std::memcpy(p_, s.data(), s.size());
-    p_ += s.size();
-    *p_++ = std::byte{0};
-  }
+using RequestHeader = lcmtypes::ServiceRequestHeader;
+using ReplyHeader = lcmtypes::ServiceReplyHeader;
 
- private:
-  std::byte* p_;
-};
-
-class In {
- public:
-  explicit In(std::span<const std::byte> b) : b_(b) {}
-  bool ok() const { return ok_; }
-  std::int64_t i64() {
-    if (!need(8)) return 0;
-    std::uint64_t v = 0;
-    for (int i = 0; i < 8; ++i) v = (v << 8) | std::to_integer<std::uint64_t>(b_[pos_++]);
-    return static_cast<std::int64_t>(v);
-  }
-  std::int32_t i32() {
-    if (!need(4)) return 0;
-    std::uint32_t v = 0;
-    for (int i = 0; i < 4; ++i) v = (v << 8) | std::to_integer<std::uint32_t>(b_[pos_++]);
-    return static_cast<std::int32_t>(v);
-  }
-  std::int8_t i8() { return need(1) ? static_cast<std::int8_t>(b_[pos_++]) : 0; }
-  std::string str() {
-    const auto n = i32();
-    if (n < 1 || !need(static_cast<std::size_t>(n))) return ok_ = false, std::string();
-    std::string s(reinterpret_cast<const char*>(b_.data() + pos_), static_cast<std::size_t>(n) - 1);
-    pos_ += static_cast<std::size_t>(n);
-    return s;
-  }
-  std::span<const std::byte> bytes(std::int32_t n) {
-    if (n < 0 || !need(static_cast<std::size_t>(n))) return ok_ = false, std::span<const std::byte>();
-    auto s = b_.subspan(pos_, static_cast<std::size_t>(n));
-    pos_ += static_cast<std::size_t>(n);
-    return s;
-  }
-
- private:
-  bool need(std::size_t n) {
-    if (!ok_ || b_.size() - pos_ < n) return ok_ = false;
-    return true;
-  }
-  std::span<const std::byte> b_;
-  std::size_t pos_ = 0;
-  bool ok_ = true;
-};
-
-struct RequestHeader {
-  std::int64_t client_id = 0, request_id = 0, server_participant = 0, server_id = 0,
-               client_participant = 0, request_fingerprint = 0, response_fingerprint = 0;
-  std::string reply_channel;
-};
-// Byte offsets of the target in an encoded request (after the fingerprint, client and request
-// ids), patched in place on fail-over.
-constexpr std::size_t kTargetOffset = 8 + 8 + 8;
-
-std::size_t request_header_size(const RequestHeader& h) {
-  return 8 + 7 * 8 + 4 + h.reply_channel.size() + 1 + 4;
-}
-void write_request_header(std::byte* p, const RequestHeader& h, std::size_t payload) {
-  Out o(p);
-  o.i64(lcmx_msgs::service_request_t::getHash());
-  o.i64(h.client_id);
-  o.i64(h.request_id);
-  o.i64(h.server_participant);
-  o.i64(h.server_id);
-  o.i64(h.client_participant);
-  o.i64(h.request_fingerprint);
-  o.i64(h.response_fingerprint);
-  o.str(h.reply_channel);
-  o.i32(static_cast<std::int32_t>(payload));
-}
 void patch_target(Bytes& message, std::uint64_t participant, std::uint64_t id) {
-  Out o(message.data() + kTargetOffset);
-  o.i64(static_cast<std::int64_t>(participant));
-  o.i64(static_cast<std::int64_t>(id));
-}
-bool parse_request(std::span<const std::byte> b, RequestHeader& h, std::span<const std::byte>& payload) {
-  In in(b);
-  if (in.i64() != lcmx_msgs::service_request_t::getHash()) return false;
-  h.client_id = in.i64();
-  h.request_id = in.i64();
-  h.server_participant = in.i64();
-  h.server_id = in.i64();
-  h.client_participant = in.i64();
-  h.request_fingerprint = in.i64();
-  h.response_fingerprint = in.i64();
-  h.reply_channel = in.str();
-  payload = in.bytes(in.i32());
-  return in.ok();
-}
-
-struct ReplyHeader {
-  std::int64_t client_id = 0, request_id = 0, server_participant = 0, server_id = 0,
-               reply_endpoint = 0, request_fingerprint = 0, response_fingerprint = 0;
-  std::string request_type, response_type;
-  std::int8_t status = lcmx_msgs::service_reply_t::OK;
-  std::string error;
-};
-std::size_t reply_header_size(const ReplyHeader& h) {
-  return 8 + 7 * 8 + 3 * 4 + h.request_type.size() + h.response_type.size() + h.error.size() +
-         3 + 1 + 4;
-}
-void write_reply_header(std::byte* p, const ReplyHeader& h, std::size_t payload) {
-  Out o(p);
-  o.i64(lcmx_msgs::service_reply_t::getHash());
-  o.i64(h.client_id);
-  o.i64(h.request_id);
-  o.i64(h.server_participant);
-  o.i64(h.server_id);
-  o.i64(h.reply_endpoint);
-  o.i64(h.request_fingerprint);
-  o.i64(h.response_fingerprint);
-  o.str(h.request_type);
-  o.str(h.response_type);
-  o.i8(h.status);
-  o.str(h.error);
-  o.i32(static_cast<std::int32_t>(payload));
-}
-bool parse_reply(std::span<const std::byte> b, ReplyHeader& h, std::span<const std::byte>& payload) {
-  In in(b);
-  if (in.i64() != lcmx_msgs::service_reply_t::getHash()) return false;
-  h.client_id = in.i64();
-  h.request_id = in.i64();
-  h.server_participant = in.i64();
-  h.server_id = in.i64();
-  h.reply_endpoint = in.i64();
-  h.request_fingerprint = in.i64();
-  h.response_fingerprint = in.i64();
-  h.request_type = in.str();
-  h.response_type = in.str();
-  h.status = in.i8();
-  h.error = in.str();
-  payload = in.bytes(in.i32());
-  return in.ok();
+  lcmtypes::Writer w(std::span<std::byte>(message).subspan(lcmtypes::kServiceRequestTargetOffset, 16));
+  w.i64(static_cast<std::int64_t>(participant));
+  w.i64(static_cast<std::int64_t>(id));
 }
 
 bool compatible(std::int64_t a, std::int64_t b) { return a == 0 || b == 0 || a == b; }
@@ -219,6 +84,17 @@ int path_rank(Path p) {
 
 std::string request_channel(const std::string& name) { return name + "/rq"; }
 std::string reply_prefix(const std::string& name) { return name + "/rp/"; }
+// Whether `channel` is "<name>/rp/<id as 16 lower-case hex digits>", id != 0 (no allocation:
+// every request is checked).
+bool is_reply_channel(std::string_view channel, std::string_view name, std::uint64_t id) {
+  if (id == 0 || channel.size() != name.size() + 4 + 16 || channel.substr(0, name.size()) != name ||
+      channel.substr(name.size(), 4) != "/rp/")
+    return false;
+  constexpr char kHex[] = "0123456789abcdef";
+  for (std::size_t i = 0; i < 16; ++i)
+    if (channel[name.size() + 4 + i] != kHex[(id >> (60 - 4 * i)) & 0xf]) return false;
+  return true;
+}
 
 // "<name>/rq" and "<name>/rp/<16 hex>" must fit LCM's 63-byte channel names.
 constexpr std::size_t kMaxServiceName = kMaxChannelLength - 4 - 16;
@@ -259,13 +135,13 @@ class ServerCore {
  public:
   ServerCore(std::shared_ptr<NodeImpl> n, std::string nm, ServiceTypes t, ServerHandler h)
       : node(std::move(n)), name(std::move(nm)), types(std::move(t)), handler(std::move(h)),
-        participant(node->runtime->participant_id) {}
+        participant(hook::participant_id(*node)) {}
 
   // The request subscriber's callback: on the server node's executor, one at a time.
-  void on_request(std::span<const std::byte> bytes);
+  void on_request(const RawMessage& m);
   ServerStats stats() const {
     std::lock_guard lock(mu);
-    return {requests, failed, probes, replies.size()};
+    return {requests, failed, probes, refused, replies.size()};
   }
   // Whether the client `reply_channel` belongs to has been answered by this server and its
   // reply channel has a subscriber now (the client is alive; across hosts, its demand).
@@ -281,6 +157,11 @@ class ServerCore {
   // subscription lives as long as the client's demand).
   void sweep();
 
+  // Clients a server keeps a reply channel (a publisher: a /dev/shm segment and an endpoint
+  // in its beacons) for at once. A new client beyond it takes the place of one whose reply
+  // channel has no subscriber now; with none, its requests are refused (ServerStats::refused).
+  static constexpr std::size_t kMaxClients = 256;
+
   const std::shared_ptr<NodeImpl> node;
   const std::string name;
   const ServiceTypes types;
@@ -293,33 +174,95 @@ class ServerCore {
   struct ReplyChannel {
     std::shared_ptr<PublisherCore> pub;
     Clock::time_point last_subscribed;  // last seen with a subscriber (or made)
+    std::uint64_t client_participant = 0;  // the participant the client's requests come from
   };
   static constexpr std::chrono::seconds kClientGone{10};
-  // The publisher of `h.reply_channel`, made on first use. Null for a malformed channel.
+  // The publisher of the client's reply channel, made for a checked client only (see the
+  // file comment); null (counted, logged at most every 5 s) for a request to refuse.
   // Shared: sweep() may forget the client meanwhile (the publisher lives while in use).
-  std::shared_ptr<PublisherCore> reply_channel(const RequestHeader& h);
+  std::shared_ptr<PublisherCore> reply_channel(const RequestHeader& h, const RawMessage& m);
+  std::shared_ptr<PublisherCore> refuse(const RequestHeader& h, const char* why);
   // A reply without payload: a probe's answer or an error (responses go through Writer).
   void reply(PublisherCore& pub, const ReplyHeader& rh);
 
   mutable std::mutex mu;  // guards the members below (stats() reads them from any thread)
-  std::map<std::string, ReplyChannel> replies;
-  std::uint64_t requests = 0, failed = 0, probes = 0;
+  std::map<std::string, ReplyChannel, std::less<>> replies;
+  std::uint64_t requests = 0, failed = 0, probes = 0, refused = 0;
+  std::uint64_t refused_logged = 0;  // `refused` when last logged
+  Clock::time_point refused_log_at{};
   Bytes buffer;  // executor only: the reply being built
 };
 
-std::shared_ptr<PublisherCore> ServerCore::reply_channel(const RequestHeader& h) {
-  const auto prefix = reply_prefix(name);
-  if (h.reply_channel.size() != prefix.size() + 16 || h.reply_channel.compare(0, prefix.size(), prefix) != 0)
-    return nullptr;  // not a reply channel of this service: never publish on it
+std::shared_ptr<PublisherCore> ServerCore::refuse(const RequestHeader& h, const char* why) {
+  std::lock_guard lock(mu);
+  ++refused;
+  const auto now = Clock::now();
+  if (now - refused_log_at >= std::chrono::seconds(5)) {
+    spdlog::warn("lcmx: service '{}': a request from participant {:x} (client {:016x}) was refused: {} ({} "
+                 "refused since the last report)",
+                 name, static_cast<std::uint64_t>(h.client_participant), static_cast<std::uint64_t>(h.client_id), why,
+                 refused - refused_logged);
+    refused_logged = refused;
+    refused_log_at = now;
+  }
+  return nullptr;
+}
+
+std::shared_ptr<PublisherCore> ServerCore::reply_channel(const RequestHeader& h, const RawMessage& m) {
+  // The channel the client subscribes to is named after its id: never publish anywhere else.
+  if (!is_reply_channel(h.reply_channel, name, static_cast<std::uint64_t>(h.client_id)))
+    return refuse(h, "its reply channel is not its client id's");
+  // Who sent it: over the bridges this host's bridge, which names no origin; else the
+  // participant the request names (its client's), the same for every request of a client.
+  const auto from = sender_of(m);
+  const bool bridged = from && from->path == Path::bridge;
+  if (!from || (!bridged && from->participant != static_cast<std::uint64_t>(h.client_participant)))
+    return refuse(h, "it was not sent by the participant it names");
+  std::shared_ptr<PublisherCore> known;
+  bool other = false;
   {
     std::lock_guard lock(mu);
-    if (auto it = replies.find(h.reply_channel); it != replies.end()) return it->second.pub;
+    if (auto it = replies.find(h.reply_channel); it != replies.end()) {
+      other = !bridged && it->second.client_participant != 0 && it->second.client_participant != from->participant;
+      known = it->second.pub;
+    }
   }
-  auto pub = create_publisher(*node, h.reply_channel, reply_type_info(), PublisherOptions{});
+  if (other) return refuse(h, "its client id is another participant's client's");
+  if (known) return known;
+  // A new client. Its reply channel must be subscribed by the participant the request names
+  // (in its beacons, or in this process): random client ids make nothing. Requests through
+  // the bridges are the exception: this host's bridge subscribes to a reply channel only
+  // once a publisher of it exists here, so only the bound below applies to them.
+  const std::string channel(h.reply_channel);
+  if (!bridged && !hook::subscriber_announced(*node, from->participant, channel))
+    return refuse(h, "its client announces no subscriber of its reply channel");
+  std::shared_ptr<PublisherCore> evicted;  // destroyed with no lock held
+  bool full = false;
+  {
+    std::lock_guard lock(mu);
+    if (replies.size() >= kMaxClients) {
+      auto victim = replies.end();
+      for (auto it = replies.begin(); it != replies.end(); ++it)
+        if (it->second.pub->subscriber_count() == 0 &&
+            (victim == replies.end() || it->second.last_subscribed < victim->second.last_subscribed))
+          victim = it;
+      if (victim == replies.end()) {
+        full = true;
+      } else {
+        evicted = std::move(victim->second.pub);
+        replies.erase(victim);
+      }
+    }
+  }
+  if (full) return refuse(h, "the server has a reply channel for kMaxClients (256) subscribed clients already");
+  evicted.reset();
+  // Only this thread (the request subscriber's callback) adds clients; sweep() only forgets.
+  auto pub = create_publisher(*node, channel, reply_type_info(), PublisherOptions{});
   std::lock_guard lock(mu);
-  auto& r = replies[h.reply_channel];
+  auto& r = replies[channel];
   r.pub = std::move(pub);
   r.last_subscribed = Clock::now();
+  r.client_participant = bridged ? 0 : from->participant;
   return r.pub;
 }
 
@@ -340,16 +283,16 @@ void ServerCore::sweep() {
 }
 
 void ServerCore::reply(PublisherCore& pub, const ReplyHeader& rh) {
-  buffer.resize(reply_header_size(rh));
-  write_reply_header(buffer.data(), rh, 0);
+  buffer.resize(lcmtypes::header_size(rh));
+  lcmtypes::encode_header(rh, 0, buffer);
   pub.publish_bytes(buffer);
 }
 
-void ServerCore::on_request(std::span<const std::byte> bytes) {
+void ServerCore::on_request(const RawMessage& m) {
   RequestHeader h;
   std::span<const std::byte> payload;
-  if (!parse_request(bytes, h, payload)) {
-    spdlog::warn("lcmx: service '{}': a malformed request ({} bytes) was ignored", name, bytes.size());
+  if (!lcmtypes::decode(m.data, h, payload)) {
+    spdlog::warn("lcmx: service '{}': a malformed request ({} bytes) was ignored", name, m.data.size());
     return;
   }
   // Our server id: the request subscriber's endpoint id (set before it was registered, so
@@ -360,18 +303,15 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
                static_cast<std::uint64_t>(h.server_id) != id))
     return;  // for another server of the service
   if (h.request_id == 0 && !any) return;  // probes are addressed to every server
-  const auto pub = reply_channel(h);
-  if (pub == nullptr) {
-    spdlog::warn("lcmx: service '{}': a request with reply channel '{}' was ignored", name,
-                 h.reply_channel);
-    return;
-  }
+  const auto pub = reply_channel(h, m);
+  if (pub == nullptr) return;  // refused (counted and logged)
   ReplyHeader rh;
+  std::string error;  // rh.error's text
   rh.client_id = h.client_id;
   rh.request_id = h.request_id;
   rh.server_participant = static_cast<std::int64_t>(participant);
   rh.server_id = static_cast<std::int64_t>(id);
-  rh.reply_endpoint = static_cast<std::int64_t>(static_cast<PublisherImpl*>(pub.get())->id);
+  rh.reply_endpoint = static_cast<std::int64_t>(hook::endpoint_id(*pub));
   rh.request_fingerprint = types.request_fingerprint;
   rh.response_fingerprint = types.response_fingerprint;
   rh.request_type = types.request_name;
@@ -380,7 +320,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
                         compatible(h.response_fingerprint, types.response_fingerprint);
   if (!types_ok) {
     rh.status = lcmx_msgs::service_reply_t::TYPE_MISMATCH;
-    rh.error = fmt::format("service '{}' takes {} and answers {}; the client sends {} and expects {}",
+    rh.error = error = fmt::format("service '{}' takes {} and answers {}; the client sends {} and expects {}",
                            name, type_text(types.request_name, types.request_fingerprint),
                            type_text(types.response_name, types.response_fingerprint),
                            type_text("", h.request_fingerprint), type_text("", h.response_fingerprint));
@@ -413,7 +353,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     std::size_t header;
     std::optional<shm::WriteLoan> loan;
     std::size_t total = 0;
-    Writer(PublisherCore& p, const ReplyHeader& r) : pub(p), rh(r), header(reply_header_size(r)) {}
+    Writer(PublisherCore& p, const ReplyHeader& r) : pub(p), rh(r), header(lcmtypes::header_size(r)) {}
     ~Writer() {
       if (loan) pub.drop_loan(std::move(*loan));
     }
@@ -428,7 +368,7 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
         throw std::runtime_error(std::string("the server could not reserve shared memory for its response "
                                       "(its handler did not fail): ") + e.what());
       }
-      write_reply_header(loan->data(), rh, size);
+      lcmtypes::encode_header(rh, size, {loan->data(), header});
       return {loan->data() + header, size};
     }
     void publish() {
@@ -450,14 +390,15 @@ void ServerCore::on_request(std::span<const std::byte> bytes) {
     return;
   } catch (const BadRequest& e) {
     rh.status = lcmx_msgs::service_reply_t::BAD_REQUEST;
-    rh.error = e.what();
+    error = e.what();
   } catch (const std::exception& e) {
     rh.status = lcmx_msgs::service_reply_t::HANDLER_FAILED;
-    rh.error = e.what();
+    error = e.what();
   } catch (...) {
     rh.status = lcmx_msgs::service_reply_t::HANDLER_FAILED;
-    rh.error = "the handler threw a non-std::exception";
+    error = "the handler threw a non-std::exception";
   }
+  rh.error = error;
   {
     std::lock_guard lock(mu);
     ++failed;
@@ -470,7 +411,7 @@ std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, Serv
                                           ServerHandler handler) {
   check_name(name, "create_service");
   if (!handler) throw Error(Errc::invalid_argument, "create_service '" + name + "': empty handler");
-  auto server = std::make_shared<ServerCore>(node.shared_from_this(), name, std::move(types),
+  auto server = std::make_shared<ServerCore>(hook::shared(node), name, std::move(types),
                                              std::move(handler));
   // The subscriber announces the envelope type, so discovery (and `lcmx services`) tell a
   // service's server from a plain subscriber. Its callback uses `server` by address: the
@@ -478,18 +419,18 @@ std::shared_ptr<ServerCore> create_server(NodeImpl& node, std::string name, Serv
   ServerCore* raw = server.get();
   server->request_sub = std::make_shared<RawSubscriberCore>(
       request_channel(name), SubscriberOptions{.queue_depth = 64},
-      [raw](const RawMessage& m) { raw->on_request(m.data); }, request_type_info());
+      [raw](const RawMessage& m) { raw->on_request(m); }, request_type_info());
   add_subscriber(node, server->request_sub);
   // Without it a gone client's reply segment stayed until the next new client came.
   std::weak_ptr<ServerCore> weak = server;
-  server->housekeeping = node.runtime->add_housekeeping([weak] {
+  server->housekeeping = hook::add_housekeeping(node, [weak] {
     if (auto s = weak.lock()) s->sweep();
   });
   return server;
 }
 
 void close_server(const std::shared_ptr<ServerCore>& server) {
-  server->node->runtime->remove_housekeeping(server->housekeeping);
+  hook::remove_housekeeping(*server->node, server->housekeeping);
   remove_subscriber(server->request_sub);
 }
 
@@ -504,21 +445,22 @@ bool server_client_connected(const ServerCore& server, std::uint64_t client_id) 
 
 class ClientCore : public std::enable_shared_from_this<ClientCore> {
  public:
-  ClientCore(std::shared_ptr<RuntimeImpl> rt, std::string nm, ServiceTypes t, ServersGone gone)
-      : runtime(std::move(rt)), name(std::move(nm)), types(std::move(t)),
+  ClientCore(std::string nm, ServiceTypes t, ServersGone gone)
+      : name(std::move(nm)), types(std::move(t)),
         client_id(random_nonzero()),
         reply_channel(fmt::format("{}{:016x}", reply_prefix(name), client_id)),
         on_servers_gone(std::move(gone)) {}
 
-  void start(const std::string& node_name);
+  // Makes the client's node (beside `user_node`, in its runtime), endpoints and thread.
+  void start(NodeImpl& user_node);
   void close();
   void call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
-            std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin, bool hands_over);
+            std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin, bool hands_over,
+            std::function<void(const ServerInfo&)> on_sent);
   bool wait_for_service(std::chrono::milliseconds timeout);
   ClientStats stats() const;
   std::vector<ServerInfo> servers_now() const;
 
-  const std::shared_ptr<RuntimeImpl> runtime;
   const std::string name;
   const ServiceTypes types;
   const std::uint64_t client_id;
@@ -547,6 +489,16 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
     bool hands_over = false;
     // Only this server (participant, id) may execute the call: no fail-over.
     std::optional<std::pair<std::uint64_t, std::uint64_t>> pin;
+    // Told each server the call is sent to (detail::client_call); may be empty.
+    std::function<void(const ServerInfo&)> on_sent;
+    // The servers the call was sent to (more than one after a fail-over): its reply is taken
+    // from one of them only, through the publisher it was heard through (see on_reply).
+    struct SentTo {
+      std::uint64_t participant = 0, id = 0;
+      std::uint64_t reply_endpoint = 0;  // the server's publisher of our reply channel
+      bool remote = false;               // reached over UDP or the bridges
+    };
+    std::vector<SentTo> sent_to;
   };
   struct Finished {  // a call ended by the client itself (not a reply): `done` runs unlocked
     ReplyHandler done;
@@ -556,15 +508,19 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   };
 
   // The envelope fields every request of this client has (request id 0, no target: a probe).
+  // Views `reply_channel` (a member).
   RequestHeader request_header() const {
     RequestHeader h;
     h.client_id = static_cast<std::int64_t>(client_id);
-    h.client_participant = static_cast<std::int64_t>(runtime->participant_id);
+    h.client_participant = static_cast<std::int64_t>(participant);
     h.request_fingerprint = types.request_fingerprint;
     h.response_fingerprint = types.response_fingerprint;
     h.reply_channel = reply_channel;
     return h;
   }
+  // Whether a reply that came from `from` may answer call `p`: the server it names is one the
+  // call went to, and that server's publisher sent it (sender.hpp). Under mu.
+  static bool from_target(const Pending& p, const ReplyHeader& h, const std::optional<Sender>& from);
   void loop();
   void on_reply(const RawMessage& m);  // client thread, in the reply subscriber's callback
   // The runtime's receive thread (SubscriberCore::udp_inline): completes a hands_over call on
@@ -589,6 +545,7 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   static void finish(std::vector<Finished>& finished);
 
   std::shared_ptr<NodeImpl> node;  // manual executor, run by `thread`
+  std::uint64_t participant = 0;   // node's (set by start)
   std::shared_ptr<PublisherCore> request_pub;
   std::shared_ptr<SubscriberCore> reply_sub;
   std::uint64_t tap = 0;
@@ -619,16 +576,13 @@ class ClientCore : public std::enable_shared_from_this<ClientCore> {
   ClientStats counters;
 };
 
-void ClientCore::start(const std::string& node_name) {
-  NodeOptions o;
-  o.executor.kind = ExecutorKind::manual;
-  node = std::make_shared<NodeImpl>(runtime, node_name + "/client:" + name, o);
-  node->start();
-  runtime->add_node(node);
+void ClientCore::start(NodeImpl& user_node) {
+  node = hook::create_manual_node(user_node, hook::node_name(user_node) + "/client:" + name);
+  participant = hook::participant_id(*node);
   request_pub = create_publisher(*node, request_channel(name), request_type_info(), PublisherOptions{});
   // A new server's subscriber wakes our thread to probe it (matched before this line: the
   // thread's first pass sees the count).
-  static_cast<PublisherImpl&>(*request_pub).interrupt_on_match.store(true);
+  hook::interrupt_on_match(*request_pub);
   std::weak_ptr<ClientCore> weak = weak_from_this();
   reply_sub = std::make_shared<RawSubscriberCore>(
       reply_channel, SubscriberOptions{.queue_depth = 64},
@@ -640,16 +594,16 @@ void ClientCore::start(const std::string& node_name) {
   };
   add_subscriber(*node, reply_sub);
   // Our reply channel's publishers come and go (a server leaves): re-check at once.
-  tap = runtime->add_event_tap([weak, channel = reply_channel](const Event& e) {
+  tap = hook::add_event_tap(*node, [weak, channel = reply_channel](const Event& e) {
     if (e.channel != channel && e.kind != Event::Kind::participant_left) return;
     if (auto self = weak.lock()) {
       self->matches_changed.store(true);
-      self->node->interrupt();
+      hook::interrupt(*self->node);
     }
   });
-  RequestHeader h = request_header();
-  probe_message.resize(request_header_size(h));
-  write_request_header(probe_message.data(), h, 0);
+  const RequestHeader h = request_header();
+  probe_message.resize(lcmtypes::header_size(h));
+  lcmtypes::encode_header(h, 0, probe_message);
   thread = std::thread([this] { loop(); });
 }
 
@@ -661,12 +615,12 @@ void ClientCore::close() {
     closed = true;
   }
   cv.notify_all();
-  node->interrupt();
+  hook::interrupt(*node);
   if (thread.joinable()) {
     if (thread.get_id() == std::this_thread::get_id()) thread.detach();  // from a done callback
     else thread.join();
   }
-  runtime->remove_event_tap(tap);
+  hook::remove_event_tap(*node, tap);
   std::vector<Finished> finished;
   {
     std::lock_guard lock(mu);
@@ -678,7 +632,7 @@ void ClientCore::close() {
   finish(finished);
   remove_subscriber(reply_sub);
   request_pub.reset();
-  node->stop();
+  hook::stop(*node);
 }
 
 void ClientCore::finish(std::vector<Finished>& finished) {
@@ -728,7 +682,7 @@ void ClientCore::loop() {
         wait = std::min<std::chrono::nanoseconds>(wait, p.deadline - now);
       wait = std::max<std::chrono::nanoseconds>(wait, std::chrono::nanoseconds(0));
       wake_at = now + wait;
-      if (node->stopped()) {  // the runtime shut down: nothing will answer any more
+      if (hook::stopped(*node)) {  // the runtime shut down: nothing will answer any more
         closed = true;
         for (auto& [id, p] : pending)
           finished.push_back({std::move(p.done), CallErrc::shutdown,
@@ -745,8 +699,8 @@ void ClientCore::loop() {
       }
     }
     gone_servers.clear();
-    if (node->stopped()) return;
-    node->run_once(wait);
+    if (hook::stopped(*node)) return;
+    hook::run_once(*node, wait);
   }
 }
 
@@ -775,7 +729,7 @@ void ClientCore::refresh_servers_locked(std::vector<Finished>& finished,
     if (m == matched.end()) m = matched.find({k.info.participant, k.server_reply_endpoint});
     const bool remote = k.info.path != Path::intra && k.info.path != Path::shm;
     if (m == matched.end() && bridge != nullptr && remote) m = matched.find(*bridge);
-    if (m == matched.end() && remote && runtime->endpoint_announced(k.info.participant, k.info.id)) {
+    if (m == matched.end() && remote && hook::endpoint_announced(*node, k.info.participant, k.info.id)) {
       ++it;  // between two paths (its reply channel turned large; the bridges take over)
       continue;
     }
@@ -848,8 +802,20 @@ void ClientCore::send_locked(Pending& p, const Known& server) {
   p.target = server.info;
   if (!p.sent) ++in_flight;  // a fail-over re-sends a call already in flight
   p.sent = true;
+  p.sent_to.push_back({server.info.participant, server.info.id, server.server_reply_endpoint,
+                       server.info.path == Path::udp || server.info.path == Path::bridge});
+  if (p.on_sent) p.on_sent(server.info);
   patch_target(p.message, server.info.participant, server.info.id);
   request_pub->publish_bytes(p.message);
+}
+
+bool ClientCore::from_target(const Pending& p, const ReplyHeader& h, const std::optional<Sender>& from) {
+  if (!from) return false;
+  for (const auto& t : p.sent_to)
+    if (t.participant == static_cast<std::uint64_t>(h.server_participant) &&
+        t.id == static_cast<std::uint64_t>(h.server_id) && sent_by(*from, t.participant, t.reply_endpoint, t.remote))
+      return true;
+  return false;
 }
 
 // Sends waiting calls, oldest first, while fewer than kMaxInFlight are in flight.
@@ -900,19 +866,24 @@ void ClientCore::expire_locked(Clock::time_point now, std::vector<Finished>& fin
 }
 
 void ClientCore::on_reply(const RawMessage& m) {
-  const std::span<const std::byte> bytes = m.data;
   ReplyHeader h;
   std::span<const std::byte> payload;
-  if (!parse_reply(bytes, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id) return;
+  if (!lcmtypes::decode(m.data, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id) return;
+  const auto sender = sender_of(m);
   ServerInfo from;
   from.participant = static_cast<std::uint64_t>(h.server_participant);
   from.id = static_cast<std::uint64_t>(h.server_id);
   std::unique_lock lock(mu);
   if (h.request_id == 0) {  // a probe's answer: a server we can use (or one of other types)
+    // Only from the server it names: its own reply publisher (or this host's bridge).
+    if (!sender || !sent_by(*sender, from.participant, static_cast<std::uint64_t>(h.reply_endpoint), true)) {
+      ++counters.foreign_replies;
+      return;
+    }
     Known k;
     k.info = from;
-    k.info.request_type = h.request_type;
-    k.info.response_type = h.response_type;
+    k.info.request_type = std::string(h.request_type);
+    k.info.response_type = std::string(h.response_type);
     k.info.request_fingerprint = h.request_fingerprint;
     k.info.response_fingerprint = h.response_fingerprint;
     k.reply_endpoint = static_cast<std::uint64_t>(h.reply_endpoint);
@@ -940,8 +911,8 @@ void ClientCore::on_reply(const RawMessage& m) {
     if (!k.types_ok)
       k.mismatch = fmt::format(
           "service '{}': its server takes {} and answers {}; this client sends {} and expects {}",
-          name, type_text(h.request_type, h.request_fingerprint),
-          type_text(h.response_type, h.response_fingerprint),
+          name, type_text(std::string(h.request_type), h.request_fingerprint),
+          type_text(std::string(h.response_type), h.response_fingerprint),
           type_text(types.request_name, types.request_fingerprint),
           type_text(types.response_name, types.response_fingerprint));
     const bool is_new = !servers.contains({from.participant, from.id});
@@ -958,19 +929,27 @@ void ClientCore::on_reply(const RawMessage& m) {
     ++counters.late_replies;
     return;
   }
+  if (!from_target(it->second, h, sender)) {  // not from a server the call went to
+    ++counters.foreign_replies;
+    return;
+  }
   complete_locked(lock, it, h, payload, m);
 }
 
 bool ClientCore::try_inline_reply(const RawMessage& m) {
   ReplyHeader h;
   std::span<const std::byte> payload;
-  if (!parse_reply(m.data, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id ||
+  if (!lcmtypes::decode(m.data, h, payload) || static_cast<std::uint64_t>(h.client_id) != client_id ||
       h.request_id == 0)
     return false;  // not ours, or a probe's answer: the client thread's
+  const auto sender = sender_of(m);
   std::unique_lock lock(mu);
   auto it = pending.find(static_cast<std::uint64_t>(h.request_id));
-  // Calls waiting to be sent go when this one ends: the client thread publishes them.
-  if (it == pending.end() || !it->second.hands_over || pending.size() > in_flight) return false;
+  // Calls waiting to be sent go when this one ends: the client thread publishes them. A
+  // reply not from the call's server is the client thread's to count.
+  if (it == pending.end() || !it->second.hands_over || pending.size() > in_flight ||
+      !from_target(it->second, h, sender))
+    return false;
   ++counters.direct_replies;
   complete_locked(lock, it, h, payload, m);
   return true;
@@ -997,7 +976,7 @@ void ClientCore::complete_locked(std::unique_lock<std::mutex>& lock, std::map<st
   }
   const bool ok = h.status == lcmx_msgs::service_reply_t::OK;
   try {
-    done(payload, error, ok, ok ? std::string() : "service '" + name + "': " + h.error, server, &m);
+    done(payload, error, ok, ok ? std::string() : "service '" + name + "': " + std::string(h.error), server, &m);
   } catch (const std::exception& e) {
     spdlog::error("lcmx: service '{}': a call's completion threw: {}", name, e.what());
   }
@@ -1005,7 +984,7 @@ void ClientCore::complete_locked(std::unique_lock<std::mutex>& lock, std::map<st
 
 void ClientCore::call(std::size_t size, const std::function<void(std::span<std::byte>)>& encode,
                       std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin,
-                      bool hands_over) {
+                      bool hands_over, std::function<void(const ServerInfo&)> on_sent) {
   if (size > static_cast<std::size_t>(INT32_MAX))
     return done({}, CallErrc::bad_request, false, "a service request is limited to 2 GiB", {}, nullptr);
   RequestHeader h = request_header();
@@ -1014,6 +993,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
   p.deadline = Clock::now() + timeout;
   p.done = std::move(done);
   p.hands_over = hands_over;
+  p.on_sent = std::move(on_sent);
   if (pin != nullptr) p.pin.emplace(pin->participant, pin->id);
   std::unique_lock lock(mu);
   if (closed) {
@@ -1021,9 +1001,9 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
     return p.done({}, CallErrc::shutdown, false, "service '" + name + "': the client was closed", {}, nullptr);
   }
   h.request_id = static_cast<std::int64_t>(next_request++);
-  const auto hs = request_header_size(h);
+  const auto hs = lcmtypes::header_size(h);
   p.message.resize(hs + size);
-  write_request_header(p.message.data(), h, size);
+  lcmtypes::encode_header(h, size, p.message);
   encode({p.message.data() + hs, size});
   ++counters.calls;
   auto& slot = pending[static_cast<std::uint64_t>(h.request_id)] = std::move(p);
@@ -1033,7 +1013,7 @@ void ClientCore::call(std::size_t size, const std::function<void(std::span<std::
     wake = slot.deadline < wake_at;  // the client thread must time it out earlier than planned
   }
   lock.unlock();
-  if (wake) node->interrupt();
+  if (wake) hook::interrupt(*node);
 }
 
 bool ClientCore::wait_for_service(std::chrono::milliseconds timeout) {
@@ -1041,7 +1021,7 @@ bool ClientCore::wait_for_service(std::chrono::milliseconds timeout) {
   std::unique_lock lock(mu);
   ++waiters;
   lock.unlock();
-  node->interrupt();
+  hook::interrupt(*node);
   lock.lock();
   // Ready once a server answered and either every request subscriber has answered or
   // kServerGrace passed since the first answer: servers that start together are all known
@@ -1088,9 +1068,8 @@ std::vector<ServerInfo> ClientCore::servers_now() const {
 std::shared_ptr<ClientCore> create_client(NodeImpl& node, std::string name, ServiceTypes types,
                                           ServersGone on_servers_gone) {
   check_name(name, "create_client");
-  auto client = std::make_shared<ClientCore>(node.runtime, std::move(name), std::move(types),
-                                             std::move(on_servers_gone));
-  client->start(node.name);
+  auto client = std::make_shared<ClientCore>(std::move(name), std::move(types), std::move(on_servers_gone));
+  client->start(node);
   return client;
 }
 
@@ -1099,8 +1078,8 @@ void close_client(const std::shared_ptr<ClientCore>& client) { client->close(); 
 void client_call(ClientCore& client, std::size_t size,
                  const std::function<void(std::span<std::byte>)>& encode,
                  std::chrono::milliseconds timeout, ReplyHandler done, const ServerInfo* pin,
-                 bool hands_over) {
-  client.call(size, encode, timeout, std::move(done), pin, hands_over);
+                 bool hands_over, std::function<void(const ServerInfo&)> on_sent) {
+  client.call(size, encode, timeout, std::move(done), pin, hands_over, std::move(on_sent));
 }
 bool client_wait_for_service(ClientCore& client, std::chrono::milliseconds timeout) {
   return client.wait_for_service(timeout);

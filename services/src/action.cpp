@@ -1,6 +1,9 @@
-// Actions (lcmx/core/action.hpp, docs/actions.md): three services and two topics per action,
-// envelopes from lcmtypes/action.lcm (lcm-gen code: actions are not on a hot path that would
-// need the in-place encoding of service.cpp).
+// Actions (lcmx/services/action.hpp, docs/actions.md): three services and two topics per action,
+// envelopes from lcmtypes/action.lcm (lcm-gen structs, encoded by lcm-gen's code and decoded
+// by lcmx::lcmtypes' checked decoders: every count bounded before anything is sized; actions
+// are not on a hot path that would need the in-place encoding of service.cpp).
+// Trust: a client takes a goal's status and feedback only from the server its goal went to
+// (the envelope's server and the participant of the pair it came through, sender.hpp).
 //
 // Server: the goal, cancel and result services run on the user's node; a thread of the
 // server's own publishes the status (on change and every status_period), checks whether each
@@ -8,7 +11,7 @@
 // (result_retention); each accepted goal's execute runs on a thread of its own.
 // Client: a goal, a cancel and a result service client, and a manual node of its own run by
 // one thread for the status and feedback subscriptions.
-#include "lcmx/core/action.hpp"
+#include "lcmx/services/action.hpp"
 
 #include <algorithm>
 #include <condition_variable>
@@ -21,8 +24,10 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
-#include "internal.hpp"
+#include "lcmx/core/detail/service_hook.hpp"
 #include "lcmx/core/node.hpp"
+#include "lcmx/lcmtypes/envelope.hpp"
+#include "sender.hpp"
 #include "lcmx_msgs/action_feedback_t.hpp"
 #include "lcmx_msgs/action_goal_ref_t.hpp"
 #include "lcmx_msgs/action_goal_reply_t.hpp"
@@ -85,7 +90,7 @@ Bytes encode(const T& m) {
 }
 template <class T>
 bool decode(std::span<const std::byte> b, T& m) {
-  return b.size() <= static_cast<std::size_t>(INT32_MAX) && m.decode(b.data(), 0, static_cast<int>(b.size())) >= 0;
+  return lcmtypes::decode(b, m);
 }
 std::span<const std::byte> as_bytes(const std::vector<std::uint8_t>& v) {
   return {reinterpret_cast<const std::byte*>(v.data()), v.size()};
@@ -252,7 +257,7 @@ void ActionServerCore::start() {
   goal_server = create_server(*node, goal_channel(name), service_types<lcmx_msgs::action_goal_t, lcmx_msgs::action_goal_reply_t>(),
                               [raw](std::span<const std::byte> in, ResponseWriter& out) { raw->on_goal(in, out); });
   std::weak_ptr<ActionServerCore> weak = self;
-  tap = node->runtime->add_event_tap([weak](const Event& e) {
+  tap = hook::add_event_tap(*node, [weak](const Event& e) {
     if (e.kind != Event::Kind::participant_left && e.kind != Event::Kind::publisher_unmatched) return;
     if (auto s = weak.lock()) {
       {
@@ -280,7 +285,7 @@ void ActionServerCore::close() {
   publish_status();  // the goals' final states
   close_server(cancel_server);
   close_server(result_server);
-  node->runtime->remove_event_tap(tap);
+  hook::remove_event_tap(*node, tap);
   {
     std::lock_guard lock(mu);
     stopping = true;
@@ -484,7 +489,7 @@ void ActionServerCore::on_result(std::span<const std::byte> in, ResponseWriter& 
 
 void ActionServerCore::publish_status() {
   lcmx_msgs::action_status_t m;
-  m.server_participant = static_cast<std::int64_t>(node->runtime->participant_id);
+  m.server_participant = static_cast<std::int64_t>(hook::participant_id(*node));
   m.goal_server_id = static_cast<std::int64_t>(server_id(*goal_server));
   m.cancel_server_id = static_cast<std::int64_t>(server_id(*cancel_server));
   m.result_server_id = static_cast<std::int64_t>(server_id(*result_server));
@@ -571,7 +576,7 @@ std::shared_ptr<ActionServerCore> create_action_server(NodeImpl& node, std::stri
       options.result_retention < ms(0))
     throw Error(Errc::invalid_argument,
                 "create_action_server '" + name + "': max_goals, status_period and client_timeout must be positive");
-  auto s = std::make_shared<ActionServerCore>(node.shared_from_this(), std::move(name), std::move(types),
+  auto s = std::make_shared<ActionServerCore>(hook::shared(node), std::move(name), std::move(types),
                                               std::move(accept), std::move(execute), options);
   s->start();
   return s;
@@ -585,8 +590,7 @@ const std::string& action_server_name(const ActionServerCore& server) { return s
 
 class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
  public:
-  ActionClientCore(std::shared_ptr<RuntimeImpl> rt, std::string nm, ActionTypes t)
-      : runtime(std::move(rt)), name(std::move(nm)), types(std::move(t)) {}
+  ActionClientCore(std::string nm, ActionTypes t) : name(std::move(nm)), types(std::move(t)) {}
   void start(NodeImpl& user_node);
   void close();
   CallResult<GoalStatus> send_goal(std::size_t size, const std::function<void(std::span<std::byte>)>& encode_goal,
@@ -596,14 +600,28 @@ class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
   CallResult<GoalStatus> cancel(const std::string& id, ms timeout);
   std::vector<GoalStatus> list() const;
 
-  const std::shared_ptr<RuntimeImpl> runtime;
   const std::string name;
   const ActionTypes types;
   std::shared_ptr<ClientCore> goal_client, cancel_client, result_client;
 
  private:
+  // The server a goal of ours was last sent to: written on the goal client's sending thread
+  // under its lock (detail::client_call's on_sent), read under `mu`. `mu` of its own: a leaf.
+  struct GoalTarget {
+    std::mutex mu;
+    std::uint64_t participant = 0, goal_server = 0;  // 0: not sent yet
+    bool is(std::uint64_t p, std::uint64_t id) {
+      std::lock_guard lock(mu);
+      return participant != 0 && participant == p && goal_server == id;
+    }
+    std::uint64_t participant_now() {
+      std::lock_guard lock(mu);
+      return participant;
+    }
+  };
   struct Tracked {
     GoalStatus status;
+    std::shared_ptr<GoalTarget> target;  // own goals: where the goal request went
     std::uint64_t participant = 0, goal_server = 0, cancel_server = 0, result_server = 0;
     std::function<void(std::span<const std::byte>)> feedback;  // own goals with a callback
     std::int64_t feedback_heard = 0;     // feedback messages of the goal received
@@ -613,8 +631,8 @@ class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
     bool mine = false;
     Clock::time_point heard;  // last status (forgetting goals of others)
   };
-  void on_status(std::span<const std::byte> bytes);    // client thread
-  void on_feedback(std::span<const std::byte> bytes);  // client thread
+  void on_status(const RawMessage& message);    // client thread
+  void on_feedback(const RawMessage& message);  // client thread
   void on_servers_gone(const std::vector<ServerInfo>& gone);
   // Delivers the goal's trailing feedback, then stops its callbacks (the end is reported).
   void close_feedback(const std::string& id, Clock::time_point deadline);
@@ -622,7 +640,8 @@ class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
   void update_locked(Tracked& t, const GoalStatus& s);
   // A synchronous call on one of our service clients, pinned to a server.
   template <class Resp>
-  CallResult<Resp> call(ClientCore& c, const Bytes& request, ms timeout, const ServerInfo* pin);
+  CallResult<Resp> call(ClientCore& c, const Bytes& request, ms timeout, const ServerInfo* pin,
+                        std::function<void(const ServerInfo&)> on_sent = {});
 
   std::shared_ptr<NodeImpl> node;  // manual, run by `thread`
   std::shared_ptr<SubscriberCore> status_sub, feedback_sub;
@@ -636,33 +655,33 @@ class ActionClientCore : public std::enable_shared_from_this<ActionClientCore> {
 };
 
 void ActionClientCore::start(NodeImpl& user_node) {
+  // The status and feedback subscribers first: a server learns of them (our beacons list
+  // their matches) before it can answer our goal client's probe, so a goal it accepts has its
+  // first feedback sent to us (made after the goal client, they sometimes matched the server's
+  // feedback publisher only after it accepted a goal sent at once: the first feedback was lost).
+  node = hook::create_manual_node(user_node, hook::node_name(user_node) + "/action_client:" + name);
+  status_sub = std::make_shared<RawSubscriberCore>(
+      status_channel(name), SubscriberOptions{.queue_depth = 64}, [this](const RawMessage& m) { on_status(m); },
+      envelope_type<lcmx_msgs::action_status_t>());
+  feedback_sub = std::make_shared<RawSubscriberCore>(
+      feedback_channel(name), SubscriberOptions{.queue_depth = 256},
+      [this](const RawMessage& m) { on_feedback(m); }, envelope_type<lcmx_msgs::action_feedback_t>());
+  add_subscriber(*node, status_sub);
+  add_subscriber(*node, feedback_sub);
   std::weak_ptr<ActionClientCore> weak = weak_from_this();
   goal_client = create_client(user_node, goal_channel(name), service_types<lcmx_msgs::action_goal_t, lcmx_msgs::action_goal_reply_t>(), [weak](const std::vector<ServerInfo>& gone) {
     if (auto self = weak.lock()) self->on_servers_gone(gone);
   });
   cancel_client = create_client(user_node, cancel_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_goal_status_t>());
   result_client = create_client(user_node, result_channel(name), service_types<lcmx_msgs::action_goal_ref_t, lcmx_msgs::action_result_t>());
-  NodeOptions o;
-  o.executor.kind = ExecutorKind::manual;
-  node = std::make_shared<NodeImpl>(runtime, user_node.name + "/action_client:" + name, o);
-  node->start();
-  runtime->add_node(node);
-  status_sub = std::make_shared<RawSubscriberCore>(
-      status_channel(name), SubscriberOptions{.queue_depth = 64}, [this](const RawMessage& m) { on_status(m.data); },
-      envelope_type<lcmx_msgs::action_status_t>());
-  feedback_sub = std::make_shared<RawSubscriberCore>(
-      feedback_channel(name), SubscriberOptions{.queue_depth = 256},
-      [this](const RawMessage& m) { on_feedback(m.data); }, envelope_type<lcmx_msgs::action_feedback_t>());
-  add_subscriber(*node, status_sub);
-  add_subscriber(*node, feedback_sub);
   thread = std::thread([this] {
-    while (!stop.load() && !node->stopped()) node->run_once(std::chrono::seconds(1));
+    while (!stop.load() && !hook::stopped(*node)) hook::run_once(*node, std::chrono::seconds(1));
   });
 }
 
 void ActionClientCore::close() {
   if (stop.exchange(true)) return;
-  node->interrupt();
+  hook::interrupt(*node);
   if (thread.joinable()) {
     if (thread.get_id() == std::this_thread::get_id()) thread.detach();  // from a feedback callback
     else thread.join();
@@ -672,12 +691,13 @@ void ActionClientCore::close() {
   close_client(result_client);
   remove_subscriber(status_sub);
   remove_subscriber(feedback_sub);
-  node->stop();
+  hook::stop(*node);
   cv.notify_all();
 }
 
 template <class Resp>
-CallResult<Resp> ActionClientCore::call(ClientCore& c, const Bytes& request, ms timeout, const ServerInfo* pin) {
+CallResult<Resp> ActionClientCore::call(ClientCore& c, const Bytes& request, ms timeout, const ServerInfo* pin,
+                                        std::function<void(const ServerInfo&)> on_sent) {
   std::promise<CallResult<Resp>> promise;
   auto future = promise.get_future();
   client_call(
@@ -691,7 +711,7 @@ CallResult<Resp> ActionClientCore::call(ClientCore& c, const Bytes& request, ms 
               CallResult<Resp>::failure(CallErrc::type_mismatch, "a malformed action reply envelope", server));
         promise.set_value(CallResult<Resp>::success(std::move(r), server));
       },
-      pin);
+      pin, false, std::move(on_sent));
   return future.get();
 }
 
@@ -709,16 +729,24 @@ CallResult<GoalStatus> ActionClientCore::send_goal(std::size_t size,
   m.size = static_cast<std::int32_t>(size);
   m.goal.resize(size);
   encode_goal({reinterpret_cast<std::byte*>(m.goal.data()), size});
+  auto target = std::make_shared<GoalTarget>();
   {
-    // Tracked before the request goes: feedback and status may overtake the reply.
+    // Tracked before the request goes: feedback and status may overtake the reply (they are
+    // taken from the server the request was sent to, `target`).
     std::lock_guard lock(mu);
     auto& t = goals[m.goal_id];
     t.status = {m.goal_id, GoalState::unknown, ""};
     t.feedback = std::move(feedback);
     t.mine = true;
     t.heard = Clock::now();
+    t.target = target;
   }
-  auto r = call<lcmx_msgs::action_goal_reply_t>(*goal_client, encode(m), timeout, nullptr);
+  auto r = call<lcmx_msgs::action_goal_reply_t>(*goal_client, encode(m), timeout, nullptr,
+                                                [target](const ServerInfo& s) {
+                                                  std::lock_guard lock(target->mu);
+                                                  target->participant = s.participant;
+                                                  target->goal_server = s.id;
+                                                });
   std::lock_guard lock(mu);
   auto it = goals.find(m.goal_id);
   if (!r || !r.value().types_ok || !r.value().accepted) {
@@ -755,9 +783,15 @@ void ActionClientCore::update_locked(Tracked& t, const GoalStatus& s) {
   cv.notify_all();
 }
 
-void ActionClientCore::on_status(std::span<const std::byte> bytes) {
+void ActionClientCore::on_status(const RawMessage& message) {
   lcmx_msgs::action_status_t m;
-  if (!decode(bytes, m)) return;
+  if (!decode(message.data, m)) return;
+  const auto server = static_cast<std::uint64_t>(m.server_participant);
+  const auto goal_server = static_cast<std::uint64_t>(m.goal_server_id);
+  // Only from the server it names (its status publisher's participant); through this host's
+  // bridge, which names no origin, the envelope's own fields must do.
+  const auto from = sender_of(message);
+  if (!from || (from->path != Path::bridge && from->participant != server)) return;
   const auto now = Clock::now();
   std::lock_guard lock(mu);
   for (const auto& g : m.goals) {
@@ -774,10 +808,13 @@ void ActionClientCore::on_status(std::span<const std::byte> bytes) {
       it->second.status.goal_id = g.goal_id;
     }
     auto& t = it->second;
-    if (t.mine && t.participant != 0 && t.participant != static_cast<std::uint64_t>(m.server_participant)) continue;
+    // A goal is one server's: the one that accepted it, or the first whose status named it.
+    if (t.participant != 0 && (t.participant != server || t.goal_server != goal_server)) continue;
     if (t.participant == 0) {  // a goal of another client, or ours before its reply
       if (t.mine) {
-        // Its reply has not arrived: take the state, not the server (the reply sets it).
+        // Its reply has not arrived: take the state (not the server: the reply sets it), and
+        // only from the server the goal request went to.
+        if (!t.target || !t.target->is(server, goal_server)) continue;
       } else {
         t.participant = static_cast<std::uint64_t>(m.server_participant);
         t.goal_server = static_cast<std::uint64_t>(m.goal_server_id);
@@ -791,14 +828,22 @@ void ActionClientCore::on_status(std::span<const std::byte> bytes) {
   }
 }
 
-void ActionClientCore::on_feedback(std::span<const std::byte> bytes) {
+void ActionClientCore::on_feedback(const RawMessage& message) {
   lcmx_msgs::action_feedback_t m;
-  if (!decode(bytes, m)) return;
+  if (!decode(message.data, m)) return;
+  const auto from = sender_of(message);
+  if (!from) return;
   std::function<void(std::span<const std::byte>)> f;
   {
     std::lock_guard lock(mu);
     auto it = goals.find(m.goal_id);
     if (it == goals.end()) return;
+    // Only from the goal's server (before its reply: the server the request went to); through
+    // this host's bridge, which names no origin, as it comes.
+    const std::uint64_t server =
+        it->second.participant != 0 ? it->second.participant
+                                    : (it->second.target ? it->second.target->participant_now() : 0);
+    if (from->path != Path::bridge && (server == 0 || from->participant != server)) return;
     ++it->second.feedback_heard;
     cv.notify_all();
     if (!it->second.feedback || it->second.feedback_closed) return;
@@ -969,7 +1014,7 @@ CallResult<GoalStatus> ActionClientCore::cancel(const std::string& id, ms timeou
 
 std::shared_ptr<ActionClientCore> create_action_client(NodeImpl& node, std::string name, ActionTypes types) {
   check_action_name(name, "create_action_client");
-  auto c = std::make_shared<ActionClientCore>(node.runtime, std::move(name), std::move(types));
+  auto c = std::make_shared<ActionClientCore>(std::move(name), std::move(types));
   c->start(node);
   return c;
 }
@@ -1000,6 +1045,15 @@ std::vector<ServerInfo> action_client_servers(const ActionClientCore& client) {
 const std::string& action_client_name(const ActionClientCore& client) { return client.name; }
 
 }  // namespace detail
+
+ActionServer Node::create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute) {
+  return create_action_server_raw(std::move(name), std::move(execute), {}, ActionServerOptions{});
+}
+
+ActionServer Node::create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute,
+                                            std::function<std::string(std::span<const std::byte>)> accept) {
+  return create_action_server_raw(std::move(name), std::move(execute), std::move(accept), ActionServerOptions{});
+}
 
 ActionServer Node::create_action_server_raw(std::string name, std::function<void(RawActionGoal&)> execute,
                                             std::function<std::string(std::span<const std::byte>)> accept,
