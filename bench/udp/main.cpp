@@ -14,6 +14,9 @@
 //    --stream-burst back to back per tick, like a camera's frame set, while --stream-hogs CPU
 //    hog processes run in the receiving host's namespace at the same nice level, started before
 //    the subscriber for both methods alike). No acks; loss = sent - received.
+//  - --keys: instead of liblcm, lcmx UDP three ways in one run: unkeyed, on a keyed vehicle
+//    group authenticated, and encrypted (docs/keyed-groups.md), ping-pong rounds in rotating
+//    order, then the idle stream for each with the CPU time of publisher + subscriber per MB.
 // Without --role this is the orchestrator: Markdown on stdout, progress on stderr. Root needed.
 #include <sched.h>
 #include <signal.h>
@@ -39,6 +42,7 @@
 #include <sstream>
 
 #include "lcmx/test/netns.hpp"
+#include "lcmx/udpm/keys.hpp"
 #include "roles.hpp"
 
 namespace lcmxbench::udp {
@@ -64,6 +68,7 @@ struct MethodResult {
   std::string method;
   std::vector<std::string> errors, notes;
   std::map<std::size_t, SizeResult> sizes;
+  long long cpu_us = 0;  // "cpu pub|sub <µs>" lines, summed (publisher + subscriber processes)
 };
 struct Cell {
   bool ok = false;
@@ -101,7 +106,11 @@ void parse_line(MethodResult& r, const std::string& line) {
     std::getline(in, s);
     return s.empty() ? s : s.substr(1);
   };
-  if (kind == "error") r.errors.push_back(rest());
+  if (kind == "cpu") {
+    std::string who;
+    long long us = 0;
+    if (in >> who >> us) r.cpu_us += us;
+  } else if (kind == "error") r.errors.push_back(rest());
   else if (kind == "note") r.notes.push_back(rest());
   else if (kind == "sent") {
     std::size_t size = 0;
@@ -132,6 +141,7 @@ struct Options {
   std::string link_rate;  // tc tbf rate on the link ("" = none)
   std::string pin = "none";
   std::string markdown;
+  bool keys = false;  // unkeyed / authenticated / encrypted lcmx instead of liblcm vs lcmx
 };
 
 std::size_t parse_size(const std::string& text) { return lcmxbench::parse_size(text, 16); }
@@ -149,6 +159,7 @@ struct Run {
   std::string exe;
   int pub_cpu = -1, sub_cpu = -1;
   int serial = 0;
+  std::string key_file;  // --keys: the vehicle group key the keyed methods use
 };
 
 // method: "liblcm" | "lcmx-udp" (ping-pong), "liblcm-stream" | "lcmx-udp-stream".
@@ -163,6 +174,8 @@ MethodResult run_method(Run& run, const std::string& method, const Scenario& sc 
   res.method = method;
   const bool stream = method.find("stream") != std::string::npos;
   const bool liblcm = method.rfind("liblcm", 0) == 0;
+  // lcmx on a keyed vehicle group: "lcmx-udp-auth[-stream]", "lcmx-udp-crypt[-stream]".
+  const bool auth = method.find("-auth") != std::string::npos, crypt = method.find("-crypt") != std::string::npos;
   const auto& plan = stream ? run.stream_plan : run.plan;
   progress(method + ": starting");
   const std::int64_t t0 = now_ns();
@@ -173,11 +186,14 @@ MethodResult run_method(Run& run, const std::string& method, const Scenario& sc 
   const std::int64_t deadline = t0 + budget_ms * 1'000'000;
   const std::string name = "UDP_" + std::to_string(::getpid()) + "_" + std::to_string(++run.serial);
   auto args = [&](const std::string& role) {
-    return std::vector<std::string>{
+    std::vector<std::string> a{
         run.exe, "--role", role, "--plan", plan_to_string(plan), "--name", name, "--url",
         liblcm ? kLcmUrl : kDiscoveryUrl, "--vehicle-url", kVehicleUrl, "--timeout-ms",
         std::to_string(run.opt.timeout_ms), "--stream-rate", std::to_string(run.opt.stream_rate),
         "--stream-burst", std::to_string(sc.burst)};
+    if (auth || crypt) a.insert(a.end(), {"--key-file", run.key_file});
+    if (crypt) a.push_back("--crypt");
+    return a;
   };
   const std::string base = liblcm ? "liblcm" : "lcmx-udp";
   const std::string sub_role = base + (stream ? "-stream-sub" : "-sub");
@@ -233,6 +249,7 @@ MethodResult run_method(Run& run, const std::string& method, const Scenario& sc 
 
 // Pools another round of the same method into `into`.
 void merge(MethodResult& into, MethodResult&& more) {
+  into.cpu_us += more.cpu_us;
   for (auto& e : more.errors) into.errors.push_back(std::move(e));
   for (auto& n : more.notes)
     if (std::find(into.notes.begin(), into.notes.end(), n) == into.notes.end()) into.notes.push_back(std::move(n));
@@ -371,6 +388,80 @@ std::string report(const Run& run, const MethodResult& lcm, const MethodResult& 
   return md.str();
 }
 
+// --keys: the three lcmx modes side by side.
+std::string report_keys(const Run& run, const std::vector<MethodResult>& pp, const std::vector<MethodResult>& st) {
+  std::ostringstream md;
+  char date[64];
+  const std::time_t now = std::time(nullptr);
+  std::strftime(date, sizeof date, "%Y-%m-%d %H:%M:%S %Z", std::localtime(&now));
+  utsname u{};
+  ::uname(&u);
+  md << "## lcmx UDP unkeyed, authenticated and encrypted (keyed groups) between two emulated hosts\n\n";
+  md << "- " << date << ", " << u.nodename << ", Linux " << u.release << ", " << ::sysconf(_SC_NPROCESSORS_ONLN)
+     << " CPUs online; pinning `--pin " << run.opt.pin << "`\n";
+  md << "- Publisher<bench_t> on host 0 -> Subscriber<bench_t> on host 1 over the vehicle group `" << kVehicleUrl
+     << "`; keyed: XChaCha20-Poly1305 (libsodium) per datagram, authenticated (tag over header and datagram) or "
+        "encrypted (payload encrypted, header authenticated)\n";
+  md << "- ping-pong rounds: " << run.opt.rounds << " per mode, rotating order, pooled; messages per size (warmup + "
+        "measured): ";
+  for (std::size_t i = 0; i < run.plan.size(); ++i)
+    md << (i ? ", " : "") << size_label(run.plan[i].size) << " " << run.plan[i].warmup << "+" << run.plan[i].messages;
+  md << "\n- cells: p50 / p99 one-way µs (lost/sent); ratios: keyed p50 / unkeyed p50\n\n";
+  md << "| size | unkeyed | authenticated | encrypted | auth/unkeyed | crypt/unkeyed |\n|---|---|---|---|---|---|\n";
+  auto ratio = [&](const MethodResult& a, const MethodResult& b, std::size_t size) -> std::pair<std::string, double> {
+    const Cell x = cell_of(a, size), y = cell_of(b, size);
+    if (!x.ok || !y.ok || !x.n || !y.n) return {"—", 0};
+    return {fmt_ratio(y.p50 / x.p50), y.p50 / x.p50};
+  };
+  for (const auto& p : run.plan)
+    md << "| " << size_label(p.size) << " | " << cell_text(pp[0], p.size) << " | " << cell_text(pp[1], p.size) << " | "
+       << cell_text(pp[2], p.size) << " | " << ratio(pp[0], pp[1], p.size).first << " | "
+       << ratio(pp[0], pp[2], p.size).first << " |\n";
+  md << "\n**Targets**\n";
+  const std::size_t k1 = 1024;
+  if (std::any_of(run.plan.begin(), run.plan.end(), [&](const SizePlan& p) { return p.size == k1; })) {
+    const auto a = ratio(pp[0], pp[1], k1), c = ratio(pp[0], pp[2], k1);
+    md << "- 1 KB p50 authenticated within 3 % of unkeyed: " << (a.second == 0 ? "not measured" : a.second <= 1.03 ? "**holds**" : "**FAILS**")
+       << " (" << a.first << ")\n";
+    md << "- 1 KB p50 encrypted within 10 % of unkeyed: " << (c.second == 0 ? "not measured" : c.second <= 1.10 ? "**holds**" : "**FAILS**")
+       << " (" << c.first << ")\n";
+  }
+  if (!st.empty()) {
+    const auto& sp = run.stream_plan.front();
+    const double mb = static_cast<double>(sp.size) * sp.messages / 1e6;
+    md << "- " << size_label(sp.size) << " at " << run.opt.stream_rate << " Hz with 0 lost in all three: ";
+    bool all = true, measured = true;
+    for (const auto& m : st) {
+      const Cell c = cell_of(m, sp.size);
+      measured = measured && c.ok;
+      all = all && c.ok && c.lost == 0;
+    }
+    md << (!measured ? "not measured" : all ? "**holds**" : "**FAILS**") << "\n";
+    md << "\nStream: " << sp.messages << " messages of " << size_label(sp.size) << " at " << run.opt.stream_rate
+       << " Hz, no acks; CPU: user + system time of the publisher and subscriber processes (whole run, start-up "
+          "and discovery included) per MB of payload\n\n";
+    md << "| mode | p50 / p99 one-way µs (lost/sent) | CPU ms (pub + sub) | CPU ms per MB |\n|---|---|---|---|\n";
+    const char* names[3] = {"unkeyed", "authenticated", "encrypted"};
+    for (std::size_t i = 0; i < st.size(); ++i) {
+      char cpu[64], per[64];
+      std::snprintf(cpu, sizeof cpu, "%.0f", static_cast<double>(st[i].cpu_us) / 1000.0);
+      std::snprintf(per, sizeof per, "%.2f", static_cast<double>(st[i].cpu_us) / 1000.0 / mb);
+      md << "| " << names[i] << " | " << cell_text(st[i], sp.size) << " | " << cpu << " | " << per << " |\n";
+    }
+  }
+  md << "- (differences of a few per cent are within the noise of this 2-vCPU machine, DESIGN.md \"Measuring\"; "
+        "more --rounds narrow them)\n";
+  bool any = false;
+  for (const auto* v : {&pp, &st})
+    for (const auto& m : *v)
+      for (const auto& e : m.errors) {
+        if (!any) md << "\n**Failures**\n";
+        any = true;
+        md << "- " << m.method << ": " << e << "\n";
+      }
+  return md.str();
+}
+
 int orchestrate(const Options& opt) {
   Run run;
   run.opt = opt;
@@ -409,7 +500,45 @@ int orchestrate(const Options& opt) {
   run.emu = &emu;
   progress("hosts: " + emu.ns(0) + " (" + emu.address(0, "eth") + ") -> " + emu.ns(1) + " (" +
            emu.address(1, "eth") + ")");
-  MethodResult lcm{"liblcm", {}, {}, {}}, lx{"lcmx-udp", {}, {}, {}};
+  if (opt.keys) {
+    // A key file for the keyed modes, in a directory of our own (removed at the end).
+    std::string dir = "/tmp/lcmx_bench_keys_XXXXXX";
+    if (::mkdtemp(dir.data()) == nullptr) {
+      std::cerr << "lcmx_bench_udp: mkdtemp: " << std::strerror(errno) << "\n";
+      return 1;
+    }
+    run.key_file = dir + "/vehicle.key";
+    lcmx::udpm::GroupKeys k;
+    k.keys.push_back(lcmx::udpm::generate_key());
+    lcmx::udpm::write_key_file(run.key_file, k, false);
+    const std::vector<std::string> modes = {"lcmx-udp", "lcmx-udp-auth", "lcmx-udp-crypt"};
+    std::vector<MethodResult> pp;
+    for (const auto& m : modes) pp.push_back(MethodResult{m, {}, {}, {}, 0});
+    for (int r = 0; r < opt.rounds && !g_signal.load(); ++r) {
+      progress("round " + std::to_string(r + 1) + " of " + std::to_string(opt.rounds));
+      for (std::size_t i = 0; i < modes.size(); ++i) {
+        const std::size_t k2 = (i + static_cast<std::size_t>(r)) % modes.size();  // rotating order
+        merge(pp[k2], run_method(run, modes[k2]));
+      }
+    }
+    std::vector<MethodResult> st;
+    if (!opt.no_stream)
+      for (const auto& m : modes) {
+        if (g_signal.load()) break;
+        st.push_back(run_method(run, m + "-stream", Scenario{"idle", 1, 0}));
+      }
+    ::unlink(run.key_file.c_str());
+    ::rmdir(dir.c_str());
+    if (g_signal.load()) return 128 + g_signal.load();
+    const std::string md = report_keys(run, pp, st);
+    std::cout << md << std::flush;
+    if (!opt.markdown.empty()) std::ofstream(opt.markdown) << md;
+    bool ok = true;
+    for (const auto* v : {&pp, &st})
+      for (const auto& m : *v) ok = ok && m.errors.empty();
+    return ok ? 0 : 1;
+  }
+  MethodResult lcm{"liblcm", {}, {}, {}, 0}, lx{"lcmx-udp", {}, {}, {}, 0};
   for (int r = 0; r < opt.rounds && !g_signal.load(); ++r) {
     progress("round " + std::to_string(r + 1) + " of " + std::to_string(opt.rounds));
     if (r % 2 == 0) {
@@ -471,6 +600,9 @@ int main(int argc, char** argv) {
   app.add_option("--pin", opt.pin, "CPU pinning: none, same (both on CPU 0), split (pub 0, sub 1)")
       ->check(CLI::IsMember({"none", "same", "split"}))->capture_default_str();
   app.add_option("--markdown", opt.markdown, "also write the Markdown report to this file");
+  app.add_flag("--keys", opt.keys,
+               "keyed groups: lcmx UDP unkeyed, authenticated and encrypted side by side (no liblcm), the idle "
+               "stream with CPU per MB (docs/keyed-groups.md)");
   // Hidden: child roles.
   UdpConfig u;
   std::string plan;
@@ -479,6 +611,8 @@ int main(int argc, char** argv) {
   app.add_option("--name", u.base.name)->group("");
   app.add_option("--url", u.base.url)->group("");
   app.add_option("--vehicle-url", u.vehicle_url)->group("");
+  app.add_option("--key-file", u.key_file)->group("");
+  app.add_flag("--crypt", u.crypt)->group("");
   CLI11_PARSE(app, argc, argv);
   if (u.base.role.empty()) return orchestrate(opt);
   if (u.base.role == "hog") return run_hog();
@@ -494,6 +628,7 @@ int main(int argc, char** argv) {
   const auto& r = u.base.role;
   if (r == "liblcm-sub") return run_liblcm_sub(u.base);
   if (r == "liblcm-pub") return run_liblcm_pub(u.base);
+  // Keyed modes run the same roles with --key-file (and --crypt).
   if (r == "lcmx-udp-sub") return run_lcmx_udp_sub(u, false);
   if (r == "lcmx-udp-pub") return run_lcmx_udp_pub(u, false);
   if (r == "lcmx-udp-stream-sub") return run_lcmx_udp_sub(u, true);

@@ -8,6 +8,7 @@
 // The ping-pong liblcm roles are bench/latency's (run_liblcm_sub / run_liblcm_pub).
 #include <lcm/lcm.h>
 #include <poll.h>
+#include <sys/resource.h>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 #include <unistd.h>
@@ -34,7 +35,17 @@ lcmx::RuntimeOptions runtime_options(const UdpConfig& u) {
   o.discovery_url = u.base.url;
   o.vehicle_url = u.vehicle_url;
   o.beacon_period = std::chrono::milliseconds(200);
+  o.vehicle_key = u.key_file;  // keyed groups (--keys): authenticated, or encrypted with crypt
+  o.vehicle_crypt = !u.key_file.empty() && u.crypt;
   return o;
+}
+
+// "cpu <who> <µs>": this process's CPU time (user + system) so far.
+void report_cpu(const char* who) {
+  rusage r{};
+  ::getrusage(RUSAGE_SELF, &r);
+  const long long us = (r.ru_utime.tv_sec + r.ru_stime.tv_sec) * 1000000LL + r.ru_utime.tv_usec + r.ru_stime.tv_usec;
+  report_line(std::string("cpu ") + who + " " + std::to_string(us));
 }
 
 void log_to_stderr(const std::string& role) {
@@ -97,6 +108,7 @@ int run_lcmx_udp_sub(const UdpConfig& u, bool stream) {
     rec.report();
     report_line("note subscriber: delivered=" + std::to_string(st.delivered) + " drops=" +
                 std::to_string(st.drops) + " decode_errors=" + std::to_string(st.decode_errors));
+    report_cpu("sub");
   } catch (const std::exception& e) {
     report_error(std::string("subscriber: ") + e.what());
     return 1;
@@ -144,6 +156,7 @@ int run_lcmx_udp_pub(const UdpConfig& u, bool stream) {
   } catch (const std::exception& e) {
     report_error(std::string("publisher: ") + e.what());
   }
+  report_cpu("pub");
   char e = 'E';
   (void)!::write(kCtlFd, &e, 1);
   report_line("done");
