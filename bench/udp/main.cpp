@@ -20,6 +20,7 @@
 // Without --role this is the orchestrator: Markdown on stdout, progress on stderr. Root needed.
 #include <sched.h>
 #include <signal.h>
+#include <sodium.h>
 #include <sys/prctl.h>
 #include <sys/utsname.h>
 #include <sys/wait.h>
@@ -36,6 +37,8 @@
 #include <cstring>
 #include <ctime>
 #include <fstream>
+#include <functional>
+#include <chrono>
 #include <iostream>
 #include <map>
 #include <optional>
@@ -462,6 +465,62 @@ std::string report_keys(const Run& run, const std::vector<MethodResult>& pp, con
   return md.str();
 }
 
+// --seal-micro: what each candidate primitive costs per datagram, in this process (no network):
+// the choice of docs/keyed-groups.md "Wire form". Median of 7 runs of N calls each.
+int seal_micro() {
+  if (::sodium_init() < 0) return 1;
+  unsigned char key[32], nonce[24] = {}, tag[64], out[64], none = 0;
+  ::randombytes_buf(key, sizeof key);
+  std::cout << "| per datagram | 1 KB (ns) | 64 KB (ns) |\n|---|---|---|\n";
+  struct Row {
+    const char* name;
+    std::function<void(std::vector<unsigned char>&, std::vector<unsigned char>&, std::size_t)> f;
+  };
+  const std::vector<Row> rows = {
+      {"XChaCha20-Poly1305, empty message, datagram as AD (authenticated)",
+       [&](auto& m, auto&, std::size_t n) {
+         ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(&none, tag, nullptr, &none, 0, m.data(), n + 28, nullptr,
+                                                               nonce, key);
+       }},
+      {"XChaCha20-Poly1305 encrypt, 28-byte header as AD (encrypted)",
+       [&](auto& m, auto& c, std::size_t n) {
+         ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(c.data(), tag, nullptr, m.data() + 28, n, m.data(), 28,
+                                                               nullptr, nonce, key);
+       }},
+      {"crypto_auth (HMAC-SHA-512-256)", [&](auto& m, auto&, std::size_t n) { ::crypto_auth(out, m.data(), n + 28, key); }},
+      {"crypto_generichash keyed (BLAKE2b-128)",
+       [&](auto& m, auto&, std::size_t n) { ::crypto_generichash(out, 16, m.data(), n + 28, key, sizeof key); }},
+      {"AES-256-GCM, empty message, datagram as AD (x86-64 AES-NI only)",
+       [&](auto& m, auto&, std::size_t n) {
+         if (::crypto_aead_aes256gcm_is_available())
+           ::crypto_aead_aes256gcm_encrypt_detached(&none, tag, nullptr, &none, 0, m.data(), n + 28, nullptr, nonce, key);
+       }},
+  };
+  for (const auto& row : rows) {
+    std::cout << "| " << row.name;
+    for (const std::size_t size : {std::size_t{1024}, std::size_t{65000}}) {
+      std::vector<unsigned char> m(size + 28), c(size + 64);
+      ::randombytes_buf(m.data(), m.size());
+      const int n = size == 1024 ? 20000 : 400;
+      std::vector<double> runs;
+      for (int r = 0; r < 7; ++r) {
+        const auto t0 = std::chrono::steady_clock::now();
+        for (int i = 0; i < n; ++i) {
+          nonce[0] = static_cast<unsigned char>(i);
+          row.f(m, c, size);
+        }
+        runs.push_back(std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / n);
+      }
+      std::sort(runs.begin(), runs.end());
+      const bool gcm = std::string(row.name).rfind("AES", 0) == 0;
+      if (gcm && !::crypto_aead_aes256gcm_is_available()) std::cout << " | not available";
+      else std::cout << " | " << static_cast<long long>(runs[3]);
+    }
+    std::cout << " |\n";
+  }
+  return 0;
+}
+
 int orchestrate(const Options& opt) {
   Run run;
   run.opt = opt;
@@ -600,6 +659,8 @@ int main(int argc, char** argv) {
   app.add_option("--pin", opt.pin, "CPU pinning: none, same (both on CPU 0), split (pub 0, sub 1)")
       ->check(CLI::IsMember({"none", "same", "split"}))->capture_default_str();
   app.add_option("--markdown", opt.markdown, "also write the Markdown report to this file");
+  bool micro = false;
+  app.add_flag("--seal-micro", micro, "print what sealing one datagram costs per primitive (keyed groups), then exit");
   app.add_flag("--keys", opt.keys,
                "keyed groups: lcmx UDP unkeyed, authenticated and encrypted side by side (no liblcm), the idle "
                "stream with CPU per MB (docs/keyed-groups.md)");
@@ -614,6 +675,7 @@ int main(int argc, char** argv) {
   app.add_option("--key-file", u.key_file)->group("");
   app.add_flag("--crypt", u.crypt)->group("");
   CLI11_PARSE(app, argc, argv);
+  if (micro) return seal_micro();
   if (u.base.role.empty()) return orchestrate(opt);
   if (u.base.role == "hog") return run_hog();
   try {

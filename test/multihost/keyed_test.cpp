@@ -339,3 +339,21 @@ TEST_CASE("keyed vehicle: rotating the key host by host keeps traffic flowing wi
   CHECK_FALSE(contains(sub.text(), "unauthenticated traffic"));
   CHECK(sub.wait() == 0);
 }
+
+TEST_CASE("keyed vehicle: the Message Bridge refuses to start without CURVE", "[multihost][keyed][bridge]") {
+  LCMX_REQUIRE_NETNS();
+  Hosts h(2, 95);
+  lcmx::test::TmpDir dir("lcmx_mh_keyed");
+  const auto key = dir.file("vehicle.key");
+  keygen(h, key);
+  const auto config = dir.write("bridge.toml", "name = \"a\"\nlisten = [\"" + h.emu().address(0, "eth") +
+                                                   "\"]\ncontrol_port = 7700\n[[peer]]\nname = \"b\"\n"
+                                                   "endpoints = [{ link = \"eth\", address = \"" +
+                                                   h.emu().address(1, "eth") + "\" }]\n");
+  const auto keyed = h.run(0, {LCMX_TOOL, "bridge", "--config", config}, h.lcmx_env({"LCMX_VEHICLE_KEY=" + key}));
+  INFO(keyed.out);
+  CHECK(keyed.rc != 0);
+  CHECK(contains(keyed.out, "the vehicle group is keyed"));
+  CHECK(contains(keyed.out, "runs only with CURVE"));
+  CHECK_FALSE(contains(keyed.out, "ready"));
+}
