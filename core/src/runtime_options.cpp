@@ -82,6 +82,7 @@ RuntimeOptions RuntimeOptions::from_env() {
   if (const char* v = std::getenv("LCMX_HOST_KEY"); v && *v) o.host_key = v;
   o.vehicle_crypt = env_number("LCMX_VEHICLE_CRYPT", o.vehicle_crypt ? 1 : 0, 0, 1) == 1;
   o.host_crypt = env_number("LCMX_HOST_CRYPT", o.host_crypt ? 1 : 0, 0, 1) == 1;
+  o.keyed_max_skew = std::chrono::seconds(env_number("LCMX_KEYED_MAX_SKEW_S", o.keyed_max_skew.count(), 0, 86400));
   return o;
 }
 
@@ -127,6 +128,7 @@ udpm::GroupConfig RuntimeOptions::group_config(bool vehicle) const {
                                             url + "': " + e.what());
   }
   cfg.keys = group_keys(vehicle);
+  cfg.keyed_max_skew = keyed_max_skew;
   return cfg;
 }
 

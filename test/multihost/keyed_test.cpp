@@ -64,24 +64,41 @@ class Recorder {
       m.imr_multiaddr = b.sin_addr;
       ::inet_pton(AF_INET, own.c_str(), &m.imr_interface);
       if (::setsockopt(fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &m, sizeof m) != 0) return -1;
-      if (::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_IF, &m.imr_interface, sizeof m.imr_interface) != 0) return -1;
+      return fd;
+    });
+    // Sent from the machine's own address (the receive socket is bound to the group address).
+    out_ = emu.run_in(host, [&] {
+      const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+      in_addr a{};
+      ::inet_pton(AF_INET, own.c_str(), &a);
+      if (::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_IF, &a, sizeof a) != 0) return -1;
       const unsigned char ttl = 1, loop = 0;
       ::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_TTL, &ttl, sizeof ttl);
       ::setsockopt(fd, IPPROTO_IP, IP_MULTICAST_LOOP, &loop, sizeof loop);
       return fd;
     });
     REQUIRE(fd_ >= 0);
+    REQUIRE(out_ >= 0);
+    own_ = own;
   }
   Recorder(const Recorder&) = delete;
   Recorder& operator=(const Recorder&) = delete;
-  ~Recorder() { ::close(fd_); }
+  ~Recorder() {
+    ::close(fd_);
+    ::close(out_);
+  }
 
-  // Keeps what arrived until now (at most `max` datagrams in all).
+  // Keeps what arrived until now from other machines (at most `max` datagrams in all).
   void record(std::size_t max = 4000) {
     for (std::size_t guard = 0; guard < 100000 && captured_.size() < max; ++guard) {
       std::vector<std::uint8_t> d(65536);
-      const auto n = ::recv(fd_, d.data(), d.size(), 0);
+      sockaddr_in from{};
+      socklen_t len = sizeof from;
+      const auto n = ::recvfrom(fd_, d.data(), d.size(), 0, reinterpret_cast<sockaddr*>(&from), &len);
       if (n <= 0) return;
+      char a[INET_ADDRSTRLEN] = {};
+      ::inet_ntop(AF_INET, &from.sin_addr, a, sizeof a);
+      if (own_ == a) continue;  // this machine's own (the hostile peer's)
       d.resize(static_cast<std::size_t>(n));
       captured_.push_back(std::move(d));
     }
@@ -95,8 +112,8 @@ class Recorder {
     ::inet_pton(AF_INET, group_.c_str(), &to.sin_addr);
     for (const auto& d : captured_) {
       for (int attempt = 0; attempt < 100; ++attempt) {  // bounded: a full send buffer waits a little
-        if (::sendto(fd_, d.data(), d.size(), 0, reinterpret_cast<sockaddr*>(&to), sizeof to) >= 0) break;
-        pollfd p{fd_, POLLOUT, 0};
+        if (::sendto(out_, d.data(), d.size(), 0, reinterpret_cast<sockaddr*>(&to), sizeof to) >= 0) break;
+        pollfd p{out_, POLLOUT, 0};
         ::poll(&p, 1, 10);
       }
     }
@@ -105,7 +122,8 @@ class Recorder {
  private:
   std::string group_;
   std::uint16_t port_ = 0;
-  int fd_ = -1;
+  std::string own_;
+  int fd_ = -1, out_ = -1;
   std::vector<std::vector<std::uint8_t>> captured_;
 };
 
@@ -282,7 +300,8 @@ TEST_CASE("keyed vehicle: a host with the wrong key is refused and reported", "[
   REQUIRE(wait_contains(sub, "EVENT error - vehicle group: unauthenticated traffic from " + host2 +
                                  ": wrong key or not lcmx", 5000ms));
   // Reported once, then counted.
-  CHECK(count_lines(sub.text(), "unauthenticated traffic from " + host2) == 1);
+  INFO("subscriber:\n" << sub.output());
+  CHECK(count_lines(sub.text(), "EVENT error - vehicle group: unauthenticated traffic from " + host2) == 1);
   const auto nodes = h.run(1, {LCMX_TOOL, "nodes", "--wait", "600"}, h.lcmx_env({"LCMX_VEHICLE_KEY=" + key}));
   INFO("lcmx nodes:\n" << nodes.out);
   CHECK(contains(nodes.out, "  unauthenticated traffic from " + host2 + ": wrong key or not lcmx"));

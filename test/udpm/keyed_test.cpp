@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 
 #include <catch2/catch.hpp>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 
@@ -200,11 +201,26 @@ TEST_CASE("keyed: the envelope round-trips authenticated and encrypted; any chan
   CHECK(opener.open(*keys, lc02).refused == Refusal::unkeyed);
   std::vector<std::byte> tiny(3);
   CHECK(opener.open(*keys, tiny).refused == Refusal::unkeyed);
+
+  // The time stamp: a sender not heard yet is taken only within max_skew of our clock; a
+  // known one by its counter alone.
+  const auto now = static_cast<std::uint32_t>(std::time(nullptr));
+  lcmx::udpm::detail::Opener late;
+  auto old = buf;
+  CHECK(late.open(*keys, old, 0, false, now + 3600, 60).refused == Refusal::stale);
+  auto fine = buf;
+  CHECK_FALSE(late.open(*keys, fine, 0, false, now + 30, 60).refused);
+  std::vector<std::byte> next(kEnvelopeOverhead + inner.size());
+  std::memcpy(next.data() + kEnvelopeHeaderSize, inner.data(), inner.size());
+  sealer.seal(*keys, next.data(), inner.size());
+  CHECK_FALSE(late.open(*keys, next, 0, false, now + 3600, 60).refused);  // known sender now
 }
 
 TEST_CASE("keyed: the replay window takes each counter once, reordered within 960, not older", "[unit][keyed]") {
   lcmx::udpm::detail::ReplayWindow w;
   CHECK_FALSE(w.accept(0));
+  CHECK(w.accept(2));
+  CHECK_FALSE(w.accept(1));  // sent before the first one heard: refused (a late joiner)
   CHECK(w.accept(5));
   CHECK_FALSE(w.accept(5));
   CHECK(w.accept(3));
@@ -232,8 +248,9 @@ TEST_CASE("keyed: Groups with the key round-trip small and fragmented messages, 
   auto rx = Group::open(cfg);
   auto tx = Group::open(cfg);
   const std::string channel = "LCMX_KEYED";
-  const std::vector<std::size_t> sizes = {0, 1, 1024, 65400, 65455 - channel.size() - 1,
-                                          65456 - channel.size() - 1, 65487, 300000, 1000000, 9};
+  // Around the keyed LC02/LC03 boundary (the envelope must fit one datagram), 0 and 1 MB.
+  const std::size_t boundary = kMaxDatagramSize - kEnvelopeOverhead - kShortHeaderSize - channel.size() - 1;
+  const std::vector<std::size_t> sizes = {0, 1, 1024, 65400, boundary, boundary + 1, 65487, 300000, 1000000, 9};
   for (std::uint32_t i = 0; i < sizes.size(); ++i) tx.publish(channel, make_payload(i, sizes[i]));
   std::vector<std::pair<std::uint32_t, std::size_t>> got;
   bool ok = true;
@@ -330,6 +347,21 @@ TEST_CASE("keyed: a captured valid datagram sent again is refused as a replay", 
   const auto s = rx.refusals().sources();
   REQUIRE(s.size() == 1);
   CHECK(s[0].first == Refusal::replayed);
+
+  // A Group's own datagram reflected back to it from another socket: its kernel filter drops
+  // its own datagrams (receive_own = false, as the runtime opens its groups), so no window of
+  // its own sender exists, and the reflection is refused all the same.
+  auto self_cfg = cfg;
+  self_cfg.receive_own = false;
+  auto me = Group::open(self_cfg);
+  Capture capture_me(cfg);
+  me.publish("LCMX_REPLAY", make_payload(3, 100));
+  const auto mine = capture_me.next();
+  attacker.send(mine);
+  std::size_t heard = 0;
+  poll_until(me, [&](const Message&) { ++heard; }, [&] { return me.counters().replays_dropped >= 1; });
+  CHECK(me.counters().replays_dropped == 1);
+  CHECK(heard == 0);
 }
 
 TEST_CASE("keyed: a rotation window keeps traffic flowing with no loss", "[integration][keyed]") {

@@ -3,6 +3,7 @@
 #include <sodium.h>
 
 #include <cstring>
+#include <ctime>
 #include <mutex>
 
 #include "lcmx/udpm/error.hpp"
@@ -36,7 +37,7 @@ auto* uc(std::byte* p) { return reinterpret_cast<unsigned char*>(p); }
 auto* uc(const std::byte* p) { return reinterpret_cast<const unsigned char*>(p); }
 
 // Header offsets.
-constexpr std::size_t kOffVersion = 4, kOffFlags = 5, kOffKeyId = 8, kOffSender = 12, kOffCounter = 20;
+constexpr std::size_t kOffVersion = 4, kOffFlags = 5, kOffKeyId = 8, kOffTime = 12, kOffSender = 16, kOffCounter = 24;
 static_assert(kOffCounter + 8 == kEnvelopeHeaderSize);
 
 // The nonce: sender id | counter | 8 zero bytes, i.e. the header's bytes 12..27 then zeros.
@@ -64,6 +65,7 @@ std::size_t Sealer::seal(const GroupKeys& keys, std::byte* buffer, std::size_t i
   buffer[kOffFlags] = std::byte{keys.encrypt ? kFlagEncrypted : std::uint8_t{0}};
   buffer[6] = buffer[7] = std::byte{0};
   put_u32(buffer + kOffKeyId, key.id);
+  put_u32(buffer + kOffTime, static_cast<std::uint32_t>(std::time(nullptr)));
   put_u64(buffer + kOffSender, sender_);
   put_u64(buffer + kOffCounter, ++counter_);  // 2^64 datagrams: never wraps
   unsigned char nonce[24];
@@ -85,6 +87,13 @@ std::size_t Sealer::seal(const GroupKeys& keys, std::byte* buffer, std::size_t i
 
 bool ReplayWindow::accept(std::uint64_t counter) noexcept {
   if (counter == 0) return false;  // never sent
+  if (top_ == 0) {  // the first: it and everything before it count as seen
+    top_ = counter;
+    for (auto& b : bits_) b = ~std::uint64_t{0};
+    const std::uint64_t r = counter % 64;  // in its own block, the bits above it are free
+    bits_[(counter / 64) % kBlocks] = r == 63 ? ~std::uint64_t{0} : (std::uint64_t{1} << (r + 1)) - 1;
+    return true;
+  }
   const std::uint64_t block = counter / 64;
   if (counter > top_) {
     // Clear the blocks the window moves over (at most all of them).
@@ -102,7 +111,8 @@ bool ReplayWindow::accept(std::uint64_t counter) noexcept {
   return true;
 }
 
-Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d) noexcept {
+Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::uint64_t own_sender,
+                            bool from_self, std::uint32_t now_s, std::uint32_t max_skew_s) noexcept {
   if (d.size() < kEnvelopeOverhead || get_u32(d.data()) != kMagicKeyed) return {{}, Refusal::unkeyed};
   if (std::to_integer<std::uint8_t>(d[kOffVersion]) != kVersion) return {{}, Refusal::unknown_key};
   const std::uint8_t flags = std::to_integer<std::uint8_t>(d[kOffFlags]);
@@ -134,8 +144,14 @@ Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d) noexc
   if (!verified) return {{}, Refusal::bad_tag};
   // Authentic: now the sender's replay window.
   const std::uint64_t sender = get_u64(d.data() + kOffSender), counter = get_u64(d.data() + kOffCounter);
+  if (own_sender != 0 && sender == own_sender && !from_self) return {{}, Refusal::replayed};
   auto it = windows_.find(sender);
   if (it == windows_.end()) {
+    if (max_skew_s != 0) {
+      const std::uint32_t stamp = get_u32(d.data() + kOffTime);
+      const std::uint32_t ahead = stamp - now_s, behind = now_s - stamp;  // modulo 2^32
+      if (std::min(ahead, behind) > max_skew_s) return {{}, Refusal::stale};
+    }
     if (windows_.size() >= kMaxSenders) {
       auto oldest = windows_.begin();
       for (auto i = windows_.begin(); i != windows_.end(); ++i)

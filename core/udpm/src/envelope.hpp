@@ -39,7 +39,10 @@ class ReplayWindow {
  public:
   static constexpr std::uint64_t kBlocks = 16;
   static constexpr std::uint64_t kWindow = (kBlocks - 1) * 64;  // 960
-  // True, and marks it, if `counter` was not accepted before and is in the window.
+  // True, and marks it, if `counter` was not accepted before and is in the window. The first
+  // counter accepted also marks every counter below it as seen: a receiver takes nothing a
+  // sender sent before the first datagram it heard from it (a late joiner is not fed old
+  // captures).
   bool accept(std::uint64_t counter) noexcept;
 
  private:
@@ -56,7 +59,14 @@ class Opener {
   };
   // Checks the envelope in `datagram` against `keys` (tag first, then the sender's replay
   // window), decrypting in place. Never reads outside `datagram`.
-  Opened open(const GroupKeys& keys, std::span<std::byte> datagram) noexcept;
+  // `own_sender`: the receiving Group's own sender id (0: none). Its own datagrams come back
+  // only from its own sockets (multicast loop; `from_self`); one of them from anywhere else
+  // is a reflection of a captured datagram: refused as replayed (its window is never filled
+  // when the kernel drops the Group's own datagrams).
+  // `now_s` / `max_skew_s`: this host's CLOCK_REALTIME seconds and GroupConfig::keyed_max_skew
+  // (0: no check): a sender not known yet is taken only if its stamp is within max_skew_s.
+  Opened open(const GroupKeys& keys, std::span<std::byte> datagram, std::uint64_t own_sender = 0,
+              bool from_self = false, std::uint32_t now_s = 0, std::uint32_t max_skew_s = 0) noexcept;
   std::size_t senders() const noexcept { return windows_.size(); }
 
   // Senders remembered; past this the one heard least recently is forgotten (a datagram of

@@ -14,6 +14,7 @@
 #include <atomic>
 #include <cerrno>
 #include <cstring>
+#include <ctime>
 #include <mutex>
 #include <optional>
 #include <unordered_map>
@@ -255,6 +256,7 @@ struct Group::Impl {
   // are sealed in (grown once to the largest batch sent, then reused: no allocation per
   // datagram).
   std::optional<detail::Sealer> sealer;
+  std::atomic<std::uint64_t> own_sender{0};  // sealer's sender id (0: none yet), for the receive thread
   std::unique_ptr<std::byte[]> seal_buffer;
   std::size_t seal_slots = 0;
 
@@ -334,7 +336,10 @@ struct Group::Impl {
     keys = c.keys;
     refusals = c.refusals ? c.refusals : std::make_shared<Refusals>();
     check_keys(keys);
-    if (keys) sealer.emplace();
+    if (keys) {
+      sealer.emplace();
+      own_sender.store(sealer->sender_id());
+    }
   }
 
   void send_all(int fd, mmsghdr* m, std::size_t n) {
@@ -445,7 +450,10 @@ struct Group::Impl {
   // behind room for the envelope header, sealed in place, and sent in sendmmsg batches.
   void publish_sealed(const GroupKeys& k, int fd, std::uint32_t seq, std::string_view channel,
                       std::span<const std::byte> payload) {
-    if (!sealer) sealer.emplace();  // keyed after open (set_keys)
+    if (!sealer) {  // keyed after open (set_keys)
+      sealer.emplace();
+      own_sender.store(sealer->sender_id());
+    }
     const std::size_t n = channel.size() + 1 + payload.size();
     const std::size_t nframes = n <= kSealedShortMax ? 1 : (n + kSealedFragmentMax - 1) / kSealedFragmentMax;
     const std::size_t slots_needed = std::min(nframes, kSendBatch);
@@ -544,10 +552,16 @@ struct Group::Impl {
     std::span<const std::byte> datagram(slots.get() + i * kRecvSlot, mm.msg_len);
     if (rx_keys) {
       // Keyed: the envelope is checked before anything of the datagram is parsed.
-      const auto opened = opener.open(*rx_keys, std::span<std::byte>(slots.get() + i * kRecvSlot, mm.msg_len));
+      const bool from_self =
+          source.port_be == local.port_be &&
+          std::find(own_addresses.begin(), own_addresses.end(), source.address_be) != own_addresses.end();
+      const auto opened = opener.open(*rx_keys, std::span<std::byte>(slots.get() + i * kRecvSlot, mm.msg_len),
+                                      own_sender.load(std::memory_order_relaxed), from_self,
+                                      static_cast<std::uint32_t>(std::time(nullptr)),
+                                      static_cast<std::uint32_t>(std::max<std::int64_t>(cfg.keyed_max_skew.count(), 0)));
       if (opened.refused) {
-        ++(*opened.refused == Refusal::replayed ? recv_counters.replays_dropped
-                                                : recv_counters.unauthenticated_dropped);
+        const bool replay = *opened.refused == Refusal::replayed || *opened.refused == Refusal::stale;
+        ++(replay ? recv_counters.replays_dropped : recv_counters.unauthenticated_dropped);
         refusals->record(source.address_be, *opened.refused);
         return 0;
       }

@@ -187,20 +187,23 @@ const char* to_string(Refusal r) noexcept {
     case Refusal::unknown_key: return "unknown_key";
     case Refusal::bad_tag: return "bad_tag";
     case Refusal::replayed: return "replayed";
+    case Refusal::stale: return "stale";
   }
   return "?";
 }
 
 void Refusals::record(std::uint32_t address_be, Refusal why) {
   std::lock_guard lock(mu_);
-  auto it = by_address_.find(address_be);
+  const bool replay = why == Refusal::replayed || why == Refusal::stale;
+  const std::uint64_t key = (std::uint64_t{address_be} << 1) | (replay ? 1 : 0);
+  auto it = by_address_.find(key);
   if (it == by_address_.end()) {
     if (by_address_.size() >= kMaxSources) {
       ++overflow_;
       return;
     }
-    it = by_address_.emplace(address_be, Source{address_be, why, 0}).first;
-    new_.push_back(address_be);
+    it = by_address_.emplace(key, Source{address_be, why, 0}).first;
+    new_.push_back(key);
   }
   ++it->second.count;
 }
@@ -235,6 +238,9 @@ std::string describe(const Refusals::Source& s) {
   switch (s.first) {
     case Refusal::replayed:
       return "replayed datagrams from " + from + ": refused (a captured datagram sent again)";
+    case Refusal::stale:
+      return "stale datagrams from " + from + ": refused (stamped too far from this host's clock: replayed from "
+             "long ago, or the hosts' clocks are not in sync)";
     case Refusal::bad_tag:
       return "unauthenticated traffic from " + from + ": forged or damaged (the tag does not verify)";
     case Refusal::unknown_key:

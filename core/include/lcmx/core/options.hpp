@@ -151,13 +151,17 @@ struct RuntimeOptions {
   // turns it on. Receivers take both forms.
   bool vehicle_crypt = false;
   bool host_crypt = false;
+  // Keyed groups: a datagram of a sender not heard yet is taken only if the time stamped in it
+  // is within this of this host's clock (udpm::GroupConfig::keyed_max_skew): the hosts' clocks
+  // must agree within it. 0 turns the check off (no time sync; docs/keyed-groups.md "Replay").
+  std::chrono::seconds keyed_max_skew{60};
 
   // Defaults overridden by the environment: LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL,
   // LCMX_VEHICLE_PUBLISH (on_demand|always), LCMX_UDP_LIMIT, LCMX_MIRROR (0, 1 = every
   // channel, or comma-separated channel globs such as "CAM_*,POSE" = mirror_channels),
   // LCMX_LARGE_TOPICS / LCMX_SMALL_TOPICS (comma-separated channels), LCMX_BEACON_PERIOD_MS,
   // LCMX_LEASE_MS, LCMX_VEHICLE_KEY / LCMX_HOST_KEY (key files), LCMX_VEHICLE_CRYPT /
-  // LCMX_HOST_CRYPT (0 or 1). Throws lcmx::Error(invalid_argument) naming a bad variable.
+  // LCMX_HOST_CRYPT (0 or 1), LCMX_KEYED_MAX_SKEW_S. Throws lcmx::Error(invalid_argument) naming a bad variable.
   static RuntimeOptions from_env();
   // What Runtime::create refuses before it starts anything: a discovery_url or vehicle_url
   // that group_url_problem() finds wrong, lease not longer than beacon_period, a bad

@@ -51,6 +51,12 @@ struct GroupConfig {
   // Where a keyed group records what it refused, per source. Null: the Group makes its own
   // (Group::refusals()); give one to read it while the Group is owned elsewhere (an observer).
   std::shared_ptr<Refusals> refusals;
+  // Keyed groups: a datagram of a sender this Group has not heard yet is taken only when the
+  // time the sender stamped in it is within this of this host's clock (a capture replayed to
+  // a process started later is refused after this long; docs/keyed-groups.md "Replay"); once
+  // a sender is known, its counter alone decides. 0 turns the check off (hosts whose clocks are
+  // not kept in sync). Hosts' clocks must agree within it.
+  std::chrono::seconds keyed_max_skew{60};
 };
 
 // Parses "udpm://[ADDRESS][:PORT][?key=value&...]". Missing address or port take GroupConfig's

@@ -58,7 +58,9 @@ struct Counters {
   // Keyed groups (GroupConfig::keys): datagrams refused before any parsing of the LCM
   // datagram: no envelope, another key, a tag that does not verify (per source: refusals()).
   std::uint64_t unauthenticated_dropped = 0;
-  std::uint64_t replays_dropped = 0;  // valid envelopes received a second time (or too old)
+  // Valid envelopes received a second time, older than the replay window, or (a sender not
+  // heard yet) stamped further than keyed_max_skew from this host's clock.
+  std::uint64_t replays_dropped = 0;
 };
 
 // Move-only owner of the receive socket (bound to the group's address and port, so unicast to

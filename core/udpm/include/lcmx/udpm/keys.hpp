@@ -5,7 +5,8 @@
 //
 // Envelope (all integers big-endian), kEnvelopeHeaderSize + the LCM datagram + kEnvelopeTagSize:
 //   u32 magic "LCXK" | u8 version 1 | u8 flags (bit 0: encrypted) | u16 reserved 0
-//   | u32 key id | u64 sender id | u64 counter | body | 16-byte tag
+//   | u32 key id | u32 time (the sender's CLOCK_REALTIME, seconds, mod 2^32) | u64 sender id
+//   | u64 counter | body | 16-byte tag
 // body: the LCM datagram (LC02, or one LC03 fragment) in the clear (authenticated: the AEAD
 // over an empty message, the whole header and body as additional data), or encrypted (the
 // body is the AEAD's ciphertext, the header its additional data). Nonce (24 bytes): sender id
@@ -27,7 +28,7 @@
 namespace lcmx::udpm {
 
 inline constexpr std::uint32_t kMagicKeyed = 0x4c43584b;  // "LCXK"
-inline constexpr std::size_t kEnvelopeHeaderSize = 28;
+inline constexpr std::size_t kEnvelopeHeaderSize = 32;
 inline constexpr std::size_t kEnvelopeTagSize = 16;
 inline constexpr std::size_t kEnvelopeOverhead = kEnvelopeHeaderSize + kEnvelopeTagSize;
 inline constexpr std::size_t kKeySize = 32;
@@ -76,17 +77,21 @@ enum class Refusal : std::uint8_t {
   unknown_key,  // an envelope sealed with a key this group does not hold (wrong key)
   bad_tag,      // the tag does not verify: forged or damaged
   replayed,     // a valid datagram received a second time (or older than the replay window)
+  // a valid datagram of a sender not heard yet, stamped further from this host's clock than
+  // GroupConfig::keyed_max_skew: replayed from long ago, or the clocks are not in sync
+  stale,
 };
 const char* to_string(Refusal r) noexcept;
 
-// Per source address, what a keyed group refused. Thread-safe; bounded (kMaxSources; the
-// sources refused after that are counted in overflow() only).
+// Per source address, what a keyed group refused: one entry for its unauthenticated datagrams
+// (unkeyed, unknown key, bad tag) and one for its replays, each reported once by take_new().
+// Thread-safe; bounded (kMaxSources entries; refusals after that are counted in overflow()).
 class Refusals {
  public:
   struct Source {
     std::uint32_t address_be = 0;
-    Refusal first = Refusal::unkeyed;  // the reason of its first refusal
-    std::uint64_t count = 0;           // datagrams refused from it
+    Refusal first = Refusal::unkeyed;  // the reason of the entry's first refusal
+    std::uint64_t count = 0;           // datagrams refused from it (of the entry's kind)
   };
   static constexpr std::size_t kMaxSources = 1024;
 
@@ -99,8 +104,9 @@ class Refusals {
 
  private:
   mutable std::mutex mu_;
-  std::unordered_map<std::uint32_t, Source> by_address_;
-  std::vector<std::uint32_t> new_;
+  // Key: address << 1 | replayed.
+  std::unordered_map<std::uint64_t, Source> by_address_;
+  std::vector<std::uint64_t> new_;
   std::uint64_t overflow_ = 0;
 };
 
