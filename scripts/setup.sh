@@ -21,6 +21,8 @@ packages=(
   tmux                             # tests of lcmx record/play on a terminal (status line, space bar)
   iperf3                           # bench/bridge: TCP reference on the emulated link
   graphviz                         # lcmx graph: SVG/PNG through dot
+  libssl-dev                       # lcmx foxglove: wss:// (Boost.Beast over OpenSSL)
+  openssl                          # lcmx foxglove tests: a throwaway self-signed certificate (wss://)
 )
 
 missing=()
@@ -30,8 +32,27 @@ for p in "${packages[@]}"; do
   fi
 done
 
+# Node.js and npm (Debian's nodejs + npm) for the tests of `lcmx foxglove`, which drive the real
+# Foxglove client from npm. A machine that already has `node` and `npm` (e.g. another build of
+# Node.js) keeps them: Debian's npm would conflict with it.
+if ! command -v node >/dev/null 2>&1 || ! command -v npm >/dev/null 2>&1; then
+  missing+=(nodejs npm)
+fi
+
+# The client packages, pinned exactly in test/foxglove/client/package-lock.json.
+install_foxglove_client() {
+  local dir
+  dir="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)/test/foxglove/client"
+  if [[ -f $dir/node_modules/.package-lock.json ]] && cmp -s "$dir/package-lock.json" "$dir/node_modules/.lcmx-installed-lock"; then
+    return 0
+  fi
+  echo "setup: npm ci in $dir"
+  (cd "$dir" && npm ci --no-audit --no-fund --loglevel=error) && cp "$dir/package-lock.json" "$dir/node_modules/.lcmx-installed-lock"
+}
+
 if ((${#missing[@]} == 0)); then
   echo "setup: all ${#packages[@]} packages present"
+  install_foxglove_client
   exit 0
 fi
 
@@ -45,3 +66,4 @@ if ! apt-get install -y --no-install-recommends "${missing[@]}"; then
   apt-get update
   apt-get install -y --no-install-recommends "${missing[@]}"
 fi
+install_foxglove_client

@@ -23,6 +23,7 @@
 #include "dds_cmds.hpp"
 #endif
 #include "echo_cmds.hpp"
+#include "foxglove_cmd.hpp"
 #include "log_cmds.hpp"
 #include "monitor_cmds.hpp"
 #include "service_cmds.hpp"
@@ -191,6 +192,7 @@ int main(int argc, char** argv) {
   verbs.push_back(lcmx::cli::add_call(app, g));
   verbs.push_back(lcmx::cli::add_actions(app, g));
   verbs.push_back(lcmx::cli::add_action(app, g));
+  verbs.push_back(lcmx::cli::add_foxglove(app, g));
 #ifdef LCMX_WITH_DDS
   verbs.push_back(lcmx::cli::add_dds_gateway(app, g));
   verbs.push_back(lcmx::cli::add_idl(app, g));

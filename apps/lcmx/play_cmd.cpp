@@ -11,7 +11,8 @@
 // sleeps (clock_nanosleep, absolute, timer slack 1 ns) until --spin-us before that and spins
 // the rest, so it publishes within microseconds of the due time when it has a CPU. Pauses
 // shift the start. Threads: the main thread plays; a stdin thread reads the space bar (TTY)
-// or lines "pause"/"resume"/"toggle"/"quit"; signal handlers set flags.
+// or lines "pause"/"resume"/"toggle"/"quit"; a clock thread publishes the log's time
+// (lcmtypes/play.lcm, on LCMX_PLAY_CLOCK, unless --no-clock); signal handlers set flags.
 #include <signal.h>
 #include <spdlog/spdlog.h>
 #include <sys/prctl.h>
@@ -24,6 +25,7 @@
 
 #include <algorithm>
 #include <atomic>
+#include <condition_variable>
 #include <cstring>
 #include <cmath>
 #include <iostream>
@@ -34,7 +36,9 @@
 
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/core.hpp"
+#include "lcmx/foxglove/server.hpp"  // kPlayClockChannel
 #include "lcmx/log/eventlog.hpp"
+#include "lcmx_msgs/play_clock_t.hpp"
 #include "log_cmds.hpp"
 #include "log_common.hpp"
 
@@ -59,6 +63,7 @@ struct PlayOptions {
   int spin_us = 50;
   int rt_priority = 0;
   bool stop_on_damage = false;
+  bool no_clock = false;
   bool quiet = false;
   bool json = false;
   const Globals* g = nullptr;  // read when the verb runs (filled by the parse)
@@ -97,6 +102,85 @@ bool wait_until(std::int64_t due, std::int64_t spin_ns) {
     }
   }
 }
+
+// The log's clock as it is played (lcmtypes/play.lcm): the playing thread moves it; a thread of
+// its own publishes it on kPlayClockChannel every 50 ms, and at once when play pauses or resumes.
+// While playing in real time it runs between events (base_ts + elapsed * speed); paused, or with
+// --fast, it stands at the last event published. Every member is thread-safe.
+class PlayClock {
+ public:
+  PlayClock(Publisher<lcmx_msgs::play_clock_t> pub, double speed, bool fast, std::int64_t start_ts)
+      : pub_(std::move(pub)), speed_(speed), fast_(fast), last_ts_(start_ts) {
+    thread_ = std::thread([this] { run(); });
+  }
+  ~PlayClock() {
+    {
+      std::lock_guard l(mu_);
+      stop_ = true;
+    }
+    cv_.notify_all();
+    thread_.join();
+  }
+  PlayClock(const PlayClock&) = delete;
+  PlayClock& operator=(const PlayClock&) = delete;
+
+  // The event of log time `ts` is due at `mono` (CLOCK_MONOTONIC ns): the clock runs from there.
+  void rebase(std::int64_t mono, std::int64_t ts) {
+    std::lock_guard l(mu_);
+    base_ns_ = mono;
+    base_ts_ = ts;
+    have_base_ = true;
+  }
+  // An event of log time `ts` was published.
+  void event(std::int64_t ts) {
+    std::lock_guard l(mu_);
+    last_ts_ = ts;
+  }
+  // Pausing stops the clock where it is; resuming publishes at once (call rebase() first).
+  void pause(bool paused) {
+    {
+      std::lock_guard l(mu_);
+      if (paused == paused_) return;
+      if (paused) last_ts_ = now_locked();
+      paused_ = paused;
+      changed_ = true;
+    }
+    cv_.notify_all();
+  }
+
+ private:
+  std::int64_t now_locked() const {
+    if (fast_ || paused_ || !have_base_) return last_ts_;
+    return base_ts_ + static_cast<std::int64_t>(static_cast<double>(mono_ns() - base_ns_) * speed_ / 1000.0);
+  }
+  void run() {
+    std::unique_lock l(mu_);
+    while (!stop_) {
+      lcmx_msgs::play_clock_t m{};
+      m.log_utime = now_locked();
+      m.speed = fast_ ? 0.0 : speed_;
+      m.paused = paused_;
+      changed_ = false;
+      l.unlock();
+      try {
+        pub_.publish(m);
+      } catch (const std::exception& e) {
+        spdlog::warn("lcmx play: clock: {}", e.what());
+      }
+      l.lock();
+      cv_.wait_for(l, std::chrono::milliseconds(50), [this] { return stop_ || changed_; });
+    }
+  }
+
+  Publisher<lcmx_msgs::play_clock_t> pub_;  // the clock thread's only
+  const double speed_;
+  const bool fast_;
+  std::mutex mu_;
+  std::condition_variable cv_;
+  bool stop_ = false, paused_ = false, changed_ = false, have_base_ = false;
+  std::int64_t base_ns_ = 0, base_ts_ = 0, last_ts_ = 0;
+  std::thread thread_;
+};
 
 struct ChannelInfo {
   std::int64_t fingerprint = 0;
@@ -227,6 +311,9 @@ Verb add_play(CLI::App& app, const Globals& g) {
                 "times are kept on a busy machine too")
       ->check(CLI::Range(0, 99));
   c->add_flag("--stop-on-damage", g_play.stop_on_damage, "stop at the first damaged part of the log");
+  c->add_flag("--no-clock", g_play.no_clock,
+              "do not publish the log's clock on " + std::string(foxglove::kPlayClockChannel) +
+                  " (lcmx_msgs.play_clock_t: what `lcmx foxglove` shows as the viewers' time)");
   c->add_flag("-q,--quiet", g_play.quiet, "no progress bar and no summary (errors only)");
   c->add_flag("--json", g_play.json, "print the summary as JSON on stdout");
   c->footer("On a terminal: space pauses and resumes, q quits. Otherwise stdin lines pause, "
@@ -305,6 +392,7 @@ int run_play() {
   std::optional<Node> node;
   std::map<std::string, RawPublisher> pubs;  // by original channel
   std::map<std::string, std::int64_t> announced;  // by published channel
+  std::optional<PlayClock> clock;
   try {
     rt.emplace(Runtime::create(runtime_options(*o.g, o.udp)));
     node.emplace(rt->create_node("lcmx_play"));
@@ -316,6 +404,12 @@ int run_play() {
         // the recording as alive here: `lcmx nodes` and `topics` would list ghosts.
         std::cerr << "lcmx play: " << ci.count << " events of " << printable(ch)
                   << " (lcmx's discovery beacons) not played: they would announce the recorded processes as alive\n";
+        continue;
+      }
+      if (ch == foxglove::kPlayClockChannel && !o.no_clock) {
+        // A clock recorded from an earlier play: two clocks would fight. --no-clock plays it.
+        std::cerr << "lcmx play: " << ci.count << " events of " << ch
+                  << " (a recorded play clock) not played: this play publishes its own (--no-clock plays them)\n";
         continue;
       }
       auto it = remap.find(ch);
@@ -344,6 +438,14 @@ int run_play() {
   if (pubs.empty()) {
     std::cerr << "lcmx play: no channel of the log matches the channel expressions\n";
     return 1;
+  }
+  if (!o.no_clock) {
+    try {
+      clock.emplace(node->advertise<lcmx_msgs::play_clock_t>(foxglove::kPlayClockChannel), o.speed, o.fast, from_ts);
+    } catch (const std::exception& e) {
+      std::cerr << "lcmx play: cannot publish the clock on " << foxglove::kPlayClockChannel << ": " << e.what() << "\n";
+      return 1;
+    }
   }
   if (o.wait_subscribers > 0) {
     const auto deadline = Clock::now() + std::chrono::duration<double>(o.wait_timeout_s);
@@ -411,6 +513,7 @@ int run_play() {
                 << (g_paused.load() ? "  PAUSED (space)" : "") << std::flush;
     };
     auto wait_paused = [&](std::int64_t ts) {
+      if (clock && g_paused.load()) clock->pause(true);
       while (g_paused.load() && !g_quit.load()) {
         progress(ts, false);
         std::this_thread::sleep_for(std::chrono::milliseconds(5));
@@ -457,6 +560,7 @@ int run_play() {
             base_ns = mono_ns();
             base_ts = e.timestamp_us;
             have_base = true;
+            if (clock) clock->rebase(base_ns, base_ts);
           }
           const std::int64_t due =
               base_ns + static_cast<std::int64_t>(static_cast<double>(e.timestamp_us - base_ts) * 1000.0 / o.speed);
@@ -469,13 +573,19 @@ int run_play() {
           const std::int64_t paused_at = mono_ns();
           wait_paused(e.timestamp_us);
           base_ns += mono_ns() - paused_at;
+          if (clock) {
+            clock->rebase(base_ns, base_ts);
+            clock->pause(false);
+          }
         }
         if (g_quit.load()) break;
       } else {
         wait_paused(e.timestamp_us);
+        if (clock) clock->pause(false);
         if (g_quit.load()) break;
       }
       pit->second.publish(e.data);
+      if (clock) clock->event(e.timestamp_us);
       ++published;
       ++sent[e.channel];
       progress(e.timestamp_us, false);
@@ -528,6 +638,7 @@ int run_play() {
     std::cout << "\n";
   }
   if (!stopped_at.empty()) std::cerr << "lcmx play: stopped: " << stopped_at << "\n";
+  clock.reset();
   node.reset();
   pubs.clear();
   rt.reset();

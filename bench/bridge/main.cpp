@@ -14,38 +14,30 @@
 // "every subscriber has the previous one (or it timed out)" and the next period of --rate, so
 // there is no queueing and every wait is bounded.
 // Without --role this is the orchestrator: Markdown on stdout, progress on stderr. Root needed.
-#include <fcntl.h>
 #include <poll.h>
-#include <sched.h>
 #include <signal.h>
-#include <sys/prctl.h>
-#include <sys/stat.h>
-#include <sys/utsname.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
-#include <CLI/CLI.hpp>
-
 #include <algorithm>
-#include <atomic>
-#include <cerrno>
 #include <cmath>
 #include <cstring>
-#include <ctime>
 #include <filesystem>
 #include <fstream>
-#include <iterator>
 #include <iostream>
+#include <iterator>
 #include <map>
 #include <memory>
-#include <numeric>
 #include <optional>
 #include <sstream>
 #include <unordered_map>
 
-#include "common.hpp"
-#include "lcmx/test/netns.hpp"
-#include "roles.hpp"
+#include "harness/hosts.hpp"
+#include "harness/options.hpp"
+#include "harness/pingpong.hpp"
+#include "harness/report.hpp"
+#include "harness/stats.hpp"
+#include "bridge/roles.hpp"
 
 #ifndef LCMX_BENCH_LCMX_TOOL
 #define LCMX_BENCH_LCMX_TOOL "lcmx"
@@ -56,103 +48,15 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::atomic<int> g_signal{0};
-void on_signal(int sig) { g_signal.store(sig); }
-bool interrupted() { return g_signal.load() != 0; }
-
-void progress(const std::string& s) { std::cerr << "[bench-bridge] " << s << std::endl; }
-
-std::size_t parse_size(const std::string& text) { return lcmxbench::parse_size(text, sizeof(Header)); }
-
-// "2gbit", "400mbit", "10gbps" -> bits per second (0 if empty or unknown).
-double rate_bps(const std::string& rate) {
-  if (rate.empty()) return 0;
-  std::size_t pos = 0;
-  double v = 0;
-  try {
-    v = std::stod(rate, &pos);
-  } catch (...) {
-    return 0;
-  }
-  std::string u = rate.substr(pos);
-  for (auto& c : u) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  if (u == "bit") return v;
-  if (u == "kbit") return v * 1e3;
-  if (u == "mbit") return v * 1e6;
-  if (u == "gbit") return v * 1e9;
-  if (u == "bps") return v * 8;
-  if (u == "kbps") return v * 8e3;
-  if (u == "mbps") return v * 8e6;
-  if (u == "gbps") return v * 8e9;
-  return 0;
-}
+const char* const kProgram = "lcmx_bench_bridge";
+bool interrupted() { return stopped(); }
+void say(const std::string& s) { progress("bench-bridge", s); }
 
 // ---- child processes of this binary (roles) ----
 
-// A role of this binary started inside a host's namespace: fd 3 = its report pipe (read here,
-// line by line), fd 4 = its command pipe. SIGKILLed if the orchestrator dies; killed and reaped
-// on destruction.
-class Proc {
- public:
-  Proc(std::string name, int netns_fd, const std::vector<std::string>& argv, int cpu) : name_(std::move(name)) {
-    int rep[2], ctl[2];
-    if (::pipe2(rep, O_CLOEXEC) != 0 || ::pipe2(ctl, O_CLOEXEC) != 0)
-      throw std::runtime_error(std::string("pipe: ") + std::strerror(errno));
-    pid_ = spawn_child(argv, {rep[1], ctl[0]}, cpu, netns_fd);  // fd 3 = kReportFd, fd 4 = kCtlIn
-    ::close(rep[1]);
-    ::close(ctl[0]);
-    out_.fd = rep[0];
-    ctl_ = ctl[1];
-  }
-  Proc(const Proc&) = delete;
-  Proc& operator=(const Proc&) = delete;
-  ~Proc() {
-    close_ctl();
-    if (out_.fd >= 0) ::close(out_.fd);
-    if (pid_ > 0 && !reaped_) reap_child(pid_, 0, g_signal);
-  }
-
-  const std::string& name() const { return name_; }
-  int fd() const { return out_.fd; }
-  bool eof() const { return out_.eof; }
-
-  // Writes one command line; false if the child is gone.
-  bool command(const std::string& line) {
-    if (ctl_ < 0) return false;
-    const std::string l = line + '\n';
-    ssize_t n;
-    do n = ::write(ctl_, l.data(), l.size());
-    while (n < 0 && errno == EINTR);
-    return n == static_cast<ssize_t>(l.size());
-  }
-  void close_ctl() {
-    if (ctl_ >= 0) ::close(ctl_);
-    ctl_ = -1;
-  }
-  // Reads what is available (call when poll says so); complete lines go to lines().
-  void pump() { out_.pump(); }
-  std::vector<std::string>& lines() { return out_.lines; }
-
-  // Waits for the exit (killing it at the deadline). Returns a failure text or "".
-  std::string reap(int timeout_ms) {
-    if (pid_ <= 0 || reaped_) return "";
-    bool killed = false;
-    const int st = reap_child(pid_, timeout_ms, g_signal, &killed);
-    reaped_ = true;
-    if (killed) return name_ + " did not exit within " + std::to_string(timeout_ms) + " ms (killed)";
-    if (WIFEXITED(st) && WEXITSTATUS(st) >= 125) return name_ + " could not start (exit " + std::to_string(WEXITSTATUS(st)) + ")";
-    if (WIFEXITED(st) && WEXITSTATUS(st) != 0) return name_ + " exited with " + std::to_string(WEXITSTATUS(st));
-    if (WIFSIGNALED(st)) return name_ + " died of signal " + std::to_string(WTERMSIG(st));
-    return "";
-  }
-
- private:
-  std::string name_;
-  pid_t pid_ = -1;
-  int ctl_ = -1;
-  bool reaped_ = false;
-  LineReader out_;  // the child's report pipe
-};
+// A role of this binary started inside a host's namespace (bench/harness/process.hpp): fd 3 =
+// its report pipe (read here, line by line), fd 4 = its command pipe (roles.hpp).
+using Proc = RoleProcess;
 
 // ---- results ----
 
@@ -160,24 +64,6 @@ struct Rx {
   std::size_t size = 0;
   std::int64_t send_ns = 0, recv_ns = 0;
 };
-
-struct Stats {
-  std::size_t n = 0;
-  double mean = 0, p50 = 0, p99 = 0, max = 0;  // µs
-};
-Stats stats_of(std::vector<double> v) {
-  Stats s;
-  s.n = v.size();
-  if (v.empty()) return s;
-  std::sort(v.begin(), v.end());
-  auto rank = [&](double q) {
-    const auto k = static_cast<std::size_t>(std::ceil(q * static_cast<double>(v.size())));
-    return v[std::clamp<std::size_t>(k, 1, v.size()) - 1];
-  };
-  s.mean = std::accumulate(v.begin(), v.end(), 0.0) / static_cast<double>(v.size());
-  s.p50 = rank(0.5), s.p99 = rank(0.99), s.max = v.back();
-  return s;
-}
 
 struct SizeResult {
   std::size_t size = 0;
@@ -249,8 +135,7 @@ struct Options {
   std::vector<int> subscribers{2};
   std::vector<std::string> methods{"zmq", "bridge", "floor"};
   std::string only;  // exp2 | exp3 | throughput ("" = all)
-  std::string link_rate = "2gbit";
-  std::string tcp_cc = "cubic";  // the hosts' TCP congestion control ("" = this machine's)
+  LinkOptions link{"2gbit", "cubic"};  // the link's tc rate ("" = unlimited), the hosts' TCP congestion control
   std::string pin = "none";
   std::string wait = "block";  // the library default (ExecutorOptions)
   double tput_seconds = 3;
@@ -270,7 +155,7 @@ struct Run {
   std::size_t tput_size = 0;
   lcmx::test::Emulation* emu = nullptr;
   std::string exe, discovery_url, workdir;
-  int cpu_a = -1, cpu_b = -1;
+  int cpu_a = -1, cpu_b = -1;  // --pin split: host A's processes on CPU 0, host B's on CPU 1
   int serial = 0;
   std::vector<lcmx::test::Child> bridges;  // [A, B] once started
   std::vector<std::string> bridge_errors;
@@ -286,7 +171,7 @@ void drain_bridges(Run& run, bool force = false) {
     for (int guard = 0; guard < 1000; ++guard) {
       auto l = run.bridges[i].read_line(lcmx::test::Child::Clock::now());
       if (!l) break;
-      progress(std::string("bridge ") + names[i] + ": " + *l);
+      say(std::string("bridge ") + names[i] + ": " + *l);
     }
 }
 
@@ -301,10 +186,10 @@ bool pump(Run& run, std::vector<Proc*> procs, std::int64_t deadline, Until until
     std::vector<pollfd> p;
     std::vector<Proc*> who;
     for (auto* pr : procs)
-      if (!pr->eof()) p.push_back({pr->fd(), POLLIN, 0}), who.push_back(pr);
+      if (!pr->eof()) p.push_back({pr->out().fd, POLLIN, 0}), who.push_back(pr);
     if (!p.empty() && ::poll(p.data(), p.size(), 0) > 0)
       for (std::size_t i = 0; i < p.size(); ++i)
-        if (p[i].revents) who[i]->pump();
+        if (p[i].revents) who[i]->out().pump();
     if (until()) return true;
     const std::int64_t left = deadline - now_ns();
     if (left <= 0) return false;
@@ -324,7 +209,7 @@ void absorb(Proc& pr, std::unordered_map<std::int64_t, Rx>* rx, std::vector<std:
       if (in >> seq >> size >> send >> recv) (*rx)[seq] = Rx{size, send, recv};
     } else if (l.rfind("error ", 0) == 0) {
       errors.push_back(pr.name() + ": " + l.substr(6));
-      progress(pr.name() + ": ERROR " + l.substr(6));
+      say(pr.name() + ": ERROR " + l.substr(6));
     } else if (l.rfind("note ", 0) == 0) {
       notes.push_back(l.substr(5));
     } else if (other) {
@@ -349,19 +234,6 @@ std::vector<std::string> role_args(Run& run, const std::string& role, const std:
 
 // ---- bridges ----
 
-void write_bridge_config(const std::string& path, const std::string& name, const std::string& listen,
-                         const std::string& peer, const std::string& peer_addr) {
-  std::ofstream f(path);
-  f << "# written by lcmx_bench_bridge\n"
-    << "name = \"" << name << "\"\n"
-    << "listen = [\"" << listen << "\"]\n"
-    << "control_port = 7700\nheartbeat_ms = 100\nlink_timeout_ms = 500\n\n"
-    << "[[channel]]\nname = \"bulk\"\nport = 7702\npriority = 0\nhwm = 4\ndrop = \"oldest\"\ntopics = [\"*\"]\n\n"
-    << "[[peer]]\nname = \"" << peer << "\"\n"
-    << "endpoints = [ { link = \"eth\", address = \"" << peer_addr << "\" } ]\n";
-  if (!f) throw std::runtime_error("cannot write " + path);
-}
-
 // Starts `lcmx bridge` on A and B (once per run). Readiness is proven later by probes.
 bool start_bridges(Run& run, std::vector<std::string>& errors) {
   if (!run.bridges.empty()) return true;
@@ -370,14 +242,15 @@ bool start_bridges(Run& run, std::vector<std::string>& errors) {
     return false;
   }
   try {
-    const auto a = run.emu->address(0, "eth"), b = run.emu->address(1, "eth");
-    const std::string ca = run.workdir + "/bridgeA.toml", cb = run.workdir + "/bridgeB.toml";
-    write_bridge_config(ca, "benchA", a, "benchB", b);
-    write_bridge_config(cb, "benchB", b, "benchA", a);
+    const std::string body =
+        "heartbeat_ms = 100\nlink_timeout_ms = 500\n\n"
+        "[[channel]]\nname = \"bulk\"\nport = 7702\npriority = 0\nhwm = 4\ndrop = \"oldest\"\ntopics = [\"*\"]\n";
+    const std::string ca = write_bridge_config(*run.emu, 0, run.workdir, "bench", body);
+    const std::string cb = write_bridge_config(*run.emu, 1, run.workdir, "bench", body);
     const lcmx::test::Env env{{"LCMX_DISCOVERY_URL", run.discovery_url}};
     run.bridges.push_back(run.emu->spawn(0, taskset(run.cpu_a, {run.opt.lcmx_tool, "bridge", "--config", ca}), env));
     run.bridges.push_back(run.emu->spawn(1, taskset(run.cpu_b, {run.opt.lcmx_tool, "bridge", "--config", cb}), env));
-    progress("bridges started: " + run.opt.lcmx_tool + " bridge --config {" + ca + ", " + cb + "}");
+    say("bridges started: " + run.opt.lcmx_tool + " bridge --config {" + ca + ", " + cb + "}");
     // Each prints "bridge <name>: ready" once started; one that cannot start (bad config, no
     // `bridge` verb in this lcmx) exits at once.
     const char* names[] = {"A", "B"};
@@ -387,7 +260,7 @@ bool start_bridges(Run& run, std::vector<std::string>& errors) {
       if (const auto st = run.bridges[i].wait(std::chrono::milliseconds(0)))
         throw std::runtime_error(std::string("bridge ") + names[i] + " exited with " + std::to_string(*st) +
                                  " at start (see its output above; does `" + run.opt.lcmx_tool + " bridge --help` work?)");
-      progress(std::string("bridge ") + names[i] + ": no '" + ready + "' line within 10 s; going on (probes decide)");
+      say(std::string("bridge ") + names[i] + ": no '" + ready + "' line within 10 s; going on (probes decide)");
     }
     return true;
   } catch (const std::exception& e) {
@@ -412,7 +285,7 @@ void stop_bridges(Run& run) {
       run.bridge_errors.push_back(std::string("bridge ") + names[i] + " exited with " + std::to_string(*st) + " after SIGTERM");
     }
   }
-  for (const auto& e : run.bridge_errors) progress(e);
+  for (const auto& e : run.bridge_errors) say(e);
   run.bridges.clear();
 }
 
@@ -436,11 +309,11 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
   const std::string role = lcmx ? "lcmx" : floor ? "floor" : "zmq";
   // floor moves no data: one size is enough.
   const std::vector<SizePlan> plan = floor ? std::vector<SizePlan>{run.plan.front()} : run.plan;
-  progress(method + " x" + std::to_string(nsubs) + ": starting");
+  say(method + " x" + std::to_string(nsubs) + ": starting");
   const std::int64_t t_start = now_ns();
   if (lcmx && !start_bridges(run, res.errors)) return res;
   const std::string channel = "BENCH_BRIDGE_" + std::to_string(::getpid()) + "_" + std::to_string(++run.serial);
-  const double link = rate_bps(run.opt.link_rate);
+  const double link = link_bits_per_second(run.opt.link);
   const auto period_ns = static_cast<std::int64_t>(1e9 / run.opt.rate);
 
   std::vector<std::unique_ptr<Proc>> subs;
@@ -465,8 +338,8 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
     for (int i = 0; i < nsubs; ++i) {
       std::vector<std::string> eps;
       if (role == "zmq") eps.push_back(sub_endpoint(run, i));
-      subs.push_back(std::make_unique<Proc>(method + "-sub" + std::to_string(i + 1), run.emu->ns_fd(1),
-                                            role_args(run, role + "-sub", channel, eps), run.cpu_b));
+      subs.push_back(std::make_unique<Proc>(method + "-sub" + std::to_string(i + 1),
+                                            role_args(run, role + "-sub", channel, eps), run.cpu_b, run.emu->ns_fd(1)));
     }
     std::vector<std::string> pub_eps;
     if (role == "zmq")
@@ -486,8 +359,8 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
     for (auto* p : sp)
       if (!ready(*p)) throw std::runtime_error(p->name() + " not ready within 20 s");
     // The floor's waker runs on host B (it stands for B's bridge); the publishers on A.
-    pub = std::make_unique<Proc>(method + "-pub", run.emu->ns_fd(floor ? 1 : 0),
-                                 role_args(run, role + "-pub", channel, pub_eps), floor ? run.cpu_b : run.cpu_a);
+    pub = std::make_unique<Proc>(method + "-pub", role_args(run, role + "-pub", channel, pub_eps),
+                                 floor ? run.cpu_b : run.cpu_a, run.emu->ns_fd(floor ? 1 : 0));
     pump(run, {pub.get()}, now_ns() + 20'000'000'000LL, [&] { return ready_or_failed({pub.get()}); });
     if (!ready(*pub)) throw std::runtime_error(pub->name() + " not ready within 20 s");
     absorb_all();
@@ -516,7 +389,7 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
       });
       all_have_one = std::all_of(rx.begin(), rx.end(), [](const auto& m) { return !m.empty(); });
     }
-    progress(method + " x" + std::to_string(nsubs) + ": every subscriber receives after " + std::to_string(k) +
+    say(method + " x" + std::to_string(nsubs) + ": every subscriber receives after " + std::to_string(k) +
              " probe(s), " + std::to_string((now_ns() - t_start) / 1'000'000) + " ms");
     // The last probe everywhere (or 2 s) before measuring.
     pump(run, all(), now_ns() + 2'000'000'000LL, [&] { return got_all(make_seq(k, false)); });
@@ -589,24 +462,24 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
                     method.c_str(), nsubs, size_label(p.size).c_str(), sr.lat.mean, sr.lat.p50, sr.lat.p99, sr.lost(),
                     sr.expected, sr.ratio(), sr.net_ratio(), sr.diff.p50, sr.diff.p99,
                     timeouts ? (", " + std::to_string(timeouts) + " timeouts").c_str() : "");
-      progress(buf);
+      say(buf);
       res.sizes.push_back(sr);
     }
   } catch (const std::exception& e) {
     res.errors.push_back(e.what());
-    progress(method + " x" + std::to_string(nsubs) + ": FAILED: " + e.what());
+    say(method + " x" + std::to_string(nsubs) + ": FAILED: " + e.what());
   }
   // Shut down: quit (then EOF), collect the last notes, reap.
-  if (pub) pub->command("quit"), pub->close_ctl();
-  for (auto& s : subs) s->command("quit"), s->close_ctl();
+  if (pub) pub->command("quit"), pub->close_commands();
+  for (auto& s : subs) s->command("quit"), s->close_commands();
   pump(run, all(), now_ns() + 5'000'000'000LL, [&] {
     return std::all_of(subs.begin(), subs.end(), [](auto& s) { return s->eof(); }) && (!pub || pub->eof());
   });
   absorb_all();
   for (auto* p : all())
     if (auto e = p->reap(2000); !e.empty()) res.errors.push_back(e);
-  for (const auto& n : res.notes) progress(method + " x" + std::to_string(nsubs) + ": " + n);
-  progress(method + " x" + std::to_string(nsubs) + ": finished in " + std::to_string((now_ns() - t_start) / 1'000'000) + " ms");
+  for (const auto& n : res.notes) say(method + " x" + std::to_string(nsubs) + ": " + n);
+  say(method + " x" + std::to_string(nsubs) + ": finished in " + std::to_string((now_ns() - t_start) / 1'000'000) + " ms");
   return res;
 }
 
@@ -615,22 +488,22 @@ FanoutResult run_fanout(Run& run, const std::string& method, int nsubs) {
 TputResult run_bridge_throughput(Run& run) {
   TputResult res;
   res.method = "lcmx bridge";
-  progress("throughput bridge: starting");
+  say("throughput bridge: starting");
   if (!start_bridges(run, res.errors)) return res;
   const std::string channel = "BENCH_BRIDGE_TPUT_" + std::to_string(::getpid()) + "_" + std::to_string(++run.serial);
   const std::size_t size = run.tput_size;
-  const double link = rate_bps(run.opt.link_rate);
+  const double link = link_bits_per_second(run.opt.link);
   res.offered_hz = link > 0 ? run.opt.tput_offer * link / (static_cast<double>(size) * 8) : run.opt.tput_hz;
   const int count = std::max(1, static_cast<int>(std::lround(res.offered_hz * run.opt.tput_seconds)));
   std::unordered_map<std::int64_t, Rx> rx;
   std::unique_ptr<Proc> sub, pub;
   std::vector<std::string> pub_other;
   try {
-    sub = std::make_unique<Proc>("tput-sub", run.emu->ns_fd(1), role_args(run, "lcmx-sub", channel, {}), run.cpu_b);
+    sub = std::make_unique<Proc>("tput-sub", role_args(run, "lcmx-sub", channel, {}), run.cpu_b, run.emu->ns_fd(1));
     pump(run, {sub.get()}, now_ns() + 20'000'000'000LL, [&] { return !sub->lines().empty() || sub->eof(); });
     if (sub->lines().empty() || sub->lines().front() != "ready") throw std::runtime_error("tput-sub not ready within 20 s");
     sub->lines().clear();
-    pub = std::make_unique<Proc>("tput-pub", run.emu->ns_fd(0), role_args(run, "lcmx-pub", channel, {}), run.cpu_a);
+    pub = std::make_unique<Proc>("tput-pub", role_args(run, "lcmx-pub", channel, {}), run.cpu_a, run.emu->ns_fd(0));
     pump(run, {pub.get()}, now_ns() + 20'000'000'000LL, [&] { return !pub->lines().empty() || pub->eof(); });
     if (pub->lines().empty() || pub->lines().front() != "ready") throw std::runtime_error("tput-pub not ready within 20 s");
     pub->lines().clear();
@@ -705,13 +578,13 @@ TputResult run_bridge_throughput(Run& run) {
                   "per GB delivered: A (sender) %.3f s (user %.3f s), B (receiver) %.3f s",
                   res.gbit, res.msgs_per_s, size_label(size).c_str(), res.received, res.sent, res.offered_hz,
                   res.cpu_a_s_per_gb, res.user_a_s_per_gb, res.cpu_b_s_per_gb);
-    progress(buf);
+    say(buf);
   } catch (const std::exception& e) {
     res.errors.push_back(e.what());
-    progress(std::string("throughput bridge: FAILED: ") + e.what());
+    say(std::string("throughput bridge: FAILED: ") + e.what());
   }
   for (Proc* p : {pub.get(), sub.get()})
-    if (p) p->command("quit"), p->close_ctl();
+    if (p) p->command("quit"), p->close_commands();
   std::vector<Proc*> ps;
   for (Proc* p : {pub.get(), sub.get()})
     if (p) ps.push_back(p);
@@ -722,7 +595,7 @@ TputResult run_bridge_throughput(Run& run) {
   if (pub) absorb(*pub, nullptr, res.errors, res.notes);
   for (auto* p : ps)
     if (auto e = p->reap(2000); !e.empty()) res.errors.push_back(e);
-  for (const auto& n : res.notes) progress("throughput bridge: " + n);
+  for (const auto& n : res.notes) say("throughput bridge: " + n);
   return res;
 }
 
@@ -746,7 +619,7 @@ std::optional<double> json_number(const std::string& json, const std::string& se
 TputResult run_iperf3(Run& run) {
   TputResult res;
   res.method = "iperf3 (TCP, 1 stream)";
-  progress("throughput iperf3: starting");
+  say("throughput iperf3: starting");
   try {
     const auto a = run.emu->address(0, "eth"), b = run.emu->address(1, "eth");
     auto server = run.emu->spawn(1, taskset(run.cpu_b, {run.opt.iperf3, "-s", "-B", b, "-p", "5201", "-1", "--forceflush"}));
@@ -777,10 +650,10 @@ TputResult run_iperf3(Run& run) {
     if (retr) res.notes.push_back("TCP retransmits " + std::to_string(static_cast<long long>(*retr)));
     char buf[200];
     std::snprintf(buf, sizeof buf, "throughput iperf3: %.3f Gbit/s over %.1f s", res.gbit, res.seconds);
-    progress(buf);
+    say(buf);
   } catch (const std::exception& e) {
     res.errors.push_back(e.what());
-    progress(std::string("throughput iperf3: FAILED: ") + e.what());
+    say(std::string("throughput iperf3: FAILED: ") + e.what());
   }
   return res;
 }
@@ -811,13 +684,6 @@ const FanoutResult* find_fanout(const Report& r, const std::string& m, int n) {
   for (const auto& f : r.fanouts)
     if (f.method == m && f.subscribers == n) return &f;
   return nullptr;
-}
-
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2;
 }
 
 // --repeat: one Report whose figures are the medians over the runs (ranges kept for the
@@ -929,19 +795,13 @@ Report aggregate(const std::vector<Report>& runs) {
 std::string markdown(const Run& run, const Report& rep, const std::string& command) {
   const auto& o = run.opt;
   std::ostringstream md;
-  char date[64];
-  const std::time_t now = std::time(nullptr);
-  std::strftime(date, sizeof date, "%Y-%m-%d %H:%M:%S %Z", std::localtime(&now));
-  utsname u{};
-  ::uname(&u);
   md << "## lcmx bridge benchmark: experiments 2 and 3, throughput vs iperf3\n\n";
   md << "`" << command << "`\n\n";
-  md << "- " << date << ", " << u.nodename << ", Linux " << u.release << ", " << ::sysconf(_SC_NPROCESSORS_ONLN)
-     << " CPUs online; pinning `--pin " << o.pin << "`"
+  md << "- " << machine_line() << "; pinning `--pin " << o.pin << "`"
      << (o.pin == "split" ? " (host A's processes on CPU 0, host B's on CPU 1)" : " (none)") << "\n";
   md << "- 2 network namespaces (hosts A, B) joined by one veth link through a Linux bridge, "
-     << (o.link_rate.empty() ? "not rate-limited" : "shaped to " + o.link_rate + " (tc tbf at each sender)")
-     << "; TCP congestion control " << (o.tcp_cc.empty() ? "this machine's" : o.tcp_cc) << "\n";
+     << (o.link.rate.empty() ? "not rate-limited" : "shaped to " + o.link.rate + " (tc tbf at each sender)")
+     << "; TCP congestion control " << (o.link.tcp_congestion.empty() ? "this machine's" : o.link.tcp_congestion) << "\n";
   md << "- exp2/3: publisher on A, subscribers on B; sizes ";
   for (std::size_t i = 0; i < run.plan.size(); ++i) md << (i ? ", " : "") << size_label(run.plan[i].size);
   md << " (K = 1024); per size " << o.warmup << " warm-up + " << o.count << " measured messages, one every "
@@ -1042,7 +902,7 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   }
   // Throughput
   if (rep.bridge_tput || rep.iperf) {
-    md << "### Throughput on the same link (" << (o.link_rate.empty() ? "not rate-limited" : o.link_rate) << ")\n\n";
+    md << "### Throughput on the same link (" << (o.link.rate.empty() ? "not rate-limited" : o.link.rate) << ")\n\n";
     md << "| method | Gbit/s | messages/s | received/sent | A's link bytes / delivered bytes | bridge CPU s per GB (A sends, B receives) | notes |\n|---|---|---|---|---|---|---|\n";
     for (const auto* t : {rep.bridge_tput ? &*rep.bridge_tput : nullptr, rep.iperf ? &*rep.iperf : nullptr}) {
       if (!t) continue;
@@ -1130,8 +990,8 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   }
   if (o.only.empty() || o.only == "throughput") {
     // Issue 15 item 1: >= 95 % on an unshaped link, >= 90 % on a shaped one.
-    const double target = o.link_rate.empty() ? 0.95 : 0.90;
-    md << "- bridge throughput ≥ " << (o.link_rate.empty() ? "95 % of iperf3 on the same unshaped" : "90 % of iperf3 on the same shaped")
+    const double target = o.link.rate.empty() ? 0.95 : 0.90;
+    md << "- bridge throughput ≥ " << (o.link.rate.empty() ? "95 % of iperf3 on the same unshaped" : "90 % of iperf3 on the same shaped")
        << " link: ";
     if (!rep.bridge_tput || !rep.iperf || !rep.bridge_tput->ok || !rep.iperf->ok || rep.iperf->gbit <= 0) {
       md << "not measured (a throughput run failed)\n";
@@ -1145,19 +1005,15 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
   }
   md << "- (single runs on a 2-vCPU shared machine: differences under 1.3x are noise, DESIGN.md \"Measuring\")\n";
 
-  bool any = false;
+  std::vector<std::pair<std::string, std::string>> failures, notes;
   auto fail = [&](const std::string& what, const std::vector<std::string>& errs) {
-    for (const auto& e : errs) {
-      if (!any) md << "\n**Failures**\n";
-      any = true;
-      md << "- " << what << ": " << e << "\n";
-    }
+    for (const auto& e : errs) failures.emplace_back(what, e);
   };
   for (const auto& f : rep.fanouts) fail(method_label(f.method) + " x" + std::to_string(f.subscribers), f.errors);
   if (rep.bridge_tput) fail("throughput bridge", rep.bridge_tput->errors);
   if (rep.iperf) fail("throughput iperf3", rep.iperf->errors);
   fail("bridges", run.bridge_errors);
-  any = false;
+  md << list_section("Failures", failures);
   for (const auto& f : rep.fanouts) {
     // Identical notes (one per subscriber and run) once, with a count.
     std::vector<std::pair<std::string, int>> seen;
@@ -1167,21 +1023,20 @@ std::string markdown(const Run& run, const Report& rep, const std::string& comma
       if (it == seen.end()) seen.emplace_back(key, 1);
       else ++it->second;
     }
-    for (const auto& [n, count] : seen) {
-      if (!any) md << "\n**Notes from the children**\n";
-      any = true;
-      md << "- " << method_label(f.method) << " x" << f.subscribers << ": " << n << (count > 1 ? " (x" + std::to_string(count) + ")" : "") << "\n";
-    }
+    for (const auto& [n, count] : seen)
+      notes.emplace_back(method_label(f.method) + " x" + std::to_string(f.subscribers),
+                         n + (count > 1 ? " (x" + std::to_string(count) + ")" : ""));
   }
+  md << list_section("Notes from the children", notes);
   return md.str();
 }
 
 void write_csv(const std::string& path, const Run& run, const std::vector<Report>& runs) {
-  std::ofstream f(path);
+  std::ostringstream f;
   f << "run,section,method,subscribers,size,sent,received,lost,mean_us,p50_us,p99_us,max_us,link_bytes_per_msg,"
        "link_ratio,link_ratio_net,idle_bytes_per_s,diff_p50_us,diff_p99_us,diff_mean_us,spread_p50_us,spread_p99_us,"
        "gbit_s,msgs_s,cpu_a_s_per_gb,user_a_s_per_gb,cpu_b_s_per_gb,link_rate,pin,wait\n";
-  const std::string tail = "," + run.opt.link_rate + "," + run.opt.pin + "," + run.opt.wait + "\n";
+  const std::string tail = "," + run.opt.link.rate + "," + run.opt.pin + "," + run.opt.wait + "\n";
   for (std::size_t r = 0; r < runs.size(); ++r) {
     const Report& rep = runs[r];
     for (const auto& fo : rep.fanouts)
@@ -1198,34 +1053,33 @@ void write_csv(const std::string& path, const Run& run, const std::vector<Report
           << ",,,,,,,," << t->gbit << "," << t->msgs_per_s << "," << t->cpu_a_s_per_gb << "," << t->user_a_s_per_gb << "," << t->cpu_b_s_per_gb
           << tail;
   }
+  write_file(path, f.str());
 }
 
 int orchestrate(const Options& opt, const std::string& command) {
   Run run;
   run.opt = opt;
   try {
-    for (const auto& s : opt.sizes) run.plan.push_back({parse_size(s), opt.warmup, opt.count});
-    run.tput_size = parse_size(opt.tput_size);
-    if (!opt.link_rate.empty() && rate_bps(opt.link_rate) <= 0)
-      throw std::invalid_argument("--link-rate '" + opt.link_rate + "': use e.g. 1gbit, 2gbit, 400mbit");
+    for (const auto& s : opt.sizes) run.plan.push_back({parse_size(s, sizeof(Header)), opt.warmup, opt.count});
+    run.tput_size = parse_size(opt.tput_size, sizeof(Header));
     for (int n : opt.subscribers)
       if (n < 1 || n > 16) throw std::invalid_argument("--subscribers: 1..16");
     for (const auto& m : opt.methods)
       if (m != "zmq" && m != "bridge" && m != "floor") throw std::invalid_argument("--methods: zmq, bridge, floor");
   } catch (const std::exception& e) {
-    std::cerr << "lcmx_bench_bridge: " << e.what() << "\n";
-    return 2;
+    return bad_options(kProgram, e.what());
   }
-  if (opt.pin == "split") run.cpu_a = 0, run.cpu_b = 1;
-  std::string why;
-  if (!lcmx::test::netns_available(&why)) {
-    std::cerr << "lcmx_bench_bridge: cannot emulate hosts: " << why << "\n";
+  if (const auto why = bad_link_options(opt.link)) return bad_options(kProgram, *why);
+  if (opt.pin == "split") {
+    if (const auto why = split_unavailable()) return bad_options(kProgram, *why);
+    const Pinning cpus = pinning(opt.pin);
+    run.cpu_a = cpus.pub, run.cpu_b = cpus.sub;
+  }
+  if (const auto why = hosts_unavailable()) {
+    std::cerr << kProgram << ": " << *why << "\n";
     return 1;
   }
-  struct sigaction sa {};
-  sa.sa_handler = on_signal;
-  for (int s : {SIGINT, SIGTERM, SIGHUP}) ::sigaction(s, &sa, nullptr);
-  ::signal(SIGPIPE, SIG_IGN);
+  on_stop_signals(OnStop::flag);
   run.exe = self_exe();
   // A port of our own for host-local discovery (each namespace has its own lo anyway).
   run.discovery_url = "udpm://239.255.76.67:" + std::to_string(20000 + ::getpid() % 20000) + "?ttl=0";
@@ -1240,25 +1094,20 @@ int orchestrate(const Options& opt, const std::string& command) {
   fs::create_directories(run.workdir);
 
   std::vector<Report> runs;
-  int rc = 0;
   {
-    lcmx::test::LinkSpec link;
-    link.name = "eth";
-    if (!opt.link_rate.empty()) link.rate = opt.link_rate;
     std::optional<lcmx::test::Emulation> emu;
     try {
-      emu.emplace(lcmx::test::Emulation::create({.hosts = 2, .links = {link}, .tcp_congestion = opt.tcp_cc}));
+      emu.emplace(emulate_hosts(opt.link));
     } catch (const std::exception& e) {
-      std::cerr << "lcmx_bench_bridge: " << e.what() << "\n";
+      std::cerr << kProgram << ": " << e.what() << "\n";
       return 1;
     }
     run.emu = &*emu;
-    progress("hosts: A " + emu->ns(0) + " (" + emu->address(0, "eth") + "), B " + emu->ns(1) + " (" +
-             emu->address(1, "eth") + "), link " + (opt.link_rate.empty() ? "unlimited" : opt.link_rate) +
-             ", discovery " + run.discovery_url + ", pin " + opt.pin + ", lcmx wait " + opt.wait);
+    say("hosts: " + hosts_line(*emu) + ", link " + (opt.link.rate.empty() ? "unlimited" : opt.link.rate) +
+        ", discovery " + run.discovery_url + ", pin " + opt.pin + ", lcmx wait " + opt.wait);
     const bool fan = opt.only.empty() || opt.only == "exp2" || opt.only == "exp3";
     for (int r = 0; r < opt.repeat && !interrupted(); ++r) {
-      if (opt.repeat > 1) progress("run " + std::to_string(r + 1) + " of " + std::to_string(opt.repeat));
+      if (opt.repeat > 1) say("run " + std::to_string(r + 1) + " of " + std::to_string(opt.repeat));
       Report rep;
       if (fan)
         for (int n : opt.subscribers)
@@ -1275,14 +1124,13 @@ int orchestrate(const Options& opt, const std::string& command) {
     stop_bridges(run);
   }  // namespaces removed here (Emulation's destructor kills what is left inside)
   if (interrupted()) {
-    std::cerr << "lcmx_bench_bridge: interrupted (signal " << g_signal.load() << "); namespaces removed\n";
-    return 128 + g_signal.load();
+    std::cerr << kProgram << ": interrupted (signal " << stop_flag().load() << "); namespaces removed\n";
+    return 128 + stop_flag().load();
   }
   const Report rep = aggregate(runs);
-  const std::string md = markdown(run, rep, command);
-  std::cout << md << std::flush;
-  if (!opt.markdown.empty()) std::ofstream(opt.markdown) << md;
-  if (!opt.csv.empty()) write_csv(opt.csv, run, runs);
+  int rc = print_report(kProgram, markdown(run, rep, command), opt.markdown, [&] {
+    if (!opt.csv.empty()) write_csv(opt.csv, run, runs);
+  }) ? 0 : 1;
   for (const auto& f : rep.fanouts)
     if (!f.errors.empty()) rc = 1;
   if ((rep.bridge_tput && !rep.bridge_tput->ok) || (rep.iperf && !rep.iperf->ok)) rc = 1;
@@ -1293,6 +1141,7 @@ int orchestrate(const Options& opt, const std::string& command) {
 }  // namespace lcmxbench::bridge
 
 int main(int argc, char** argv) {
+  using namespace lcmxbench;
   using namespace lcmxbench::bridge;
   CLI::App app{
       "lcmx_bench_bridge: the paper's experiments 2 and 3 and bridge throughput between two emulated hosts\n"
@@ -1311,14 +1160,9 @@ int main(int argc, char** argv) {
   app.add_option("--methods", opt.methods, "exp2/3 methods in run order: zmq (per-subscriber), bridge, floor (futex wake of the subscribers on B, no data; exp3 only)")->delimiter(',')->capture_default_str();
   app.add_option("--only", opt.only, "run only exp2, exp3 (both run the same fan-out; only the tables differ) or throughput")
       ->check(CLI::IsMember({"exp2", "exp3", "throughput"}));
-  app.add_option("--link-rate", opt.link_rate, "tc tbf rate of the link (e.g. 1gbit, 2gbit); \"\" = unlimited")->capture_default_str();
-  app.add_option("--tcp-congestion", opt.tcp_cc,
-                 "the hosts' TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. bbr)")
-      ->capture_default_str();
-  app.add_option("--pin", opt.pin, "none, or split: host A's processes on CPU 0, host B's on CPU 1")
-      ->check(CLI::IsMember({"none", "split"}))->capture_default_str();
-  app.add_option("--wait", opt.wait, "lcmx subscribers' executor wait: block, spin (spin_then_block), adaptive, busy")
-      ->check(CLI::IsMember({"block", "spin", "adaptive", "busy"}))->capture_default_str();
+  add_link_options(app, opt.link, "tc tbf rate of the link (e.g. 1gbit, 2gbit); \"\" = unlimited", true);
+  add_pin_option(app, opt.pin, {"none", "split"}, "none, or split: host A's processes on CPU 0, host B's on CPU 1");
+  add_wait_option(app, opt.wait, "lcmx subscribers' executor wait: block, spin (spin_then_block), adaptive, busy");
   app.add_option("--timeout-ms", opt.timeout_ms, "per-message receive timeout (default: 10x the link time of all copies, >= 2 s)");
   app.add_option("--tput-seconds", opt.tput_seconds, "throughput: seconds of the bridge stream and of iperf3 -t")
       ->check(CLI::Range(0.5, 60.0))->capture_default_str();
@@ -1335,11 +1179,11 @@ int main(int argc, char** argv) {
   app.add_option("--markdown", opt.markdown, "also write the Markdown report to this file");
   // Hidden: child roles.
   ChildConfig c;
-  app.add_option("--role", c.role)->group("");
-  app.add_option("--endpoint", c.endpoints)->group("");
-  app.add_option("--channel", c.channel)->group("");
-  app.add_option("--discovery-url", c.discovery_url)->group("");
-  app.add_option("--max-size", c.max_size)->group("");
+  add_hidden(app, "--role", c.role);
+  add_hidden(app, "--endpoint", c.endpoints);
+  add_hidden(app, "--channel", c.channel);
+  add_hidden(app, "--discovery-url", c.discovery_url);
+  add_hidden(app, "--max-size", c.max_size);
   CLI11_PARSE(app, argc, argv);
   if (c.role.empty()) {
     std::string command = "lcmx_bench_bridge";
@@ -1353,6 +1197,6 @@ int main(int argc, char** argv) {
   if (c.role == "lcmx-sub") return run_lcmx_sub(c);
   if (c.role == "floor-pub") return run_floor_pub(c);
   if (c.role == "floor-sub") return run_floor_sub(c);
-  lcmxbench::report_error("unknown role " + c.role);
+  report_error("unknown role " + c.role);
   return 2;
 }

@@ -7,7 +7,7 @@
 //    header, publish(loan, size); RawSubscriber reads the header zero-copy in its callback.
 //    Between hosts the message goes through `lcmx bridge` (started by the orchestrator).
 // See roles.hpp for the line protocol.
-#include "roles.hpp"
+#include "bridge/roles.hpp"
 
 #include <fcntl.h>
 #include <linux/futex.h>
@@ -16,9 +16,6 @@
 #include <sys/syscall.h>
 #include <unistd.h>
 #include <zmq.h>
-
-#include <spdlog/sinks/stdout_color_sinks.h>
-#include <spdlog/spdlog.h>
 
 #include <atomic>
 #include <climits>
@@ -33,40 +30,13 @@
 #include <vector>
 #include <zmq.hpp>
 
-#include "common.hpp"
+#include "harness/endpoints.hpp"
+#include "harness/options.hpp"
+#include "harness/pingpong.hpp"
 #include "lcmx/core.hpp"
 
 namespace lcmxbench::bridge {
 namespace {
-
-// Reads command lines from kCtlIn. next() blocks up to timeout_ms; nullopt on timeout; "quit"
-// at EOF (the orchestrator is gone).
-class CtlReader {
- public:
-  std::optional<std::string> next(int timeout_ms) {
-    for (;;) {
-      if (const auto pos = buf_.find('\n'); pos != std::string::npos) {
-        std::string line = buf_.substr(0, pos);
-        buf_.erase(0, pos + 1);
-        return line;
-      }
-      if (eof_) return std::string("quit");
-      pollfd p{kCtlIn, POLLIN, 0};
-      const int r = ::poll(&p, 1, timeout_ms);
-      if (r < 0 && errno == EINTR) continue;
-      if (r == 0) return std::nullopt;
-      char tmp[4096];
-      const ssize_t n = ::read(kCtlIn, tmp, sizeof tmp);
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) eof_ = true;
-      else buf_.append(tmp, static_cast<std::size_t>(n));
-    }
-  }
-
- private:
-  std::string buf_;
-  bool eof_ = false;
-};
 
 // Receive records of one subscriber: the receiving thread appends (no system call, no
 // allocation), a reporter thread writes them as "r" lines every 5 ms. So the callback of one
@@ -135,7 +105,7 @@ class RxLog {
 
 // The command loop of both publishers. send(seq, size) hands one message to the transport.
 int publisher_loop(const std::function<void(std::int64_t, std::size_t)>& send) {
-  CtlReader ctl;
+  CommandReader ctl;
   for (;;) {
     const auto line = ctl.next(-1);
     if (!line) continue;
@@ -255,11 +225,11 @@ int run_zmq_sub(const ChildConfig& c) {
     s.set(zmq::sockopt::linger, 0);
     s.bind(c.endpoints.at(0));
     report_line("ready");
-    CtlReader ctl;
+    CommandReader ctl;
     RxLog log;
     std::uint64_t received = 0, short_msgs = 0;
     for (;;) {
-      zmq::pollitem_t items[] = {{s.handle(), 0, ZMQ_POLLIN, 0}, {nullptr, kCtlIn, ZMQ_POLLIN, 0}};
+      zmq::pollitem_t items[] = {{s.handle(), 0, ZMQ_POLLIN, 0}, {nullptr, kCmdFd, ZMQ_POLLIN, 0}};
       zmq::poll(items, 2, std::chrono::milliseconds(-1));
       if (items[0].revents & ZMQ_POLLIN) {
         zmq::message_t m;
@@ -345,7 +315,7 @@ int run_floor_sub(const ChildConfig& c) {
   try {
     FloorPage* page = map_floor(c.channel);
     RxLog log;
-    CtlReader ctl;
+    CommandReader ctl;
     report_line("ready");
     std::uint32_t seen = page->word.load(std::memory_order_acquire);
     for (;;) {
@@ -383,12 +353,6 @@ lcmx::RuntimeOptions lcmx_options(const ChildConfig& c) {
   return o;
 }
 
-void log_to_stderr(const std::string& role) {
-  auto logger = spdlog::stderr_color_mt(role);
-  spdlog::set_default_logger(logger);
-  spdlog::set_level(spdlog::level::warn);
-}
-
 }  // namespace
 
 int run_lcmx_pub(const ChildConfig& c) {
@@ -419,10 +383,7 @@ int run_lcmx_sub(const ChildConfig& c) {
   try {
     auto rt = lcmx::Runtime::create(lcmx_options(c));
     lcmx::NodeOptions no;
-    if (c.wait == "spin") no.executor.wait = lcmx::WaitStrategy::spin_then_block;
-    else if (c.wait == "adaptive") no.executor.wait = lcmx::WaitStrategy::adaptive;
-    else if (c.wait == "block") no.executor.wait = lcmx::WaitStrategy::block;
-    else if (c.wait == "busy") no.executor.wait = lcmx::WaitStrategy::busy_poll;
+    no.executor.wait = wait_strategy(c.wait);
     auto node = rt.create_node("bench_bridge_sub", no);
     std::atomic<std::uint64_t> short_msgs{0};
     RxLog log;
@@ -437,7 +398,7 @@ int run_lcmx_sub(const ChildConfig& c) {
       log.add(h, m.data.size(), t);
     });
     report_line("ready");
-    CtlReader ctl;
+    CommandReader ctl;
     for (;;) {
       const auto line = ctl.next(-1);
       if (line && *line == "quit") break;
@@ -445,8 +406,7 @@ int run_lcmx_sub(const ChildConfig& c) {
     const auto st = sub.stats();
     sub.reset();  // waits for a running callback
     log.stop();
-    std::string paths;
-    for (const auto& p : st.publishers) paths += std::string(paths.empty() ? "" : ",") + lcmx::to_string(p.path);
+    const std::string paths = paths_of(st);
     report_line("note lcmx-sub: delivered=" + std::to_string(st.delivered) + " drops=" + std::to_string(st.drops) +
                 " paths=" + (paths.empty() ? std::string("(none)") : paths) +
                 (short_msgs ? " short=" + std::to_string(short_msgs.load()) : std::string()));

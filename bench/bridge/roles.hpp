@@ -1,12 +1,12 @@
 // Child roles of lcmx_bench_bridge (see roles.cpp). The orchestrator (main.cpp) starts each
 // role as a copy of this binary inside an emulated host's network namespace.
 //
-// Protocol, one text line per write():
+// Protocol (the harness's RoleProcess), one text line per write():
 //  - fd 3 (kReportFd, child -> orchestrator): "ready", "error <text>", "note <text>", "done";
 //    publishers: "s <seq>" once a message is handed to the transport, "streamed <n> <t0> <t1>";
 //    subscribers: "r <seq> <size> <send_ns> <recv_ns>" for every message: the callback only
 //    appends a record in memory, a reporter thread writes the lines every 5 ms.
-//  - fd 4 (kCtlFd, orchestrator -> child): "send <seq> <size>", "stream <size> <count> <hz>
+//  - fd 4 (kCmdFd, orchestrator -> child): "send <seq> <size>", "stream <size> <count> <hz>
 //    <first k>", "quit" (publishers); "quit" (subscribers). EOF = quit.
 // Every message starts with a Header (seq, send_ns, size); the rest is payload that is never
 // rewritten per message (the publisher side writes 24 bytes, the transport moves `size`).
@@ -17,8 +17,6 @@
 #include <vector>
 
 namespace lcmxbench::bridge {
-
-inline constexpr int kCtlIn = 4;  // fd 4: orchestrator -> child commands
 
 struct Header {
   std::int64_t seq;

@@ -27,6 +27,8 @@
 #include <thread>
 #include <vector>
 
+#include "harness/options.hpp"
+#include "harness/stats.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx_envelope.h"
 
@@ -144,13 +146,9 @@ int sink(const std::string& topics, long count) {
   for (std::size_t i = 0; i < tracks.size(); ++i) {
     const Track& tr = tracks[i];
     // Latency: without the first 10% (discovery, first allocations).
-    std::vector<double> l(tr.lat.begin() + static_cast<long>(tr.lat.size() / 10), tr.lat.end());
-    std::sort(l.begin(), l.end());
-    auto pct = [&](double p) {
-      return l.empty() ? 0.0 : l[std::min(l.size() - 1, static_cast<std::size_t>(p * l.size()))];
-    };
+    const auto st = lcmxbench::stats_of({tr.lat.begin() + static_cast<long>(tr.lat.size() / 10), tr.lat.end()});
     const double secs = static_cast<double>(tr.last - tr.first) / 1e9;
-    std::printf("result i=%zu n=%ld p50_us=%.1f p99_us=%.1f mbps=%.1f lost=%llu\n", i, tr.got, pct(0.5), pct(0.99),
+    std::printf("result i=%zu n=%ld p50_us=%.1f p99_us=%.1f mbps=%.1f lost=%llu\n", i, tr.got, st.p50, st.p99,
                 secs > 0 ? static_cast<double>(tr.bytes) * 8 / 1e6 / secs : 0.0,
                 static_cast<unsigned long long>(tr.lost));
   }
@@ -272,7 +270,13 @@ int both_source(const std::string& channel, const std::string& topic, long count
 
 }  // namespace
 
+const char* const kUsage =
+    "usage: lcmx_bench_dds sink TOPIC[,TOPIC..] COUNT | dds-source TOPIC COUNT SIZE HZ |\n"
+    "       lcmx-source CHANNEL COUNT SIZE HZ | both-source CHANNEL TOPIC COUNT SIZE HZ\n"
+    "The roles of bench/dds/run.py (docs/dds.md \"Benchmark\").\n";
+
 int main(int argc, char** argv) {
+  if (lcmxbench::help_asked(argc, argv)) return lcmxbench::usage(kUsage, true);
   const std::string role = argc > 1 ? argv[1] : "";
   if (role == "sink" && argc == 4) return sink(argv[2], std::atol(argv[3]));
   if (role == "dds-source" && argc == 6)
@@ -282,7 +286,5 @@ int main(int argc, char** argv) {
   if (role == "both-source" && argc == 7)
     return both_source(argv[2], argv[3], std::atol(argv[4]), static_cast<std::size_t>(std::atol(argv[5])),
                        std::atof(argv[6]));
-  std::cerr << "usage: lcmx_bench_dds sink TOPIC[,TOPIC..] COUNT | dds-source TOPIC COUNT SIZE HZ | "
-               "lcmx-source CHANNEL COUNT SIZE HZ | both-source CHANNEL TOPIC COUNT SIZE HZ\n";
-  return 2;
+  return lcmxbench::usage(kUsage, false);
 }

@@ -15,7 +15,7 @@
 #include <string>
 #include <vector>
 
-#include "common.hpp"
+#include "latency/roles.hpp"
 
 namespace lcmxbench {
 namespace {

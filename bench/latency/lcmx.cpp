@@ -11,9 +11,6 @@
 #include <poll.h>
 #include <unistd.h>
 
-#include <spdlog/sinks/stdout_color_sinks.h>
-#include <spdlog/spdlog.h>
-
 #include <cerrno>
 #include <cstring>
 #include <exception>
@@ -21,9 +18,10 @@
 #include <string>
 #include <vector>
 
-#include "common.hpp"
+#include "latency/roles.hpp"
+#include "harness/endpoints.hpp"
+#include "harness/options.hpp"
 #include "lcmx/core.hpp"
-#include "lcmx_examples/bench_t.hpp"
 
 namespace lcmxbench {
 namespace {
@@ -48,18 +46,8 @@ lcmx::RuntimeOptions runtime_options(const RoleConfig& cfg) {
 
 lcmx::NodeOptions sub_node_options(const RoleConfig& cfg) {
   lcmx::NodeOptions o;
-  if (cfg.wait == "spin") o.executor.wait = lcmx::WaitStrategy::spin_then_block;
-  else if (cfg.wait == "adaptive") o.executor.wait = lcmx::WaitStrategy::adaptive;
-  else if (cfg.wait == "busy") o.executor.wait = lcmx::WaitStrategy::busy_poll;
-  else o.executor.wait = lcmx::WaitStrategy::block;
+  o.executor.wait = wait_strategy(cfg.wait);
   return o;
-}
-
-// lcmx logs through spdlog's default logger; the report fd is the protocol, so keep logs on
-// stderr with the role in front.
-void log_to_stderr(const std::string& role) {
-  auto logger = spdlog::stderr_color_mt(role);
-  spdlog::set_default_logger(logger);
 }
 
 // Runs on the subscriber's executor thread, first call: pin that thread too.
@@ -74,17 +62,10 @@ struct ThreadPin {
   }
 };
 
-void report_stats(const lcmx::SubscriberStats& s, const char* what) {
-  std::string line = std::string("note ") + what + " subscriber: delivered=" + std::to_string(s.delivered) +
-                     " drops=" + std::to_string(s.drops) + " decode_errors=" + std::to_string(s.decode_errors);
-  for (const auto& e : s.errors) line += " error='" + e + "'";
-  report_line(line);
-}
-
 }  // namespace
 
 int run_lcmx_sub(const RoleConfig& cfg, bool loan) {
-  log_to_stderr(cfg.role);
+  log_to_stderr(cfg.role, "");
   try {
     auto rt = lcmx::Runtime::create(runtime_options(cfg));
     auto node = rt.create_node("bench_sub", sub_node_options(cfg));
@@ -118,9 +99,7 @@ int run_lcmx_sub(const RoleConfig& cfg, bool loan) {
     }
     {
       // The path of the pair, read now: at the end the publisher may already have left.
-      const auto at_match = loan ? raw.stats() : typed.stats();
-      std::string paths;
-      for (const auto& p : at_match.publishers) paths += std::string(paths.empty() ? "" : ",") + lcmx::to_string(p.path);
+      const std::string paths = paths_of(loan ? raw.stats() : typed.stats());
       report_line(std::string("note ") + (loan ? "lcmx-loan" : "lcmx-shm") + ": path at match: " +
                   (paths.empty() ? "(none listed in SubscriberStats::publishers)" : paths));
     }
@@ -130,7 +109,7 @@ int run_lcmx_sub(const RoleConfig& cfg, bool loan) {
     raw.reset();  // waits for a running callback: rec is ours alone after this
     typed.reset();
     rec.report();
-    report_stats(stats, loan ? "lcmx-loan" : "lcmx-shm");
+    report_delivery(loan ? "lcmx-loan subscriber" : "lcmx-shm subscriber", stats);
   } catch (const std::exception& e) {
     report_error(std::string("subscriber: ") + e.what());
     return 1;
@@ -140,7 +119,7 @@ int run_lcmx_sub(const RoleConfig& cfg, bool loan) {
 }
 
 int run_lcmx_pub(const RoleConfig& cfg, bool loan) {
-  log_to_stderr(cfg.role);
+  log_to_stderr(cfg.role, "");
   bool ok = false;
   try {
     auto rt = lcmx::Runtime::create(runtime_options(cfg));
@@ -165,9 +144,7 @@ int run_lcmx_pub(const RoleConfig& cfg, bool loan) {
     Driver d;
     d.prepare = [&](std::size_t size) {
       if (loan) return;  // loan: the payload is left as is, only the header is written
-      msg.size = static_cast<std::int32_t>(size);
-      msg.data.resize(size);
-      for (std::size_t i = 0; i < size; ++i) msg.data[i] = static_cast<std::uint8_t>(i * 31u);
+      fill_bench(msg, size);
     };
     d.send = [&](std::int64_t seq, std::size_t size) {
       if (loan) {
@@ -187,14 +164,13 @@ int run_lcmx_pub(const RoleConfig& cfg, bool loan) {
   } catch (const std::exception& e) {
     report_error(std::string("publisher: ") + e.what());
   }
-  char e = 'E';
-  (void)!::write(kCtlFd, &e, 1);
+  send_end();
   report_line("done");
   return ok ? 0 : 1;
 }
 
 int run_lcmx_intra(const RoleConfig& cfg) {
-  log_to_stderr(cfg.role);
+  log_to_stderr(cfg.role, "");
   int acks[2];
   if (::pipe2(acks, O_CLOEXEC) != 0) {
     report_error(std::string("intra: pipe: ") + std::strerror(errno));
@@ -233,9 +209,7 @@ int run_lcmx_intra(const RoleConfig& cfg) {
     Driver d;
     d.prepare = [&](std::size_t size) {
       cur = std::make_shared<lcmx_examples::bench_t>();
-      cur->size = static_cast<std::int32_t>(size);
-      cur->data.resize(size);
-      for (std::size_t i = 0; i < size; ++i) cur->data[i] = static_cast<std::uint8_t>(i * 31u);
+      fill_bench(*cur, size);
     };
     d.send = [&](std::int64_t seq, std::size_t) {
       // A published object is immutable: reuse it only if lcmx no longer holds it (not timed).
@@ -252,7 +226,7 @@ int run_lcmx_intra(const RoleConfig& cfg) {
     const auto stats = sub.stats();
     sub.reset();
     rec.report();
-    report_stats(stats, "lcmx-intra");
+    report_delivery("lcmx-intra subscriber", stats);
     if (copies) report_line("note lcmx-intra: lcmx still held the previous message " + std::to_string(copies) + " times (copied before the timestamp)");
   } catch (const std::exception& e) {
     report_error(std::string("intra: ") + e.what());

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "common.hpp"
+#include "latency/roles.hpp"
 #include "lcmx_examples/bench_t.hpp"
 
 namespace lcmxbench {
@@ -95,9 +95,7 @@ int run_liblcm_pub(const RoleConfig& cfg) {
   std::int64_t publish_errors = 0;
   Driver d;
   d.prepare = [&](std::size_t size) {
-    msg.size = static_cast<std::int32_t>(size);
-    msg.data.resize(size);
-    for (std::size_t i = 0; i < size; ++i) msg.data[i] = static_cast<std::uint8_t>(i * 31u);
+    fill_bench(msg, size);
     buf.resize(static_cast<std::size_t>(msg.getEncodedSize()));
   };
   d.send = [&](std::int64_t seq, std::size_t) {
@@ -109,8 +107,7 @@ int run_liblcm_pub(const RoleConfig& cfg) {
   d.wait_ack = [&](std::int64_t seq, int timeout_ms) { return wait_ack(kAckFd, seq, timeout_ms); };
   const bool ok = run_driver(cfg, d);
   if (publish_errors) report_line("note liblcm: lcm_publish failed " + std::to_string(publish_errors) + " times");
-  char e = 'E';
-  (void)!::write(kCtlFd, &e, 1);
+  send_end();
   report_line("done");
   return ok ? 0 : 1;
 }

@@ -29,6 +29,8 @@
 #include <unordered_map>
 #include <vector>
 
+#include "harness/options.hpp"
+#include "harness/stats.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx/log/eventlog.hpp"
 #include "lcmx_examples/bench_t.hpp"
@@ -205,27 +207,23 @@ int observe(const char* url, const char* log, double seconds) {
     const std::int64_t median = sorted[sorted.size() / 2];
     for (auto& d : o.dev_ns) d = std::llabs(d - median);
   }
-  std::sort(o.dev_ns.begin(), o.dev_ns.end());
-  auto pct = [&](double p) {
-    if (o.dev_ns.empty()) return 0.0;
-    return static_cast<double>(o.dev_ns[std::min(o.dev_ns.size() - 1, static_cast<std::size_t>(p * static_cast<double>(o.dev_ns.size())))]) / 1000.0;
-  };
+  const auto st = lcmxbench::stats_of_ns(o.dev_ns);  // nearest-rank percentiles, µs
   std::printf("timing received=%ld matched=%ld p50_us=%.1f p99_us=%.1f max_us=%.1f\n", o.received, o.matched,
-              pct(0.5), pct(0.99), o.dev_ns.empty() ? 0.0 : static_cast<double>(o.dev_ns.back()) / 1000.0);
+              st.p50, st.p99, st.max);
   return 0;
 }
 
-int usage() {
-  std::fprintf(stderr,
-               "usage: lcmx_bench_log gen-stock URL CHANNELS RATE_HZ SIZE SECONDS [PREFIX [spread|burst]]\n"
-               "       lcmx_bench_log gen-lcmx CHANNELS RATE_HZ SIZE IMAGE_BYTES IMAGE_HZ SECONDS\n"
-               "       lcmx_bench_log observe URL LOG SECONDS\n");
-  return 2;
-}
+const char* const kUsage =
+    "usage: lcmx_bench_log gen-stock URL CHANNELS RATE_HZ SIZE SECONDS [PREFIX [spread|burst]]\n"
+    "       lcmx_bench_log gen-lcmx CHANNELS RATE_HZ SIZE IMAGE_BYTES IMAGE_HZ SECONDS\n"
+    "       lcmx_bench_log observe URL LOG SECONDS\n"
+    "The traffic and the observer of bench/log/run_log_bench.sh (bench/README.md \"Log tools\").\n";
+int usage() { return lcmxbench::usage(kUsage, false); }
 
 }  // namespace
 
 int main(int argc, char** argv) {
+  if (lcmxbench::help_asked(argc, argv)) return lcmxbench::usage(kUsage, true);
   if (argc < 2) return usage();
   const std::string cmd = argv[1];
   if (cmd == "gen-stock" && argc >= 7 && argc <= 9) {

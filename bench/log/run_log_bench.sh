@@ -58,7 +58,9 @@ wait_logged() {
 }
 # Events of the BENCH_* channels in a log (the traffic measured, not the warm-up).
 count_events() {
-  "$LCMX" log info --json "$1" | grep -o '"channel":"BENCH_[0-9]*","count":[0-9]*' | awk -F: '{ n += $NF } END { print n + 0 }'
+  # (none yet is 0: grep's "no match" must not end the script under pipefail)
+  "$LCMX" log info --json "$1" | { grep -o '"channel":"BENCH_[0-9]*","count":[0-9]*' || true; } |
+    awk -F: '{ n += $NF } END { print n + 0 }'
 }
 
 echo "# lcmx log tools benchmark ($(date -u +%F' '%H:%M' UTC'), $(nproc) CPUs, $(uname -r))"

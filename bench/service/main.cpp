@@ -8,21 +8,18 @@
 //              lcmx service, bridges only (no vehicle group, `carry`)  |
 //              ZeroMQ REQ/REP over TCP on the same link.
 //
-// Every method runs a server process and a client process (this binary with a hidden --role);
-// the client measures each call's round trip with CLOCK_MONOTONIC and prints "rtt <case>
-// <p50_us> <p99_us> <n>" and "tput <clients> <calls/s>" lines, which the orchestrator turns into
-// one Markdown table with ratios against the peers measured in the same run. A request's first
-// 8 bytes say how large the response must be (every server honours it), the rest is filler.
-#include <CLI/CLI.hpp>
+// Every method runs a server process and a client process (this binary with a hidden --role,
+// started as the harness's RoleProcess: report lines on fd 3, the server ends when its command
+// fd 4 closes); the client measures each call's round trip with CLOCK_MONOTONIC and reports
+// "rtt <case> <p50_us> <p99_us> <n>" and "tput <clients> <calls/s>" lines, which the
+// orchestrator turns into one Markdown table with ratios against the peers measured in the same
+// run. A request's first 8 bytes say how large the response must be (every server honours it),
+// the rest is filler.
 #include <signal.h>
 #include <spdlog/spdlog.h>
-#include <sys/wait.h>
 #include <unistd.h>
 
-#include <sched.h>
-
 #include <algorithm>
-#include <cmath>
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
@@ -37,10 +34,13 @@
 #include <thread>
 #include <zmq.hpp>
 
-#include "common.hpp"
+#include "harness/options.hpp"
+#include "harness/process.hpp"
+#include "harness/report.hpp"
+#include "harness/stats.hpp"
 #include "lcmx/core.hpp"
 #ifdef LCMX_BENCH_WITH_NETNS
-#include "lcmx/test/netns.hpp"
+#include "harness/hosts.hpp"
 #endif
 
 namespace {
@@ -74,19 +74,17 @@ std::size_t response_size(std::span<const std::byte> req) {
   return static_cast<std::size_t>(std::min<std::uint64_t>(r, 64u << 20));
 }
 
-void say(const std::string& line) {
-  std::cout << line << std::endl;
-}
+using lcmxbench::stopped;
+
+// A report line (fd 3) of a role: thread-safe, one write() per line.
+void say(const std::string& line) { lcmxbench::report_line(line); }
 
 // ---- servers ----
 
-std::atomic<bool> g_stop{false};
-void on_signal(int) { g_stop = true; }
-
-// Waits until stdin closes (the orchestrator ends the role) or a signal.
+// Waits until the command fd closes (the orchestrator ends the role) or a stop signal.
 void wait_for_end() {
   char c;
-  while (!g_stop.load() && ::read(STDIN_FILENO, &c, 1) > 0) {
+  while (!stopped() && ::read(lcmxbench::kCmdFd, &c, 1) > 0) {
   }
 }
 
@@ -188,18 +186,13 @@ int server_lcmx(const std::string& url, const std::string& vehicle, const std::s
 
 struct Rtts {
   std::vector<double> us;
-  double pct(double p) const {
-    if (us.empty()) return 0;
-    auto v = us;
-    std::sort(v.begin(), v.end());
-    const auto k = static_cast<std::size_t>(std::ceil(p * static_cast<double>(v.size()))) ;
-    return v[std::min(v.size() - 1, k == 0 ? 0 : k - 1)];
-  }
 };
 
-void report_rtt(const Case& c, const Rtts& r) {
+// "<kind> <case> <p50_us> <p99_us> <n>" (kind: rtt, or rtt-peer for --interleave's peer).
+void report_rtt(const Case& c, const Rtts& r, const char* kind = "rtt") {
+  const auto st = lcmxbench::stats_of(r.us);
   std::ostringstream o;
-  o << "rtt " << case_key(c) << " " << r.pct(0.5) << " " << r.pct(0.99) << " " << r.us.size();
+  o << kind << " " << case_key(c) << " " << st.p50 << " " << st.p99 << " " << r.us.size();
   say(o.str());
 }
 
@@ -241,9 +234,7 @@ void measure_pair(const std::vector<Case>& cases, const CallFn& a, const CallFn&
       }
     }
     report_rtt(c, ra);
-    std::ostringstream o;
-    o << "rtt-peer " << case_key(c) << " " << rb.pct(0.5) << " " << rb.pct(0.99) << " " << rb.us.size();
-    say(o.str());
+    report_rtt(c, rb, "rtt-peer");
   }
 }
 
@@ -442,50 +433,22 @@ Result run_method(const std::string& method, const std::vector<std::string>& ser
   Result res;
   res.method = method;
   const auto exe = lcmxbench::self_exe();
-  lcmxbench::Pipe s_out, s_in, c_out;
-  // fork + exec of a role with its stdout on `out_w` and stdin on `in_r` (-1: inherited), in
-  // network namespace `ns` (-1: ours), on CPU `cpu` (-1: any).
-  auto fork_role = [&](std::vector<std::string> args, int out_w, int in_r, int ns, int cpu) -> pid_t {
-    std::vector<std::string> argv{exe};
-    argv.insert(argv.end(), args.begin(), args.end());
-    const pid_t pid = ::fork();
-    if (pid == 0) {
-#ifdef LCMX_BENCH_WITH_NETNS
-      if (ns >= 0 && ::setns(ns, CLONE_NEWNET) != 0) std::_Exit(125);
-#else
-      (void)ns;
-#endif
-      if (cpu >= 0) {
-        cpu_set_t set;
-        CPU_ZERO(&set);
-        CPU_SET(cpu, &set);
-        if (::sched_setaffinity(0, sizeof set, &set) != 0) std::_Exit(124);
-      }
-      if (in_r >= 0) ::dup2(in_r, STDIN_FILENO);
-      ::dup2(out_w, STDOUT_FILENO);
-      std::vector<char*> a;
-      for (auto& s : argv) a.push_back(s.data());
-      a.push_back(nullptr);
-      ::execv(a[0], a.data());
-      std::_Exit(127);
-    }
-    return pid;
+  auto argv = [&](const std::vector<std::string>& args) {
+    std::vector<std::string> a{exe};
+    a.insert(a.end(), args.begin(), args.end());
+    return a;
   };
-  const pid_t server = fork_role(server_args, s_out.w, s_in.r, server_ns, server_cpu);
-  s_out.close_w();
-  s_in.close_r();
-  lcmxbench::LineReader sr{s_out.r};
-  std::atomic<int> stop{0};
-  const auto deadline = lcmxbench::now_ns() + 20'000'000'000LL;
-  if (!lcmxbench::pump_until({&sr}, deadline, [&] { return sr.has("ready"); }, stop)) {
+  lcmxbench::RoleProcess server("server", argv(server_args), server_cpu, server_ns);
+  if (!lcmxbench::pump_until({&server.out()}, lcmxbench::now_ns() + 20'000'000'000LL,
+                             [&] { return server.out().has("ready"); }) ||
+      !server.out().has("ready")) {
     res.error = "the server did not start";
   } else {
-    const pid_t client = fork_role(client_args, c_out.w, -1, client_ns, client_cpu);
-    c_out.close_w();
-    lcmxbench::LineReader cr{c_out.r};
-    lcmxbench::pump_until({&cr}, lcmxbench::now_ns() + 180'000'000'000LL, [] { return false; }, stop);
-    lcmxbench::reap_child(client, 5000, stop);
-    for (const auto& l : cr.lines) {
+    lcmxbench::RoleProcess client("client", argv(client_args), client_cpu, client_ns);
+    client.close_commands();
+    lcmxbench::pump_until({&client.out()}, lcmxbench::now_ns() + 180'000'000'000LL, [] { return false; });
+    client.reap(5000);
+    for (const auto& l : client.lines()) {
       std::istringstream in(l);
       std::string kind;
       in >> kind;
@@ -504,10 +467,10 @@ Result run_method(const std::string& method, const std::vector<std::string>& ser
         res.error = l.substr(6);
       }
     }
-    if (cr.lines.empty() && res.error.empty()) res.error = "the client printed nothing";
+    if (client.lines().empty() && res.error.empty()) res.error = "the client printed nothing";
   }
-  s_in.close_w();  // the server's stdin closes: it exits
-  lcmxbench::reap_child(server, 5000, stop);
+  server.close_commands();  // the server's command fd closes: it exits
+  server.reap(5000);
   return res;
 }
 
@@ -527,12 +490,7 @@ std::string fmt(double v) {
   return b;
 }
 
-std::string ratio(double a, double b) {
-  if (a <= 0 || b <= 0) return "-";
-  char s[32];
-  std::snprintf(s, sizeof s, "%.2fx", a / b);
-  return s;
-}
+std::string ratio(double a, double b) { return a <= 0 || b <= 0 ? "-" : lcmxbench::fmt_ratio(a / b); }
 
 std::string table(const std::string& title, const std::vector<Result>& rs, const std::vector<Case>& cases,
                   const Result& reference, const std::string& ref_name) {
@@ -562,12 +520,7 @@ std::string table(const std::string& title, const std::vector<Result>& rs, const
   return o.str();
 }
 
-double median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const std::size_t n = v.size();
-  return n % 2 ? v[n / 2] : (v[n / 2 - 1] + v[n / 2]) / 2;
-}
+using lcmxbench::median;
 
 // One row from several rounds of a method: the median of the rounds' p50s and of their p99s
 // per case (rounds that failed are left out; the first error is kept).
@@ -623,15 +576,7 @@ std::string per_round_ratios(const std::vector<Result>& runs, const std::vector<
   return o.str();
 }
 
-// "- what: **holds** (0.97x ≤ 1.2x)"; `strict`: the ratio must be below the limit.
-std::string target_line(const std::string& what, double ratio_value, double limit, bool strict) {
-  char b[96];
-  if (ratio_value <= 0) return "- " + what + ": not measured\n";
-  const bool ok = strict ? ratio_value < limit : ratio_value <= limit;
-  std::snprintf(b, sizeof b, ": **%s** (%.2fx %s %.2gx)\n", ok ? "holds" : "not met", ratio_value,
-                ok ? (strict ? "<" : "≤") : (strict ? "≥" : ">"), limit);
-  return "- " + what + b;
-}
+using lcmxbench::ratio_target;
 
 std::string cases_arg(const std::vector<Case>& cases) {
   std::string s;
@@ -659,7 +604,8 @@ int main(int argc, char** argv) {
   CLI::App app{
       "lcmx_bench_service: service round trip (p50/p99) and calls/s, lcmx vs ZeroMQ REQ/REP and two lcmx\n"
       "one-way shm messages, on one host and (root) between two emulated hosts. Markdown on stdout."};
-  std::string role, url, vehicle, name, endpoint, cases_text, markdown, tcp_cc = "cubic", pin = "none", link_rate;
+  std::string role, url, vehicle, name, endpoint, cases_text, markdown, pin = "none";
+  lcmxbench::LinkOptions link;  // two hosts: not shaped, cubic
   int calls = 2000, big_calls = 200, clients = 8, rounds = 1;
   double seconds = 3;
   bool no_hosts = false, settle_bridge = false, interleave = false;
@@ -677,47 +623,34 @@ int main(int argc, char** argv) {
                "and against ZeroMQ REQ/REP ipc (no calls/s), between hosts only \"UDP + bridges\" against ZeroMQ "
                "REQ/REP tcp");
   app.add_option("--markdown", markdown, "also write the tables to this file");
-  app.add_option("--tcp-congestion", tcp_cc,
-                 "two hosts: their TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. "
-                 "bbr, whose pacing slows 1 MB bursts; bench/README.md)")
-      ->capture_default_str();
-  app.add_option("--link-rate", link_rate,
+  app.add_option("--link-rate", link.rate,
                  "two hosts: shape the link to this tc rate (e.g. 10gbit, the vehicle's 10 GbE; a tbf qdisc at "
                  "each sender, as lcmx_bench_bridge --link-rate); \"\" = not rate-limited (a veth: memory speed)")
       ->capture_default_str();
-  app.add_option("--pin", pin,
-                 "two hosts: none, or split: host A's processes (client, its bridge) on CPU 0, host B's "
-                 "(server, its bridge) on CPU 1, as if each host had its own CPU (bench/README.md)")
-      ->check(CLI::IsMember({"none", "split"}))
+  app.add_option("--tcp-congestion", link.tcp_congestion,
+                 "two hosts: their TCP congestion control (Linux's default cubic; \"\" = this machine's, e.g. "
+                 "bbr, whose pacing slows 1 MB bursts; bench/README.md)")
       ->capture_default_str();
-  app.add_option("--role", role)->group("");  // hidden: the children
-  app.add_option("--url", url)->group("");
-  app.add_option("--vehicle", vehicle)->group("");
-  app.add_option("--name", name)->group("");
-  app.add_option("--endpoint", endpoint)->group("");
+  lcmxbench::add_pin_option(app, pin, {"none", "split"},
+                            "two hosts: none, or split: host A's processes (client, its bridge) on CPU 0, host B's "
+                            "(server, its bridge) on CPU 1, as if each host had its own CPU (bench/README.md)");
+  // The children.
+  lcmxbench::add_hidden(app, "--role", role);
+  lcmxbench::add_hidden(app, "--url", url);
+  lcmxbench::add_hidden(app, "--vehicle", vehicle);
+  lcmxbench::add_hidden(app, "--name", name);
+  lcmxbench::add_hidden(app, "--endpoint", endpoint);
   std::string echo_name;
-  app.add_option("--echo", echo_name)->group("");
-  app.add_option("--cases", cases_text)->group("");
+  lcmxbench::add_hidden(app, "--echo", echo_name);
+  lcmxbench::add_hidden(app, "--cases", cases_text);
   app.add_flag("--settle-bridge", settle_bridge)->group("");
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::warn);
-#ifdef LCMX_BENCH_WITH_NETNS
-  if (!link_rate.empty()) {
-    try {
-      (void)lcmx::test::rate_bytes_per_second(link_rate);
-    } catch (const std::exception& e) {
-      std::cerr << "--link-rate: " << e.what() << "\n";
-      return 2;
-    }
-  }
-#endif
-  struct sigaction sa {};
-  sa.sa_handler = on_signal;
-  for (int s : {SIGINT, SIGTERM}) ::sigaction(s, &sa, nullptr);
-  ::signal(SIGPIPE, SIG_IGN);
+  lcmxbench::on_stop_signals(lcmxbench::OnStop::flag);  // the roles too: a server ends on SIGINT/SIGTERM
 
   try {
     if (!role.empty()) {
+      lcmxbench::log_to_stderr(role);  // fd 3 is the report; stdout is the orchestrator's
       const auto cs = cases_text.empty() ? std::vector<Case>{} : parse_cases(cases_text);
       if (role == "server-lcmx") return server_lcmx(url, vehicle, name, endpoint, echo_name);
       if (role == "server-echo") return server_echo(url, name);
@@ -734,13 +667,12 @@ int main(int argc, char** argv) {
     return 1;
   }
 
-  if (pin == "split") {
-    cpu_set_t mine;
-    if (::sched_getaffinity(0, sizeof mine, &mine) != 0 || !CPU_ISSET(0, &mine) || !CPU_ISSET(1, &mine)) {
-      std::cerr << "--pin split needs CPUs 0 and 1, and this process may not use both (taskset, cgroup)\n";
-      return 2;
-    }
-  }
+  const char* const program = "lcmx_bench_service";
+  if (pin == "split")
+    if (const auto why = lcmxbench::split_unavailable()) return lcmxbench::bad_options(program, *why);
+#ifdef LCMX_BENCH_WITH_NETNS
+  if (const auto why = lcmxbench::bad_link_options(link)) return lcmxbench::bad_options(program, *why);
+#endif
   const std::vector<Case> cases{{1024, 1024, calls}, {1024, 1u << 20, big_calls}};
   const std::string tag = std::to_string(::getpid());
   const std::string url1 = "udpm://239.255.79." + std::to_string(1 + ::getpid() % 250) + ":" +
@@ -796,23 +728,18 @@ int main(int argc, char** argv) {
   std::string targets;
   for (const auto& c : cases) {
     const auto key = case_key(c);
-    targets += target_line("one host, " + case_label(c) + ": service ≤ 1.5x two one-way shm messages",
+    targets += ratio_target("one host, " + case_label(c) + ": service ≤ 1.5x two one-way shm messages",
                            p50_ratio(svc_vs_echo, echo, key), 1.5, false);
-    targets += target_line("one host, " + case_label(c) + ": service faster than ZeroMQ REQ/REP ipc",
+    targets += ratio_target("one host, " + case_label(c) + ": service faster than ZeroMQ REQ/REP ipc",
                            p50_ratio(svc_vs_zi, zi, key), 1.0, true);
   }
 
 #ifdef LCMX_BENCH_WITH_NETNS
-  if (!no_hosts && !g_stop.load()) {
-    std::string why;
-    if (!lcmx::test::netns_available(&why)) {
-      md << "Two hosts: skipped (" << why << ")\n";
+  if (!no_hosts && !stopped()) {
+    if (const auto why = lcmxbench::hosts_unavailable()) {
+      md << "Two hosts: skipped (" << why->substr(why->find(": ") + 2) << ")\n";
     } else {
-      auto emu = lcmx::test::Emulation::create(
-          {.hosts = 2,
-           .links = {lcmx::test::LinkSpec{.name = "eth",
-                                          .rate = link_rate.empty() ? std::nullopt : std::optional(link_rate)}},
-           .tcp_congestion = tcp_cc});
+      auto emu = lcmxbench::emulate_hosts(link);
       // --pin split: host A (index 0: the clients, bridge svcA) on CPU 0, host B (index 1: the
       // servers, bridge svcB) on CPU 1. The orchestrator (this process) stays unpinned.
       const int cpu_a = pin == "split" ? 0 : -1, cpu_b = pin == "split" ? 1 : -1;
@@ -850,19 +777,10 @@ int main(int argc, char** argv) {
               std::filesystem::remove_all(path, ec);
             }
           } remove_dir{dir};
-          const auto a = emu.address(0, "eth"), b = emu.address(1, "eth");
-          auto config = [&](const std::string& path, const std::string& me, const std::string& listen,
-                            const std::string& peer, const std::string& peer_addr) {
-            std::ofstream f(path);
-            f << "name = \"" << me << "\"\nlisten = [\"" << listen << "\"]\ncontrol_port = 7700\n";
-            if (veh_b.empty()) f << "carry = [\"" << svc << "/*\"]\n";
-            f << "\n[[channel]]\nname = \"all\"\nport = 7702\ntopics = [\"*\"]\n\n"
-              << "[[peer]]\nname = \"" << peer << "\"\nendpoints = [ { link = \"eth\", address = \"" << peer_addr
-              << "\" } ]\n";
-            if (!f) throw std::runtime_error("cannot write " + path);
-          };
-          config(dir + "/a.toml", "svcA", a, "svcB", b);
-          config(dir + "/b.toml", "svcB", b, "svcA", a);
+          const std::string body = (veh_b.empty() ? "carry = [\"" + svc + "/*\"]\n" : std::string()) +
+                                   "\n[[channel]]\nname = \"all\"\nport = 7702\ntopics = [\"*\"]\n";
+          const std::string config_a = lcmxbench::write_bridge_config(emu, 0, dir, "svc", body);
+          const std::string config_b = lcmxbench::write_bridge_config(emu, 1, dir, "svc", body);
           lcmx::test::Env env{{"LCMX_DISCOVERY_URL", local_b}, {"SPDLOG_LEVEL", "info"}};
           if (!veh_b.empty()) env.push_back({"LCMX_VEHICLE_URL", veh_b});
           // The bridge logs on stderr and prints only its ready line on stdout; its log lines
@@ -873,8 +791,8 @@ int main(int argc, char** argv) {
             return argv;
           };
           std::vector<lcmx::test::Child> bridges;
-          bridges.push_back(emu.spawn(0, merged(lcmxbench::taskset(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/a.toml"})), env));
-          bridges.push_back(emu.spawn(1, merged(lcmxbench::taskset(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", dir + "/b.toml"})), env));
+          bridges.push_back(emu.spawn(0, merged(lcmxbench::taskset(cpu_a, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", config_a})), env));
+          bridges.push_back(emu.spawn(1, merged(lcmxbench::taskset(cpu_b, {LCMX_BENCH_LCMX_TOOL, "bridge", "--config", config_b})), env));
           // Ready, then linked to the other (its log line "bridge svcA: link eth to svcB ... is up").
           for (const char* n : {"A", "B"}) {
             auto& br = bridges[n[0] == 'A' ? 0 : 1];
@@ -926,7 +844,7 @@ int main(int argc, char** argv) {
       // --rounds: every method once per round, in turn, so that the machine's drift between
       // runs (ZeroMQ's own 1 MB time varies 3x from run to run here) falls on all alike.
       std::vector<std::vector<Result>> runs(4);  // udp, UDP + bridges, bridges only, ZeroMQ
-      for (int round = 0; round < rounds && !g_stop.load(); ++round) {
+      for (int round = 0; round < rounds && !stopped(); ++round) {
         if (rounds > 1) std::cerr << "two hosts: round " << round + 1 << " of " << rounds << "\n";
 #ifdef LCMX_BENCH_LCMX_TOOL
         if (interleave) {
@@ -950,10 +868,9 @@ int main(int argc, char** argv) {
       std::vector<Result> rows;
       for (const auto& r : runs)
         if (!r.empty()) rows.push_back(median_of(r));
-      std::string cc;
-      emu.run_in(0, [&] { std::ifstream("/proc/sys/net/ipv4/tcp_congestion_control") >> cc; });
+      const std::string cc = lcmxbench::tcp_congestion_of(emu, 0);
       md << table("Two emulated hosts, one veth link " +
-                      (link_rate.empty() ? std::string("(not rate-limited)") : "shaped to " + link_rate + " (tc tbf)") +
+                      (link.rate.empty() ? std::string("(not rate-limited)") : "shaped to " + link.rate + " (tc tbf)") +
                       ", TCP congestion control " + cc +
                       (pin == "split" ? ", host A on CPU 0 and host B on CPU 1 (--pin split)" : "") +
                       " (ratios against ZeroMQ tcp)" +
@@ -967,8 +884,8 @@ int main(int argc, char** argv) {
         if (runs[m].empty()) continue;
         for (const auto& c : cases) {
           const auto key = case_key(c);
-          targets += target_line("two hosts" + std::string(pin == "split" ? " (split)" : "") +
-                                   (link_rate.empty() ? std::string() : ", link " + link_rate) + ", " + case_label(c) +
+          targets += ratio_target("two hosts" + std::string(pin == "split" ? " (split)" : "") +
+                                   (link.rate.empty() ? std::string() : ", link " + link.rate) + ", " + case_label(c) +
                                      ": " + runs[m].front().method + " ≤ 1.2x ZeroMQ REQ/REP tcp",
                                  median_round_ratio(runs[m], runs[3], key), 1.2, false);
         }
@@ -979,7 +896,7 @@ int main(int argc, char** argv) {
   (void)no_hosts;
   (void)rounds;
   (void)interleave;
-  (void)tcp_cc;
+  (void)link;
   md << "Two hosts: not built (needs lcmx::test_netns, LCMX_BUILD_TESTS=ON)\n";
 #endif
   md << "### Targets (issue 12)\n\n" << targets
@@ -988,7 +905,5 @@ int main(int argc, char** argv) {
         "placement on a 2-vCPU machine moves a 1 KB call by 2-3x (bench/README.md \"The cross-vCPU wake-up\"); "
         "--interleave compares call by call. The 1 KB / 1 MB "
         "call between hosts and why: docs/services.md \"A CPU per host\")\n";
-  std::cout << md.str() << std::flush;
-  if (!markdown.empty()) std::ofstream(markdown) << md.str();
-  return 0;
+  return lcmxbench::print_report(program, md.str(), markdown) ? 0 : 1;
 }

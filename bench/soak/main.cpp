@@ -29,7 +29,6 @@
 #include <unistd.h>
 
 #include <CLI/CLI.hpp>
-#include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -49,7 +48,9 @@
 #include <unordered_map>
 #include <vector>
 
-#include "common.hpp"
+#include "harness/options.hpp"
+#include "harness/process.hpp"
+#include "harness/report.hpp"
 #include "lcmx/core.hpp"
 
 namespace lcmxbench {
@@ -68,8 +69,6 @@ static_assert(sizeof(Header) == 32);
 std::uint64_t body_word(std::uint64_t inc, std::uint64_t seq) {
   return (inc * 0x9e3779b97f4a7c15ull) ^ (seq + 0x5bd1e995ull);
 }
-
-std::atomic<int> g_stop{0};
 
 struct Settings {
   int duration_s = 600;
@@ -395,8 +394,6 @@ int signal_number(const std::string& name) {
   return -1;
 }
 
-void on_signal(int) { g_stop.store(1); }
-
 int orchestrate(const Settings& s, const std::string& self) {
   const int sig = signal_number(s.signal);
   if (sig < 0) {
@@ -417,8 +414,7 @@ int orchestrate(const Settings& s, const std::string& self) {
   const std::uint64_t host = 0x5a0c000000000000ull | (static_cast<std::uint64_t>(::getpid()) & 0xffffffull);
   std::snprintf(host_hex, sizeof host_hex, "%" PRIx64, host);
   ::setenv("LCMX_HOST_ID", (std::string("0x") + host_hex).c_str(), 1);
-  for (int sg : {SIGINT, SIGTERM, SIGHUP}) ::signal(sg, on_signal);
-  ::signal(SIGPIPE, SIG_IGN);
+  on_stop_signals(OnStop::flag);  // the run stops its children itself (SIGTERM, final reports)
 
   auto common_args = [&](const std::string& role) {
     return std::vector<std::string>{self, "--role", role, "--url", s.url,
@@ -448,7 +444,7 @@ int orchestrate(const Settings& s, const std::string& self) {
     std::vector<LineReader*> rs;
     for (auto& c : live) rs.push_back(&c.reader);
     const std::int64_t deadline = now_ns() + static_cast<std::int64_t>(ms) * 1'000'000;
-    pump_until(rs, deadline, [] { return false; }, g_stop);
+    pump_until(rs, deadline, [] { return false; });
   };
 
   std::mt19937 rng(s.seed);
@@ -463,7 +459,7 @@ int orchestrate(const Settings& s, const std::string& self) {
   std::int64_t next_kill = t0 + static_cast<std::int64_t>(s.kill_every_ms) * 1'000'000;
   std::int64_t next_progress = t0;
   bool ok = true;
-  while (g_stop.load() == 0 && now_ns() < end) {
+  while (!stopped() && now_ns() < end) {
     pump_all(100);
     const std::int64_t now = now_ns();
     if (now >= next_rss_sample) {
@@ -603,10 +599,9 @@ int orchestrate(const Settings& s, const std::string& self) {
      << " | 0 / 0 |\n";
   for (const auto& e : t.error_lines) md << "\nerror: " << e << "\n";
   for (const auto& f : left) md << "\nleftover: /dev/shm/" << f << "\n";
-  std::fputs(md.str().c_str(), stdout);
-  if (!s.markdown.empty()) std::ofstream(s.markdown) << md.str();
+  const bool written = print_report("lcmx_bench_soak", md.str(), s.markdown);
   for (const auto& f : left) ::unlink(("/dev/shm/" + f).c_str());  // leave the machine clean
-  const bool pass = ok && t.uncounted == 0 && t.dups == 0 && t.torn == 0 && t.bad == 0 && left.empty() &&
+  const bool pass = written && ok && t.uncounted == 0 && t.dups == 0 && t.torn == 0 && t.bad == 0 && left.empty() &&
                     t.errors == 0;
   return pass ? 0 : 1;
 }
@@ -623,7 +618,7 @@ int main(int argc, char** argv) {
   app.add_option("--duration", s.duration_s, "seconds to run")->check(CLI::Range(5, 86400));
   app.add_option("--kill-every-ms", s.kill_every_ms, "kill and restart a random process this often (0: never)")
       ->check(CLI::Range(0, 3'600'000));
-  app.add_option("--signal", s.signal, "KILL, TERM or INT");
+  app.add_option("--signal", s.signal, "KILL, TERM or INT")->check(CLI::IsMember({"KILL", "TERM", "INT"}));
   app.add_option("--subs", s.subs, "subscriber processes (sub-0 is never killed)")->check(CLI::Range(1, 16));
   app.add_option("--image-size", image_size, "image message size (K, M suffixes)");
   app.add_option("--image-hz", s.image_hz, "images per second")->check(CLI::Range(1, 1000));
@@ -633,7 +628,7 @@ int main(int argc, char** argv) {
   app.add_option("--seed", s.seed, "seed of the choice of process to kill");
   app.add_option("--url", s.url, "lcmx discovery URL (inside the private namespace)");
   app.add_option("--markdown", s.markdown, "also write the table to this file");
-  app.add_option("--role", role)->group("");  // children
+  add_hidden(app, "--role", role);  // the children
   try {
     app.parse(argc, argv);
     s.image_size = parse_size(image_size, sizeof(Header) + 8);
@@ -641,12 +636,10 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   } catch (const std::invalid_argument& e) {
-    std::fprintf(stderr, "lcmx_bench_soak: %s\n", e.what());
-    return 2;
+    return bad_options("lcmx_bench_soak", e.what());
   }
   if (role.empty()) return orchestrate(s, self_exe());
-  spdlog::set_default_logger(spdlog::stderr_color_mt(role));
-  spdlog::set_level(spdlog::level::warn);
+  log_to_stderr(role);
   if (role == "image-pub") return run_pub(s, true);
   if (role == "small-pub") return run_pub(s, false);
   if (role.rfind("sub-", 0) == 0) return run_sub(s, std::atoi(role.c_str() + 4));

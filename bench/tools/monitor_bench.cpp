@@ -20,6 +20,7 @@
 #include <thread>
 #include <vector>
 
+#include "harness/options.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx_examples/bench_t.hpp"
 
@@ -86,7 +87,12 @@ int sink() {
 
 }  // namespace
 
+const char* const kUsage =
+    "usage: lcmx_bench_monitor load PREFIX CHANNELS RATE_HZ SIZE SECONDS | sink SECONDS\n"
+    "The traffic and the peer of bench/tools/run_monitor_bench.sh (bench/README.md \"lcmx monitor CPU\").\n";
+
 int main(int argc, char** argv) {
+  if (lcmxbench::help_asked(argc, argv)) return lcmxbench::usage(kUsage, true);
   struct sigaction sa{};
   sa.sa_handler = on_signal;
   sigemptyset(&sa.sa_mask);
@@ -106,6 +112,5 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "lcmx_bench_monitor: %s\n", e.what());
     return 1;
   }
-  std::fprintf(stderr, "usage: lcmx_bench_monitor load PREFIX CHANNELS RATE_HZ SIZE SECONDS | sink SECONDS\n");
-  return 2;
+  return lcmxbench::usage(kUsage, false);
 }

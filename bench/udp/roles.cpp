@@ -9,8 +9,6 @@
 #include <lcm/lcm.h>
 #include <poll.h>
 #include <sys/resource.h>
-#include <spdlog/sinks/stdout_color_sinks.h>
-#include <spdlog/spdlog.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -19,9 +17,10 @@
 #include <string>
 #include <thread>
 
-#include "roles.hpp"
+#include "udp/roles.hpp"
+#include "harness/endpoints.hpp"
+#include "harness/options.hpp"
 #include "lcmx/core.hpp"
-#include "lcmx_examples/bench_t.hpp"
 
 namespace lcmxbench::udp {
 namespace {
@@ -40,18 +39,12 @@ lcmx::RuntimeOptions runtime_options(const UdpConfig& u) {
   return o;
 }
 
-// "cpu <who> <µs>": this process's CPU time (user + system) so far.
+// "note cpu <who> <µs>": this process's CPU time (user + system) so far (--keys: CPU per MB).
 void report_cpu(const char* who) {
   rusage r{};
   ::getrusage(RUSAGE_SELF, &r);
   const long long us = (r.ru_utime.tv_sec + r.ru_stime.tv_sec) * 1000000LL + r.ru_utime.tv_usec + r.ru_stime.tv_usec;
-  report_line(std::string("cpu ") + who + " " + std::to_string(us));
-}
-
-void log_to_stderr(const std::string& role) {
-  auto logger = spdlog::stderr_color_mt(role);
-  spdlog::set_default_logger(logger);
-  spdlog::set_level(spdlog::level::warn);
+  report_line(std::string("note cpu ") + who + " " + std::to_string(us));
 }
 
 // Streams: waits for 'E' on the ctl fd, then up to `grace_ms` more while messages still come.
@@ -70,10 +63,7 @@ int run_lcmx_udp_sub(const UdpConfig& u, bool stream) {
   try {
     auto rt = lcmx::Runtime::create(runtime_options(u));
     lcmx::NodeOptions no;
-    if (cfg.wait == "spin") no.executor.wait = lcmx::WaitStrategy::spin_then_block;
-    else if (cfg.wait == "adaptive") no.executor.wait = lcmx::WaitStrategy::adaptive;
-    else if (cfg.wait == "block") no.executor.wait = lcmx::WaitStrategy::block;
-    else if (cfg.wait == "busy") no.executor.wait = lcmx::WaitStrategy::busy_poll;
+    no.executor.wait = wait_strategy(cfg.wait);
     auto node = rt.create_node("bench_sub", no);
     Recorder rec(cfg.plan);
     std::atomic<int> received{0};
@@ -92,9 +82,7 @@ int run_lcmx_udp_sub(const UdpConfig& u, bool stream) {
       report_error("subscriber: wait_for_publishers(1, 15 s) timed out");
       return 1;
     }
-    std::string paths;
-    for (const auto& p : sub.stats().publishers)
-      paths += std::string(paths.empty() ? "" : ",") + lcmx::to_string(p.path);
+    const std::string paths = paths_of(sub.stats());
     report_line("note path at match: " + (paths.empty() ? std::string("(none)") : paths));
     send_ack(kAckFd, kMatchedRecord);
     if (stream) {
@@ -106,8 +94,7 @@ int run_lcmx_udp_sub(const UdpConfig& u, bool stream) {
     const auto st = sub.stats();
     sub.reset();
     rec.report();
-    report_line("note subscriber: delivered=" + std::to_string(st.delivered) + " drops=" +
-                std::to_string(st.drops) + " decode_errors=" + std::to_string(st.decode_errors));
+    report_delivery("subscriber", st);
     report_cpu("sub");
   } catch (const std::exception& e) {
     report_error(std::string("subscriber: ") + e.what());
@@ -133,11 +120,7 @@ int run_lcmx_udp_pub(const UdpConfig& u, bool stream) {
       report_error("publisher: the subscriber did not match this publisher within 15 s");
     } else {
       lcmx_examples::bench_t msg;
-      auto prepare = [&](std::size_t size) {
-        msg.size = static_cast<std::int32_t>(size);
-        msg.data.resize(size);
-        for (std::size_t i = 0; i < size; ++i) msg.data[i] = static_cast<std::uint8_t>(i * 31u);
-      };
+      auto prepare = [&](std::size_t size) { fill_bench(msg, size); };
       auto send = [&](std::int64_t seq) {
         msg.seq = seq;
         msg.send_ns = now_ns();
@@ -157,8 +140,7 @@ int run_lcmx_udp_pub(const UdpConfig& u, bool stream) {
     report_error(std::string("publisher: ") + e.what());
   }
   report_cpu("pub");
-  char e = 'E';
-  (void)!::write(kCtlFd, &e, 1);
+  send_end();
   report_line("done");
   return ok ? 0 : 1;
 }
@@ -249,11 +231,7 @@ int run_liblcm_stream_pub(const UdpConfig& u) {
   const std::string ch = channel_of(cfg);
   const bool ok = run_stream(
       cfg, u.rate_hz, u.burst,
-      [&](std::size_t size) {
-        msg.size = static_cast<std::int32_t>(size);
-        msg.data.resize(size);
-        for (std::size_t i = 0; i < size; ++i) msg.data[i] = static_cast<std::uint8_t>(i * 31u);
-      },
+      [&](std::size_t size) { fill_bench(msg, size); },
       [&](std::int64_t seq) {
         msg.seq = seq;
         msg.send_ns = now_ns();
@@ -261,8 +239,7 @@ int run_liblcm_stream_pub(const UdpConfig& u) {
         msg.encode(buf.data(), 0, static_cast<int>(buf.size()));
         lcm_publish(lcm, ch.c_str(), buf.data(), static_cast<unsigned>(buf.size()));
       });
-  char e = 'E';
-  (void)!::write(kCtlFd, &e, 1);
+  send_end();
   lcm_destroy(lcm);
   report_line("done");
   return ok ? 0 : 1;

@@ -1,11 +1,12 @@
-// Roles of lcmx_bench_udp's children (see roles.cpp); bench/latency's common.hpp supplies the
-// plan, the report/ack protocol, Recorder and the ping-pong driver.
+// Roles of lcmx_bench_udp's children (see roles.cpp); the harness's ping-pong protocol
+// (bench/harness/pingpong.hpp) supplies the plan, the report/ack lines, Recorder and the driver,
+// bench/latency the liblcm ping-pong pair.
 #pragma once
 
 #include <functional>
 #include <string>
 
-#include "common.hpp"
+#include "latency/roles.hpp"
 
 namespace lcmxbench::udp {
 

@@ -17,9 +17,9 @@
 // phase: every thread of that process (executors, discovery) counts.
 //
 // Children are this binary with a hidden --role; they talk to the orchestrator over pipes
-// (lcmxbench::spawn_child): the subscriber reports lines, the orchestrator sends one control
-// byte per phase; nothing sleeps to synchronise (the publisher paces its traffic with
-// sleep_until, as the demo does).
+// (bench/harness/process.hpp): each reports lines on fd 3, the orchestrator sends one control
+// byte per phase on fd 5; nothing sleeps to synchronise (the publisher paces its traffic with
+// sleep_until, as the demo does). Latencies are nearest-rank percentiles (bench/harness/stats.hpp).
 #include <sys/resource.h>
 #include <unistd.h>
 
@@ -39,7 +39,10 @@
 #include <thread>
 #include <vector>
 
-#include "common.hpp"
+#include "harness/options.hpp"
+#include "harness/process.hpp"
+#include "harness/report.hpp"
+#include "harness/stats.hpp"
 #include "lcmx/core.hpp"
 #include "lcmx_examples/image_t.hpp"
 #include "lcmx_examples/pose_t.hpp"
@@ -47,6 +50,7 @@
 namespace {
 
 using lcmxbench::now_ns;
+constexpr int kPhaseFd = 5;  // orchestrator -> child: one control byte per phase
 using Clock = std::chrono::steady_clock;
 
 struct Options {
@@ -60,16 +64,9 @@ struct Options {
   std::string role, name, wait;
 };
 
-lcmx::WaitStrategy strategy(const std::string& w) {
-  if (w == "adaptive") return lcmx::WaitStrategy::adaptive;
-  if (w == "spin") return lcmx::WaitStrategy::spin_then_block;
-  if (w == "busy") return lcmx::WaitStrategy::busy_poll;
-  return lcmx::WaitStrategy::block;
-}
-
 lcmx::NodeOptions node_options(const Options& o) {
   lcmx::NodeOptions n;
-  n.executor.wait = strategy(o.wait);
+  n.executor.wait = lcmxbench::wait_strategy(o.wait);
   n.executor.spin = std::chrono::microseconds(o.spin_us);
   return n;
 }
@@ -103,12 +100,12 @@ void write_ctl(int fd, char c) {
   }
 }
 
-std::string percentiles(std::vector<std::int64_t> v) {
+// "<p50> <p99>" in µs of latencies in ns, "- -" when there are none.
+std::string percentiles(const std::vector<std::int64_t>& v) {
   if (v.empty()) return "- -";
-  std::sort(v.begin(), v.end());
-  auto at = [&](double q) { return static_cast<double>(v[std::min(v.size() - 1, static_cast<std::size_t>(q * static_cast<double>(v.size())))]) / 1e3; };
+  const auto st = lcmxbench::stats_of_ns(v);
   char b[64];
-  std::snprintf(b, sizeof b, "%.1f %.1f", at(0.5), at(0.99));
+  std::snprintf(b, sizeof b, "%.1f %.1f", st.p50, st.p99);
   return b;
 }
 
@@ -137,7 +134,7 @@ int run_sub(const Options& o) {
   double cpu0 = 0;
   std::int64_t wall0 = 0;
   for (;;) {
-    const char c = read_ctl(lcmxbench::kCtlFd);
+    const char c = read_ctl(kPhaseFd);
     if (c == 'P') {
       std::lock_guard lock(mu);
       cam_lat.clear(), pose_lat.clear();
@@ -204,7 +201,7 @@ int run_pub(const Options& o) {
   frame.header.frame_id = "camera";
   const auto run = std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(o.seconds));
   for (;;) {
-    const char c = read_ctl(lcmxbench::kCtlFd);
+    const char c = read_ctl(kPhaseFd);
     if (c == 'D' || c == 'S') {
       const auto start = Clock::now();
       const auto cam_period = std::chrono::microseconds(33'333);
@@ -275,11 +272,10 @@ Row run_round(const Options& o, const std::string& wait, int round) {
   sub_rep.close_w(), sub_ctl.close_r(), pub_rep.close_w(), pub_ctl.close_r();
   lcmxbench::LineReader sr, pr;
   sr.fd = sub_rep.r, pr.fd = pub_rep.r;
-  std::atomic<int> stop{0};
   auto fail = [&](const std::string& why) {
     write_ctl(sub_ctl.w, 'E'), write_ctl(pub_ctl.w, 'E');
     sub_ctl.close_w(), pub_ctl.close_w();
-    lcmxbench::reap_child(sub, 3000, stop), lcmxbench::reap_child(pub, 3000, stop);
+    lcmxbench::reap_child(sub, 3000), lcmxbench::reap_child(pub, 3000);
     std::string detail;
     for (auto* r : {&sr, &pr})
       for (auto& l : r->lines) detail += " [" + l + "]";
@@ -289,7 +285,7 @@ Row run_round(const Options& o, const std::string& wait, int round) {
     return static_cast<std::size_t>(std::count_if(r.lines.begin(), r.lines.end(), [&](auto& l) { return l.rfind(prefix, 0) == 0; }));
   };
   auto wait_for = [&](lcmxbench::LineReader& r, const std::string& prefix, std::size_t count, int seconds) {
-    if (!lcmxbench::pump_until({&sr, &pr}, now_ns() + seconds * 1'000'000'000LL, [&] { return lines(r, prefix) >= count || lines(sr, "error") || lines(pr, "error"); }, stop) ||
+    if (!lcmxbench::pump_until({&sr, &pr}, now_ns() + seconds * 1'000'000'000LL, [&] { return lines(r, prefix) >= count || lines(sr, "error") || lines(pr, "error"); }) ||
         lines(r, prefix) < count)
       fail("no '" + prefix + "' line in time");
   };
@@ -337,7 +333,7 @@ Row run_round(const Options& o, const std::string& wait, int round) {
   }
   write_ctl(sub_ctl.w, 'E'), write_ctl(pub_ctl.w, 'E');
   sub_ctl.close_w(), pub_ctl.close_w();
-  lcmxbench::reap_child(sub, 5000, stop), lcmxbench::reap_child(pub, 5000, stop);
+  lcmxbench::reap_child(sub, 5000), lcmxbench::reap_child(pub, 5000);
   return row;
 }
 
@@ -354,11 +350,12 @@ int main(int argc, char** argv) {
   app.add_option("--pings", o.pings, "ping-pong round trips")->check(CLI::Range(10, 1000000))->capture_default_str();
   app.add_option("--spin-us", o.spin_us, "ExecutorOptions::spin (spin and adaptive window), µs")->check(CLI::Range(1, 100000))->capture_default_str();
   app.add_option("--url", o.url, "lcmx discovery URL (never the default group)")->capture_default_str();
-  app.add_option("--role", o.role)->group("");
-  app.add_option("--name", o.name)->group("");
-  app.add_option("--wait", o.wait)->group("");
+  lcmxbench::add_hidden(app, "--role", o.role);
+  lcmxbench::add_hidden(app, "--name", o.name);
+  lcmxbench::add_hidden(app, "--wait", o.wait);
   CLI11_PARSE(app, argc, argv);
   try {
+    if (!o.role.empty()) lcmxbench::log_to_stderr(o.role, "");  // stdout is the orchestrator's report
     if (o.role == "sub") return run_sub(o);
     if (o.role == "pub") return run_pub(o);
     if (!o.role.empty()) {
@@ -374,11 +371,18 @@ int main(int argc, char** argv) {
     std::printf("lcmx_bench_wait: %d round(s), idle %.1f s, demo and 1 kHz stream %.1f s each, %d ping-pongs, spin %d µs; "
                 "subscriber process CPU %% (all its threads); latency p50 / p99 µs\n\n",
                 o.rounds, o.idle, o.seconds, o.pings, o.spin_us);
-    std::printf("| wait | idle CPU %% | demo CPU %% | demo camera 6 MB | demo pose | 1 kHz pose CPU %% | 1 kHz pose | ping-pong round trip |\n");
-    std::printf("|---|---:|---:|---|---|---:|---|---|\n");
+    lcmxbench::Table table({"wait", "idle CPU %", "demo CPU %", "demo camera 6 MB", "demo pose", "1 kHz pose CPU %",
+                            "1 kHz pose", "ping-pong round trip"},
+                           "lrrllrll");
+    auto pct = [](double v) {
+      char b[32];
+      std::snprintf(b, sizeof b, "%.2f", v);
+      return std::string(b);
+    };
     for (auto& r : rows)
-      std::printf("| %s | %.2f | %.2f | %s | %s | %.2f | %s | %s |\n", r.wait.c_str(), r.idle_cpu, r.demo_cpu, r.cam_lat.c_str(),
-                  r.demo_pose_lat.c_str(), r.stream_cpu, r.stream_lat.c_str(), r.pingpong.c_str());
+      table.row({r.wait, pct(r.idle_cpu), pct(r.demo_cpu), r.cam_lat, r.demo_pose_lat, pct(r.stream_cpu), r.stream_lat,
+                 r.pingpong});
+    std::fputs(table.markdown().c_str(), stdout);
     return 0;
   } catch (const std::exception& e) {
     std::cerr << "lcmx_bench_wait: " << e.what() << "\n";

@@ -292,9 +292,32 @@ void FrontDoor::dispatch(bool vehicle, const udpm::Message& m) {
   // 2. By channel.
   if (m.channel == discovery::kBeaconChannel) {
     ctx_.beacon(vehicle, m);
-    // Loss accounting needs every beacon's sequence: decoded a second time (small, a few per
-    // second per participant).
-    if (auto b = discovery::decode_beacon(m.data)) settle_loss(vehicle, udpm::to_string(m.source), *b, m.lost_before);
+    // Participants no longer beacon on the groups (discovery v6, docs/discovery.md): only their
+    // registry's speaker (heartbeats, records) and a participant's marker after its UDP data
+    // (discovery::Discovery::mark_sequence) send here. A host_beacon_t carries its sender's
+    // count of discovery datagrams: at each, the gaps seen since the last are settled
+    // (discovery credited, the rest data), as v5 did with every participant's beacons.
+    const auto sender = ctx_.peers.sender(vehicle, m.source, local_address);
+    if (sender.participant == 0 || sender.same_host) return;
+    const std::string source = udpm::to_string(m.source);
+    auto& loss = loss_of(vehicle, source);
+    if (auto h = discovery::decode_host_beacon(m.data)) {
+      lcmx_msgs::beacon_t b{};
+      b.participant_id = sender.participant;
+      b.sequence = h->sequence;
+      b.process_name = "participant " + std::to_string(sender.participant);
+      for (const auto& topic : ctx_.peers.published_by(sender.participant)) {
+        lcmx_msgs::endpoint_t e{};
+        e.kind = lcmx_msgs::endpoint_t::KIND_PUBLISHER;
+        e.topic = topic;
+        b.endpoints.push_back(std::move(e));
+      }
+      b.num_endpoints = static_cast<std::int32_t>(b.endpoints.size());
+      settle_loss(vehicle, source, b, m.lost_before);
+    } else {
+      loss.pending += m.lost_before;  // settled at its next host_beacon_t
+      if (loss.last_beacon >= 0) ++loss.last_beacon;  // a record: one of its discovery datagrams, received
+    }
     return;
   }
   if (group.is_own(m.source)) return;  // our own, looped back

@@ -27,12 +27,8 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change, co
   const auto delta = peers.apply(s, change, b);
   settle(pairs.on_peer(delta, b, [this](std::uint32_t a) { return front_door && front_door->is_local_address(a); }));
   replays.send(pairs, participant_id, *local_group, vehicle_group.get());
-  // A participant of this host that vanished without a goodbye may have left shared memory.
-  if (s == Scope::host && change == discovery::Change::left && options.reclaim_orphans) {
-    const auto r = shm::reclaim_orphans();
-    if (r.removed > 0)
-      spdlog::info("lcmx: removed {} shared-memory segments of {} pid {}", r.removed, b.process_name, b.pid);
-  }
+  // A participant of this host that died left shared memory: its registry's speaker reclaims
+  // it (its segments only, by name: discovery::Registry), not every process of the host.
 }
 
 // A host-scope beacon (this network namespace) from a participant with another host id: it

@@ -126,6 +126,16 @@ void RuntimeImpl::start_transports() {
                    options.vehicle_url, local_group->config().port);
   }
 
+  // One registry slot for both scopes (docs/discovery.md "Registry").
+  std::shared_ptr<discovery::Registry> registry;
+  try {
+    discovery::RegistryOptions ro;
+    ro.host_id = host;
+    ro.group = local_group->config();
+    registry = discovery::Registry::open(ro);
+  } catch (const std::runtime_error& e) {
+    throw Error(Errc::transport, e.what());
+  }
   std::weak_ptr<RuntimeImpl> weak = weak_from_this();
   front_door = std::make_unique<FrontDoor>(FrontDoor::Context{
       local_group, vehicle_group, peers, pairs,
@@ -141,6 +151,7 @@ void RuntimeImpl::start_transports() {
   auto make = [&](std::int8_t scope, std::shared_ptr<udpm::Group> group) {
     discovery::Options d;
     d.shared_group = std::move(group);
+    d.registry = registry;
     d.scope = scope;
     d.period = options.beacon_period;
     d.lease = options.lease;

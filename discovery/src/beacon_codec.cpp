@@ -130,4 +130,41 @@ std::optional<lcmx_msgs::beacon_t> decode_beacon(std::span<const std::byte> byte
   return b;
 }
 
+std::vector<std::byte> encode_host_beacon(const lcmx_msgs::host_beacon_t& beacon) {
+  std::vector<std::byte> out(static_cast<std::size_t>(beacon.getEncodedSize()));
+  beacon.encode(out.data(), 0, static_cast<int>(out.size()));
+  return out;
+}
+
+std::int64_t fingerprint_of(std::span<const std::byte> bytes) {
+  if (bytes.size() < 8) return 0;
+  std::int64_t hash = 0;
+  for (int i = 0; i < 8; ++i)
+    hash = static_cast<std::int64_t>((static_cast<std::uint64_t>(hash) << 8) |
+                                     std::to_integer<std::uint8_t>(bytes[i]));
+  return hash;
+}
+
+std::optional<lcmx_msgs::host_beacon_t> decode_host_beacon(std::span<const std::byte> bytes, std::string* why) {
+  auto reject = [&](const char* w) -> std::optional<lcmx_msgs::host_beacon_t> {
+    if (why) *why = w;
+    return std::nullopt;
+  };
+  if (bytes.size() < 12) return reject("shorter than a host beacon header");
+  if (bytes.size() > (16u << 20)) return reject("larger than 16 MiB");
+  if (fingerprint_of(bytes) != lcmx_msgs::host_beacon_t::getHash()) return reject("not a host_beacon_t (fingerprint)");
+  Walker w(bytes);
+  std::int32_t n = 0, wanted = 0;
+  // fingerprint, version, kind, scope, host_id, registry_id, speaker, sequence, lease_ms,
+  // digest, count, num_entries, participants[], revisions[], target_host, num_wanted, wanted[]
+  const bool ok = w.i64() && w.i32() && w.i8() && w.i8() && w.i64() && w.i64() && w.i64() && w.i64() &&
+                  w.i32() && w.i64() && w.i32() && w.count(&n, 16) && w.skip(static_cast<std::size_t>(n) * 16) &&
+                  w.i64() && w.count(&wanted, 8) && w.skip(static_cast<std::size_t>(wanted) * 8);
+  if (!ok) return reject("malformed host beacon (lengths or counts out of range)");
+  lcmx_msgs::host_beacon_t b;
+  if (b.decode(bytes.data(), 0, static_cast<int>(bytes.size())) < 0) return reject("lcm-gen decode failed");
+  if (b.version != kHostBeaconVersion) return reject("unsupported host beacon version");
+  return b;
+}
+
 }  // namespace lcmx::discovery

@@ -1,15 +1,19 @@
+// Discovery (discovery.hpp, docs/discovery.md): the registry reader, the speaker and the
+// per-host tables of the speaker protocol.
 #include "lcmx/discovery/discovery.hpp"
 
+#include <arpa/inet.h>
 #include <poll.h>
 #include <sys/eventfd.h>
+#include <sys/resource.h>
 #include <sys/syscall.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cerrno>
+#include <cstdio>
 #include <cstdint>
-#include <deque>
 #include <map>
 #include <mutex>
 #include <set>
@@ -20,20 +24,98 @@
 
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/discovery/identity.hpp"
+#include "lcmx/shm/futex.hpp"
+#include "registry_impl.hpp"
 
 namespace lcmx::discovery {
 
 using Clock = std::chrono::steady_clock;
+using lcmx_msgs::beacon_t;
+using lcmx_msgs::host_beacon_t;
 
-// Lease expiry (Impl::expire_leases) reads what is queued first; a check made this long after
-// that read began (the process was stopped, or starved of a CPU, in between) reads again, at
-// most kMaxReads times.
+// Remote host expiry reads what is queued first; a check made this long after that read began
+// (this process was stopped, or starved of a CPU, in between) reads again, at most kMaxReads times.
 constexpr auto kStall = std::chrono::milliseconds(100);
 constexpr int kMaxReads = 3;
+// Registry passes: at most one per kCoalesce (a 500-process launch changes the registry
+// thousands of times a second; every reader folds them into few passes).
+constexpr auto kCoalesce = std::chrono::milliseconds(20);
+// The speaker polls its participants' pidfds at least this often (death notice).
+constexpr auto kSpeakerTick = std::chrono::milliseconds(20);
+// The speaker sends the records of changed participants this long after the first change.
+constexpr auto kRecordDelay = std::chrono::milliseconds(30);
+// A claimed slot whose claimer is gone is freed after this long.
+constexpr std::int64_t kClaimTimeoutNs = 2'000'000'000;
 
 #ifndef SYS_pidfd_open
 #define SYS_pidfd_open 434
 #endif
+
+namespace {
+
+std::uint32_t ip_of(const std::string& source) {  // "a.b.c.d:port" -> network-order address, 0 if none
+  const auto colon = source.rfind(':');
+  if (colon == std::string::npos) return 0;
+  std::uint32_t parts[4];
+  if (std::sscanf(source.substr(0, colon).c_str(), "%u.%u.%u.%u", &parts[0], &parts[1], &parts[2], &parts[3]) != 4)
+    return 0;
+  std::uint32_t a = 0;
+  for (auto p : parts) a = (a << 8) | (p & 0xff);
+  return htonl(a);
+}
+
+// Hash of a beacon without what changes every period (statistics, sequence, time): a change of
+// it is structural (endpoints, matches, nodes, flags, sources).
+std::uint64_t structural_hash(beacon_t b) {
+  b.sequence = 0;
+  b.timestamp_us = 0;
+  b.revision = 0;
+  for (auto& e : b.endpoints) {
+    e.messages = 0;
+    e.drops = 0;
+    e.rate_hz = 0;
+    for (auto& m : e.matches) m.received = 0, m.drops = 0;
+  }
+  const auto bytes = encode_beacon(b);
+  return reg::fnv1a(bytes);
+}
+
+// Writes `revision` into an encoded beacon_t's revision field (after the fixed header and the
+// process name). Records carry the registry's revision, so a receiver's (id, revision) set and
+// its digest agree with the speaker's. False if the bytes are too short.
+bool patch_revision(std::vector<std::byte>& bytes, std::int64_t revision) {
+  // fingerprint 8, version 4, participant_id 8, host_id 8, pid 4, start_time 8, pid_namespace 8
+  constexpr std::size_t kName = 48;
+  if (bytes.size() < kName + 4) return false;
+  std::uint32_t len = 0;
+  for (int k = 0; k < 4; ++k) len = (len << 8) | std::to_integer<std::uint8_t>(bytes[kName + static_cast<std::size_t>(k)]);
+  const std::size_t at = kName + 4 + std::size_t{len} + 8;  // after the name and `sequence`
+  if (len > bytes.size() || at + 8 > bytes.size()) return false;
+  for (int k = 0; k < 8; ++k)
+    bytes[at + static_cast<std::size_t>(k)] = static_cast<std::byte>(static_cast<std::uint64_t>(revision) >> (56 - 8 * k));
+  return true;
+}
+
+std::uint64_t stats_hash(const beacon_t& b) {
+  std::uint64_t h = 1469598103934665603ull;
+  auto mix = [&](const auto& v) { h = reg::fnv1a(std::as_bytes(std::span(&v, 1)), h); };
+  for (const auto& e : b.endpoints) {
+    mix(e.messages), mix(e.drops), mix(e.rate_hz);
+    for (const auto& m : e.matches) mix(m.received), mix(m.drops);
+  }
+  return h;
+}
+
+std::uint64_t digest_of(const std::map<std::int64_t, std::int64_t>& set) {
+  std::uint64_t h = 1469598103934665603ull;
+  for (const auto& [id, rev] : set) {
+    std::int64_t v[2] = {id, rev};
+    h = reg::fnv1a(std::as_bytes(std::span(v)), h);
+  }
+  return h;
+}
+
+}  // namespace
 
 struct Discovery::Impl {
   Options options;
@@ -41,300 +123,1002 @@ struct Discovery::Impl {
   ChangeFn on_change;
   std::shared_ptr<udpm::Group> group;
   bool receive = true;  // false with a shared group: the owner calls deliver()
-  int wake_fd = -1;  // eventfd: announce_now()/query()/stop() wake the thread
+  std::shared_ptr<Registry> registry;  // null: a vehicle-scope observer
+  Registry::Impl* reg = nullptr;
+  bool host_scope = true;
+  bool joined_registry = false;
+  std::uint64_t own_host = 0;
+  std::uint64_t group_hash = 0;
+  int wake_fd = -1;                        // eventfd: announce_now()/query()/stop()
+  std::atomic<std::uint32_t> wake_word{0};  // private futex: the same, for a non-speaker's wait
   std::atomic<bool> want_announce{true};
   std::atomic<bool> want_query{false};
   std::atomic<bool> stopping{false};
-  std::thread thread;
+  std::thread thread, rx_thread;
   std::int64_t sequence = 0;
-  std::atomic<std::uint64_t> self_id{0};  // our participant id, to ignore our own echo
+  std::int64_t udp_sent = 0;  // discovery thread only
+  std::atomic<std::int64_t> self_id{0};
+  std::atomic<bool> is_speaker{false};
+  bool is_deputy = false;  // discovery thread only
+  std::uint64_t observer_periods = 0;
 
-  // Orders what on_change is told: taken around a change of the table *and* its callback, so
-  // the callbacks see the changes in the table's order. Without it a beacon's "updated",
-  // told by the receiving thread, could reach the owner after the discovery thread had told
-  // "left" (lease expired, process exited): the owner then kept a participant the table no
-  // longer had, for good (the runtime tried to open a dead publisher's segment forever).
-  // Lock order: deliver_mutex, then mutex; on_change may take the owner's locks, so the owner
-  // must never call into this Discovery's deliver() while holding a lock on_change takes.
+  // Orders what on_change is told (see the comment in the header of this class's users):
+  // taken around a change of the table *and* its callback. Lock order: deliver_mutex, then mutex.
   std::mutex deliver_mutex;
-  mutable std::mutex mutex;  // guards peers, peer_bytes, table_bytes, counters, exited
-  std::map<std::int64_t, Participant> peers;
-  std::map<std::int64_t, std::size_t> peer_bytes;  // encoded size of each peer's beacon
-  std::size_t table_bytes = 0;                      // their sum (Options::max_table_bytes)
-  Counters counters;
-  // Participants whose process was seen to exit (pidfd): their late beacons are ignored.
-  // Bounded: the oldest are forgotten first.
-  std::set<std::int64_t> exited;
-  std::deque<std::int64_t> exited_order;
-
-  // Process watches (discovery thread only): a pidfd per peer of this host in our pid
-  // namespace, polled with the group; readable = the process exited.
-  struct Watch {
-    int fd = -1;           // -1: cannot be watched (other pid namespace, no pidfd): lease only
-    std::int32_t pid = 0;
-    std::int64_t start_time = 0;
+  mutable std::mutex mutex;  // guards peers, counters, hosts, bound, speak-side request state
+  struct Peer {
+    Participant p;
+    std::int64_t host = 0;    // remote: its host's id; 0: from the registry
+    std::size_t bytes = 0;
   };
-  std::map<std::int64_t, Watch> watches;
-  static constexpr std::size_t kMaxWatches = 1024;  // pidfds open at most
-  std::size_t open_watches = 0;
-  const std::uint64_t own_pid_namespace = pid_namespace();
-  const std::uint64_t own_start_time = process_start_time(static_cast<int>(::getpid()));
-  std::atomic<bool> want_watch_sync{false};
-  Clock::time_point last_malformed_log{};
-  Clock::time_point last_refused_log{};
-  Clock::time_point last_send_error_log{};  // discovery thread only
+  std::map<std::int64_t, Peer> peers;
+  std::size_t table_bytes = 0;
+  Counters counters;
+  Clock::time_point last_malformed_log{}, last_refused_log{}, last_send_error_log{}, last_forged_log{},
+      last_twin_log{};
+
+  // ---- registry reader (discovery thread only)
+  struct Known {
+    std::uint64_t state = 0;
+    std::int64_t id = 0;
+    std::uint64_t seq = ~0ull;        // slot revision of the last read (or skip)
+    std::uint64_t stats_seq = ~0ull;
+    std::uint64_t host_struct = 0;
+    bool told = false;                // on_change knows it
+    bool skipped = false;             // its topics do not concern us (not read)
+    bool dead = false;                // its process is gone (lock free), its slot not yet reclaimed
+  };
+  std::vector<Known> known;
+  std::uint32_t seen_changes = 0;
+  Clock::time_point last_pass{};
+  std::vector<std::string> own_topics;
+  bool wildcard = false;  // reads every participant (observer, bridge, pattern subscriptions, speaker)
+  std::uint64_t own_struct = 0, own_stats = 0;
+
+  // ---- speaker (discovery thread only, except the request state under mutex)
+  off_t speaker_byte = 0;
+  struct Spoken {
+    std::uint32_t slot = 0;
+    std::int64_t revision = 0;
+    std::vector<std::byte> record;
+    Clock::time_point sent{};
+  };
+  std::map<std::int64_t, Spoken> spoken;      // what this speaker speaks for
+  std::map<std::int64_t, std::int64_t> spoken_set;  // id -> revision (digest)
+  std::set<std::int64_t> pending_records, pending_goodbyes;
+  Clock::time_point flush_at = Clock::time_point::max();
+  bool want_index = false, want_all = false;  // under mutex
+  std::set<std::int64_t> wanted;               // under mutex
+  Clock::time_point last_index{}, last_all{}, audience_until{};
+  Clock::time_point next_heartbeat{};
+  struct Watch {
+    int fd = -1;
+    std::int64_t id = 0;
+    std::uint64_t state = 0;
+  };
+  std::map<std::uint32_t, Watch> watches;  // slot -> pidfd
+  const std::uint64_t own_pidns = pid_namespace();
+
+  // ---- remote hosts (under mutex)
+  struct RemoteHost {
+    std::int64_t registry_id = 0;
+    std::int64_t speaker = 0;
+    std::int64_t last_sequence = 0;
+    Clock::time_point last_heard{};
+    std::chrono::milliseconds lease{1500};
+    std::int64_t digest = 0;
+    int mismatches = 0;
+    Clock::time_point last_request{};
+    std::map<std::int64_t, std::int64_t> members;  // participant -> revision
+  };
+  std::map<std::int64_t, RemoteHost> hosts;
+  std::map<std::int64_t, std::uint32_t> bound;  // host id -> the address its speakers send from
+  struct Request {
+    std::int64_t host;
+    std::vector<std::int64_t> wanted;  // empty: index
+  };
+  std::vector<Request> requests;  // to send (discovery thread)
 
   Impl(Options o, LocalFn l, ChangeFn c)
       : options(std::move(o)), local(std::move(l)), on_change(std::move(c)),
         group(options.shared_group ? options.shared_group
                                    : std::make_shared<udpm::Group>(udpm::Group::open(options.group))),
         receive(!options.shared_group) {
+    host_scope = options.scope == beacon_t::SCOPE_HOST;
+    group_hash = reg::group_hash(group->config());
     wake_fd = ::eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
     if (wake_fd < 0) throw std::runtime_error("discovery: eventfd failed");
+    registry = options.registry;
+    if (!registry && (host_scope || !options.observer)) {
+      RegistryOptions ro;
+      ro.group = group->config();
+      ro.slots = options.registry_slots;
+      ro.directory = options.registry_directory;
+      registry = Registry::open(ro);
+    }
+    own_host = registry ? registry->host_id() : host_id();
+    if (registry) {
+      reg = &registry->impl();
+      known.resize(reg->slot_count);
+    }
+    speaker_byte = host_scope ? reg::kLockSpeaker
+                              : reg::kLockVehicle + static_cast<off_t>(group_hash & ((std::uint64_t{1} << 40) - 1));
+    wildcard = options.observer;
   }
   ~Impl() {
-    for (auto& [id, w] : watches)
+    for (auto& [i, w] : watches)
       if (w.fd >= 0) ::close(w.fd);
     if (wake_fd >= 0) ::close(wake_fd);
-  }
-
-  // Under mutex: a participant leaves the table.
-  void forget_bytes(std::int64_t id) {
-    const auto it = peer_bytes.find(id);
-    if (it == peer_bytes.end()) return;
-    table_bytes -= it->second;
-    peer_bytes.erase(it);
   }
 
   void wake() {
     const std::uint64_t one = 1;
     [[maybe_unused]] auto n = ::write(wake_fd, &one, sizeof one);
+    wake_word.fetch_add(1, std::memory_order_release);
+    shm::futex_wake_all_private(&wake_word);
   }
 
-  void send(std::int8_t flags) {
-    lcmx_msgs::beacon_t b{};  // value-initialised: lcm-gen leaves scalars uninitialised
-    if (options.observer) {
-      b.participant_id = static_cast<std::int64_t>(self_id);
-      b.pid = static_cast<std::int32_t>(::getpid());
-      b.process_name = "lcmx-observer";
-      b.num_nodes = 0;
-      b.num_endpoints = 0;
-    } else {
-      b = local();
-      self_id = static_cast<std::uint64_t>(b.participant_id);
-    }
-    b.version = kBeaconVersion;
-    b.pid = static_cast<std::int32_t>(::getpid());
-    b.start_time = static_cast<std::int64_t>(own_start_time);
-    b.pid_namespace = static_cast<std::int64_t>(own_pid_namespace);
-    b.sequence = ++sequence;
-    b.flags = static_cast<std::int8_t>(b.flags | flags);
-    b.lease_ms = static_cast<std::int32_t>(options.lease.count());
-    b.scope = options.scope;
-    b.timestamp_us = std::chrono::duration_cast<std::chrono::microseconds>(
-                         std::chrono::system_clock::now().time_since_epoch())
-                         .count();
-    const auto bytes = encode_beacon(b);
+  std::chrono::milliseconds lease_of(std::int32_t ms) const {
+    return std::chrono::milliseconds(std::clamp<std::int64_t>(ms, 1, options.max_lease.count()));
+  }
+
+  template <class... A>
+  void warn_limited(Clock::time_point& last, fmt::format_string<A...> f, A&&... a) {
+    const auto now = Clock::now();
+    if (now - last < std::chrono::seconds(5)) return;
+    last = now;
+    spdlog::warn(f, std::forward<A>(a)...);
+  }
+
+  // Every discovery datagram this Discovery sends counts in udp_sent; a host_beacon_t carries
+  // the count it is sent as (its `sequence`), so a receiver tells the discovery datagrams it
+  // missed from the data it missed on the same socket (the runtime's loss accounting).
+  void publish_udp(const std::vector<std::byte>& bytes) {
+    ++udp_sent;
     try {
       group->publish(kBeaconChannel, bytes);
       std::lock_guard lock(mutex);
       ++counters.beacons_sent;
     } catch (const std::exception& e) {
-      // A link or interface that is down: keep trying every period, log at most every 5 s.
-      const auto now = Clock::now();
-      if (now - last_send_error_log > std::chrono::seconds(5)) {
-        last_send_error_log = now;
-        spdlog::warn("lcmx discovery: cannot send beacon (will keep trying): {}", e.what());
+      std::lock_guard lock(mutex);
+      warn_limited(last_send_error_log, "lcmx discovery: cannot send (will keep trying): {}", e.what());
+    }
+  }
+
+  // ------------------------------------------------------------ this participant
+  // Discovery thread: builds our beacon and puts it into the registry (a structural change
+  // bumps the revision and wakes those it concerns; statistics alone, once per period at most).
+  void publish_local(bool periodic) {
+    if (options.observer || !reg) return;
+    beacon_t b = local();
+    if (b.participant_id == 0) return;  // the owner is going away
+    self_id = b.participant_id;
+    if (!joined_registry) {
+      reg->join(b.participant_id, static_cast<std::int32_t>(options.lease.count()),
+                static_cast<std::int32_t>(options.period.count()));
+      joined_registry = true;
+    }
+    b.version = kBeaconVersion;
+    b.pid = static_cast<std::int32_t>(::getpid());
+    b.start_time = static_cast<std::int64_t>(process_start_time(b.pid));
+    b.pid_namespace = static_cast<std::int64_t>(own_pidns);
+    b.sequence = ++sequence;
+    b.lease_ms = static_cast<std::int32_t>(options.lease.count());
+    b.scope = options.scope;
+    b.timestamp_us = std::chrono::duration_cast<std::chrono::microseconds>(
+                         std::chrono::system_clock::now().time_since_epoch())
+                         .count();
+    const auto st = structural_hash(b);
+    // Statistics are rewritten (no revision bump: nobody is woken) at most once per period and
+    // only when they changed; observers read them (a tool's first look is at most a period old).
+    const auto stats = stats_hash(b);
+    if (st == own_struct && !(periodic && stats != own_stats)) {
+      reg->heartbeat();
+      return;
+    }
+    own_stats = stats;
+    const bool structural = st != own_struct;
+    own_struct = st;
+    reg::TopicFilter topics;
+    std::vector<std::string> names;
+    for (const auto& e : b.endpoints) {
+      topics.add(e.topic);
+      names.push_back(e.topic);
+    }
+    std::uint32_t flags = static_cast<std::uint8_t>(b.flags);
+    if (b.flags & (beacon_t::FLAG_BRIDGE | beacon_t::FLAG_CHANNELS | beacon_t::FLAG_DDS_GATEWAY))
+      flags |= reg::kSlotWildcard;
+    reg->publish(!host_scope, encode_beacon(b), st, host_scope ? &topics : nullptr, flags,
+                 host_scope ? 0 : group_hash);
+    reg->heartbeat();
+    if (host_scope && structural) {
+      std::sort(names.begin(), names.end());
+      names.erase(std::unique(names.begin(), names.end()), names.end());
+      const bool wc = (flags & reg::kSlotWildcard) != 0;
+      if (names != own_topics || wc != wildcard) {
+        own_topics = std::move(names);
+        own_bits.clear();
+        std::set<std::uint16_t> words;
+        for (const auto& t : own_topics) {
+          own_bits.push_back(reg::topic_bits(t));
+          words.insert(own_bits.back().bit[0]);
+        }
+        bucket_tokens.clear();
+        for (auto w : words)
+          bucket_tokens.push_back({&reg->buckets[w], reg->buckets[w].load(std::memory_order_acquire), false});
+        wildcard = wc || options.observer;
+        recheck_skipped = true;  // participants skipped before may concern us now
       }
     }
+    std::lock_guard lock(mutex);
+    ++counters.beacons_sent;
+  }
+
+  // ------------------------------------------------------------ registry reader
+  // Whether slot i's participant may concern us (its topic filter meets our topics).
+  bool concerns(const reg::Slot& s) const {
+    if (wildcard) return true;
+    if (s.flags.load(std::memory_order_relaxed) & reg::kSlotWildcard) return true;
+    for (const auto& t : own_bits) {
+      bool all = true;
+      for (auto bit : t.bit)
+        if (!(s.topics[bit / 64].load(std::memory_order_relaxed) & (std::uint64_t{1} << (bit % 64)))) {
+          all = false;
+          break;
+        }
+      if (all) return true;
+    }
+    return false;
+  }
+  std::vector<reg::TopicBits> own_bits;
+  // What a non-wildcard reader sleeps on: the words of its topics' first filter bits.
+  std::vector<shm::WaitToken> bucket_tokens;
+  bool sleep_on_buckets() const { return !wildcard && !is_speaker && !own_bits.empty() && own_bits.size() < 120; }
+
+  void tell(Change c, Participant p) {
+    // deliver_mutex held by the caller
+    if (on_change) on_change(c, p);
+  }
+
+  void forget_known(std::uint32_t i, std::vector<std::pair<Change, Participant>>& out) {
+    auto& k = known[i];
+    someone_left = true;
+    if (k.told) {
+      std::lock_guard lock(mutex);
+      auto it = peers.find(k.id);
+      if (it != peers.end() && it->second.host == 0) {
+        table_bytes -= it->second.bytes;
+        out.emplace_back(Change::left, std::move(it->second.p));
+        peers.erase(it);
+      }
+    }
+    if (is_speaker && k.id != 0 && spoken.erase(k.id)) {
+      spoken_set.erase(k.id);
+      pending_records.erase(k.id);
+      pending_goodbyes.insert(k.id);
+      if (flush_at == Clock::time_point::max()) flush_at = Clock::now() + kRecordDelay;
+    }
+    k = Known{};
+  }
+
+  // Discovery thread: a pass over the registry. Incremental: only the slots the change log
+  // names since our last pass (and those to retry); full (every slot in use): every period
+  // (leases are judged), after our own topics changed, and when we fell behind the log. Cost
+  // per slot visited: a few loads, plus a state file read when its revision changed and its
+  // topics concern us.
+  void registry_pass() {
+    if (!reg) return;
+    seen_changes = reg->header->changes.load(std::memory_order_acquire);  // pairs with bump_changes
+    for (auto& t : bucket_tokens) t.expected = t.word->load(std::memory_order_acquire);  // likewise
+    last_pass = Clock::now();
+    bool full = full_due || recheck_skipped;
+    const bool recheck = recheck_skipped;
+    full_due = recheck_skipped = false;
+    std::vector<std::uint32_t> todo(retry.begin(), retry.end());
+    retry.clear();
+    const auto head = reg->header->log_head.load(std::memory_order_acquire);
+    if (!full) {
+      if (head - log_pos > reg::kLogSize) full = true;
+      for (auto p = log_pos; !full && p < head; ++p) {
+        // acquire: pairs with bump_changes' release store of the entry.
+        const auto e = reg->log[p % reg::kLogSize].load(std::memory_order_acquire);
+        const auto expected = p & ((std::uint64_t{1} << 44) - 1);
+        if (e == ~0ull || (e >> 20) < expected) {  // reserved, not yet written: again soon
+          retry_soon = true;
+          break;
+        }
+        if ((e >> 20) != expected) {  // overwritten: we fell behind
+          full = true;
+          break;
+        }
+        todo.push_back(static_cast<std::uint32_t>(e & 0xfffff));
+        log_pos = p + 1;
+      }
+    }
+    if (full) log_pos = head;
+    const auto hw = std::min(reg->header->high_water.load(std::memory_order_acquire), reg->slot_count);
+    if (full) {
+      todo.resize(hw);
+      for (std::uint32_t i = 0; i < hw; ++i) todo[i] = i;
+    } else {
+      std::sort(todo.begin(), todo.end());
+      todo.erase(std::unique(todo.begin(), todo.end()), todo.end());
+    }
+    const auto now = reg::now_ns();
+    std::vector<std::pair<Change, Participant>> out;
+    std::unique_lock order(deliver_mutex);
+    full_pass = full;
+    for (auto i : todo)
+      if (i < reg->slot_count) visit(i, now, recheck, out);
+    for (auto& [c, p] : out) {
+      if (c == Change::left)
+        spdlog::debug("lcmx discovery: participant {} ({} pid {}) left", p.beacon.participant_id,
+                      p.beacon.process_name, p.beacon.pid);
+      tell(c, std::move(p));
+    }
+    if (someone_left && !is_deputy && !is_speaker) try_speak();  // the deputy may have been the one
+    someone_left = false;
+  }
+
+  void visit(std::uint32_t i, std::int64_t now, bool recheck, std::vector<std::pair<Change, Participant>>& out) {
+    auto& s = reg->slot(i);
+    auto& k = known[i];
+    const auto st = s.state.load(std::memory_order_acquire);  // pairs with join's release
+    if (reg::state_of(st) != reg::kLive) {
+      if (k.id != 0 && k.told) {
+        std::lock_guard lock(mutex);
+        // Freed by its owner (a clean exit: its goodbye), or dead (its process exited).
+        if (reg::state_of(st) == reg::kFree && reg::epoch_of(st) == reg::epoch_of(k.state) + 1) ++counters.goodbyes;
+        else ++counters.exits_seen;
+      }
+      if (k.id != 0) forget_known(i, out);
+      return;
+    }
+    const auto id = s.participant_id.load(std::memory_order_relaxed);
+    if (id == self_id.load()) {
+      // The speaker speaks for itself too (its own state, never told to on_change).
+      const auto seq = s.seq.load(std::memory_order_acquire);  // pairs with publish's release
+      if (!is_speaker || (k.id == id && k.seq == s.revision.load(std::memory_order_relaxed))) return;
+      if (auto state = reg->read_state(i, id, seq)) {
+        k.id = id;
+        k.state = st;
+        k.seq = state->revision;
+        speak_update(id, *state, static_cast<std::int64_t>(state->revision), s.vehicle_group.load(std::memory_order_relaxed), i);
+      } else {
+        retry.insert(i);
+        retry_soon = true;
+      }
+      return;
+    }
+    if (k.id != 0 && (k.state != st || k.id != id)) forget_known(i, out);  // reused slot
+    const auto lease = lease_of(s.lease_ms.load(std::memory_order_relaxed));
+    const auto age = now - s.heartbeat_ns.load(std::memory_order_relaxed);
+    // Missed two heartbeats: dead, or only stopped? Its liveness lock tells (one syscall, on
+    // full passes only). A dead one is gone now even if no speaker runs (the speaker itself
+    // was stopped): its slot stays until a speaker reclaims it.
+    const auto late = 2 * std::int64_t{s.period_ms.load(std::memory_order_relaxed)} * 1000000 + 50000000;
+    if (k.id != 0 && k.told && full_pass && age > late && !reg->owner_alive(i)) {
+      {
+        std::lock_guard lock(mutex);
+        ++counters.exits_seen;
+      }
+      forget_known(i, out);
+      k.id = id;
+      k.state = st;
+      k.seq = s.revision.load(std::memory_order_relaxed);
+      k.dead = true;
+      return;
+    }
+    if (k.dead && k.id == id && k.state == st) return;  // dead, not reclaimed yet
+    if (age > std::chrono::duration_cast<std::chrono::nanoseconds>(lease).count()) {
+      if (k.id != 0) {
+        if (k.told) {
+          std::lock_guard lock(mutex);
+          ++counters.leases_expired;
+        }
+        forget_known(i, out);  // stopped or hung: back when its heartbeat is
+      }
+      return;
+    }
+    // seq for a consistent read; the revision (structural) and stats_seq (observers) for news.
+    const auto seq = s.seq.load(std::memory_order_acquire);  // pairs with publish's release
+    const auto rev = s.revision.load(std::memory_order_relaxed);
+    const auto stats = s.stats_seq.load(std::memory_order_relaxed);
+    const bool observer_refresh = options.observer && k.told && stats != k.stats_seq;
+    if (k.id == id && k.seq == rev && !observer_refresh && !(recheck && k.skipped)) return;
+    if (seq & 1) {  // being written: again soon
+      retry.insert(i);
+      retry_soon = true;
+      return;
+    }
+    k.state = st;
+    k.id = id;
+    const bool tell_it = k.told || concerns(s);
+    if (!tell_it && !is_speaker) {
+      k.seq = rev;
+      k.skipped = true;
+      std::lock_guard lock(mutex);
+      ++counters.registry_skipped;
+      return;
+    }
+    auto state = reg->read_state(i, id, seq);
+    if (!state) {
+      retry.insert(i);
+      retry_soon = true;
+      return;
+    }
+    {
+      std::lock_guard lock(mutex);
+      ++counters.registry_reads;
+    }
+    k.seq = state->revision;
+    k.stats_seq = stats;
+    k.skipped = !tell_it;
+    if (is_speaker)
+      speak_update(id, *state, static_cast<std::int64_t>(state->revision),
+                   s.vehicle_group.load(std::memory_order_relaxed), i);
+    if (!host_scope || state->host.empty() || !tell_it) return;  // vehicle scope: this host is known through the host scope
+    if (k.told && state->host_struct == k.host_struct && !observer_refresh) return;
+    std::string why;
+    auto b = decode_beacon(state->host, &why);
+    if (!b) {
+      std::lock_guard lock(mutex);
+      ++counters.malformed;
+      warn_limited(last_malformed_log, "lcmx discovery: ignored the registry state of participant {}: {}", id, why);
+      return;
+    }
+    if (b->participant_id != id) return;
+    b->revision = static_cast<std::int64_t>(state->revision);
+    b->lease_ms = static_cast<std::int32_t>(lease.count());
+    k.host_struct = state->host_struct;
+    Participant p{std::move(*b), Clock::now()};
+    Change c;
+    {
+      std::lock_guard lock(mutex);
+      auto [it, fresh] = peers.try_emplace(id);
+      c = fresh ? Change::joined : Change::updated;
+      table_bytes += state->host.size() - it->second.bytes;
+      it->second.p = p;
+      it->second.host = 0;
+      it->second.bytes = state->host.size();
+      ++counters.beacons_received;
+    }
+    k.told = true;
+    out.emplace_back(c, std::move(p));
+  }
+  std::uint64_t log_pos = 0;
+  bool full_due = true, recheck_skipped = false, retry_soon = false, someone_left = false, full_pass = false;
+  std::set<std::uint32_t> retry;
+
+  // ------------------------------------------------------------ speaker
+  // vehicle: only participants of our vehicle group (the slot names it) are spoken for.
+  void speak_update(std::int64_t id, const reg::State& state, std::int64_t revision, std::uint64_t vehicle_group,
+                    std::uint32_t slot) {
+    const auto& section = host_scope ? state.host : state.vehicle;
+    if (section.empty() || (!host_scope && vehicle_group != group_hash)) {
+      if (spoken.erase(id)) {
+        spoken_set.erase(id);
+        pending_goodbyes.insert(id);
+      }
+      return;
+    }
+    auto& sp = spoken[id];
+    sp.slot = slot;
+    const bool changed = sp.revision != revision || sp.record.empty();
+    sp.revision = revision;
+    sp.record = section;
+    patch_revision(sp.record, revision);
+    spoken_set[id] = revision;
+    if (changed) {
+      pending_records.insert(id);
+      pending_goodbyes.erase(id);
+      if (flush_at == Clock::time_point::max()) flush_at = Clock::now() + kRecordDelay;
+    }
+  }
+
+  bool audience() const { return !host_scope || Clock::now() < audience_until; }
+
+  host_beacon_t host_message(std::int8_t kind) {
+    host_beacon_t h{};
+    h.version = kHostBeaconVersion;
+    h.kind = kind;
+    h.scope = options.scope;
+    h.host_id = static_cast<std::int64_t>(own_host);
+    h.registry_id = reg ? static_cast<std::int64_t>(reg->header->registry_id) : 0;
+    h.speaker = self_id.load();
+    h.sequence = udp_sent + 1;  // the datagram it is about to be (publish_udp)
+    h.lease_ms = static_cast<std::int32_t>(options.lease.count());
+    h.digest = static_cast<std::int64_t>(digest_of(spoken_set));
+    h.count = static_cast<std::int32_t>(spoken_set.size());
+    h.num_entries = 0;
+    h.num_wanted = 0;
+    return h;
+  }
+
+  void send_index() {
+    auto h = host_message(host_beacon_t::KIND_INDEX);
+    for (const auto& [id, rev] : spoken_set) {
+      h.participants.push_back(id);
+      h.revisions.push_back(rev);
+    }
+    h.num_entries = static_cast<std::int32_t>(h.participants.size());
+    publish_udp(encode_host_beacon(h));
+    last_index = Clock::now();
+  }
+
+  void send_record(std::int64_t id) {
+    auto it = spoken.find(id);
+    if (it == spoken.end()) return;
+    publish_udp(it->second.record);
+    it->second.sent = Clock::now();
+  }
+
+  void send_goodbye(std::int64_t id) {
+    beacon_t b{};
+    b.version = kBeaconVersion;
+    b.participant_id = id;
+    b.host_id = static_cast<std::int64_t>(own_host);
+    b.flags = beacon_t::FLAG_GOODBYE;
+    b.scope = options.scope;
+    publish_udp(encode_beacon(b));
+  }
+
+  // Discovery thread, while speaking.
+  void speaker_duties() {
+    const auto now = Clock::now();
+    watch_processes();
+    if (now >= next_heartbeat) {
+      publish_udp(encode_host_beacon(host_message(host_beacon_t::KIND_HEARTBEAT)));
+      next_heartbeat = now + options.period;
+    }
+    bool index = false, all = false;
+    std::set<std::int64_t> want;
+    {
+      std::lock_guard lock(mutex);
+      // Rate limits: the index and "everything" at most once per period each; one answer, multicast, serves all.
+      if (want_index && now - last_index >= options.period) index = true, want_index = false;
+      if (want_all && now - last_all >= options.period) all = true, want_all = false;
+      want.swap(wanted);
+    }
+    if (all) {
+      // An observer's "everything": with the statistics as they are now (re-read).
+      for (auto& [id, sp] : spoken) {
+        const auto& slot = reg->slot(sp.slot);
+        if (slot.participant_id.load(std::memory_order_relaxed) != id) continue;
+        if (auto st = reg->read_state(sp.slot, id, slot.seq.load(std::memory_order_acquire))) {
+          auto& section = host_scope ? st->host : st->vehicle;
+          if (!section.empty()) {
+            sp.record = std::move(section);
+            patch_revision(sp.record, sp.revision);
+          }
+        }
+      }
+      for (const auto& [id, sp] : spoken) send_record(id);
+      last_all = now;
+      index = true;
+    } else {
+      for (auto id : want)
+        if (auto it = spoken.find(id); it != spoken.end() && now - it->second.sent >= options.period / 2) send_record(id);
+    }
+    if (now >= flush_at) {
+      flush_at = Clock::time_point::max();
+      if (audience()) {
+        for (auto id : pending_records) send_record(id);
+        for (auto id : pending_goodbyes) send_goodbye(id);
+        if (!pending_records.empty() || !pending_goodbyes.empty()) index = true;
+      }
+      pending_records.clear();
+      pending_goodbyes.clear();
+    }
+    if (index) send_index();
+    if (all || index || !want.empty()) {
+      std::lock_guard lock(mutex);
+      ++counters.requests_answered;
+    }
+  }
+
+  // Host scope speaker: a pidfd per participant of our pid namespace; others (and a backup
+  // for all) by their slot's liveness lock. A dead participant's slot is reclaimed.
+  void watch_processes() {
+    if (!host_scope || !reg) return;
+    const auto hw = std::min(reg->header->high_water.load(std::memory_order_acquire), reg->slot_count);
+    const auto now = reg::now_ns();
+    std::vector<std::pair<std::uint32_t, std::uint64_t>> dead;
+    for (std::uint32_t i = 0; i < hw; ++i) {
+      auto& s = reg->slot(i);
+      const auto st = s.state.load(std::memory_order_acquire);
+      const auto state = reg::state_of(st);
+      auto w = watches.find(i);
+      if (w != watches.end() && (state != reg::kLive || w->second.state != st)) {
+        if (w->second.fd >= 0) ::close(w->second.fd);
+        watches.erase(w);
+        w = watches.end();
+      }
+      if (state == reg::kClaimed) {
+        if (now - s.heartbeat_ns.load(std::memory_order_relaxed) > kClaimTimeoutNs && !reg->owner_alive(i))
+          dead.emplace_back(i, st);
+        continue;
+      }
+      if (state == reg::kDead) {  // a speaker died while reclaiming: finish it
+        dead.emplace_back(i, st);
+        continue;
+      }
+      if (state != reg::kLive || s.participant_id.load(std::memory_order_relaxed) == self_id.load()) continue;
+      if (w == watches.end()) {
+        Watch nw;
+        nw.state = st;
+        nw.id = s.participant_id.load(std::memory_order_relaxed);
+        const auto pid = s.pid.load(std::memory_order_relaxed);
+        const auto start = s.start_time.load(std::memory_order_relaxed);
+        if (pid > 0 && s.pid_namespace.load(std::memory_order_relaxed) == own_pidns) {
+          const int fd = static_cast<int>(::syscall(SYS_pidfd_open, pid, 0));
+          if (fd >= 0 && process_start_time(pid) == static_cast<std::uint64_t>(start)) {
+            nw.fd = fd;
+          } else {
+            if (fd >= 0) ::close(fd);
+            if (!reg->owner_alive(i)) dead.emplace_back(i, st);
+          }
+        }
+        watches[i] = nw;
+      }
+    }
+    // Which watched processes exited (poll, no wait).
+    std::vector<pollfd> fds;
+    std::vector<std::uint32_t> slots;
+    for (const auto& [i, w] : watches)
+      if (w.fd >= 0) fds.push_back({w.fd, POLLIN, 0}), slots.push_back(i);
+    if (!fds.empty() && ::poll(fds.data(), fds.size(), 0) > 0)
+      for (std::size_t k = 0; k < fds.size(); ++k)
+        if (fds[k].revents & (POLLIN | POLLHUP | POLLERR)) dead.emplace_back(slots[k], watches[slots[k]].state);
+    // Others: their liveness lock, once per period.
+    if (Clock::now() >= next_lock_probe) {
+      next_lock_probe = Clock::now() + options.period;
+      for (const auto& [i, w] : watches)
+        if (w.fd < 0 && !reg->owner_alive(i)) dead.emplace_back(i, w.state);
+    }
+    for (auto [i, st] : dead) {
+      if (auto w = watches.find(i); w != watches.end()) {
+        if (w->second.fd >= 0) ::close(w->second.fd);
+        watches.erase(w);
+      }
+      if (reg::state_of(st) == reg::kLive && reg->owner_alive(i)) continue;  // pidfd of an exec'd... lock says alive
+      reg->reclaim(i, st);  // readers count it (Counters::exits_seen) when they see it
+    }
+  }
+  Clock::time_point next_lock_probe{};
+
+  // Speaker election: the speaker holds an OFD lock (the kernel drops it when it dies). One
+  // deputy (host scope; it holds the deputy lock) tries the speaker's lock every kSpeakerTick,
+  // so a dead speaker is replaced within ~20 ms; everyone else tries the deputy's lock once per period.
+  void try_speak() {
+    if (options.observer || !reg || !joined_registry) return;
+    if (is_speaker) return;
+    if (host_scope && !is_deputy && reg->try_lock(reg::kLockDeputy)) is_deputy = true;
+    if (!reg->try_lock(speaker_byte)) return;
+    if (is_deputy) {
+      reg->unlock(reg::kLockDeputy);
+      is_deputy = false;
+    }
+    is_speaker = true;
+    {
+      std::lock_guard lock(mutex);
+      ++counters.speaker_terms;
+    }
+    if (host_scope) reg->header->speaker.store(self_id.load(), std::memory_order_relaxed);
+    // RLIMIT_NOFILE: a pidfd per participant of this host.
+    rlimit rl{};
+    if (::getrlimit(RLIMIT_NOFILE, &rl) == 0 && rl.rlim_cur < rl.rlim_max) {
+      rl.rlim_cur = rl.rlim_max;
+      ::setrlimit(RLIMIT_NOFILE, &rl);
+    }
+    // Read every participant: we speak for all of them.
+    for (auto& k : known) k.seq = ~0ull;
+    full_due = true;
+    next_heartbeat = Clock::now();
+    spdlog::debug("lcmx discovery: participant {} speaks for {} (scope {})", self_id.load(), reg->path,
+                  static_cast<int>(options.scope));
+  }
+
+  // ------------------------------------------------------------ the group
+  void forged(const std::string& what) {
+    std::lock_guard lock(mutex);
+    ++counters.forged;
+    warn_limited(last_forged_log, "lcmx discovery: refused {} ({} so far)", what, counters.forged);
+  }
+
+  // Under mutex: the address host `h` speaks from; first contact binds it. False: another address.
+  bool source_ok(std::int64_t h, std::uint32_t ip) {
+    auto it = bound.find(h);
+    if (it == bound.end()) {
+      if (bound.size() >= 4096) return false;  // bounded: a flood of invented hosts
+      bound[h] = ip;
+      return true;
+    }
+    return it->second == ip;
   }
 
   void on_datagram(const udpm::Message& m) {
     if (m.channel != kBeaconChannel) return;
+    const auto fp = fingerprint_of(m.data);
+    if (fp == host_beacon_t::getHash()) return on_host_message(m);
+    // A record of this host's own participants (its speaker's, heard by everyone on the group):
+    // known through the registry; dropped before decoding (host_id at offset 20 of a beacon_t).
+    if (fp == beacon_t::getHash() && m.data.size() >= 28) {
+      std::uint64_t h = 0;
+      for (int k = 20; k < 28; ++k) h = (h << 8) | std::to_integer<std::uint8_t>(m.data[static_cast<std::size_t>(k)]);
+      if (h == own_host) return;
+    }
     std::string why;
     auto b = decode_beacon(m.data, &why);
     if (!b) {
-      bool log = false;
-      {
-        std::lock_guard lock(mutex);
-        ++counters.malformed;
-        const auto now = Clock::now();
-        if (now - last_malformed_log > std::chrono::seconds(5)) {
-          last_malformed_log = now;
-          log = true;
-        }
-      }
-      if (log) spdlog::warn("lcmx discovery: ignored a beacon: {}", why);
+      std::lock_guard lock(mutex);
+      ++counters.malformed;
+      warn_limited(last_malformed_log, "lcmx discovery: ignored a beacon: {}", why);
       return;
     }
-    if (static_cast<std::uint64_t>(b->participant_id) == self_id) return;
-    if (b->flags & lcmx_msgs::beacon_t::FLAG_QUERY) {
-      if (!options.observer) want_announce = true;
+    if (b->flags & beacon_t::FLAG_QUERY) {  // an observer without the registry: everything, rate-limited
+      std::lock_guard lock(mutex);
+      if (is_speaker) {
+        if (want_all) ++counters.requests_limited;
+        want_all = true;
+        audience_until = Clock::now() + 3 * options.lease;
+      }
     }
-    if (b->flags & lcmx_msgs::beacon_t::FLAG_OBSERVER) return;
+    if (b->flags & (beacon_t::FLAG_OBSERVER | beacon_t::FLAG_QUERY)) {
+      wake();
+      return;
+    }
+    if (static_cast<std::uint64_t>(b->host_id) == own_host) return;  // known through the registry
+    on_record(std::move(*b), m.source.address_be, m.data.size());
+  }
 
+  void on_record(beacon_t b, std::uint32_t ip, std::size_t bytes) {
+    std::string bad = check_record(b, ip);
+    if (!bad.empty()) return forged(bad);
     Change change = Change::updated;
     Participant copy;
-    std::string refused;  // why, when refused and to be logged
-    std::lock_guard order(deliver_mutex);  // until on_change has been told
+    std::unique_lock order(deliver_mutex);
     {
       std::lock_guard lock(mutex);
       ++counters.beacons_received;
-      if (exited.count(b->participant_id)) return;  // sent before its process exited
-      auto it = peers.find(b->participant_id);
-      if (b->flags & lcmx_msgs::beacon_t::FLAG_GOODBYE) {
+      const auto h = b.host_id;
+      auto it = peers.find(b.participant_id);
+      auto& host = hosts[h];
+      if (host.last_heard == Clock::time_point{}) {
+        host.last_heard = Clock::now();
+        host.lease = lease_of(b.lease_ms);
+      }
+      if (b.flags & beacon_t::FLAG_GOODBYE) {
+        host.members.erase(b.participant_id);
         if (it == peers.end()) return;
         ++counters.goodbyes;
-        copy = std::move(it->second);
-        forget_bytes(it->first);
+        copy = std::move(it->second.p);
+        table_bytes -= it->second.bytes;
         peers.erase(it);
         change = Change::left;
       } else {
-        if (it != peers.end() && b->sequence <= it->second.beacon.sequence && b->pid == it->second.beacon.pid)
-          return;  // out-of-order or duplicated beacons from one sender: keep the newest
-        const std::size_t bytes = m.data.size();
-        const std::size_t old_bytes = it == peers.end() ? 0 : peer_bytes[it->first];
+        if (it != peers.end() && b.revision < it->second.p.beacon.revision) return;  // older
+        const std::size_t old = it == peers.end() ? 0 : it->second.bytes;
+        std::string refused;
         if (it == peers.end() && peers.size() >= options.max_participants)
           refused = "the table holds max_participants (" + std::to_string(options.max_participants) + ")";
-        else if (table_bytes - old_bytes + bytes > options.max_table_bytes)
+        else if (table_bytes - old + bytes > options.max_table_bytes)
           refused = "the table would exceed max_table_bytes (" + std::to_string(options.max_table_bytes) + ")";
         if (!refused.empty()) {
+          // A known participant keeps its place (and its host's heartbeat keeps it): never expired for this.
           ++counters.refused;
-          const auto now = Clock::now();
-          if (now - last_refused_log < std::chrono::seconds(5)) return;
-          last_refused_log = now;
-          refused = "refused a beacon of participant " + std::to_string(b->participant_id) + " (" +
-                    b->process_name.substr(0, 64) + " pid " + std::to_string(b->pid) + "): " + refused + "; " +
-                    std::to_string(counters.refused) + " refused so far";
-        } else {
-          if (it == peers.end()) {
-            change = Change::joined;
-            it = peers.emplace(b->participant_id, Participant{}).first;
-          } else {
-            change = Change::updated;
-          }
-          table_bytes += bytes - old_bytes;
-          peer_bytes[it->first] = bytes;
-          const auto max_lease = static_cast<std::int32_t>(std::min<std::int64_t>(options.max_lease.count(), INT32_MAX));
-          if (b->lease_ms > max_lease) b->lease_ms = max_lease;
-          it->second.beacon = std::move(*b);
-          it->second.last_seen = Clock::now();
-          copy = it->second;
+          warn_limited(last_refused_log, "lcmx discovery: refused a record of participant {}: {}; {} refused so far",
+                       b.participant_id, refused, counters.refused);
+          return;
         }
+        if (it == peers.end()) {
+          change = Change::joined;
+          it = peers.emplace(b.participant_id, Peer{}).first;
+        } else if (it->second.p.beacon.revision == b.revision && !options.observer) {
+          return;  // nothing new (statistics are for observers)
+        }
+        b.lease_ms = static_cast<std::int32_t>(host.lease.count());
+        host.members[b.participant_id] = b.revision;
+        table_bytes += bytes - old;
+        it->second.bytes = bytes;
+        it->second.host = h;
+        it->second.p.beacon = std::move(b);
+        it->second.p.last_seen = Clock::now();
+        copy = it->second.p;
       }
-    }
-    if (!refused.empty()) {
-      spdlog::warn("lcmx discovery: {}", refused);
-      return;
-    }
-    // A newcomer learns of us at once, not up to a period later: we beacon now (one beacon
-    // per newcomer heard; the newcomer, hearing us for the first time, answers once more,
-    // and that answer is no news to anyone). Without this a process that starts beside a
-    // quiet participant (a bridge, a server nobody matched yet) would not know of it for up
-    // to one period: e.g. a publisher whose topic turns large would send it as UDP fragments
-    // though a bridge runs on its host.
-    // (deliver() and the discovery thread's loop send it.)
-    if (change == Change::joined && !options.observer) want_announce = true;
-    // A new peer to watch, or a watch to close: the discovery thread does it.
-    if (watching() && change != Change::updated) {
-      want_watch_sync = true;
-      wake();
     }
     if (on_change) on_change(change, copy);
   }
 
-  bool watching() const {
-    return options.watch_processes && options.scope == lcmx_msgs::beacon_t::SCOPE_HOST &&
-           !options.observer;
+  // The trust rules (docs/discovery.md "Trust"): a record or goodbye of host H only from the
+  // address H's speakers send from (first contact binds it), its source claims only with that
+  // address, a participant id only for the host that first announced it. Returns why not ("": ok).
+  std::string check_record(const beacon_t& b, std::uint32_t ip) {
+    std::lock_guard lock(mutex);
+    const auto h = b.host_id;
+    if (!source_ok(h, ip))
+      return "a record or goodbye of participant " + std::to_string(b.participant_id) + " of host " +
+             std::to_string(h) + " from another address than its host's";
+    // The vehicle group: its claim must name the address its host speaks from. (On the
+    // host-local group every sender is of this machine, and a datagram leaves from whichever of
+    // its addresses the group routes through: the runtime matches those by port.)
+    if (!host_scope && !b.vehicle_source.empty() && ip_of(b.vehicle_source) != ip)
+      return "the source claim '" + b.vehicle_source + "' of participant " + std::to_string(b.participant_id);
+    auto it = peers.find(b.participant_id);
+    if (it != peers.end() && it->second.host != h)
+      return "a record of participant " + std::to_string(b.participant_id) + " claimed by another host";
+    return {};
   }
 
-  // Discovery thread. Opens a pidfd for every new peer in our pid namespace (checking its
-  // start time, so a reused pid is never watched) and closes those of peers that left. A peer
-  // whose process is already gone is declared gone now.
-  void sync_watches() {
-    if (!watching()) return;
-    std::vector<std::tuple<std::int64_t, std::int32_t, std::int64_t, std::int64_t>> current;
-    {
+  void on_host_message(const udpm::Message& m) {
+    std::string why;
+    auto h = decode_host_beacon(m.data, &why);
+    if (!h) {
       std::lock_guard lock(mutex);
-      for (const auto& [id, p] : peers)
-        current.emplace_back(id, p.beacon.pid, p.beacon.start_time, p.beacon.pid_namespace);
+      ++counters.malformed;
+      warn_limited(last_malformed_log, "lcmx discovery: ignored a host beacon: {}", why);
+      return;
     }
-    std::set<std::int64_t> live;
+    if (h->kind == host_beacon_t::KIND_MARK) return;  // for the runtime's loss accounting only
+    if (h->kind == host_beacon_t::KIND_REQUEST) {
+      std::lock_guard lock(mutex);
+      audience_until = Clock::now() + 3 * options.lease;
+      if (!is_speaker || (h->target_host != 0 && static_cast<std::uint64_t>(h->target_host) != own_host)) return;
+      if (h->wanted.empty()) {
+        if (want_index) ++counters.requests_limited;
+        want_index = true;
+      } else if (h->wanted.size() == 1 && h->wanted[0] == host_beacon_t::WANT_ALL) {
+        if (want_all) ++counters.requests_limited;
+        want_all = true;
+        // Someone watches: this host's participants keep their statistics fresh meanwhile.
+        if (reg)
+          reg->header->observed_until_ns.store(
+              reg::now_ns() + 3 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count(),
+              std::memory_order_relaxed);
+      } else {
+        for (auto id : h->wanted)
+          if (wanted.size() < 65536) wanted.insert(id);
+      }
+      wake();
+      return;
+    }
+    if (static_cast<std::uint64_t>(h->host_id) == own_host) {  // ourselves...
+      if (reg && h->registry_id != static_cast<std::int64_t>(reg->header->registry_id)) {
+        // ... or another registry with our host id: processes given one LCMX_HOST_ID that do
+        // not share /dev/shm (containers). They cannot meet: no shared memory, and their
+        // records are taken for ours. Said loudly, as a misconfiguration.
+        std::lock_guard lock(mutex);
+        warn_limited(last_twin_log,
+                     "lcmx discovery: another registry claims this host's id {} on this group (participant {} "
+                     "speaks for it): processes that share LCMX_HOST_ID but not /dev/shm cannot see each other; "
+                     "give each /dev/shm its own host id",
+                     own_host, h->speaker);
+      }
+      return;
+    }
     std::vector<std::int64_t> gone;
-    for (const auto& [id, pid, start, pidns] : current) {
-      live.insert(id);
-      if (watches.count(id)) continue;
-      Watch w;
-      w.pid = pid;
-      w.start_time = start;
-      // Bounded: past kMaxWatches peers (a flood of spoofed beacons), the lease alone.
-      if (open_watches < kMaxWatches && pid > 0 && start > 0 && pidns != 0 &&
-          static_cast<std::uint64_t>(pidns) == own_pid_namespace) {
-        const int fd = static_cast<int>(::syscall(SYS_pidfd_open, pid, 0));
-        if (fd < 0 && errno == ESRCH) {
-          gone.push_back(id);
-        } else if (fd >= 0) {
-          // After the open: a matching start time means the pidfd names that very process.
-          if (process_start_time(pid) == static_cast<std::uint64_t>(start)) {
-            w.fd = fd;
-            ++open_watches;
-          } else {
-            ::close(fd);
-            gone.push_back(id);
-          }
-        }
-      }
-      watches[id] = w;
-    }
-    for (auto it = watches.begin(); it != watches.end();) {
-      if (live.count(it->first)) {
-        ++it;
-        continue;
-      }
-      if (it->second.fd >= 0) ::close(it->second.fd), --open_watches;
-      it = watches.erase(it);
-    }
-    for (auto id : gone) process_exited(id);
-  }
-
-  // Discovery thread: the peer's process exited. Declares it gone at once.
-  void process_exited(std::int64_t id) {
-    if (auto it = watches.find(id); it != watches.end()) {
-      if (it->second.fd >= 0) ::close(it->second.fd), --open_watches;
-      watches.erase(it);
-    }
-    Participant p;
-    std::lock_guard order(deliver_mutex);  // until on_change has been told
+    bool ask = false;
     {
       std::lock_guard lock(mutex);
-      auto it = peers.find(id);
-      if (it == peers.end()) return;
-      p = std::move(it->second);
-      forget_bytes(it->first);
-      peers.erase(it);
-      ++counters.exits_seen;
-      if (exited.insert(id).second) {
-        exited_order.push_back(id);
-        if (exited_order.size() > 1024) {
-          exited.erase(exited_order.front());
-          exited_order.pop_front();
+      audience_until = Clock::now() + 3 * options.lease;  // another registry listens on this group
+      if (!source_ok(h->host_id, m.source.address_be))
+        return (void)(++counters.forged);
+      auto& host = hosts[h->host_id];
+      if (host.registry_id != 0 && host.registry_id != h->registry_id) {
+        // The host restarted (a new registry): its old participants are gone.
+        for (const auto& [id, rev] : host.members) gone.push_back(id);
+        host.members.clear();
+      }
+      host.registry_id = h->registry_id;
+      host.speaker = h->speaker;
+      host.last_heard = Clock::now();
+      host.lease = lease_of(h->lease_ms);
+      host.digest = h->digest;
+      if (h->kind == host_beacon_t::KIND_INDEX) {
+        std::set<std::int64_t> listed(h->participants.begin(), h->participants.end());
+        for (const auto& [id, rev] : host.members)
+          if (!listed.count(id)) gone.push_back(id);
+        std::vector<std::int64_t> want;
+        for (std::size_t k = 0; k < h->participants.size(); ++k) {
+          auto mine = host.members.find(h->participants[k]);
+          if (mine == host.members.end() || mine->second != h->revisions[k]) want.push_back(h->participants[k]);
         }
+        for (auto id : gone) host.members.erase(id);
+        if (!want.empty() && want.size() <= 4096) requests.push_back({h->host_id, std::move(want)});
+        ask = !requests.empty();
+      } else if (static_cast<std::uint64_t>(h->digest) != digest_of(host.members)) {
+        // Records may be on their way: ask after two heartbeats that disagree, once per period.
+        if (++host.mismatches >= 2 && Clock::now() - host.last_request >= options.period) {
+          host.last_request = Clock::now();
+          host.mismatches = 0;
+          requests.push_back({h->host_id, {}});
+          ask = true;
+        }
+      } else {
+        host.mismatches = 0;
       }
     }
-    spdlog::info("lcmx discovery: participant {} ({} pid {}) exited", p.beacon.participant_id,
-                 p.beacon.process_name, p.beacon.pid);
-    if (on_change) on_change(Change::left, p);
+    drop_members(gone);
+    if (ask) wake();
   }
 
-  // Under mutex: has any lease run out?
-  bool lease_due(Clock::time_point now) const {
-    for (const auto& [id, p] : peers)
-      if (now - p.last_seen > std::chrono::milliseconds(std::max(p.beacon.lease_ms, 1))) return true;
-    return false;
+  void drop_members(const std::vector<std::int64_t>& ids) {
+    if (ids.empty()) return;
+    std::lock_guard order(deliver_mutex);
+    std::vector<Participant> left;
+    {
+      std::lock_guard lock(mutex);
+      for (auto id : ids) {
+        auto it = peers.find(id);
+        if (it == peers.end() || it->second.host == 0) continue;
+        table_bytes -= it->second.bytes;
+        left.push_back(std::move(it->second.p));
+        peers.erase(it);
+      }
+    }
+    for (auto& p : left) tell(Change::left, std::move(p));
   }
 
-  // Discovery thread, no lock held: every beacon queued now is read, from our own group or by
-  // the owner (Options::drain_before_expiry).
+  void send_requests() {
+    std::vector<Request> r;
+    {
+      std::lock_guard lock(mutex);
+      r.swap(requests);
+    }
+    for (auto& q : r) {
+      auto h = host_message(host_beacon_t::KIND_REQUEST);
+      h.target_host = q.host;
+      h.wanted = std::move(q.wanted);
+      h.num_wanted = static_cast<std::int32_t>(h.wanted.size());
+      publish_udp(encode_host_beacon(h));
+    }
+  }
+
+  // An observer's query. With the registry (host scope) this host needs none: only the known
+  // neighbours are asked, each by name (a query of everyone would make every participant of
+  // every registry on the group hear every record). Without it: every host, at once.
+  // After data on the group (its sequence moved since our last marker), once a second, 3 times:
+  // a small marker from this participant's own socket, so a receiver sees the datagrams it
+  // lost at the end of a burst (the gap before the marker). v5 beacons did that every period.
+  void mark_sequence() {
+    if (options.observer || !options.shared_group) return;
+    const auto now = Clock::now();
+    if (now - last_mark < std::max<Clock::duration>(options.period, std::chrono::seconds(1))) return;
+    const auto next = group->next_sequence();
+    if (next != mark_next) mark_repeats = 3;  // data since our last marker: 3 markers, a second apart
+    if (mark_repeats == 0) return;            // (one may be lost with the data it follows)
+    --mark_repeats;
+    last_mark = now;
+    auto h = host_message(host_beacon_t::KIND_MARK);
+    h.speaker = self_id.load();
+    h.digest = 0;
+    h.count = 0;
+    publish_udp(encode_host_beacon(h));
+    mark_next = group->next_sequence();
+  }
+  Clock::time_point last_mark{};
+  std::uint32_t mark_next = 0;
+  int mark_repeats = 0;
+
+  void send_query() {
+    std::vector<std::int64_t> targets;
+    if (reg) {
+      std::lock_guard lock(mutex);
+      for (const auto& [id, h] : hosts) targets.push_back(id);
+    } else {
+      targets.push_back(0);
+    }
+    for (auto t : targets) {
+      auto h = host_message(host_beacon_t::KIND_REQUEST);
+      h.target_host = t;
+      h.wanted = {host_beacon_t::WANT_ALL};
+      h.num_wanted = 1;
+      h.digest = 0;
+      h.count = 0;
+      publish_udp(encode_host_beacon(h));
+    }
+  }
+
   void drain_queued() {
     try {
       if (receive)
@@ -346,111 +1130,146 @@ struct Discovery::Impl {
     }
   }
 
-  void expire_leases() {
+  // Hosts whose speaker fell silent for its lease: all their participants go.
+  void expire_hosts() {
+    auto due = [&](Clock::time_point now) {
+      std::vector<std::int64_t> d;
+      for (const auto& [id, h] : hosts)
+        if (now - h.last_heard > h.lease) d.push_back(id);
+      return d;
+    };
     {
       std::lock_guard lock(mutex);
-      if (!lease_due(Clock::now())) return;
+      if (due(Clock::now()).empty()) return;
     }
-    std::vector<Participant> gone;
-    std::unique_lock order(deliver_mutex, std::defer_lock);  // until on_change has been told
     for (int read = 1;; ++read) {
-      // A lease has run out by the clock, but its beacons may be queued still: this process
-      // did not run for a while (SIGSTOP, a frozen container) and resumed, or the receive
-      // thread lags. Read them first (deliver_mutex not held: reading delivers); then only the
-      // participants that really fell silent go.
+      // Their heartbeats may be queued still (this process was stopped and resumed): read them first.
       const auto read_at = Clock::now();
       drain_queued();
-      order.lock();
+      std::vector<std::int64_t> gone;
       {
         std::lock_guard lock(mutex);
         const auto now = Clock::now();
-        // Stopped or starved since the read began: the others' beacons of that time are queued
-        // again, and `now` would hold that time against them. Read again; after kMaxReads, on a
-        // machine that keeps this thread off a CPU that long, the leases decide.
-        if (now - read_at <= kStall || read >= kMaxReads) {
-          for (auto it = peers.begin(); it != peers.end();) {
-            const auto lease = std::chrono::milliseconds(std::max(it->second.beacon.lease_ms, 1));
-            if (now - it->second.last_seen > lease) {
-              forget_bytes(it->first);
-              gone.push_back(std::move(it->second));
-              it = peers.erase(it);
-              ++counters.leases_expired;
-              want_watch_sync = true;
-            } else {
-              ++it;
-            }
-          }
-          break;  // deliver_mutex stays held until on_change has been told
+        if (now - read_at > kStall && read < kMaxReads) continue;
+        for (auto h : due(now)) {
+          for (const auto& [id, p] : peers)
+            if (p.host == h) gone.push_back(id), ++counters.leases_expired;
+          hosts.erase(h);
         }
       }
-      order.unlock();
-    }
-    for (auto& p : gone) {
-      spdlog::info("lcmx discovery: participant {} ({} pid {}) lease expired",
-                   p.beacon.participant_id, p.beacon.process_name, p.beacon.pid);
-      if (on_change) on_change(Change::left, p);
+      drop_members(gone);
+      return;
     }
   }
 
-  Clock::time_point next_expiry() const {
+  Clock::time_point next_host_expiry() const {
     std::lock_guard lock(mutex);
     auto t = Clock::time_point::max();
-    for (const auto& [id, p] : peers)
-      t = std::min(t, p.last_seen + std::chrono::milliseconds(std::max(p.beacon.lease_ms, 1)) +
-                          std::chrono::milliseconds(1));
+    for (const auto& [id, h] : hosts) t = std::min(t, h.last_heard + h.lease + std::chrono::milliseconds(1));
     return t;
   }
 
+  // ------------------------------------------------------------ the thread
   void run() {
     auto next_periodic = Clock::now();
-    std::vector<pollfd> fds;
-    std::vector<std::int64_t> watched;  // participant of fds[2 + i]
     while (!stopping.load()) {
-      const auto now = Clock::now();
-      if (!options.observer && (want_announce.exchange(false) || now >= next_periodic)) {
-        send(0);
-        next_periodic = Clock::now() + options.period;
-      }
-      if (want_query.exchange(false)) send(lcmx_msgs::beacon_t::FLAG_QUERY |
-                                           lcmx_msgs::beacon_t::FLAG_OBSERVER);
-      expire_leases();
-
-      // Sleep until the next beacon, the next lease to expire, a datagram, or a wake-up.
-      auto until = options.observer ? Clock::now() + std::chrono::seconds(1) : next_periodic;
-      until = std::min(until, next_expiry());
-      auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
-      wait = std::clamp(wait, std::chrono::milliseconds(0), std::chrono::milliseconds(1000));
-      fds.resize(2);
-      fds[0] = {wake_fd, POLLIN, 0};
-      fds[1] = {receive ? group->fd() : -1, POLLIN, 0};
-      watched.clear();
-      for (const auto& [id, w] : watches)
-        if (w.fd >= 0) {
-          fds.push_back({w.fd, POLLIN, 0});
-          watched.push_back(id);
+      auto now = Clock::now();
+      const bool periodic = now >= next_periodic;
+      if (want_announce.exchange(false) || periodic) {
+        publish_local(periodic);
+        if (periodic) {
+          next_periodic = now + options.period;
+          if (options.observer && !reg && ++observer_periods % 2 == 0) want_query = true;  // other hosts' statistics
+          if (options.observer && reg)  // keep the participants' statistics fresh while we watch
+            reg->header->observed_until_ns.store(
+                reg::now_ns() + 3 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count(),
+                std::memory_order_relaxed);
+          try_speak();
+          full_due = true;  // leases are judged every period
         }
-      const int r = ::poll(fds.data(), fds.size(), static_cast<int>(wait.count()));
-      if (r > 0 && (fds[0].revents & POLLIN)) {
-        std::uint64_t v;
-        [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);
       }
-      if (r > 0 && (fds[1].revents & POLLIN)) drain_queued();  // our own group (receive)
-      if (r > 0)
-        for (std::size_t i = 2; i < fds.size(); ++i)
-          if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) process_exited(watched[i - 2]);
-      if (want_watch_sync.exchange(false)) sync_watches();
+      if (is_deputy) try_speak();
+      if (want_query.exchange(false)) {
+        send_query();
+        full_due = true;
+      }
+      const bool reads = reg && (host_scope || is_speaker);
+      if (reads && (full_due || recheck_skipped || retry_soon || changed_since_pass())) {
+        if (Clock::now() - last_pass >= kCoalesce || full_due) {
+          retry_soon = false;
+          registry_pass();
+        }
+      }
+      if (is_speaker) speaker_duties();
+      mark_sequence();
+      send_requests();
+      expire_hosts();
+
+      // Sleep until the next period, a host's lease, a change of the registry, or a wake-up.
+      auto until = std::min(next_periodic, next_host_expiry());
+      if (retry_soon) until = std::min(until, last_pass + kCoalesce);
+      if (is_speaker) until = std::min({until, Clock::now() + kSpeakerTick, flush_at});
+      if (is_deputy) until = std::min(until, Clock::now() + kSpeakerTick);
+      const auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
+      const auto ms = std::clamp<std::int64_t>(wait.count(), 0, 1000);
+      if (is_speaker || !reads) {
+        pollfd fds[1] = {{wake_fd, POLLIN, 0}};
+        const int r = ::poll(fds, 1, static_cast<int>(ms));
+        if (r > 0 && (fds[0].revents & POLLIN)) {
+          std::uint64_t v;
+          [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);
+        }
+      } else {
+        // Coalesce: a pass ran less than kCoalesce ago -> wait for wake-ups only until then.
+        const auto since = Clock::now() - last_pass;
+        const auto expected_wake = wake_word.load(std::memory_order_acquire);
+        if (since < kCoalesce) {
+          const auto rest = std::min<std::int64_t>(ms, std::chrono::duration_cast<std::chrono::milliseconds>(kCoalesce - since).count() + 1);
+          shm::WaitToken t{&wake_word, expected_wake, true};
+          shm::wait_any(std::span(&t, 1), std::chrono::milliseconds(rest));
+          if (changed_since_pass()) continue;  // else: nothing changed meanwhile, sleep for real below
+        }
+        std::vector<shm::WaitToken> t;
+        t.push_back({&wake_word, expected_wake, true});
+        if (sleep_on_buckets()) t.insert(t.end(), bucket_tokens.begin(), bucket_tokens.end());
+        else t.push_back({&reg->header->changes, seen_changes, false});
+        std::uint64_t v;
+        [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);  // keep the eventfd from filling
+        shm::wait_any(std::span(t), std::chrono::milliseconds(ms));
+      }
     }
-    if (!options.observer) send(lcmx_msgs::beacon_t::FLAG_GOODBYE);
+    if (is_speaker && host_scope) reg->header->speaker.store(0, std::memory_order_relaxed);
+    if (is_speaker) reg->unlock(speaker_byte);
+    if (is_deputy) reg->unlock(reg::kLockDeputy);
+    is_speaker = false;
+    is_deputy = false;
+  }
+
+  // A change since our last pass that may concern us.
+  bool changed_since_pass() const {
+    if (!sleep_on_buckets()) return reg->header->changes.load(std::memory_order_acquire) != seen_changes;
+    for (const auto& t : bucket_tokens)
+      if (t.word->load(std::memory_order_acquire) != t.expected) return true;
+    return false;
+  }
+
+  void rx_loop() {
+    while (!stopping.load()) {
+      pollfd fds[2] = {{wake_fd, POLLIN, 0}, {group->fd(), POLLIN, 0}};
+      if (::poll(fds, 2, 200) <= 0) continue;
+      if (fds[1].revents & POLLIN) drain_queued();
+    }
   }
 };
 
 Discovery::Discovery(Options options, LocalFn local, ChangeFn on_change)
     : impl_(std::make_unique<Impl>(std::move(options), std::move(local), std::move(on_change))) {
   if (impl_->options.observer) {
-    impl_->self_id = random_participant_id();
+    impl_->self_id = static_cast<std::int64_t>(random_participant_id());
     impl_->want_query = true;
   }
   impl_->thread = std::thread([this] { impl_->run(); });
+  if (impl_->receive) impl_->rx_thread = std::thread([this] { impl_->rx_loop(); });
 }
 
 Discovery::~Discovery() { stop(); }
@@ -465,26 +1284,25 @@ void Discovery::query() {
   impl_->wake();
 }
 
-void Discovery::deliver(const udpm::Message& message) {
-  const bool wake = !impl_->options.observer && !impl_->want_announce.load();
-  impl_->on_datagram(message);
-  // A query or a newcomer asks us to beacon now: wake the thread if on_datagram set
-  // want_announce.
-  if (wake && impl_->want_announce.load()) impl_->wake();
-}
+void Discovery::deliver(const udpm::Message& message) { impl_->on_datagram(message); }
 
 void Discovery::stop() {
   if (!impl_ || !impl_->thread.joinable()) return;
   impl_->stopping = true;
   impl_->wake();
   impl_->thread.join();
+  if (impl_->rx_thread.joinable()) impl_->rx_thread.join();
+  if (impl_->joined_registry) {
+    impl_->reg->leave();
+    impl_->joined_registry = false;
+  }
 }
 
 std::vector<Participant> Discovery::participants() const {
   std::lock_guard lock(impl_->mutex);
   std::vector<Participant> out;
   out.reserve(impl_->peers.size());
-  for (const auto& [id, p] : impl_->peers) out.push_back(p);
+  for (const auto& [id, p] : impl_->peers) out.push_back(p.p);
   return out;
 }
 
@@ -493,6 +1311,8 @@ Counters Discovery::counters() const {
   return impl_->counters;
 }
 
+bool Discovery::speaking() const { return impl_->is_speaker.load(); }
+std::shared_ptr<Registry> Discovery::registry() const { return impl_->registry; }
 const Options& Discovery::options() const { return impl_->options; }
 
 }  // namespace lcmx::discovery

@@ -162,9 +162,9 @@ TEST_CASE("participants find each other, see updates, goodbyes and lease expiry"
   o.lease = 400ms;
 
   std::atomic<int> rev_b{0};
-  auto beacon_b = [&] {
+  auto beacon_b = [&] {  // a structural change (a node more): the registry revision grows
     auto b = sample_beacon(2);
-    b.revision = rev_b.load();
+    if (rev_b.load()) b.nodes.push_back("c"), b.num_nodes = 3;
     return b;
   };
   std::mutex mu;
@@ -182,11 +182,12 @@ TEST_CASE("participants find each other, see updates, goodbyes and lease expiry"
     lcmx::discovery::Discovery b(o, beacon_b, nullptr);
     REQUIRE(eventually([&] { return count(lcmx::discovery::Change::joined) == 1; }));
     REQUIRE(eventually([&] { return a.participants().size() == 1; }));
+    const auto rev0 = a.participants()[0].beacon.revision;
     rev_b = 5;
     b.announce_now();
     REQUIRE(eventually([&] {
       auto ps = a.participants();
-      return ps.size() == 1 && ps[0].beacon.revision == 5;
+      return ps.size() == 1 && ps[0].beacon.revision > rev0 && ps[0].beacon.num_nodes == 3;
     }));
     // An observer sees both participants and is not listed by them.
     lcmx::discovery::Options ob = o;
@@ -299,84 +300,9 @@ TEST_CASE("committed beacon seeds still decode (refresh test/fuzz/corpus/beacon 
   CHECK(n >= 3);
 }
 
-TEST_CASE("a peer's process that exits is gone at once (pidfd) - a reused pid or another pid namespace is not watched",
-          "[discovery][liveness]") {
-  lcmx::discovery::Options o;
-  o.group = test_group(3);
-  o.period = 50ms;
-  std::mutex mu;
-  std::vector<std::pair<lcmx::discovery::Change, std::int64_t>> seen;
-  auto left = [&](std::int64_t id) {
-    std::lock_guard lock(mu);
-    return std::count_if(seen.begin(), seen.end(), [&](auto& s) {
-      return s.first == lcmx::discovery::Change::left && s.second == id;
-    });
-  };
-  // A child process that only waits to be killed (forked before any thread of ours).
-  const pid_t child = ::fork();
-  REQUIRE(child >= 0);
-  if (child == 0) {
-    ::prctl(PR_SET_PDEATHSIG, SIGKILL);  // never outlives the test
-    for (;;) ::pause();
-  }
-  // Kills and reaps the child on every exit path; never signals anything but a real child
-  // pid (kill(-1) would signal every process of the user).
-  struct Reap {
-    pid_t pid;
-    void now() {
-      if (pid > 0) {
-        ::kill(pid, SIGKILL);
-        ::waitpid(pid, nullptr, 0);
-      }
-      pid = 0;
-    }
-    ~Reap() { now(); }
-  } reap{child};
-  REQUIRE(eventually([&] { return lcmx::discovery::process_start_time(child) != 0; }));
-
-  lcmx::discovery::Discovery a(o, [] { return sample_beacon(1); },
-                               [&](lcmx::discovery::Change c, const lcmx::discovery::Participant& p) {
-                                 std::lock_guard lock(mu);
-                                 seen.push_back({c, p.beacon.participant_id});
-                               });
-  auto g = lcmx::udpm::Group::open(o.group);
-  const auto own_ns = static_cast<std::int64_t>(lcmx::discovery::pid_namespace());
-  std::int64_t seq = 0;
-  auto announce = [&](std::int64_t id, pid_t pid, std::uint64_t start, std::int64_t pidns) {
-    auto b = sample_beacon(id);
-    b.pid = pid;
-    b.start_time = static_cast<std::int64_t>(start);
-    b.pid_namespace = pidns;
-    b.lease_ms = 10000;  // far longer than this test: a departure seen is not the lease
-    b.sequence = ++seq;
-    g.publish(lcmx::discovery::kBeaconChannel, lcmx::discovery::encode_beacon(b));
-  };
-  const auto child_start = lcmx::discovery::process_start_time(child);
-  announce(10, child, child_start, own_ns);        // the child, watched
-  announce(11, child, child_start, own_ns + 1);    // "the same pid" in another pid namespace
-  announce(12, ::getpid(), lcmx::discovery::process_start_time(::getpid()) + 1, own_ns);  // pid reused
-  announce(13, ::getpid(), lcmx::discovery::process_start_time(::getpid()), own_ns);      // us, alive
-  REQUIRE(eventually([&] { return a.counters().beacons_received >= 4; }));
-  // The reused pid names another process: gone at once.
-  CHECK(eventually([&] { return left(12) == 1; }, 2000ms));
-  reap.now();
-  const auto t0 = std::chrono::steady_clock::now();
-  REQUIRE(eventually([&] { return left(10) == 1; }, 3000ms));
-  const auto took = std::chrono::steady_clock::now() - t0;
-  CHECK(took < 1000ms);
-  CHECK(a.counters().exits_seen == 2);
-  // Its late beacon does not bring it back.
-  announce(10, child, child_start, own_ns);
-  announce(13, ::getpid(), lcmx::discovery::process_start_time(::getpid()), own_ns);
-  REQUIRE(eventually([&] { return a.counters().beacons_received >= 6; }));
-  auto ids = a.participants();
-  std::vector<std::int64_t> present;
-  for (const auto& p : ids) present.push_back(p.beacon.participant_id);
-  std::sort(present.begin(), present.end());
-  CHECK(present == std::vector<std::int64_t>{11, 13});  // other pid namespace: lease only
-  CHECK(left(11) == 0);
-  CHECK(left(13) == 0);
-}
+// A peer's process that exits is gone at once: the registry's speaker watches it (pidfd after
+// checking its start time, or its liveness lock in another pid namespace): registry_test.cpp
+// "a participant killed -9 is gone at every peer of its host within 100 ms - the speaker too".
 
 TEST_CASE("on_change is told in the table's order: an update never lands after the lease expiry of its participant",
           "[discovery][lifecycle]") {
@@ -432,8 +358,7 @@ TEST_CASE("on_change is told in the table's order: an update never lands after t
 }
 
 TEST_CASE("a newcomer learns of a quiet participant at once, not a period later", "[discovery]") {
-  // Both beacon every 10 s: without the answer to a newcomer, b would learn of a only at a's
-  // next periodic beacon, 10 s after a's first one (which b, not yet started, missed).
+  // Both write their state every 10 s: b reads a's from the registry at its first pass.
   lcmx::discovery::Options o;
   o.group = test_group(5);
   o.period = 10s;
@@ -444,10 +369,7 @@ TEST_CASE("a newcomer learns of a quiet participant at once, not a period later"
   REQUIRE(eventually([&] { return a.participants().size() == 1; }, 3000ms));
   REQUIRE(eventually([&] { return b.participants().size() == 1; }, 3000ms));
   CHECK(b.participants()[0].beacon.participant_id == 11);
-  // One answer each, no ping-pong: a sent its first beacon and one answer; b its first and
-  // one answer to a's answer (a was new to b); a hears both of b's.
-  REQUIRE(eventually([&] { return b.counters().beacons_sent >= 2 && a.counters().beacons_received >= 2; }, 3000ms));
-  CHECK(a.counters().beacons_sent == 2);
-  CHECK(b.counters().beacons_sent == 2);
-  CHECK(a.counters().beacons_received == 2);
+  // Nothing on the group but the speaker's heartbeats: one state write each, no answers.
+  CHECK(a.counters().beacons_sent <= 2);
+  CHECK(b.counters().beacons_sent == 1);
 }

@@ -201,7 +201,9 @@ TEST_CASE("containers sharing the network namespace but not /dev/shm: no shm pat
     CHECK(fin.num("received") + fin.num("drops") == 200);
     CHECK(fin.num("duplicates") == 0);
   }
-  SECTION("told they are one host (same LCMX_HOST_ID): the segment cannot be opened - an error Event, not a debug line") {
+  SECTION("told they are one host (same LCMX_HOST_ID): not matched, the misconfiguration is logged") {
+    // Discovery v6: one registry per /dev/shm; two registries with one host id hear each
+    // other's heartbeats and warn (they cannot see each other's participants).
     const auto ch = unique_channel("PRIVSHM_SAMEID", 43);
     const std::string same_id = "LCMX_HOST_ID=0x5eed" + std::to_string(::getpid() % 10000);
     auto& sub = s.peer({"sub", "--channel", ch, "--type", "pose"}, {same_id});
@@ -210,9 +212,13 @@ TEST_CASE("containers sharing the network namespace but not /dev/shm: no shm pat
                                      {"pub", "--channel", ch, "--type", "pose", "--count", "0", "--rate", "100"}),
                         {same_id});
     REQUIRE(pub.expect("READY"));
-    CHECK(sub.wait_seen("EVENT error " + ch, 5000ms));
+    // (The warning goes to stderr, which this harness does not capture: the subscriber must
+    // not take the publisher's segment for its own host's and must stay healthy.)
+    const auto st = of(sub.summaries("quit"), ch);
+    CHECK(sub.wait() == 0);
     INFO(sub.output());
-    CHECK(sub.text().find("cannot open the shared memory") != std::string::npos);
+    CHECK(st.num("received") == 0);
+    CHECK(st.num("publishers") == 0);
   }
   SECTION("with a vehicle group: matched over UDP, every message delivered") {
     const auto ch = unique_channel("PRIVSHM_UDP", 43);

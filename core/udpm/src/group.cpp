@@ -803,6 +803,11 @@ std::uint32_t Group::publish_routed(std::string_view channel, std::span<const st
   return impl_->publish(channel, payload, true);
 }
 
+std::uint32_t Group::next_sequence() const {
+  std::lock_guard lock(impl_->send_mutex);
+  return impl_->sequence;
+}
+
 int Group::fd() const noexcept { return impl_ ? impl_->recv_fd.get() : -1; }
 
 std::size_t Group::drain(const Handler& on_message) { return impl_->drain(on_message); }

@@ -1,14 +1,26 @@
-// Host-local discovery: participants beacon on an LCM udpm group (DESIGN.md "Discovery").
+// Discovery in two scopes (DESIGN.md "Discovery", docs/discovery.md).
 //
+// On one host, participants meet in a shared-memory registry (registry.hpp): each writes its
+// beacon (both scopes) into a state file of its own when it changes, and a heartbeat into its
+// slot every `period`; each reads only the state files whose revision changed and whose
+// topics concern it. One participant per registry and group, the *speaker* (elected by an OFD
+// lock, no daemon), watches every participant's process (pidfd: its death is in the registry
+// within milliseconds), reclaims the shared memory of the dead, and alone sends on the group:
+// a small heartbeat every period (digest of the set it speaks for), the records (beacon_t) of
+// participants that changed, goodbyes, and answers to requests (rate-limited).
 // A Discovery object runs one thread that
-//  - sends this participant's beacon at once when announce_now() is called and every
-//    `period` otherwise, and a goodbye when it stops;
-//  - answers an observer's query (FLAG_QUERY) with a beacon at once;
-//  - receives other participants' beacons, ignores its own, and declares a participant gone
-//    after its lease (the lease it announced) or at once on its goodbye;
-//  - in host scope, watches each peer's process (pidfd, same pid namespace) and declares it
-//    gone as soon as the process exits.
-// Observers (the lcmx tool) send only queries, never appear as participants.
+//  - publishes this participant's beacon into the registry at once when announce_now() is
+//    called and every `period` otherwise (statistics only while an observer watches), and
+//    leaves the registry when it stops;
+//  - reads the registry when it changes (one futex word) and at least every period: a
+//    participant is gone when its slot is freed (goodbye), marked dead (its process exited,
+//    seen by the speaker) or its heartbeat is older than its lease;
+//  - in host scope, hears neighbours (other registries on the host-local group: another
+//    /dev/shm); in vehicle scope, other hosts: per host a table kept in step with its
+//    speaker's heartbeat digest (a mismatch asks for the index, then the missing records); a
+//    host whose heartbeat stops for its lease takes all its participants with it.
+// Observers (the lcmx tools) read the registry and ask other hosts' speakers for everything,
+// never appear as participants.
 //
 // Threads: on_change is called on the discovery thread, never concurrently with itself; it
 // must not call back into this Discovery's stop()/destructor. participants() is thread-safe.
@@ -23,6 +35,7 @@
 #include <string>
 #include <vector>
 
+#include "lcmx/discovery/registry.hpp"
 #include "lcmx/udpm/udpm.hpp"
 #include "lcmx_msgs/beacon_t.hpp"
 
@@ -45,6 +58,11 @@ struct Options {
   std::size_t max_participants = 1024;
   std::size_t max_table_bytes = std::size_t{64} << 20;  // sum of their encoded beacons
   std::chrono::milliseconds max_lease{600000};  // the largest lease LCMX_LEASE_MS allows
+  // The host registry this participant joins (shared by the host and vehicle Discovery of one
+  // process: one slot). Null: the Discovery opens the registry of (this host, its group).
+  std::shared_ptr<Registry> registry;
+  std::uint32_t registry_slots = 8192;  // of a registry it creates (registry.hpp)
+  std::string registry_directory = "/dev/shm";
   // Host scope: a peer in our pid namespace is watched with a pidfd (pid + start time from
   // its beacon, so a reused pid is never taken for it) and declared gone as soon as its
   // process exits, not only after its lease. Peers in other pid namespaces: lease only.
@@ -75,6 +93,12 @@ struct Counters {
   std::uint64_t exits_seen = 0;  // peers declared gone because their process exited (pidfd)
   std::uint64_t goodbyes = 0;
   std::uint64_t refused = 0;  // beacons refused by max_participants / max_table_bytes
+  std::uint64_t forged = 0;   // goodbyes, records or source claims from the wrong address
+  std::uint64_t requests_answered = 0;  // speaker: index / record requests answered
+  std::uint64_t requests_limited = 0;   // speaker: requests folded into a later answer
+  std::uint64_t registry_reads = 0;     // state files read
+  std::uint64_t registry_skipped = 0;   // changed participants none of whose topics concern us
+  std::uint64_t speaker_terms = 0;      // times this Discovery became its group's speaker
 };
 
 class Discovery {
@@ -101,6 +125,10 @@ class Discovery {
 
   std::vector<Participant> participants() const;
   Counters counters() const;
+  // True while this Discovery is its registry's speaker on its group.
+  bool speaking() const;
+  // The registry it uses (null for a vehicle-scope observer).
+  std::shared_ptr<Registry> registry() const;
   const Options& options() const;
 
  private:

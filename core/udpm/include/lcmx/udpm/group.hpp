@@ -126,6 +126,10 @@ class Group {
   // publish(). Same sequence counter as publish(). Thread-safe; throws and returns as publish().
   std::uint32_t publish_routed(std::string_view channel, std::span<const std::byte> payload);
 
+  // The sequence number the next message will be sent with (publish/publish_routed). Discovery
+  // sends a small marker after data so receivers see a tail loss (docs/discovery.md). Thread-safe.
+  std::uint32_t next_sequence() const;
+
   // Host-local mode: re-reads the route of the group; if it now routes to an interface not yet
   // joined, joins it too (earlier memberships stay), and moves publish_routed() to it. Pinned: no-op.
   // Returns true if anything changed. Receive thread. Never throws (failures are logged).

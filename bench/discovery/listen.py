@@ -1,0 +1,41 @@
+#!/usr/bin/env python3
+"""Counts LCM udpm bytes on a multicast group for a while, by sender address and by whether the
+channel is LCMX_BEACON (discovery) or not. Run inside the namespace whose interface is given.
+Usage: listen.py GROUP PORT IFACE_ADDR SECONDS  -> one JSON line {src: {"disc": bytes, "data": bytes}}
+at the end or on SIGTERM.
+"""
+import json, signal, socket, struct, sys, time
+
+stop = False
+def on_term(*_):
+    global stop
+    stop = True
+signal.signal(signal.SIGTERM, on_term)
+
+group, port, iface, secs = sys.argv[1], int(sys.argv[2]), sys.argv[3], float(sys.argv[4])
+s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM, socket.IPPROTO_UDP)
+s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+s.bind(("", port))
+s.setsockopt(socket.IPPROTO_IP, socket.IP_ADD_MEMBERSHIP, socket.inet_aton(group) + socket.inet_aton(iface))
+s.settimeout(0.2)
+out, frag = {}, {}
+end = time.monotonic() + secs
+while time.monotonic() < end and not stop:
+    try:
+        data, (src, _) = s.recvfrom(65536)
+    except socket.timeout:
+        continue
+    kind = "data"
+    if data[:4] == b"LC02":
+        ch = data[8:data.index(b"\0", 8)]
+        kind = "disc" if ch == b"LCMX_BEACON" else "data"
+    elif data[:4] == b"LC03":
+        seq = struct.unpack(">I", data[4:8])[0]
+        fragno = struct.unpack(">H", data[16:18])[0]
+        if fragno == 0:
+            ch = data[20:data.index(b"\0", 20)]
+            frag[(src, seq)] = "disc" if ch == b"LCMX_BEACON" else "data"
+        kind = frag.get((src, seq), "data")
+    d = out.setdefault(src, {"disc": 0, "data": 0})
+    d[kind] += len(data) + 28  # + IP and UDP headers
+print(json.dumps(out), flush=True)
