@@ -8,6 +8,7 @@ packages=(
   build-essential cmake pkg-config git
   liblcm-dev liblcm-bin            # lcm-gen, liblcm (reference peer), lcm-logger
   libzmq3-dev cppzmq-dev           # Message Bridge
+  libsodium-dev                    # group keys (lcmx::udpm, docs/keyed-groups.md)
   libboost-dev                     # Boost.Interprocess
   catch2 clang libclang-rt-14-dev  # tests (Catch2 v2; clang + libFuzzer runtime for test/fuzz)
   libcli11-dev libspdlog-dev libtomlplusplus-dev libncurses-dev

@@ -95,7 +95,7 @@ int run_actions() {
   std::map<std::string, SeenAction> actions;
   std::map<std::string, lcmx_msgs::action_status_t> status;
   try {
-    for (const auto& p : observe(o.g->url, o.g->vehicle_url, o.g->wait_ms)) {
+    for (const auto& p : observe(*o.g)) {
       for (const auto& e : p.beacon.endpoints) {
         if (e.fingerprint != lcmx_msgs::action_status_t::getHash() || e.topic.size() <= kStatusSuffix.size() ||
             e.topic.compare(e.topic.size() - kStatusSuffix.size(), kStatusSuffix.size(), kStatusSuffix) != 0)

@@ -190,7 +190,7 @@ int run_graph() {
 
   std::optional<Observer> obs;
   try {
-    obs.emplace(o.g->url, o.g->vehicle_url);
+    obs.emplace(*o.g);
   } catch (const std::exception& e) {
     std::cerr << "lcmx graph: " << e.what() << "\n";
     return 1;

@@ -11,6 +11,7 @@
 #include <memory>
 #include <optional>
 #include <set>
+#include <sstream>
 #include <thread>
 #include <tuple>
 
@@ -52,8 +53,11 @@ std::optional<std::string> verb_of(CLI::App& app, int argc, char** argv) {
 // names from the type path (--types / LCMX_TYPES_PATH) when there is one.
 using Printer = void (*)(std::ostream&, const std::vector<lcmx::discovery::Participant>&,
                          const lcmx::types::TypeRegistry*);
+// `with_groups` (nodes): also which groups are keyed, and what a keyed group refused while the
+// observer listened.
 lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, const std::string& name,
-                                  const std::string& description, Printer print, Printer print_json) {
+                                  const std::string& description, Printer print, Printer print_json,
+                                  bool with_groups = false) {
   struct State {
     std::vector<std::string> types;
     bool json = false;
@@ -65,7 +69,7 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
                   "(repeatable; default: LCMX_TYPES_PATH)")
       ->allow_extra_args(false);
   cmd->add_flag("--json", st->json, "print as one line of JSON");
-  return {cmd, [&g, print, print_json, st, name] {
+  return {cmd, [&g, print, print_json, st, name, with_groups] {
             spdlog::set_level(spdlog::level::warn);
             // The type path is optional here: without it, names are lcm-gen's (no package). An
             // explicit --types that does not load is an error; a bad LCMX_TYPES_PATH a warning.
@@ -82,8 +86,21 @@ lcmx::cli::Verb add_observer_verb(CLI::App& app, const lcmx::cli::Globals& g, co
                         << " (type names without package)\n";
             }
             try {
-              const auto ps = lcmx::cli::observe(g.url, g.vehicle_url, g.wait_ms);
-              (st->json ? print_json : print)(std::cout, ps, reg ? &*reg : nullptr);
+              std::vector<lcmx::cli::GroupSeen> groups;
+              const auto ps = lcmx::cli::observe(g, &groups);
+              if (!with_groups) {
+                (st->json ? print_json : print)(std::cout, ps, reg ? &*reg : nullptr);
+              } else if (st->json) {
+                std::ostringstream j;  // {"participants":[...]} + "groups"
+                print_json(j, ps, reg ? &*reg : nullptr);
+                std::string s = j.str();
+                while (!s.empty() && s.back() == '\n') s.pop_back();
+                if (!s.empty()) s.pop_back();  // the closing brace
+                std::cout << s << ",\"groups\":" << lcmx::cli::groups_json(groups) << "}" << std::endl;
+              } else {
+                print(std::cout, ps, reg ? &*reg : nullptr);
+                lcmx::cli::print_groups(std::cout, groups);
+              }
             } catch (const std::exception& e) {
               std::cerr << "lcmx: " << e.what() << "\n";
               return 1;
@@ -119,14 +136,20 @@ int main(int argc, char** argv) {
     return 2;
   }
   g.vehicle_url = env.vehicle_url;
+  g.vehicle_key = env.vehicle_key;
+  g.host_key = env.host_key;
   for (const auto& [var, value, vehicle] : {std::tuple{"LCMX_DISCOVERY_URL", g.url, false},
                                             std::tuple{"LCMX_VEHICLE_URL", g.vehicle_url, true}})
     if (const auto why = lcmx::RuntimeOptions::group_url_problem(value, vehicle); !why.empty()) {
       std::cerr << "lcmx: " << var << " " << why << "\n";
       return 2;
     }
+  // `lcmx keygen` writes key files: a key variable naming one not written yet is no error there.
+  bool keygen = false;
+  for (int i = 1; i < argc; ++i) keygen = keygen || std::string(argv[i]) == "keygen";
   try {
-    env.check();  // the rest of what every runtime refuses, also for verbs that make none (topics, nodes)
+    // The rest of what every runtime refuses, also for verbs that make none (topics, nodes).
+    if (!keygen) env.check();
   } catch (const std::exception& e) {
     std::cerr << "lcmx: " << e.what() << "\n";
     return 2;
@@ -139,6 +162,10 @@ int main(int argc, char** argv) {
                  "udpm://GROUP:PORT?ttl=1&iface=NAME (default: LCMX_VEHICLE_URL)")
       ->check(group_url(true))
       ->capture_default_str();
+  app.add_option("--vehicle-key", g.vehicle_key,
+                 "the vehicle group's key file (lcmx keygen --group; default: LCMX_VEHICLE_KEY): keyed groups, "
+                 "docs/keyed-groups.md");
+  app.add_option("--host-key", g.host_key, "the host-local group's key file (default: LCMX_HOST_KEY)");
   app.add_option("--wait", g.wait_ms, "how long to listen for beacons, in milliseconds")
       ->check(CLI::Range(50, 60000))
       ->capture_default_str();
@@ -146,11 +173,12 @@ int main(int argc, char** argv) {
   // The verbs, one line each (see verb.hpp).
   std::vector<lcmx::cli::Verb> verbs;
   verbs.push_back(add_observer_verb(app, g, "nodes", "list participants (processes) and their nodes",
-                                    lcmx::cli::print_nodes, lcmx::cli::print_nodes_json));
+                                    lcmx::cli::print_nodes, lcmx::cli::print_nodes_json, true));
   verbs.push_back(add_observer_verb(app, g, "topics",
                                     "list topics: type, publishers, subscribers, path per pair, rate, drops",
                                     lcmx::cli::print_topics, lcmx::cli::print_topics_json));
   verbs.push_back(lcmx::cli::add_bridge(app, g));
+  verbs.push_back(lcmx::cli::add_keygen(app, g));
   verbs.push_back(lcmx::cli::add_record(app, g));
   verbs.push_back(lcmx::cli::add_play(app, g));
   verbs.push_back(lcmx::cli::add_log(app, g));

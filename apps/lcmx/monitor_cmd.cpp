@@ -448,7 +448,7 @@ int run_monitor() {
   std::optional<Node> node;
   ChannelSubscription sub;
   try {
-    obs.emplace(o.g->url, o.g->vehicle_url);
+    obs.emplace(*o.g);
     rt.emplace(Runtime::create(runtime_options(*o.g)));
     node.emplace(rt->create_node("lcmx_monitor"));
     SubscriberOptions so;

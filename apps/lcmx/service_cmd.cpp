@@ -52,7 +52,7 @@ int run_services() {
   std::map<std::string, SeenService> services;
   try {
     const std::string suffix = "/rq";
-    for (const auto& p : observe(o.g->url, o.g->vehicle_url, o.g->wait_ms)) {
+    for (const auto& p : observe(*o.g)) {
       for (const auto& e : p.beacon.endpoints) {
         if (e.fingerprint != lcmx_msgs::service_request_t::getHash() || e.topic.size() <= suffix.size() ||
             e.topic.compare(e.topic.size() - suffix.size(), suffix.size(), suffix) != 0)

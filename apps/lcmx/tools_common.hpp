@@ -11,16 +11,17 @@
 
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/udpm/udpm.hpp"
+#include "verb.hpp"
 
 namespace lcmx::cli {
 
 class Observer {
  public:
-  Observer(const std::string& url, const std::string& vehicle_url) {
-    for (const auto& u : {url, vehicle_url}) {
-      if (u.empty()) continue;
+  explicit Observer(const Globals& g) {
+    for (const bool vehicle : {false, true}) {
+      if (vehicle && g.vehicle_url.empty()) continue;
       discovery::Options o;
-      o.group = udpm::parse_url(u);
+      o.group = observer_group(g, vehicle);
       o.observer = true;
       d_.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
     }

@@ -1,5 +1,7 @@
 #include "topology.hpp"
 
+#include <arpa/inet.h>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -264,13 +266,17 @@ void print_topics_json(std::ostream& out, const std::vector<discovery::Participa
 
 // Listens on the host-local group, and on the vehicle group when given, for `wait_ms`.
 // A participant seen in both scopes is listed once, from its host-local beacon (complete).
-std::vector<discovery::Participant> observe(const std::string& url, const std::string& vehicle_url,
-                                                  int wait_ms) {
+std::vector<discovery::Participant> observe(const Globals& g, std::vector<GroupSeen>* groups) {
+  const int wait_ms = g.wait_ms;
   std::vector<std::unique_ptr<discovery::Discovery>> observers;
-  for (const auto& u : {url, vehicle_url}) {
-    if (u.empty()) continue;
+  std::vector<std::shared_ptr<udpm::Refusals>> refusals;
+  for (const bool vehicle : {false, true}) {
+    if (vehicle && g.vehicle_url.empty()) continue;
     discovery::Options o;
-    o.group = udpm::parse_url(u);
+    o.group = observer_group(g, vehicle);
+    o.group.refusals = std::make_shared<udpm::Refusals>();
+    refusals.push_back(o.group.refusals);
+    if (groups) groups->push_back(GroupSeen{vehicle, vehicle ? g.vehicle_url : g.url, o.group.keys, {}});
     o.observer = true;
     observers.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
   }
@@ -286,7 +292,53 @@ std::vector<discovery::Participant> observe(const std::string& url, const std::s
       if (seen.insert(p.beacon.participant_id).second) all.push_back(std::move(p));
     d->stop();
   }
+  if (groups)
+    for (std::size_t i = 0; i < groups->size(); ++i) (*groups)[i].refused = refusals[i]->sources();
   return all;
+}
+
+namespace {
+std::string keyed_text(const GroupSeen& s) {
+  if (!s.keys) return "unkeyed (open to anyone on it; stock LCM programs can use it)";
+  char id[16];
+  std::snprintf(id, sizeof id, "%08x", s.keys->keys[0].id);
+  std::string t = std::string("keyed (") + (s.keys->encrypt ? "encrypted" : "authenticated") + ", key " + id;
+  if (s.keys->keys.size() > 1) {
+    std::snprintf(id, sizeof id, "%08x", s.keys->keys[1].id);
+    t += ", also accepting " + std::string(id);
+  }
+  return t + ")";
+}
+}  // namespace
+
+void print_groups(std::ostream& out, const std::vector<GroupSeen>& groups) {
+  for (const auto& s : groups) {
+    out << "group " << (s.vehicle ? "vehicle" : "host-local") << " " << P(s.url) << ": " << keyed_text(s) << "\n";
+    for (const auto& r : s.refused) out << "  " << udpm::describe(r) << " (" << r.count << " datagram(s))\n";
+  }
+}
+
+std::string groups_json(const std::vector<GroupSeen>& groups) {
+  std::ostringstream j;
+  j << "[";
+  for (std::size_t i = 0; i < groups.size(); ++i) {
+    const auto& s = groups[i];
+    j << (i ? "," : "") << "{\"scope\":" << (s.vehicle ? "\"vehicle\"" : "\"host\"") << ",\"url\":" << json_str(s.url)
+      << ",\"keyed\":" << (s.keys ? "true" : "false") << ",\"encrypted\":" << (s.keys && s.keys->encrypt ? "true" : "false")
+      << ",\"refused\":[";
+    for (std::size_t k = 0; k < s.refused.size(); ++k) {
+      const auto& r = s.refused[k];
+      char a[INET_ADDRSTRLEN] = {};
+      in_addr addr{};
+      addr.s_addr = r.address_be;
+      ::inet_ntop(AF_INET, &addr, a, sizeof a);
+      j << (k ? "," : "") << "{\"source\":" << json_str(a) << ",\"reason\":" << json_str(udpm::to_string(r.first))
+        << ",\"datagrams\":" << r.count << ",\"text\":" << json_str(udpm::describe(r)) << "}";
+    }
+    j << "]}";
+  }
+  j << "]";
+  return j.str();
 }
 
 }  // namespace lcmx::cli

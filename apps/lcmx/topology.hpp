@@ -1,12 +1,15 @@
 // The topology as the lcmx tool shows it: built from discovery beacons.
 #pragma once
 
+#include <memory>
 #include <ostream>
 #include <string>
 #include <vector>
 
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/types/schema.hpp"
+#include "lcmx/udpm/keys.hpp"
+#include "verb.hpp"
 
 namespace lcmx::cli {
 
@@ -20,8 +23,20 @@ std::string type_label(const lcmx_msgs::endpoint_t& e, const types::TypeRegistry
 // Listens on the host-local group `url`, and on the vehicle group when given, for `wait_ms`
 // (asking everyone to beacon at once midway), and returns the participants seen. A participant
 // seen in both scopes is listed once, from its host-local beacon (complete).
-std::vector<discovery::Participant> observe(const std::string& url, const std::string& vehicle_url,
-                                            int wait_ms);
+// `groups`, when given, gets what the observer saw of each group: whether it is keyed, and what
+// a keyed one refused (per source) while it listened.
+// Throws lcmx::Error naming a bad URL or key file (observer_group).
+struct GroupSeen {
+  bool vehicle = false;
+  std::string url;
+  std::shared_ptr<const udpm::GroupKeys> keys;  // null: unkeyed
+  std::vector<udpm::Refusals::Source> refused;
+};
+std::vector<discovery::Participant> observe(const Globals& g, std::vector<GroupSeen>* groups = nullptr);
+// "group vehicle udpm://...: keyed (authenticated, key 1a2b3c4d)" lines, and a line per
+// source a keyed group refused; JSON: an array of objects.
+void print_groups(std::ostream& out, const std::vector<GroupSeen>& groups);
+std::string groups_json(const std::vector<GroupSeen>& groups);
 
 // Prints participants (host, pid, process) and their nodes with publishers/subscribers.
 // `types`: the type path for package-qualified names (may be null).

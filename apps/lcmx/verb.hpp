@@ -19,6 +19,8 @@ struct Globals {
   std::string url;          // --url: host-local discovery group
   std::string vehicle_url;  // --vehicle-url
   int wait_ms = 400;        // --wait: how long observers listen for beacons
+  std::string vehicle_key;  // --vehicle-key: the vehicle group's key file (LCMX_VEHICLE_KEY)
+  std::string host_key;     // --host-key: the host-local group's key file (LCMX_HOST_KEY)
 };
 
 // The runtime options of a verb that joins lcmx as a participant: the environment's (LCMX_*,
@@ -29,11 +31,22 @@ inline RuntimeOptions runtime_options(const Globals& g, bool reach_stock = false
   auto ro = RuntimeOptions::from_env();
   ro.discovery_url = g.url;
   if (!g.vehicle_url.empty()) ro.vehicle_url = g.vehicle_url;
+  ro.vehicle_key = g.vehicle_key;
+  ro.host_key = g.host_key;
   if (reach_stock) {
     ro.mirror = true;
     ro.vehicle_publish = VehiclePublish::always;
   }
   return ro;
+}
+
+// The configuration an observer (lcmx nodes, topics, monitor, graph, ...) opens a group with:
+// its URL (`lcmx --url` / `--vehicle-url`) and key file (`--host-key` / `--vehicle-key`, or
+// LCMX_HOST_KEY / LCMX_VEHICLE_KEY), as a participant's runtime opens it.
+// Throws lcmx::Error(invalid_argument) naming a bad URL or key file and its variable.
+inline udpm::GroupConfig observer_group(const Globals& g, bool vehicle) {
+  auto ro = runtime_options(g);
+  return ro.group_config(vehicle);
 }
 
 // CLI11's PositiveNumber / NonNegativeNumber are ranges up to DBL_MAX, whose error spells
@@ -58,5 +71,7 @@ struct Verb {
 
 // `lcmx bridge [--config FILE [--check] | status | keygen]` (bridge_cmd.cpp).
 Verb add_bridge(CLI::App& app, const Globals& globals);
+// `lcmx keygen --group FILE [--next | --promote | --retire]` (keygen_cmd.cpp).
+Verb add_keygen(CLI::App& app, const Globals& globals);
 
 }  // namespace lcmx::cli

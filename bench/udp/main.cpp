@@ -13,16 +13,26 @@
 //    --stream-burst back to back per tick, like a camera's frame set, while --stream-hogs CPU
 //    hog processes run in the receiving host's namespace at the same nice level, started before
 //    the subscriber for both methods alike). No acks; loss = sent - received.
+//  - --keys: instead of liblcm, lcmx UDP three ways in one run: unkeyed, on a keyed vehicle
+//    group authenticated, and encrypted (docs/keyed-groups.md), ping-pong rounds in rotating
+//    order, then the idle stream for each with the CPU time of publisher + subscriber per MB.
+//  - --seal-micro: what sealing one datagram costs per libsodium primitive (no network).
 // Without --role this is the orchestrator: Markdown on stdout, progress on stderr. Root needed.
+#include <sodium.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <chrono>
+#include <cstring>
 #include <fstream>
+#include <functional>
 #include <iostream>
 #include <sstream>
 
 #include "harness/hosts.hpp"
 #include "harness/options.hpp"
 #include "harness/report.hpp"
+#include "lcmx/udpm/keys.hpp"
 #include "udp/roles.hpp"
 
 namespace lcmxbench::udp {
@@ -47,6 +57,7 @@ struct Options {
   LinkOptions link;  // rate: tc tbf on the link ("" = none)
   std::string pin = "none";
   std::string markdown;
+  bool keys = false;  // unkeyed / authenticated / encrypted lcmx instead of liblcm vs lcmx
 };
 
 struct Run {
@@ -56,6 +67,7 @@ struct Run {
   std::string exe;
   Pinning cpus;
   int serial = 0;
+  std::string key_file;  // --keys: the vehicle group key the keyed methods use
 };
 
 // Stream scenario: messages per tick and CPU hogs on the receiving host.
@@ -68,6 +80,8 @@ struct Scenario {
 MethodResult run_method(Run& run, const std::string& method, const Scenario& sc = {}) {
   const bool stream = method.find("stream") != std::string::npos;
   const bool liblcm = method.rfind("liblcm", 0) == 0;
+  // lcmx on a keyed vehicle group: "lcmx-udp-auth[-stream]", "lcmx-udp-crypt[-stream]".
+  const bool auth = method.find("-auth") != std::string::npos, crypt = method.find("-crypt") != std::string::npos;
   const auto& plan = stream ? run.stream_plan : run.plan;
   say(method + ": starting");
   const std::int64_t t0 = now_ns();
@@ -77,11 +91,14 @@ MethodResult run_method(Run& run, const std::string& method, const Scenario& sc 
                         : static_cast<std::int64_t>(p.warmup + p.messages) * (run.opt.timeout_ms + 50);
   const std::string name = "UDP_" + std::to_string(::getpid()) + "_" + std::to_string(++run.serial);
   auto args = [&](const std::string& role) {
-    return std::vector<std::string>{
+    std::vector<std::string> a{
         run.exe, "--role", role, "--plan", plan_to_string(plan), "--name", name, "--url",
         liblcm ? kLcmUrl : kDiscoveryUrl, "--vehicle-url", kVehicleUrl, "--timeout-ms",
         std::to_string(run.opt.timeout_ms), "--stream-rate", std::to_string(run.opt.stream_rate),
         "--stream-burst", std::to_string(sc.burst)};
+    if (auth || crypt) a.insert(a.end(), {"--key-file", run.key_file});
+    if (crypt) a.push_back("--crypt");
+    return a;
   };
   const std::string base = liblcm ? "liblcm" : "lcmx-udp";
   Pair pair;
@@ -198,6 +215,134 @@ std::string report(const Run& run, const MethodResult& lcm, const MethodResult& 
   return md.str();
 }
 
+// The CPU time (µs) of the children's "note cpu <who> <µs>" lines of `m`.
+long long cpu_us(const MethodResult& m) {
+  long long sum = 0;
+  for (const auto& n : m.notes) {
+    std::istringstream in(n);
+    std::string cpu, who;
+    long long us = 0;
+    if (in >> cpu >> who >> us && cpu == "cpu") sum += us;
+  }
+  return sum;
+}
+
+// --keys: the three lcmx modes side by side.
+std::string report_keys(const Run& run, const std::vector<MethodResult>& pp, const std::vector<MethodResult>& st) {
+  std::ostringstream md;
+  md << "## lcmx UDP unkeyed, authenticated and encrypted (keyed groups) between two emulated hosts\n\n";
+  md << "- " << machine_line() << "; pinning `--pin " << run.opt.pin << "`\n";
+  md << "- Publisher<bench_t> on host 0 -> Subscriber<bench_t> on host 1 over the vehicle group `" << kVehicleUrl
+     << "`; keyed: XChaCha20-Poly1305 (libsodium) per datagram, authenticated (tag over header and datagram) or "
+        "encrypted (datagram encrypted, header authenticated)\n";
+  md << "- ping-pong rounds: " << run.opt.rounds << " per mode, rotating order, pooled; messages per size (warmup + "
+        "measured): " << plan_text(run.plan) << "\n";
+  md << "- cells: p50 / p99 one-way µs (lost/sent); ratios: keyed p50 / unkeyed p50\n\n";
+  auto ratio = [&](const MethodResult& a, const MethodResult& b, std::size_t size) -> std::pair<std::string, double> {
+    const Cell x = cell_of(a, size), y = cell_of(b, size);
+    if (!x.ok || !y.ok || !x.st.n || !y.st.n) return {"—", 0};
+    return {fmt_ratio(y.st.p50 / x.st.p50, 3), y.st.p50 / x.st.p50};
+  };
+  Table table({"size", "unkeyed", "authenticated", "encrypted", "auth/unkeyed", "crypt/unkeyed"});
+  for (const auto& p : run.plan)
+    table.row({size_label(p.size), cell_text(pp[0], p.size, true), cell_text(pp[1], p.size, true),
+               cell_text(pp[2], p.size, true), ratio(pp[0], pp[1], p.size).first, ratio(pp[0], pp[2], p.size).first});
+  md << table.markdown();
+  md << "\n**Targets**\n";
+  const std::size_t k1 = 1024;
+  if (std::any_of(run.plan.begin(), run.plan.end(), [&](const SizePlan& p) { return p.size == k1; })) {
+    const auto a = ratio(pp[0], pp[1], k1), c = ratio(pp[0], pp[2], k1);
+    md << "- 1 KB p50 authenticated within 3 % of unkeyed: "
+       << (a.second == 0 ? std::string("not measured") : verdict(a.second <= 1.03)) << " (" << a.first << ")\n";
+    md << "- 1 KB p50 encrypted within 10 % of unkeyed: "
+       << (c.second == 0 ? std::string("not measured") : verdict(c.second <= 1.10)) << " (" << c.first << ")\n";
+  }
+  if (!st.empty()) {
+    const auto& sp = run.stream_plan.front();
+    const double mb = static_cast<double>(sp.size) * sp.messages / 1e6;
+    bool all = true, measured = true;
+    for (const auto& m : st) {
+      const Cell c = cell_of(m, sp.size);
+      measured = measured && c.ok;
+      all = all && c.ok && c.lost == 0;
+    }
+    md << "- " << size_label(sp.size) << " at " << run.opt.stream_rate << " Hz with 0 lost in all three: "
+       << (!measured ? std::string("not measured") : verdict(all)) << "\n";
+    md << "\nStream: " << sp.messages << " messages of " << size_label(sp.size) << " at " << run.opt.stream_rate
+       << " Hz, no acks; CPU: user + system time of the publisher and subscriber processes (the whole run, start-up "
+          "and discovery included) per MB of payload\n\n";
+    Table s({"mode", "p50 / p99 one-way µs (lost/sent)", "CPU ms (pub + sub)", "CPU ms per MB"});
+    const char* names[3] = {"unkeyed", "authenticated", "encrypted"};
+    for (std::size_t i = 0; i < st.size(); ++i) {
+      char cpu[64], per[64];
+      std::snprintf(cpu, sizeof cpu, "%.0f", static_cast<double>(cpu_us(st[i])) / 1000.0);
+      std::snprintf(per, sizeof per, "%.2f", static_cast<double>(cpu_us(st[i])) / 1000.0 / mb);
+      s.row({names[i], cell_text(st[i], sp.size, true), cpu, per});
+    }
+    md << s.markdown() << "\n";
+  }
+  md << "- (differences of a few per cent are within the noise of this 2-vCPU machine, DESIGN.md \"Measuring\"; "
+        "more --rounds narrow them)\n";
+  std::vector<std::pair<std::string, std::string>> failures;
+  for (const auto* v : {&pp, &st})
+    for (const auto& m : *v)
+      for (const auto& e : m.errors) failures.emplace_back(m.method, e);
+  md << list_section("Failures", failures);
+  return md.str();
+}
+
+// --seal-micro: what each candidate primitive costs per datagram, in this process (no network):
+// the choice of docs/keyed-groups.md "Wire form". Median of 7 runs of N calls each.
+int seal_micro() {
+  if (::sodium_init() < 0) return 1;
+  unsigned char key[32], nonce[24] = {}, tag[64], out[64], none = 0;
+  ::randombytes_buf(key, sizeof key);
+  using Fn = std::function<void(std::vector<unsigned char>&, std::vector<unsigned char>&, std::size_t)>;
+  const std::vector<std::pair<std::string, Fn>> rows = {
+      {"XChaCha20-Poly1305, empty message, datagram as AD (authenticated)",
+       [&](auto& m, auto&, std::size_t n) {
+         ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(&none, tag, nullptr, &none, 0, m.data(), n + 32, nullptr,
+                                                               nonce, key);
+       }},
+      {"XChaCha20-Poly1305 encrypt, 32-byte header as AD (encrypted)",
+       [&](auto& m, auto& c, std::size_t n) {
+         ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(c.data(), tag, nullptr, m.data() + 32, n, m.data(), 32,
+                                                               nullptr, nonce, key);
+       }},
+      {"crypto_auth (HMAC-SHA-512-256)", [&](auto& m, auto&, std::size_t n) { ::crypto_auth(out, m.data(), n + 32, key); }},
+      {"crypto_generichash keyed (BLAKE2b-128)",
+       [&](auto& m, auto&, std::size_t n) { ::crypto_generichash(out, 16, m.data(), n + 32, key, sizeof key); }},
+      {"AES-256-GCM, empty message, datagram as AD (x86-64 AES-NI only)",
+       [&](auto& m, auto&, std::size_t n) {
+         if (::crypto_aead_aes256gcm_is_available())
+           ::crypto_aead_aes256gcm_encrypt_detached(&none, tag, nullptr, &none, 0, m.data(), n + 32, nullptr, nonce, key);
+       }},
+  };
+  std::cout << "| per datagram | 1 KB (ns) | 64 KB (ns) |\n|---|---|---|\n";
+  for (const auto& [name, f] : rows) {
+    std::cout << "| " << name;
+    for (const std::size_t size : {std::size_t{1024}, std::size_t{65000}}) {
+      std::vector<unsigned char> m(size + 32), c(size + 64);
+      ::randombytes_buf(m.data(), m.size());
+      const int n = size == 1024 ? 20000 : 400;
+      std::vector<double> runs;
+      for (int r = 0; r < 7; ++r) {
+        const auto t0 = std::chrono::steady_clock::now();
+        for (int i = 0; i < n; ++i) {
+          nonce[0] = static_cast<unsigned char>(i);
+          f(m, c, size);
+        }
+        runs.push_back(std::chrono::duration<double, std::nano>(std::chrono::steady_clock::now() - t0).count() / n);
+      }
+      std::sort(runs.begin(), runs.end());
+      if (name.rfind("AES", 0) == 0 && !::crypto_aead_aes256gcm_is_available()) std::cout << " | not available";
+      else std::cout << " | " << static_cast<long long>(runs[3]);
+    }
+    std::cout << " |\n";
+  }
+  return 0;
+}
+
 int orchestrate(const Options& opt) {
   Run run;
   run.opt = opt;
@@ -222,6 +367,44 @@ int orchestrate(const Options& opt) {
   auto emu = emulate_hosts(link);
   run.emu = &emu;
   say("hosts: " + hosts_line(emu));
+  if (opt.keys) {
+    // A key file for the keyed modes, in a directory of our own (removed at the end).
+    std::string dir = "/tmp/lcmx_bench_keys_XXXXXX";
+    if (::mkdtemp(dir.data()) == nullptr) {
+      std::cerr << kProgram << ": mkdtemp: " << std::strerror(errno) << "\n";
+      return 1;
+    }
+    run.key_file = dir + "/vehicle.key";
+    lcmx::udpm::GroupKeys k;
+    k.keys.push_back(lcmx::udpm::generate_key());
+    lcmx::udpm::write_key_file(run.key_file, k, false);
+    const std::vector<std::string> modes = {"lcmx-udp", "lcmx-udp-auth", "lcmx-udp-crypt"};
+    std::vector<MethodResult> pp;
+    for (const auto& m : modes) pp.push_back(MethodResult{m, {}, {}, {}});
+    for (int r = 0; r < opt.rounds && !stopped(); ++r) {
+      say("round " + std::to_string(r + 1) + " of " + std::to_string(opt.rounds));
+      for (std::size_t i = 0; i < modes.size(); ++i) {
+        const std::size_t m = (i + static_cast<std::size_t>(r)) % modes.size();  // rotating order
+        merge(pp[m], run_method(run, modes[m]));
+      }
+    }
+    std::vector<MethodResult> st;
+    if (!opt.no_stream)
+      for (const auto& m : modes) {
+        if (stopped()) break;
+        st.push_back(run_method(run, m + "-stream", Scenario{"idle", 1, 0}));
+      }
+    ::unlink(run.key_file.c_str());
+    ::rmdir(dir.c_str());
+    if (stopped()) {
+      std::cerr << kProgram << ": interrupted\n";
+      return 128 + stop_flag().load();
+    }
+    bool ok = print_report(kProgram, report_keys(run, pp, st), opt.markdown);
+    for (const auto* v : {&pp, &st})
+      for (const auto& m : *v) ok = ok && m.errors.empty();
+    return ok ? 0 : 1;
+  }
   MethodResult lcm{"liblcm", {}, {}, {}}, lx{"lcmx-udp", {}, {}, {}};
   for (int r = 0; r < opt.rounds && !stopped(); ++r) {
     say("round " + std::to_string(r + 1) + " of " + std::to_string(opt.rounds));
@@ -281,6 +464,11 @@ int main(int argc, char** argv) {
   add_link_options(app, opt.link, "shape the link with tc tbf (e.g. 10gbit, 1gbit); default: none", false);
   add_pin_option(app, opt.pin, {"none", "same", "split"}, "CPU pinning: none, same (both on CPU 0), split (pub 0, sub 1)");
   app.add_option("--markdown", opt.markdown, "also write the Markdown report to this file");
+  app.add_flag("--keys", opt.keys,
+               "keyed groups: lcmx UDP unkeyed, authenticated and encrypted side by side (no liblcm), then the "
+               "idle stream of each with CPU per MB (docs/keyed-groups.md)");
+  bool micro = false;
+  app.add_flag("--seal-micro", micro, "print what sealing one datagram costs per primitive (keyed groups), then exit");
   // The children.
   UdpConfig u;
   std::string plan;
@@ -289,7 +477,10 @@ int main(int argc, char** argv) {
   add_hidden(app, "--name", u.base.name);
   add_hidden(app, "--url", u.base.url);
   add_hidden(app, "--vehicle-url", u.vehicle_url);
+  add_hidden(app, "--key-file", u.key_file);
+  app.add_flag("--crypt", u.crypt)->group("");
   CLI11_PARSE(app, argc, argv);
+  if (micro) return seal_micro();
   if (u.base.role.empty()) return orchestrate(opt);
   if (u.base.role == "hog") return run_hog();
   try {

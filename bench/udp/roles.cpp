@@ -8,6 +8,7 @@
 // The ping-pong liblcm roles are bench/latency's (run_liblcm_sub / run_liblcm_pub).
 #include <lcm/lcm.h>
 #include <poll.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <cerrno>
@@ -33,7 +34,17 @@ lcmx::RuntimeOptions runtime_options(const UdpConfig& u) {
   o.discovery_url = u.base.url;
   o.vehicle_url = u.vehicle_url;
   o.beacon_period = std::chrono::milliseconds(200);
+  o.vehicle_key = u.key_file;  // keyed groups (--keys): authenticated, or encrypted with crypt
+  o.vehicle_crypt = !u.key_file.empty() && u.crypt;
   return o;
+}
+
+// "note cpu <who> <µs>": this process's CPU time (user + system) so far (--keys: CPU per MB).
+void report_cpu(const char* who) {
+  rusage r{};
+  ::getrusage(RUSAGE_SELF, &r);
+  const long long us = (r.ru_utime.tv_sec + r.ru_stime.tv_sec) * 1000000LL + r.ru_utime.tv_usec + r.ru_stime.tv_usec;
+  report_line(std::string("note cpu ") + who + " " + std::to_string(us));
 }
 
 // Streams: waits for 'E' on the ctl fd, then up to `grace_ms` more while messages still come.
@@ -84,6 +95,7 @@ int run_lcmx_udp_sub(const UdpConfig& u, bool stream) {
     sub.reset();
     rec.report();
     report_delivery("subscriber", st);
+    report_cpu("sub");
   } catch (const std::exception& e) {
     report_error(std::string("subscriber: ") + e.what());
     return 1;
@@ -127,6 +139,7 @@ int run_lcmx_udp_pub(const UdpConfig& u, bool stream) {
   } catch (const std::exception& e) {
     report_error(std::string("publisher: ") + e.what());
   }
+  report_cpu("pub");
   send_end();
   report_line("done");
   return ok ? 0 : 1;

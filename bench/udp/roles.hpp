@@ -15,6 +15,8 @@ struct UdpConfig {
   std::string vehicle_url;  // lcmx roles: the vehicle group, with iface=
   double rate_hz = 30;      // stream roles: ticks per second
   int burst = 1;            // stream roles: messages sent back to back per tick
+  std::string key_file;     // lcmx roles: the vehicle group's key file ("" = unkeyed)
+  bool crypt = false;       // lcmx roles with a key file: encrypted, not only authenticated
 };
 
 // A CPU hog for the busy stream scenario: spins until killed (at most 10 minutes).

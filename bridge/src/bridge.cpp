@@ -94,6 +94,16 @@ void Bridge::Impl::bind_all(zmq::socket_t& s, int port) {
 void Bridge::Impl::start() {
   if (cfg.security.curve && !curve_available())
     throw BridgeError("security.curve = true but this libzmq has no CURVE support");
+  // A keyed vehicle (docs/keyed-groups.md "The Message Bridge"): its UDP traffic is
+  // authenticated, so its bridges must not be the open door over TCP. Without CURVE a bridge
+  // admits its peers by address only (a LAN machine that takes a peer's address is let in):
+  // refused; CURVE keys (`lcmx bridge keygen`) authenticate the peers by key and address.
+  if (!rt_options.vehicle_key.empty() && !cfg.security.curve)
+    throw BridgeError(cfg.file.string() + ": the vehicle group is keyed (vehicle_key, LCMX_VEHICLE_KEY = " +
+                      rt_options.vehicle_key +
+                      "), and a bridge on a keyed vehicle runs only with CURVE: set security.curve = true with "
+                      "this bridge's and its peers' keys (lcmx bridge keygen; docs/bridge.md \"Who may connect, and "
+                      "CURVE\", docs/keyed-groups.md \"The Message Bridge\")");
 
   // The participant.
   rt_options.bridge = true;
@@ -169,7 +179,7 @@ void Bridge::Impl::start() {
 
   // The local view: which topics this host's participants publish and subscribe to.
   discovery::Options d;
-  d.group = udpm::parse_url(rt_options.discovery_url);
+  d.group = rt_options.group_config(false);  // with the host key when the host-local group is keyed
   d.observer = true;
   ctl_wake = std::make_unique<Wake>();  // before the observer: its thread rings it at once
   observer = std::make_unique<discovery::Discovery>(d, nullptr, [this](discovery::Change, const discovery::Participant&) {

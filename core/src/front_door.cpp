@@ -224,7 +224,21 @@ void FrontDoor::drain_locked(bool handle_beacons) {
     }
   };
   one(*ctx_.local, false);
-  if (ctx_.vehicle) one(*ctx_.vehicle, true);
+  report_refusals(*ctx_.local, false);
+  if (ctx_.vehicle) {
+    one(*ctx_.vehicle, true);
+    report_refusals(*ctx_.vehicle, true);
+  }
+}
+
+void FrontDoor::report_refusals(udpm::Group& group, bool vehicle) {
+  auto fresh = group.refusals().take_new();
+  if (fresh.empty()) return;
+  Pairs::Outcome out;
+  for (const auto& s : fresh)
+    out.events.push_back(
+        Event{Event::Kind::error, "", std::string(vehicle ? "vehicle" : "host-local") + " group: " + udpm::describe(s)});
+  ctx_.settle(std::move(out));
 }
 
 // EPOLLEXCLUSIVE entries are woken in the order they were added to a socket's wait queue,
@@ -407,15 +421,28 @@ void FrontDoor::check_group_drops(const udpm::Group& group, GroupDrops& last, co
   // Not kernel_dropped: the socket's drop count includes this participant's own datagrams,
   // which its socket filter drops by design (udpm/group.cpp drop_own_datagrams).
   const auto& c = group.counters();
-  if (c.incomplete_dropped == last.incomplete && c.oversize_dropped == last.oversize) return;
   const auto now = std::chrono::steady_clock::now();
+  if ((c.unauthenticated_dropped != last.unauthenticated || c.replays_dropped != last.replays) &&
+      now - last.refusals_logged >= std::chrono::seconds(5)) {
+    // The first refusal of each source was an error Event; from then on, counted.
+    spdlog::warn("lcmx: keyed {} group: {} unauthenticated and {} replayed datagram(s) refused since the last report "
+                 "({} / {} in all, from {} source(s))",
+                 which, c.unauthenticated_dropped - last.unauthenticated, c.replays_dropped - last.replays,
+                 c.unauthenticated_dropped, c.replays_dropped, group.refusals().sources().size());
+    last.unauthenticated = c.unauthenticated_dropped;
+    last.replays = c.replays_dropped;
+    last.refusals_logged = now;
+  }
+  if (c.incomplete_dropped == last.incomplete && c.oversize_dropped == last.oversize) return;
   if (now - last.logged < std::chrono::seconds(5)) return;  // a later check reports the sum
   spdlog::warn("lcmx: {} UDP group: {} incomplete message(s) dropped (fragments lost, e.g. a receive buffer too "
                "small: net.core.rmem_max) and {} over the reassembly limit ({} bytes) since the last report ({} / {} "
                "in all). A subscription counts such a loss only when its sender's next message arrives",
                which, c.incomplete_dropped - last.incomplete, c.oversize_dropped - last.oversize,
                group.config().max_reassembly_bytes, c.incomplete_dropped, c.oversize_dropped);
-  last = {c.incomplete_dropped, c.oversize_dropped, now};
+  last.incomplete = c.incomplete_dropped;
+  last.oversize = c.oversize_dropped;
+  last.logged = now;
 }
 
 void FrontDoor::log_foreign_loss(bool vehicle, const std::string& source, std::uint32_t lost) {

@@ -8,6 +8,12 @@
 //     executors forward them), keep-last-N replays to Pairs::accept_history (decoded bounded),
 //     messages to the subscribers Pairs matched with the sender;
 //  3. accounts UDP loss per sender socket (LCM sequence gaps, settled at the sender's beacon).
+// Before all that, a keyed group (udpm::GroupConfig::keys, docs/keyed-groups.md) has checked
+// each datagram's tag and replay window inside udpm::Group::drain, before parsing anything: what
+// it refused never reaches the front door. The front door reports it: the first refusal from
+// each source as an Event::Kind::error ("vehicle group: unauthenticated traffic from 10.0.0.7:
+// wrong key or not lcmx"), then counts in a log line at most every 5 s (report_refusals,
+// check_group_drops).
 //
 // Who drains: the receive thread, and idle node executors waiting for UDP (NodeImpl::wait_udp,
 // EPOLLEXCLUSIVE entries ahead of the receive thread's: a datagram wakes one thread). Whoever
@@ -100,6 +106,9 @@ class FrontDoor {
   void drain_locked(bool handle_beacons);
   void dispatch(bool vehicle, const udpm::Message& m);
   void refuse_not_local(const udpm::Source& source);
+  // The sources `group` refused for the first time since the last call, as error Events.
+  // recv_mu_ held.
+  void report_refusals(udpm::Group& group, bool vehicle);
   void check_accept_local();
 
   // UDP loss per sender socket (issue 15): LCM sequence gaps (udpm::Message::lost_before) count
@@ -120,6 +129,8 @@ class FrontDoor {
   // Warns when a group dropped messages no sequence gap reports yet (incomplete, oversize).
   struct GroupDrops {
     std::uint64_t incomplete = 0, oversize = 0;  // last logged counters
+    std::uint64_t unauthenticated = 0, replays = 0;  // keyed groups: refused, last logged
+    std::chrono::steady_clock::time_point refusals_logged{};
     std::chrono::steady_clock::time_point logged{};
   };
   void check_group_drops(const udpm::Group& group, GroupDrops& last, const char* which);

@@ -5,6 +5,7 @@
 #include <spdlog/spdlog.h>
 #include <sys/epoll.h>
 #include <sys/eventfd.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <cstdlib>
@@ -22,6 +23,29 @@ std::string hex(std::uint64_t v) {
   std::ostringstream s;
   s << std::hex << v;
   return s.str();
+}
+
+// What tells a changed key file: a rename over it (new inode), a write (size, mtime).
+RuntimeImpl::KeyWatch::stat_sig key_file_sig(const std::string& file) {
+  struct stat st {};
+  if (::stat(file.c_str(), &st) != 0) return {};
+  return {static_cast<unsigned long>(st.st_dev), static_cast<unsigned long>(st.st_ino),
+          static_cast<long long>(st.st_size),
+          static_cast<long long>(st.st_mtim.tv_sec) * 1000000000LL + st.st_mtim.tv_nsec};
+}
+
+// "keyed (authenticated, key 1a2b3c4d; also accepts 5e6f7a8b)" or "unkeyed".
+std::string keys_text(const udpm::GroupKeys* k) {
+  if (!k) return "unkeyed";
+  char id[16];
+  std::string s = std::string("keyed (") + (k->encrypt ? "encrypted" : "authenticated");
+  std::snprintf(id, sizeof id, "%08x", k->keys[0].id);
+  s += ", sealing with key " + std::string(id);
+  for (std::size_t i = 1; i < k->keys.size(); ++i) {
+    std::snprintf(id, sizeof id, "%08x", k->keys[i].id);
+    s += ", also accepting " + std::string(id);
+  }
+  return s + ")";
 }
 }  // namespace
 
@@ -65,9 +89,15 @@ void RuntimeImpl::warn_lcm_default_url() const {
 }
 
 void RuntimeImpl::start_transports() {
-  auto open_group = [](const std::string& what, const std::string& url) {
+  auto open_group = [this](const std::string& what, const std::string& url) {
+    const bool vehicle = what == "vehicle_url";
+    auto& watch = key_watch_[vehicle ? 1 : 0];
+    watch.file = vehicle ? options.vehicle_key : options.host_key;
+    watch.seen = watch.file.empty() ? KeyWatch::stat_sig{} : key_file_sig(watch.file);
+    auto cfg = options.group_config(vehicle);  // throws Error(invalid_argument) naming a bad key file
+    if (cfg.keys)
+      spdlog::info("lcmx: the {} group {} is {}", vehicle ? "vehicle" : "host-local", url, keys_text(cfg.keys.get()));
     try {
-      auto cfg = udpm::parse_url(url);
       // Our own looped-back packets would only be dropped by the front door; dropping them in
       // the kernel spares a wake-up of the receive thread per message sent (it competed for a
       // CPU with the subscribers' threads: ~15 µs per small message on 2 vCPUs).
@@ -172,8 +202,42 @@ void RuntimeImpl::settle(Pairs::Outcome outcome) {
 // Once a second on the receive thread, no lock held: housekeeping jobs (services), stock LCM
 // senders silent for a minute forgotten.
 void RuntimeImpl::every_second() {
+  watch_keys();
   events.run_housekeeping();
   settle(pairs.expire_foreign(std::chrono::seconds(60)));
+}
+
+void RuntimeImpl::watch_keys() {
+  for (int i = 0; i < 2; ++i) {
+    auto& w = key_watch_[i];
+    const bool vehicle = i == 1;
+    const auto& group = vehicle ? vehicle_group : local_group;
+    if (w.file.empty() || !group) continue;
+    const auto sig = key_file_sig(w.file);
+    if (sig == w.seen) continue;
+    w.seen = sig;
+    const char* which = vehicle ? "vehicle" : "host-local";
+    try {
+      auto keys = options.group_keys(vehicle);
+      const bool same = [&] {
+        const auto old = group->keys();
+        if (!old || old->keys.size() != keys->keys.size() || old->encrypt != keys->encrypt) return false;
+        for (std::size_t k = 0; k < keys->keys.size(); ++k)
+          if (old->keys[k].bytes != keys->keys[k].bytes) return false;
+        return true;
+      }();
+      w.failed = false;
+      if (same) continue;
+      spdlog::info("lcmx: the {} group's key file {} changed: now {}", which, w.file, keys_text(keys.get()));
+      group->set_keys(std::move(keys));
+    } catch (const std::exception& e) {
+      if (w.failed) continue;
+      w.failed = true;
+      emit({Event{Event::Kind::error, "",
+                  std::string("the ") + which + " group's key file changed and cannot be used (the keys in use stay): " +
+                      e.what()}});
+    }
+  }
 }
 
 // The receive thread: DeathWatch's fd is readable.

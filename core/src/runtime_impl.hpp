@@ -63,6 +63,20 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   Pairs pairs;
   std::unique_ptr<FrontDoor> front_door;  // made by start_transports
 
+  // Group keys: a key file that changed (its inode, size or mtime) is read again and the
+  // group's keys replaced (rotation without a restart, docs/keyed-groups.md). A file that now
+  // cannot be read or is not a key leaves the keys as they were (an error Event). Receive
+  // thread (every_second).
+  struct KeyWatch {
+    std::string file;  // empty: the group is unkeyed
+    struct stat_sig {
+      unsigned long dev = 0, ino = 0;
+      long long size = 0, mtime_ns = 0;
+      bool operator==(const stat_sig&) const = default;
+    } seen;
+    bool failed = false;  // the last read failed (reported once until it reads again)
+  };
+
   // ---- for publishers, nodes and the public API
   std::uint64_t new_endpoint_id() { return pairs.new_endpoint_id(); }
   TopicClass class_of(const std::string& channel) const { return policy.class_of(channel); }
@@ -115,6 +129,8 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   void warn_lcm_default_url() const;
   void every_second();
   void on_death_fd();
+  KeyWatch key_watch_[2];  // [0] host-local, [1] vehicle
+  void watch_keys();
 
   std::atomic<std::int64_t> revision_{0};  // atomic: changed() is called under publish_mu
   std::atomic<bool> stopped_{false};

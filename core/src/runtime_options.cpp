@@ -10,6 +10,8 @@
 #include "lcmx/core/options.hpp"
 #include "lcmx/discovery/identity.hpp"
 #include "lcmx/udpm/config.hpp"
+#include "lcmx/udpm/error.hpp"
+#include "lcmx/udpm/keys.hpp"
 
 namespace lcmx {
 
@@ -76,6 +78,11 @@ RuntimeOptions RuntimeOptions::from_env() {
   }
   o.beacon_period = std::chrono::milliseconds(env_number("LCMX_BEACON_PERIOD_MS", o.beacon_period.count(), 10, 60000));
   o.lease = std::chrono::milliseconds(env_number("LCMX_LEASE_MS", o.lease.count(), 50, 600000));
+  if (const char* v = std::getenv("LCMX_VEHICLE_KEY"); v && *v) o.vehicle_key = v;
+  if (const char* v = std::getenv("LCMX_HOST_KEY"); v && *v) o.host_key = v;
+  o.vehicle_crypt = env_number("LCMX_VEHICLE_CRYPT", o.vehicle_crypt ? 1 : 0, 0, 1) == 1;
+  o.host_crypt = env_number("LCMX_HOST_CRYPT", o.host_crypt ? 1 : 0, 0, 1) == 1;
+  o.keyed_max_skew = std::chrono::seconds(env_number("LCMX_KEYED_MAX_SKEW_S", o.keyed_max_skew.count(), 0, 86400));
   return o;
 }
 
@@ -90,6 +97,41 @@ std::string RuntimeOptions::group_url_problem(const std::string& url, bool vehic
   return {};
 }
 
+std::shared_ptr<const udpm::GroupKeys> RuntimeOptions::group_keys(bool vehicle) const {
+  const std::string& file = vehicle ? vehicle_key : host_key;
+  const bool crypt = vehicle ? vehicle_crypt : host_crypt;
+  const char* what = vehicle ? "vehicle_key (LCMX_VEHICLE_KEY)" : "host_key (LCMX_HOST_KEY)";
+  if (file.empty()) {
+    if (crypt)
+      throw Error(Errc::invalid_argument, std::string(vehicle ? "vehicle_crypt (LCMX_VEHICLE_CRYPT)" : "host_crypt (LCMX_HOST_CRYPT)") +
+                                              " asks for encryption, but no key file is named in " + what +
+                                              " (write one with `lcmx keygen --group FILE`)");
+    return nullptr;
+  }
+  try {
+    auto keys = std::make_shared<udpm::GroupKeys>(udpm::read_key_file(file));
+    keys->encrypt = keys->encrypt || crypt;
+    return keys;
+  } catch (const udpm::Error& e) {
+    throw Error(Errc::invalid_argument, std::string(what) + ": " + e.what());
+  }
+}
+
+udpm::GroupConfig RuntimeOptions::group_config(bool vehicle) const {
+  const std::string& url = vehicle ? vehicle_url : discovery_url;
+  udpm::GroupConfig cfg;
+  try {
+    cfg = udpm::parse_url(url);
+  } catch (const std::exception& e) {
+    throw Error(Errc::invalid_argument, std::string(vehicle ? "vehicle_url (LCMX_VEHICLE_URL) '" :
+                                                              "discovery_url (LCMX_DISCOVERY_URL) '") +
+                                            url + "': " + e.what());
+  }
+  cfg.keys = group_keys(vehicle);
+  cfg.keyed_max_skew = keyed_max_skew;
+  return cfg;
+}
+
 void RuntimeOptions::check() const {
   if (const auto why = group_url_problem(discovery_url, false); !why.empty())
     throw Error(Errc::invalid_argument, "discovery_url (LCMX_DISCOVERY_URL) " + why);
@@ -99,6 +141,8 @@ void RuntimeOptions::check() const {
     throw Error(Errc::invalid_argument, "lease " + std::to_string(lease.count()) +
                                             " ms (LCMX_LEASE_MS) must be longer than beacon_period " +
                                             std::to_string(beacon_period.count()) + " ms (LCMX_BEACON_PERIOD_MS)");
+  (void)group_keys(false);  // a bad key file is named now, not when the group opens
+  if (!vehicle_url.empty()) (void)group_keys(true);
   try {
     (void)discovery::host_id();
   } catch (const std::invalid_argument& e) {  // a bad LCMX_HOST_ID

@@ -13,6 +13,7 @@ std::string_view to_string(Error::Code code) noexcept {
     case Error::Code::message_too_large: return "message_too_large";
     case Error::Code::system: return "system";
     case Error::Code::invalid_channel: return "invalid_channel";
+    case Error::Code::bad_key: return "bad_key";
   }
   return "unknown";
 }

@@ -14,6 +14,7 @@
 #include <atomic>
 #include <cerrno>
 #include <cstring>
+#include <ctime>
 #include <mutex>
 #include <optional>
 #include <unordered_map>
@@ -21,6 +22,7 @@
 
 #include "lcmx/udpm/error.hpp"
 #include "lcmx/udpm/wire.hpp"
+#include "envelope.hpp"
 #include "reassembler.hpp"
 
 #ifndef SO_RXQ_OVFL
@@ -34,6 +36,18 @@ constexpr std::size_t kRecvBatch = 16;               // datagrams per recvmmsg
 constexpr std::size_t kRecvSlot = 65536;             // > kMaxDatagramSize
 constexpr std::size_t kMaxDatagramsPerDrain = 4096;  // bounds one drain() call
 constexpr std::size_t kSendBatch = 32;               // fragments per sendmmsg
+// Keyed groups: an LCM datagram inside an envelope is at most this large, so the envelope
+// still fits one IPv4 UDP datagram; a message is cut with these limits instead of liblcm's.
+constexpr std::size_t kSealedInnerMax = kMaxDatagramSize - kEnvelopeOverhead;
+constexpr std::size_t kSealedShortMax = kSealedInnerMax - kShortHeaderSize;   // channel + NUL + payload
+constexpr std::size_t kSealedFragmentMax = kSealedInnerMax - kLongHeaderSize;  // payload bytes per LC03
+constexpr std::size_t kSealSlot = kMaxDatagramSize + 1;
+
+void check_keys(const std::shared_ptr<const GroupKeys>& keys) {
+  if (keys && (keys->keys.empty() || keys->keys.size() > 2))
+    throw Error(Error::Code::invalid_config, "udpm group: a group key set holds 1 or 2 keys, not " +
+                                                 std::to_string(keys->keys.size()));
+}
 
 [[noreturn]] void throw_errno(const std::string& what, int err) {
   throw Error(Error::Code::system, what + ": " + std::strerror(err), err);
@@ -238,6 +252,22 @@ struct Group::Impl {
   Fd routed_fd;             // host-local mode, group routed to another interface than lo
   std::string routed_name;  // the interface publish_routed() uses
   std::atomic<std::uint64_t> packets_sent{0}, messages_sent{0}, bytes_sent{0};
+  // Keyed groups (send_mutex): the envelope's sender id and counter, and the buffer datagrams
+  // are sealed in (grown once to the largest batch sent, then reused: no allocation per
+  // datagram).
+  std::optional<detail::Sealer> sealer;
+  std::atomic<std::uint64_t> own_sender{0};  // sealer's sender id (0: none yet), for the receive thread
+  std::unique_ptr<std::byte[]> seal_buffer;
+  std::size_t seal_slots = 0;
+
+  // --- the group key (any thread) ---
+  mutable std::mutex keys_mutex;  // guards keys
+  std::shared_ptr<const GroupKeys> keys;
+  std::shared_ptr<Refusals> refusals;
+  std::shared_ptr<const GroupKeys> current_keys() const {
+    std::lock_guard lock(keys_mutex);
+    return keys;
+  }
 
   // --- routing (the receive thread) ---
   std::optional<Route> route_seen;           // the route as last resolved
@@ -246,6 +276,8 @@ struct Group::Impl {
 
   // --- receive side (the receive thread) ---
   detail::Reassembler reassembler;
+  detail::Opener opener;                     // keyed groups: the senders' replay windows
+  std::shared_ptr<const GroupKeys> rx_keys;  // the keys of the current drain()
   std::unique_ptr<std::byte[]> slots;  // kRecvBatch * kRecvSlot
   mmsghdr msgs[kRecvBatch]{};
   iovec iovs[kRecvBatch]{};
@@ -300,7 +332,15 @@ struct Group::Impl {
       : cfg(c),
         reassembler({c.max_reassembly_bytes, c.max_partial_messages,
                      std::chrono::duration_cast<detail::Reassembler::Clock::duration>(c.reassembly_timeout)}),
-        slots(std::make_unique_for_overwrite<std::byte[]>(kRecvBatch * kRecvSlot)) {}
+        slots(std::make_unique_for_overwrite<std::byte[]>(kRecvBatch * kRecvSlot)) {
+    keys = c.keys;
+    refusals = c.refusals ? c.refusals : std::make_shared<Refusals>();
+    check_keys(keys);
+    if (keys) {
+      sealer.emplace();
+      own_sender.store(sealer->sender_id());
+    }
+  }
 
   void send_all(int fd, mmsghdr* m, std::size_t n) {
     std::size_t done = 0;
@@ -341,9 +381,15 @@ struct Group::Impl {
     auto* data = const_cast<std::byte*>(payload.data());
     const std::size_t nframes = datagram_count(channel.size(), payload.size());
 
+    const auto sealing = current_keys();
     std::lock_guard lock(send_mutex);
     const int fd = routed && routed_fd.get() >= 0 ? routed_fd.get() : send_fd.get();
     const std::uint32_t seq = sequence++;
+    if (sealing) {
+      publish_sealed(*sealing, fd, seq, channel, payload);
+      messages_sent.fetch_add(1, std::memory_order_relaxed);
+      return seq;
+    }
     mmsghdr m[kSendBatch]{};
     if (nframes == 1) {
       std::byte hdr[kShortHeaderSize];
@@ -400,6 +446,77 @@ struct Group::Impl {
     return seq;
   }
 
+  // Keyed publish (send_mutex held): each LCM datagram is written into a slot of seal_buffer
+  // behind room for the envelope header, sealed in place, and sent in sendmmsg batches.
+  void publish_sealed(const GroupKeys& k, int fd, std::uint32_t seq, std::string_view channel,
+                      std::span<const std::byte> payload) {
+    if (!sealer) {  // keyed after open (set_keys)
+      sealer.emplace();
+      own_sender.store(sealer->sender_id());
+    }
+    const std::size_t n = channel.size() + 1 + payload.size();
+    const std::size_t nframes = n <= kSealedShortMax ? 1 : (n + kSealedFragmentMax - 1) / kSealedFragmentMax;
+    const std::size_t slots_needed = std::min(nframes, kSendBatch);
+    if (seal_slots < slots_needed) {
+      seal_buffer = std::make_unique_for_overwrite<std::byte[]>(slots_needed * kSealSlot);
+      seal_slots = slots_needed;
+    }
+    mmsghdr m[kSendBatch]{};
+    iovec iov[kSendBatch];
+    if (nframes == 1) {
+      std::byte* inner = seal_buffer.get() + kEnvelopeHeaderSize;
+      store_u32(inner, kMagicShort);
+      store_u32(inner + 4, seq);
+      std::memcpy(inner + kShortHeaderSize, channel.data(), channel.size());
+      inner[kShortHeaderSize + channel.size()] = std::byte{0};
+      if (!payload.empty()) std::memcpy(inner + kShortHeaderSize + channel.size() + 1, payload.data(), payload.size());
+      iov[0] = {seal_buffer.get(), sealer->seal(k, seal_buffer.get(), kShortHeaderSize + n)};
+      m[0].msg_hdr.msg_name = &dest;
+      m[0].msg_hdr.msg_namelen = sizeof dest;
+      m[0].msg_hdr.msg_iov = &iov[0];
+      m[0].msg_hdr.msg_iovlen = 1;
+      send_all(fd, m, 1);
+      return;
+    }
+    const std::size_t first = kSealedFragmentMax - (channel.size() + 1);
+    std::size_t offset = 0;
+    for (std::size_t base = 0; base < nframes; base += kSendBatch) {
+      const std::size_t count = std::min(kSendBatch, nframes - base);
+      for (std::size_t i = 0; i < count; ++i) {
+        const std::size_t no = base + i;
+        std::byte* slot = seal_buffer.get() + i * kSealSlot;
+        std::byte* h = slot + kEnvelopeHeaderSize;
+        store_u32(h, kMagicLong);
+        store_u32(h + 4, seq);
+        store_u32(h + 8, static_cast<std::uint32_t>(payload.size()));
+        store_u32(h + 12, static_cast<std::uint32_t>(offset));
+        store_u16(h + 16, static_cast<std::uint16_t>(no));
+        store_u16(h + 18, static_cast<std::uint16_t>(nframes));
+        std::byte* p = h + kLongHeaderSize;
+        std::size_t len;
+        if (no == 0) {
+          std::memcpy(p, channel.data(), channel.size());
+          p[channel.size()] = std::byte{0};
+          p += channel.size() + 1;
+          len = std::min(first, payload.size());
+        } else {
+          len = std::min(kSealedFragmentMax, payload.size() - offset);
+        }
+        if (len > 0) std::memcpy(p, payload.data() + offset, len);
+        const std::size_t inner = static_cast<std::size_t>(p - h) + len;
+        iov[i] = {slot, sealer->seal(k, slot, inner)};
+        mmsghdr& mm = m[i];
+        mm = mmsghdr{};
+        mm.msg_hdr.msg_name = &dest;
+        mm.msg_hdr.msg_namelen = sizeof dest;
+        mm.msg_hdr.msg_iov = &iov[i];
+        mm.msg_hdr.msg_iovlen = 1;
+        offset += len;
+      }
+      send_all(fd, m, count);
+    }
+  }
+
   void arm_batch() {
     for (std::size_t i = 0; i < kRecvBatch; ++i) {
       iovs[i] = {slots.get() + i * kRecvSlot, kRecvSlot};
@@ -431,13 +548,30 @@ struct Group::Impl {
       ++recv_counters.malformed_dropped;
       return 0;
     }
-    const std::span<const std::byte> datagram(slots.get() + i * kRecvSlot, mm.msg_len);
+    const Source source{names[i].sin_addr.s_addr, names[i].sin_port};
+    std::span<const std::byte> datagram(slots.get() + i * kRecvSlot, mm.msg_len);
+    if (rx_keys) {
+      // Keyed: the envelope is checked before anything of the datagram is parsed.
+      const bool from_self =
+          source.port_be == local.port_be &&
+          std::find(own_addresses.begin(), own_addresses.end(), source.address_be) != own_addresses.end();
+      const auto opened = opener.open(*rx_keys, std::span<std::byte>(slots.get() + i * kRecvSlot, mm.msg_len),
+                                      own_sender.load(std::memory_order_relaxed), from_self,
+                                      static_cast<std::uint32_t>(std::time(nullptr)),
+                                      static_cast<std::uint32_t>(std::max<std::int64_t>(cfg.keyed_max_skew.count(), 0)));
+      if (opened.refused) {
+        const bool replay = *opened.refused == Refusal::replayed || *opened.refused == Refusal::stale;
+        ++(replay ? recv_counters.replays_dropped : recv_counters.unauthenticated_dropped);
+        refusals->record(source.address_be, *opened.refused);
+        return 0;
+      }
+      datagram = opened.inner;
+    }
     const auto parsed = parse_datagram(datagram);
     if (!parsed) {
       ++recv_counters.malformed_dropped;
       return 0;
     }
-    const Source source{names[i].sin_addr.s_addr, names[i].sin_port};
     std::uint32_t lost = 0;
     if (!parsed->fragment) {
       if (!fresh(source, parsed->sequence, &lost)) {
@@ -464,6 +598,7 @@ struct Group::Impl {
   }
 
   std::size_t drain(const Handler& on_message) {
+    rx_keys = current_keys();
     std::size_t delivered = 0;
     std::size_t read = 0;
     for (;;) {
@@ -711,6 +846,17 @@ const Counters& Group::counters() const noexcept {
 }
 
 const GroupConfig& Group::config() const noexcept { return impl_->cfg; }
+
+std::shared_ptr<const GroupKeys> Group::keys() const { return impl_->current_keys(); }
+
+void Group::set_keys(std::shared_ptr<const GroupKeys> keys) {
+  check_keys(keys);
+  if (keys) detail::sodium_ready();
+  std::lock_guard lock(impl_->keys_mutex);
+  impl_->keys = std::move(keys);
+}
+
+Refusals& Group::refusals() const noexcept { return *impl_->refusals; }
 
 int Group::effective_recv_buffer() const noexcept { return impl_->effective_rcvbuf; }
 

@@ -9,6 +9,8 @@
 #include <string>
 #include <vector>
 
+#include "lcmx/udpm/config.hpp"
+
 namespace lcmx {
 
 // How an executor thread waits for messages.
@@ -139,20 +141,46 @@ struct RuntimeOptions {
   // host; every participant here then treats matching topics as large.
   std::vector<std::string> bridge_carry;
 
+  // Group keys (docs/keyed-groups.md): a key file (`lcmx keygen --group FILE`) makes the group
+  // keyed: every lcmx datagram on it is authenticated (optionally encrypted), anything else
+  // (stock LCM programs, hosts without the key, replays) refused and reported. Empty: unkeyed.
+  // The file is re-read when it changes (rotation, no restart: docs/keyed-groups.md).
+  std::string vehicle_key;  // the vehicle group's: against other machines on the LAN
+  std::string host_key;     // the host-local group's: against other users of this host
+  // Encrypt the payloads too (AEAD), not only authenticate. A key file line `encrypt` also
+  // turns it on. Receivers take both forms.
+  bool vehicle_crypt = false;
+  bool host_crypt = false;
+  // Keyed groups: a datagram of a sender not heard yet is taken only if the time stamped in it
+  // is within this of this host's clock (udpm::GroupConfig::keyed_max_skew): the hosts' clocks
+  // must agree within it. 0 turns the check off (no time sync; docs/keyed-groups.md "Replay").
+  std::chrono::seconds keyed_max_skew{60};
+
   // Defaults overridden by the environment: LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL,
   // LCMX_VEHICLE_PUBLISH (on_demand|always), LCMX_UDP_LIMIT, LCMX_MIRROR (0, 1 = every
   // channel, or comma-separated channel globs such as "CAM_*,POSE" = mirror_channels),
   // LCMX_LARGE_TOPICS / LCMX_SMALL_TOPICS (comma-separated channels), LCMX_BEACON_PERIOD_MS,
-  // LCMX_LEASE_MS. Throws lcmx::Error(invalid_argument) naming a bad variable.
+  // LCMX_LEASE_MS, LCMX_VEHICLE_KEY / LCMX_HOST_KEY (key files), LCMX_VEHICLE_CRYPT /
+  // LCMX_HOST_CRYPT (0 or 1), LCMX_KEYED_MAX_SKEW_S. Throws lcmx::Error(invalid_argument) naming a bad variable.
   static RuntimeOptions from_env();
   // What Runtime::create refuses before it starts anything: a discovery_url or vehicle_url
   // that group_url_problem() finds wrong, lease not longer than beacon_period, a bad
-  // LCMX_HOST_ID. Throws lcmx::Error(invalid_argument) naming the values and their variables.
+  // LCMX_HOST_ID, a key file that cannot be read or is not private (group_config).
+  // Throws lcmx::Error(invalid_argument) naming the values and their variables.
   // (The `lcmx` tools call it for every verb, the observers too.)
   void check() const;
   // Why `url` cannot be this group ("" when it can): not a udpm:// URL the runtime reads, or a
   // vehicle group (`vehicle`; "" there means none) that names no interface (iface=).
   static std::string group_url_problem(const std::string& url, bool vehicle);
+
+  // The configuration the runtime opens the vehicle group (`vehicle`) or the host-local group
+  // with: its URL parsed, and its key file read (vehicle_key / host_key, with *_crypt) when
+  // one is named. The tools' observers open their groups with it too.
+  // Throws lcmx::Error(invalid_argument) naming the option, its variable and the file.
+  udpm::GroupConfig group_config(bool vehicle) const;
+  // The key file of a group, read as group_config() does (null when none is named).
+  // Throws as group_config().
+  std::shared_ptr<const udpm::GroupKeys> group_keys(bool vehicle) const;
 };
 
 }  // namespace lcmx

@@ -4,10 +4,14 @@
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <string_view>
 
 namespace lcmx::udpm {
+
+struct GroupKeys;
+class Refusals;
 
 struct GroupConfig {
   std::string address = "239.255.76.67";  // IPv4 multicast group (224.0.0.0/4)
@@ -37,6 +41,22 @@ struct GroupConfig {
   std::size_t max_partial_messages = 256;  // at most this many partial messages at once
   // A partial message that got no fragment for this long is dropped (counted incomplete).
   std::chrono::milliseconds reassembly_timeout{1000};
+
+  // Not part of the URL: the group key (lcmx/udpm/keys.hpp, docs/keyed-groups.md). Null: the
+  // group speaks LCM's wire format, open to anyone on it. Set: every datagram sent is sealed
+  // in an lcmx envelope, and only envelopes that verify under one of these keys, once, are
+  // received; everything else is refused (counted per source in `refusals`). Must hold 1 or 2
+  // keys. Group::set_keys replaces it while the Group runs (rotation).
+  std::shared_ptr<const GroupKeys> keys;
+  // Where a keyed group records what it refused, per source. Null: the Group makes its own
+  // (Group::refusals()); give one to read it while the Group is owned elsewhere (an observer).
+  std::shared_ptr<Refusals> refusals;
+  // Keyed groups: a datagram of a sender this Group has not heard yet is taken only when the
+  // time the sender stamped in it is within this of this host's clock (a capture replayed to
+  // a process started later is refused after this long; docs/keyed-groups.md "Replay"); once
+  // a sender is known, its counter alone decides. 0 turns the check off (hosts whose clocks are
+  // not kept in sync). Hosts' clocks must agree within it.
+  std::chrono::seconds keyed_max_skew{60};
 };
 
 // Parses "udpm://[ADDRESS][:PORT][?key=value&...]". Missing address or port take GroupConfig's

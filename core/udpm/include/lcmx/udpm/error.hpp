@@ -16,6 +16,7 @@ class Error : public std::runtime_error {
     message_too_large,  // payload larger than kMaxMessageSize (what LC03 receivers accept)
     system,             // a system call failed; sys_errno() holds errno
     invalid_channel,    // channel name contains a NUL byte (cannot go on the wire)
+    bad_key,            // a group key file missing, unreadable, not private, or not a key (named)
   };
 
   Error(Code code, const std::string& what, int sys_errno = 0);

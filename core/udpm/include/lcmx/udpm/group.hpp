@@ -11,6 +11,7 @@
 #include <string_view>
 
 #include "lcmx/udpm/config.hpp"
+#include "lcmx/udpm/keys.hpp"
 
 namespace lcmx::udpm {
 
@@ -54,6 +55,12 @@ struct Counters {
   // this Group's own datagrams, which its socket filter drops by design.
   std::uint64_t kernel_dropped = 0;
   std::uint64_t duplicates_dropped = 0;  // messages whose (source, sequence) was delivered already
+  // Keyed groups (GroupConfig::keys): datagrams refused before any parsing of the LCM
+  // datagram: no envelope, another key, a tag that does not verify (per source: refusals()).
+  std::uint64_t unauthenticated_dropped = 0;
+  // Valid envelopes received a second time, older than the replay window, or (a sender not
+  // heard yet) stamped further than keyed_max_skew from this host's clock.
+  std::uint64_t replays_dropped = 0;
 };
 
 // Move-only owner of the receive socket (bound to the group's address and port, so unicast to
@@ -78,6 +85,12 @@ struct Counters {
 //    publish_routed() there. With no route at all (liblcm refuses to start then) it is lo.
 // With ttl=0 nothing leaves the host; joining a LAN interface sends IGMP reports there, as
 // liblcm's join does.
+//
+// Keyed (GroupConfig::keys set): every datagram publish() sends, LC02 or LC03 fragment, is
+// sealed into an lcmx envelope (keys.hpp), cut so that the envelope still fits one datagram;
+// drain() checks each datagram's envelope first (tag, then the sender's replay window) and
+// parses only what it verified. Stock LCM programs ignore the envelopes (unknown magic) and
+// are refused.
 //
 // Threads: drain(), poll(), counters() and the other accessors belong to one thread at a time
 // (the "receive thread"). publish() may be called from any number of threads, concurrently with
@@ -150,6 +163,16 @@ class Group {
 
   // A snapshot refreshed at each call; call it from the receive thread.
   const Counters& counters() const noexcept;
+
+  // The group key now in use (null: unkeyed). Thread-safe.
+  std::shared_ptr<const GroupKeys> keys() const;
+  // Replaces the group key while the Group runs (rotation: the next datagram sent is sealed
+  // with keys->keys[0], the next datagram received checked against every key of `keys`).
+  // Null makes the group unkeyed; a keyed group's keys must hold 1 or 2 keys.
+  // Throws Error(invalid_config) for 0 or more than 2 keys. Thread-safe.
+  void set_keys(std::shared_ptr<const GroupKeys> keys);
+  // What the keyed group refused, per source (GroupConfig::refusals, or the Group's own).
+  Refusals& refusals() const noexcept;
   const GroupConfig& config() const noexcept;
   // SO_RCVBUF as the kernel reports it (the kernel doubles the request for bookkeeping).
   int effective_recv_buffer() const noexcept;

@@ -3,4 +3,5 @@
 #include "lcmx/udpm/config.hpp"
 #include "lcmx/udpm/error.hpp"
 #include "lcmx/udpm/group.hpp"
+#include "lcmx/udpm/keys.hpp"
 #include "lcmx/udpm/wire.hpp"

@@ -1,0 +1,168 @@
+#include "envelope.hpp"
+
+#include <sodium.h>
+
+#include <cstring>
+#include <ctime>
+#include <mutex>
+
+#include "lcmx/udpm/error.hpp"
+
+namespace lcmx::udpm::detail {
+namespace {
+
+constexpr std::uint8_t kVersion = 1;
+constexpr std::uint8_t kFlagEncrypted = 1;
+static_assert(crypto_aead_xchacha20poly1305_ietf_ABYTES == kEnvelopeTagSize);
+static_assert(crypto_aead_xchacha20poly1305_ietf_KEYBYTES == kKeySize);
+static_assert(crypto_aead_xchacha20poly1305_ietf_NPUBBYTES == 24);
+
+void put_u32(std::byte* p, std::uint32_t v) {
+  for (int i = 3; i >= 0; --i, v >>= 8) p[i] = std::byte(v & 0xff);
+}
+void put_u64(std::byte* p, std::uint64_t v) {
+  for (int i = 7; i >= 0; --i, v >>= 8) p[i] = std::byte(v & 0xff);
+}
+std::uint32_t get_u32(const std::byte* p) {
+  std::uint32_t v = 0;
+  for (int i = 0; i < 4; ++i) v = (v << 8) | std::to_integer<std::uint32_t>(p[i]);
+  return v;
+}
+std::uint64_t get_u64(const std::byte* p) {
+  std::uint64_t v = 0;
+  for (int i = 0; i < 8; ++i) v = (v << 8) | std::to_integer<std::uint64_t>(p[i]);
+  return v;
+}
+auto* uc(std::byte* p) { return reinterpret_cast<unsigned char*>(p); }
+auto* uc(const std::byte* p) { return reinterpret_cast<const unsigned char*>(p); }
+
+// Header offsets.
+constexpr std::size_t kOffVersion = 4, kOffFlags = 5, kOffKeyId = 8, kOffTime = 12, kOffSender = 16, kOffCounter = 24;
+static_assert(kOffCounter + 8 == kEnvelopeHeaderSize);
+
+// The nonce: sender id | counter | 8 zero bytes, i.e. the header's bytes 12..27 then zeros.
+void nonce_of(const std::byte* header, unsigned char (&nonce)[24]) {
+  std::memcpy(nonce, header + kOffSender, 16);
+  std::memset(nonce + 16, 0, 8);
+}
+
+}  // namespace
+
+void sodium_ready() {
+  static const int r = ::sodium_init();  // thread-safe, once
+  if (r < 0) throw Error(Error::Code::system, "udpm: libsodium failed to start (sodium_init)");
+}
+
+Sealer::Sealer() {
+  sodium_ready();
+  ::randombytes_buf(&sender_, sizeof sender_);
+}
+
+std::size_t Sealer::seal(const GroupKeys& keys, std::byte* buffer, std::size_t inner_size) noexcept {
+  const GroupKey& key = keys.keys.front();
+  put_u32(buffer, kMagicKeyed);
+  buffer[kOffVersion] = std::byte{kVersion};
+  buffer[kOffFlags] = std::byte{keys.encrypt ? kFlagEncrypted : std::uint8_t{0}};
+  buffer[6] = buffer[7] = std::byte{0};
+  put_u32(buffer + kOffKeyId, key.id);
+  put_u32(buffer + kOffTime, static_cast<std::uint32_t>(std::time(nullptr)));
+  put_u64(buffer + kOffSender, sender_);
+  put_u64(buffer + kOffCounter, ++counter_);  // 2^64 datagrams: never wraps
+  unsigned char nonce[24];
+  nonce_of(buffer, nonce);
+  std::byte* body = buffer + kEnvelopeHeaderSize;
+  std::byte* tag = body + inner_size;
+  if (keys.encrypt) {
+    ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(uc(body), uc(tag), nullptr, uc(body), inner_size,
+                                                          uc(buffer), kEnvelopeHeaderSize, nullptr, nonce,
+                                                          key.bytes.data());
+  } else {
+    unsigned char none = 0;
+    ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(&none, uc(tag), nullptr, &none, 0, uc(buffer),
+                                                          kEnvelopeHeaderSize + inner_size, nullptr, nonce,
+                                                          key.bytes.data());
+  }
+  return kEnvelopeOverhead + inner_size;
+}
+
+bool ReplayWindow::accept(std::uint64_t counter) noexcept {
+  if (counter == 0) return false;  // never sent
+  if (top_ == 0) {  // the first: it and everything before it count as seen
+    top_ = counter;
+    for (auto& b : bits_) b = ~std::uint64_t{0};
+    const std::uint64_t r = counter % 64;  // in its own block, the bits above it are free
+    bits_[(counter / 64) % kBlocks] = r == 63 ? ~std::uint64_t{0} : (std::uint64_t{1} << (r + 1)) - 1;
+    return true;
+  }
+  const std::uint64_t block = counter / 64;
+  if (counter > top_) {
+    // Clear the blocks the window moves over (at most all of them).
+    const std::uint64_t top_block = top_ / 64;
+    const std::uint64_t moved = std::min<std::uint64_t>(block - top_block, kBlocks);
+    for (std::uint64_t i = 1; i <= moved; ++i) bits_[(top_block + i) % kBlocks] = 0;
+    top_ = counter;
+  } else if (top_ - counter > kWindow) {
+    return false;  // too old to tell: refused
+  }
+  std::uint64_t& word = bits_[block % kBlocks];
+  const std::uint64_t bit = std::uint64_t{1} << (counter % 64);
+  if ((word & bit) != 0) return false;
+  word |= bit;
+  return true;
+}
+
+Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::uint64_t own_sender,
+                            bool from_self, std::uint32_t now_s, std::uint32_t max_skew_s) noexcept {
+  if (d.size() < kEnvelopeOverhead || get_u32(d.data()) != kMagicKeyed) return {{}, Refusal::unkeyed};
+  if (std::to_integer<std::uint8_t>(d[kOffVersion]) != kVersion) return {{}, Refusal::unknown_key};
+  const std::uint8_t flags = std::to_integer<std::uint8_t>(d[kOffFlags]);
+  if ((flags & ~kFlagEncrypted) != 0) return {{}, Refusal::bad_tag};  // (authenticated below anyway)
+  const std::uint32_t id = get_u32(d.data() + kOffKeyId);
+  const std::size_t inner_size = d.size() - kEnvelopeOverhead;
+  std::byte* body = d.data() + kEnvelopeHeaderSize;
+  const std::byte* tag = body + inner_size;
+  unsigned char nonce[24];
+  nonce_of(d.data(), nonce);
+  bool known = false, verified = false;
+  for (const auto& key : keys.keys) {  // at most two; ids may collide (2^-32): try each that matches
+    if (key.id != id) continue;
+    known = true;
+    unsigned char none = 0;
+    const int r = (flags & kFlagEncrypted) != 0
+                      ? ::crypto_aead_xchacha20poly1305_ietf_decrypt_detached(
+                            uc(body), nullptr, uc(body), inner_size, uc(tag), uc(d.data()), kEnvelopeHeaderSize,
+                            nonce, key.bytes.data())
+                      : ::crypto_aead_xchacha20poly1305_ietf_decrypt_detached(
+                            &none, nullptr, &none, 0, uc(tag), uc(d.data()), kEnvelopeHeaderSize + inner_size,
+                            nonce, key.bytes.data());
+    if (r == 0) {
+      verified = true;
+      break;
+    }
+  }
+  if (!known) return {{}, Refusal::unknown_key};
+  if (!verified) return {{}, Refusal::bad_tag};
+  // Authentic: now the sender's replay window.
+  const std::uint64_t sender = get_u64(d.data() + kOffSender), counter = get_u64(d.data() + kOffCounter);
+  if (own_sender != 0 && sender == own_sender && !from_self) return {{}, Refusal::replayed};
+  auto it = windows_.find(sender);
+  if (it == windows_.end()) {
+    if (max_skew_s != 0) {
+      const std::uint32_t stamp = get_u32(d.data() + kOffTime);
+      const std::uint32_t ahead = stamp - now_s, behind = now_s - stamp;  // modulo 2^32
+      if (std::min(ahead, behind) > max_skew_s) return {{}, Refusal::stale};
+    }
+    if (windows_.size() >= kMaxSenders) {
+      auto oldest = windows_.begin();
+      for (auto i = windows_.begin(); i != windows_.end(); ++i)
+        if (i->second.heard < oldest->second.heard) oldest = i;
+      windows_.erase(oldest);
+    }
+    it = windows_.try_emplace(sender).first;
+  }
+  if (!it->second.window.accept(counter)) return {{}, Refusal::replayed};
+  it->second.heard = ++tick_;
+  return {std::span<std::byte>(body, inner_size), std::nullopt};
+}
+
+}  // namespace lcmx::udpm::detail
