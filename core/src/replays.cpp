@@ -10,34 +10,74 @@
 
 namespace lcmx::detail {
 
+namespace {
+void log_refused(std::chrono::steady_clock::time_point& logged, std::uint64_t refused, const char* why) {
+  const auto now = std::chrono::steady_clock::now();
+  if (now - logged < std::chrono::seconds(5)) return;
+  logged = now;
+  spdlog::warn("lcmx: refused a keep-last-N replay ({} refused so far): {}", refused, why);
+}
+}  // namespace
+
 bool Replays::queue(const Job& job) {
   std::lock_guard lock(mu_);
   const auto now = Clock::now();
   // Forget what is older than a lease (bounded by what a lease can hold).
   std::erase_if(last_, [&](const auto& kv) { return now - kv.second >= lease_; });
-  auto& recent = recent_[job.publisher];
-  std::erase_if(recent, [&](const auto& t) { return now - t >= lease_; });
   const auto key = std::make_tuple(job.publisher, job.participant, job.endpoint);
-  if (last_.count(key) || recent.size() >= kMaxPerLease) {
+  if (last_.count(key)) {
     ++refused_;
-    if (now - refused_logged_ >= std::chrono::seconds(5)) {
-      refused_logged_ = now;
-      spdlog::warn("lcmx: refused a keep-last-N replay to subscriber {}:{} ({} refused so far): at most one per "
-                   "subscriber per lease and {} per publisher per lease",
-                   job.participant, job.endpoint, refused_, kMaxPerLease);
-    }
-    if (recent.empty()) recent_.erase(job.publisher);
+    log_refused(refused_logged_, refused_, "a subscriber endpoint gets one replay of a publisher per lease");
     return false;
   }
   last_[key] = now;
-  recent.push_back(now);
-  jobs_.push_back(job);
+  auto& recent = recent_[job.publisher];
+  std::erase_if(recent, [&](const auto& t) { return now - t >= lease_; });
+  if (recent.size() < kMaxPerLease && pending_.empty()) {
+    recent.push_back(now);
+    jobs_.push_back(job);
+    return true;
+  }
+  if (pending_.size() >= kMaxPending) {
+    pending_.pop_front();
+    ++refused_;
+    log_refused(refused_logged_, refused_, "more replays waiting than kMaxPending (forged subscribers?)");
+  }
+  pending_.push_back(job);
   return true;
+}
+
+void Replays::tick() {
+  std::lock_guard lock(mu_);
+  const auto now = Clock::now();
+  for (auto& [publisher, recent] : recent_) std::erase_if(recent, [&](const auto& t) { return now - t >= lease_; });
+  std::deque<Job> wait;
+  for (auto& job : pending_) {
+    auto& recent = recent_[job.publisher];
+    if (recent.size() < kMaxPerLease) {
+      recent.push_back(now);
+      jobs_.push_back(job);
+    } else {
+      wait.push_back(job);
+    }
+  }
+  pending_.swap(wait);
+  std::erase_if(recent_, [](const auto& kv) { return kv.second.empty(); });
 }
 
 std::uint64_t Replays::refused() const {
   std::lock_guard lock(mu_);
   return refused_;
+}
+
+std::size_t Replays::ready() const {
+  std::lock_guard lock(mu_);
+  return jobs_.size();
+}
+
+std::size_t Replays::waiting() const {
+  std::lock_guard lock(mu_);
+  return pending_.size();
 }
 
 void Replays::send(Pairs& pairs, std::uint64_t participant_id, udpm::Group& local, udpm::Group* vehicle) {

@@ -204,6 +204,8 @@ void RuntimeImpl::settle(Pairs::Outcome outcome) {
 void RuntimeImpl::every_second() {
   watch_keys();
   events.run_housekeeping();
+  replays.tick();  // replays that waited for their publisher's budget
+  replays.send(pairs, participant_id, *local_group, vehicle_group.get());
   settle(pairs.expire_foreign(std::chrono::seconds(60)));
 }
 

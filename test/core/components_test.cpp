@@ -104,19 +104,24 @@ TEST_CASE("PeerTable: senders by address - the socket, the mirror's port from an
   CHECK_FALSE(t.source_of(10, true).has_value());
 }
 
-TEST_CASE("Replays: a subscriber endpoint gets one replay per lease, a publisher at most kMaxPerLease per lease "
-          "(forged beacons rotating endpoint ids)",
+TEST_CASE("Replays: a subscriber endpoint gets one replay per lease, a publisher sends at most kMaxPerLease per "
+          "lease and the others wait (forged beacons rotating endpoint ids)",
           "[components]") {
   Replays r(std::chrono::milliseconds(200));
   CHECK(r.queue({1, 100, 1, true}));
   CHECK_FALSE(r.queue({1, 100, 1, true}));  // the same subscriber again within the lease
+  CHECK(r.refused() == 1);
   CHECK(r.queue({2, 100, 1, true}));        // another publisher
-  std::size_t accepted = 1;
-  for (std::int64_t e = 2; e < 100; ++e) accepted += r.queue({1, 100, e, true}) ? 1 : 0;
-  CHECK(accepted == Replays::kMaxPerLease);
-  CHECK(r.refused() == 1 + (98 - (Replays::kMaxPerLease - 1)));
+  for (std::int64_t e = 2; e < 100; ++e) CHECK(r.queue({1, 100, e, true}));
+  CHECK(r.ready() == Replays::kMaxPerLease + 1);  // publisher 1's budget, and publisher 2's one
+  CHECK(r.waiting() == 99 - Replays::kMaxPerLease);
+  r.tick();  // the lease has not passed: nothing more
+  CHECK(r.ready() == Replays::kMaxPerLease + 1);
   std::this_thread::sleep_for(std::chrono::milliseconds(250));  // the lease itself is what is tested
-  CHECK(r.queue({1, 100, 1, true}));
+  r.tick();
+  CHECK(r.ready() == 2 * Replays::kMaxPerLease + 1);
+  CHECK(r.waiting() == 99 - 2 * Replays::kMaxPerLease);
+  CHECK(r.queue({1, 100, 1, true}));  // a lease later, the same subscriber may have one again
 }
 
 TEST_CASE("TopicPolicy: configured classes win, a bridge's globs make topics large, mirror globs", "[components]") {

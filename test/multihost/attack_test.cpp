@@ -196,3 +196,93 @@ TEST_CASE("attack: messages injected from the LAN into the host-local group - by
   CHECK(st.str("sources") == "L:50");
   CHECK(sub.wait() == 0);
 }
+
+namespace {
+
+// Counts the LC02 datagrams of `channel` multicast to the vehicle group `url` ("udpm://G:P?...")
+// as heard on a host, with their arrival times.
+class GroupListener {
+ public:
+  GroupListener(lcmx::test::Emulation& emu, int host, const std::string& url) {
+    const auto a = url.find("://") + 3, c = url.find(':', a), q = url.find('?', c);
+    const std::string group = url.substr(a, c - a);
+    const int port = std::stoi(url.substr(c + 1, q - c - 1));
+    const auto own = addr(emu.address(host, "eth"));
+    fd_ = emu.run_in(host, [&] {
+      const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+      const int one = 1, buf = 8 << 20;
+      ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+      ::setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &buf, sizeof buf);
+      sockaddr_in sa{};
+      sa.sin_family = AF_INET;
+      sa.sin_port = htons(static_cast<std::uint16_t>(port));
+      ::inet_pton(AF_INET, group.c_str(), &sa.sin_addr);
+      if (::bind(fd, reinterpret_cast<sockaddr*>(&sa), sizeof sa) != 0) return -1;
+      ip_mreq m{};
+      ::inet_pton(AF_INET, group.c_str(), &m.imr_multiaddr);
+      m.imr_interface = own;
+      if (::setsockopt(fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &m, sizeof m) != 0) return -1;
+      return fd;
+    });
+    REQUIRE(fd_ >= 0);
+  }
+  GroupListener(const GroupListener&) = delete;
+  GroupListener& operator=(const GroupListener&) = delete;
+  ~GroupListener() { ::close(fd_); }
+
+  // Reads what arrived (for at most `wait`), keeping the times of `channel`'s datagrams.
+  void read(const std::string& channel, ms wait) {
+    const auto deadline = Clock::now() + wait;
+    while (Clock::now() < deadline) {
+      pollfd p{fd_, POLLIN, 0};
+      ::poll(&p, 1, 10);
+      char buf[65536];
+      for (;;) {
+        const ssize_t r = ::recv(fd_, buf, sizeof buf, 0);
+        if (r < 8) break;
+        if (std::memcmp(buf, "LC02", 4) == 0 && channel == std::string(buf + 8, ::strnlen(buf + 8, r - 8)))
+          times_.push_back(Clock::now());
+      }
+    }
+  }
+  std::size_t count() const { return times_.size(); }
+  // The most datagrams seen within any window of `width`.
+  std::size_t densest(ms width) const {
+    std::size_t best = 0;
+    for (std::size_t i = 0, j = 0; i < times_.size(); ++i) {
+      while (times_[i] - times_[j] > width) ++j;
+      best = std::max(best, i - j + 1);
+    }
+    return best;
+  }
+
+ private:
+  int fd_ = -1;
+  std::vector<Clock::time_point> times_;
+};
+
+}  // namespace
+
+TEST_CASE("attack: a LAN machine with 200 subscribers of a topic that keeps its last messages makes the publisher "
+          "replay at most 32 times per lease - the others in later leases, not at once",
+          "[multihost][attack]") {
+  LCMX_REQUIRE_NETNS();
+  Hosts h(3, 83);  // a vehicle group on "eth", lease 800 ms
+  const auto ch = h.channel("ATTACK_REPLAY");
+  auto& pub = h.peer(0, {"pub", "--channel", ch, "--type", "bench", "--size", "100", "--count", "20", "--rate",
+                         "0", "--history", "20", "--hold", "--id", "V"});
+  REQUIRE(pub.expect("PUBLISHED", 20000ms));
+  GroupListener lan(h.emu(), 2, h.vehicle_url);
+  // 200 subscriber endpoints (one per node) on the hostile machine: each asks for the history.
+  auto& hostile = h.peer(2, {"sub", "--channel", ch, "--type", "bench", "--nodes", "200", "--publishers", "1",
+                             "--queue-depth", "64"});
+  REQUIRE(hostile.expect("MATCHED", 30000ms));
+  lan.read("LCMX_HISTORY", 3000ms);
+  INFO("replays heard: " << lan.count());
+  // On a880031 all 200 went at once. Now at most 32 per lease (800 ms), the rest later.
+  CHECK(lan.count() > 0);
+  CHECK(lan.densest(h.lease_ms) <= 32 + 1);
+  hostile.send("quit");
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
