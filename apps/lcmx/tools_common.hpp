@@ -23,6 +23,9 @@ class Observer {
       discovery::Options o;
       o.group = observer_group(g, vehicle);
       o.observer = true;
+      // The vehicle group's observer is of the vehicle scope: no registry of its own (a host-scope
+      // one would open a registry for the vehicle group and take this host's speaker for a twin).
+      o.scope = vehicle ? lcmx_msgs::beacon_t::SCOPE_VEHICLE : lcmx_msgs::beacon_t::SCOPE_HOST;
       d_.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
     }
   }

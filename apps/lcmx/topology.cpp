@@ -278,6 +278,9 @@ std::vector<discovery::Participant> observe(const Globals& g, std::vector<GroupS
     refusals.push_back(o.group.refusals);
     if (groups) groups->push_back(GroupSeen{vehicle, vehicle ? g.vehicle_url : g.url, o.group.keys, {}});
     o.observer = true;
+    // The vehicle group's observer is of the vehicle scope: no registry of its own (a host-scope
+    // one would open a registry for the vehicle group and take this host's speaker for a twin).
+    o.scope = vehicle ? lcmx_msgs::beacon_t::SCOPE_VEHICLE : lcmx_msgs::beacon_t::SCOPE_HOST;
     observers.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
   }
   // Participants answer the query at once; a second query covers a lost datagram.

@@ -59,11 +59,6 @@ RuntimeImpl::RuntimeImpl(RuntimeOptions o)
   // /dev/shm (containers) apart: equal pids, never equal names.
   own_shm_prefix = std::string(shm::kPrefix) + hex(host) + "_";
   shm_base_prefix = own_shm_prefix + shm::process_tag() + "_";
-  if (options.reclaim_orphans) {
-    // Every lcmx segment whose writer is dead (shm's liveness is exact across pid namespaces).
-    const auto r = shm::reclaim_orphans();
-    if (r.removed > 0) spdlog::info("lcmx: removed {} shared-memory segments of dead processes", r.removed);
-  }
 }
 
 RuntimeImpl::~RuntimeImpl() { shutdown(); }
@@ -135,6 +130,15 @@ void RuntimeImpl::start_transports() {
     registry = discovery::Registry::open(ro);
   } catch (const std::runtime_error& e) {
     throw Error(Errc::transport, e.what());
+  }
+  if (options.reclaim_orphans && registry->created()) {
+    // The first lcmx process of this host (and group): every lcmx segment whose writer is dead
+    // goes (shm's liveness is exact across pid namespaces). Not at every start: a scan of
+    // /dev/shm per process made a host's start quadratic (issue 33: 500 processes, 10,000
+    // segments); while the registry lives, its speaker reclaims a dead participant's
+    // segments by name (discovery/src/registry.cpp).
+    const auto r = shm::reclaim_orphans();
+    if (r.removed > 0) spdlog::info("lcmx: removed {} shared-memory segments of dead processes", r.removed);
   }
   std::weak_ptr<RuntimeImpl> weak = weak_from_this();
   front_door = std::make_unique<FrontDoor>(FrontDoor::Context{

@@ -991,8 +991,9 @@ struct Discovery::Impl {
         warn_limited(last_twin_log,
                      "lcmx discovery: another registry claims this host's id {} on this group (participant {} "
                      "speaks for it): processes that share LCMX_HOST_ID but not /dev/shm cannot see each other; "
-                     "give each /dev/shm its own host id",
-                     own_host, h->speaker);
+                     "give each /dev/shm its own host id (theirs {:x}, ours {:x} in {})",
+                     own_host, h->speaker, static_cast<std::uint64_t>(h->registry_id),
+                     static_cast<std::uint64_t>(reg->header->registry_id), registry->path());
       }
       return;
     }

@@ -128,6 +128,7 @@ Registry::Registry(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 Registry::~Registry() = default;
 const std::string& Registry::path() const { return impl_->path; }
 std::uint64_t Registry::host_id() const { return impl_->header->host_id; }
+bool Registry::created() const { return impl_->created; }
 std::uint32_t Registry::slots() const { return impl_->slot_count; }
 
 std::uint32_t Registry::occupied() const {
@@ -169,6 +170,10 @@ std::shared_ptr<Registry> Registry::open(const RegistryOptions& o) {
       ::close(fd);
       fail("cannot lock " + impl->path);
     }
+    // Its size again, under the init lock: the size read before it may be from before another
+    // process initialised the file, and initialising it again (ftruncate to 0) would take the
+    // pages from under that process's mapping (SIGBUS).
+    if (::fstat(fd, &st) != 0) fail("fstat " + impl->path);
     if (!S_ISREG(st.st_mode)) {
       ::close(fd);
       throw std::runtime_error("lcmx discovery registry: " + impl->path + " is not a regular file");
@@ -232,6 +237,7 @@ std::shared_ptr<Registry> Registry::open(const RegistryOptions& o) {
     }
     lock_byte(fd, reg::kLockInit, F_UNLCK, false);
     if (init) sweep(o.directory, impl->path);  // leftovers of killed processes
+    impl->created = init;
     break;
   }
   return std::shared_ptr<Registry>(new Registry(std::move(impl)));

@@ -171,6 +171,7 @@ struct Registry::Impl {
   std::atomic<std::uint64_t>* log = nullptr;  // kLogSize entries after the slots
   std::atomic<std::uint32_t>* buckets = nullptr;  // kBuckets words after the log
   std::uint32_t slot_count = 0;
+  bool created = false;  // open() initialised the file (no lcmx process of the host had it)
 
   // This process's membership (one slot for its host and vehicle Discovery).
   std::mutex mutex;

@@ -96,7 +96,7 @@ class Capture {
 
 // ---------------------------------------------------------------- key files
 
-TEST_CASE("keyed: key files are written 0600 and read back; bad files are named with what is wrong",
+TEST_CASE("keyed: key files are written 0600 and read back, bad files are named with what is wrong",
           "[unit][keyed]") {
   TmpDir dir;
   const std::string file = (dir.path / "vehicle.key").string();
@@ -164,7 +164,7 @@ TEST_CASE("keyed: key files are written 0600 and read back; bad files are named 
 
 // ---------------------------------------------------------------- envelope and replay window
 
-TEST_CASE("keyed: the envelope round-trips authenticated and encrypted; any changed byte is refused",
+TEST_CASE("keyed: the envelope round-trips authenticated and encrypted, any changed byte is refused",
           "[unit][keyed]") {
   const auto encrypt = GENERATE(false, true);
   INFO((encrypt ? "encrypted" : "authenticated"));

@@ -61,7 +61,7 @@ struct Options {
   // The host registry this participant joins (shared by the host and vehicle Discovery of one
   // process: one slot). Null: the Discovery opens the registry of (this host, its group).
   std::shared_ptr<Registry> registry;
-  std::uint32_t registry_slots = 8192;  // of a registry it creates (registry.hpp)
+  std::uint32_t registry_slots = 1024;  // of a registry it creates (registry.hpp)
   std::string registry_directory = "/dev/shm";
   // Host scope: a peer in our pid namespace is watched with a pidfd (pid + start time from
   // its beacon, so a reused pid is never taken for it) and declared gone as soon as its

@@ -23,7 +23,7 @@ struct RegistryOptions {
   udpm::GroupConfig group;           // the host-local group: one registry per address:port
   // Slots of a registry this call creates (an existing one keeps its size): participants of
   // one host at most. Bounded to [2, 65536].
-  std::uint32_t slots = 8192;
+  std::uint32_t slots = 1024;
   std::string directory = "/dev/shm";  // tests may use another tmpfs directory
 };
 
@@ -37,6 +37,10 @@ class Registry {
   const std::string& path() const;        // the registry file
   std::uint64_t host_id() const;
   std::uint32_t slots() const;
+  // Whether open() initialised the file: no lcmx process of this host and group held it, so
+  // whatever lcmx left in /dev/shm before is nobody's (RuntimeImpl then reclaims orphans; while
+  // the registry lives its speaker reclaims each dead participant's segments by name).
+  bool created() const;
   // Participants holding a slot now (live, or claimed and not yet reclaimed).
   std::uint32_t occupied() const;
 
