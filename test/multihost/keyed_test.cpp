@@ -345,6 +345,8 @@ TEST_CASE("keyed vehicle: rotating the key host by host keeps traffic flowing wi
     }
   }
   REQUIRE(sub.wait_seen("MATCHED", 1000ms));
+  // Traffic goes on after the last step (on the new key alone) for at least 300 messages in all.
+  REQUIRE(poll_sub(sub, ch, [](const Summary& x) { return x.num("received") > 300; }, 15000ms));
   pub.send("quit");
   CHECK(pub.wait() == 0);
   const auto st = of(sub.summaries("quit", 15000ms), ch);
