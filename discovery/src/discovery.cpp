@@ -187,6 +187,16 @@ struct Discovery::Impl {
   std::map<std::int64_t, std::int64_t> spoken_set;  // id -> revision (digest)
   std::set<std::int64_t> pending_records, pending_goodbyes;
   Clock::time_point flush_at = Clock::time_point::max();
+  Clock::time_point last_flush{};  // the last time pending records went out
+  // When changed records go out: at once if none went for kRecordDelay (a single change, e.g.
+  // a subscriber that matched a bridge republisher, reaches other hosts in a millisecond, as
+  // the publisher's choice of path needs), else kRecordDelay after the first of a burst (a
+  // launch of many processes goes out in few datagrams).
+  void schedule_flush() {
+    if (flush_at != Clock::time_point::max()) return;
+    const auto now = Clock::now();
+    flush_at = now - last_flush >= kRecordDelay ? now : now + kRecordDelay;
+  }
   bool want_index = false, want_all = false;  // under mutex
   std::set<std::int64_t> wanted;               // under mutex
   Clock::time_point last_index{}, last_all{}, audience_until{};
@@ -396,7 +406,7 @@ struct Discovery::Impl {
       spoken_set.erase(k.id);
       pending_records.erase(k.id);
       pending_goodbyes.insert(k.id);
-      if (flush_at == Clock::time_point::max()) flush_at = Clock::now() + kRecordDelay;
+      schedule_flush();
     }
     k = Known{};
   }
@@ -612,7 +622,7 @@ struct Discovery::Impl {
     if (changed) {
       pending_records.insert(id);
       pending_goodbyes.erase(id);
-      if (flush_at == Clock::time_point::max()) flush_at = Clock::now() + kRecordDelay;
+      schedule_flush();
     }
   }
 
@@ -702,6 +712,7 @@ struct Discovery::Impl {
     }
     if (now >= flush_at) {
       flush_at = Clock::time_point::max();
+      last_flush = now;
       if (audience()) {
         for (auto id : pending_records) send_record(id);
         for (auto id : pending_goodbyes) send_goodbye(id);
@@ -1213,7 +1224,15 @@ struct Discovery::Impl {
       if (is_deputy) until = std::min(until, Clock::now() + kSpeakerTick);
       const auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       const auto ms = std::clamp<std::int64_t>(wait.count(), 0, 1000);
-      if (is_speaker || !reads) {
+      if (is_speaker && reads && !changed_since_pass()) {
+        // The speaker also wakes on a change of the registry (a participant's new state), not
+        // only at its next tick: its records then go out at once (schedule_flush).
+        const auto expected_wake = wake_word.load(std::memory_order_acquire);
+        std::uint64_t v;
+        [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);  // keep the eventfd from filling
+        shm::WaitToken t[2] = {{&wake_word, expected_wake, true}, {&reg->header->changes, seen_changes, false}};
+        if (!changed_since_pass()) shm::wait_any(std::span(t), std::chrono::milliseconds(ms));
+      } else if (is_speaker || !reads) {
         pollfd fds[1] = {{wake_fd, POLLIN, 0}};
         const int r = ::poll(fds, 1, static_cast<int>(ms));
         if (r > 0 && (fds[0].revents & POLLIN)) {
