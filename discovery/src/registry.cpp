@@ -358,8 +358,10 @@ bool Registry::Impl::publish(bool vehicle, std::vector<std::byte> bytes, std::ui
   h.vehicle_len = static_cast<std::uint32_t>(vehicle_bytes.size());
   h.host_struct = host_struct;
   h.vehicle_struct = vehicle_struct;
-  std::memcpy(file.data() + sizeof h, host_bytes.data(), host_bytes.size());
-  std::memcpy(file.data() + sizeof h + host_bytes.size(), vehicle_bytes.data(), vehicle_bytes.size());
+  // (an empty section has no data(): memcpy must not be given it, even for 0 bytes)
+  if (!host_bytes.empty()) std::memcpy(file.data() + sizeof h, host_bytes.data(), host_bytes.size());
+  if (!vehicle_bytes.empty())
+    std::memcpy(file.data() + sizeof h + host_bytes.size(), vehicle_bytes.data(), vehicle_bytes.size());
   h.checksum = reg::fnv1a(std::span(file).subspan(sizeof h));
   const auto rev = s.revision.load(std::memory_order_relaxed) + (bump ? 1 : 0);
   h.revision = rev;

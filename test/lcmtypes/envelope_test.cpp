@@ -20,6 +20,18 @@ thread_local bool g_counting = false;
 thread_local std::size_t g_allocated = 0;
 }  // namespace
 
+#if defined(__SANITIZE_ADDRESS__)
+// Under AddressSanitizer its allocator serves operator new (replacing it here mixes allocators):
+// its allocation hook counts instead (libsanitizer's public interface).
+extern "C" int __sanitizer_install_malloc_and_free_hooks(void (*malloc_hook)(const volatile void*, std::size_t),
+                                                          void (*free_hook)(const volatile void*));
+namespace {
+void count_allocation(const volatile void*, std::size_t n) {
+  if (g_counting) g_allocated += n;
+}
+[[maybe_unused]] const int g_hooks_installed = __sanitizer_install_malloc_and_free_hooks(count_allocation, nullptr);
+}  // namespace
+#else
 void* operator new(std::size_t n) {
   if (g_counting) g_allocated += n;
   if (void* p = std::malloc(n == 0 ? 1 : n)) return p;
@@ -30,6 +42,7 @@ void operator delete(void* p) noexcept { std::free(p); }
 void operator delete[](void* p) noexcept { std::free(p); }
 void operator delete(void* p, std::size_t) noexcept { std::free(p); }
 void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
+#endif
 
 namespace {
 

@@ -138,7 +138,7 @@ class Reader {
 // The encoded size of an LCM string (int32 length, the bytes up to the first NUL, the NUL):
 // what lcm-gen writes for it.
 inline std::size_t encoded_string_size(std::string_view s) noexcept {
-  const void* nul = std::memchr(s.data(), 0, s.size());
+  const void* nul = s.empty() ? nullptr : std::memchr(s.data(), 0, s.size());  // (an empty view's data() may be null)
   const std::size_t len = nul ? static_cast<std::size_t>(static_cast<const char*>(nul) - s.data()) : s.size();
   return 4 + len + 1;
 }
@@ -159,7 +159,7 @@ class Writer {
     const std::size_t len = encoded_string_size(s) - 5;
     if (!need(len + 5)) return;
     i32(static_cast<std::int32_t>(len + 1));
-    std::memcpy(b_.data() + pos_, s.data(), len);
+    if (len > 0) std::memcpy(b_.data() + pos_, s.data(), len);
     pos_ += len;
     b_[pos_++] = std::byte{0};
   }
