@@ -106,7 +106,9 @@ TEST_CASE("action across hosts: goal, feedback and result over UDP, a server SIG
   CHECK(kv.at("feedback") == "20");  // every feedback, before the end
 
   auto& live = service_peer(h, 0, {"action-client", "--name", name, "--x", "-1"});
-  REQUIRE(live.expect("ACCEPTED", 20000ms));
+  const bool accepted = static_cast<bool>(live.expect("ACCEPTED", 20000ms));
+  INFO("second client:\n" << live.output() << "\nserver:\n" << server.output());
+  REQUIRE(accepted);
   REQUIRE(server.expect("EXECUTING", 20000ms));
   const auto killed = Clock::now();
   server.kill9();
