@@ -15,18 +15,24 @@
 
 namespace lcmx::cli {
 
+// The discovery options of a tool's observer of the host-local group or (`vehicle`) the
+// vehicle group. The vehicle group's observer is of the vehicle scope: no registry of its own
+// (a host-scope one would open a registry for the vehicle group and take this host's speaker
+// for a twin). Throws what observer_group throws.
+inline discovery::Options observer_options(const Globals& g, bool vehicle) {
+  discovery::Options o;
+  o.group = observer_group(g, vehicle);
+  o.observer = true;
+  o.scope = vehicle ? lcmx_msgs::beacon_t::SCOPE_VEHICLE : lcmx_msgs::beacon_t::SCOPE_HOST;
+  return o;
+}
+
 class Observer {
  public:
   explicit Observer(const Globals& g) {
     for (const bool vehicle : {false, true}) {
       if (vehicle && g.vehicle_url.empty()) continue;
-      discovery::Options o;
-      o.group = observer_group(g, vehicle);
-      o.observer = true;
-      // The vehicle group's observer is of the vehicle scope: no registry of its own (a host-scope
-      // one would open a registry for the vehicle group and take this host's speaker for a twin).
-      o.scope = vehicle ? lcmx_msgs::beacon_t::SCOPE_VEHICLE : lcmx_msgs::beacon_t::SCOPE_HOST;
-      d_.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
+      d_.push_back(std::make_unique<discovery::Discovery>(observer_options(g, vehicle), nullptr, nullptr));
     }
   }
   // Asks every participant to beacon now.

@@ -13,6 +13,7 @@
 #include <thread>
 
 #include "log_common.hpp"
+#include "tools_common.hpp"
 #include "lcmx/udpm/udpm.hpp"
 
 namespace lcmx::cli {
@@ -272,15 +273,10 @@ std::vector<discovery::Participant> observe(const Globals& g, std::vector<GroupS
   std::vector<std::shared_ptr<udpm::Refusals>> refusals;
   for (const bool vehicle : {false, true}) {
     if (vehicle && g.vehicle_url.empty()) continue;
-    discovery::Options o;
-    o.group = observer_group(g, vehicle);
+    auto o = observer_options(g, vehicle);
     o.group.refusals = std::make_shared<udpm::Refusals>();
     refusals.push_back(o.group.refusals);
     if (groups) groups->push_back(GroupSeen{vehicle, vehicle ? g.vehicle_url : g.url, o.group.keys, {}});
-    o.observer = true;
-    // The vehicle group's observer is of the vehicle scope: no registry of its own (a host-scope
-    // one would open a registry for the vehicle group and take this host's speaker for a twin).
-    o.scope = vehicle ? lcmx_msgs::beacon_t::SCOPE_VEHICLE : lcmx_msgs::beacon_t::SCOPE_HOST;
     observers.push_back(std::make_unique<discovery::Discovery>(o, nullptr, nullptr));
   }
   // Participants answer the query at once; a second query covers a lost datagram.
