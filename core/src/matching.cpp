@@ -212,7 +212,7 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
 // segment, or receive it over UDP), and reports remote subscribers of another type.
 void Pairs::count_remote_locked(PublisherImpl& pub, Outcome& out) {
   std::size_t counts[3] = {0, 0, 0};  // shm (this host), udp (other hosts), neighbours
-  std::size_t unbridged = 0;          // of counts[1]: no bridge republisher matched yet
+  std::size_t unbridged = 0;          // subscribers on other hosts no bridge republisher serves yet
   std::set<std::pair<std::int64_t, std::int64_t>> seen;  // subscribers given a replay, still here
   for (const auto& p : ctx_.peers.endpoints_on(pub.channel(), lcmx_msgs::endpoint_t::KIND_SUBSCRIBER)) {
     const auto& e = p.e;
@@ -226,13 +226,16 @@ void Pairs::count_remote_locked(PublisherImpl& pub, Outcome& out) {
                              pub.channel(), text, pub.errors, out);
       continue;
     }
+    // A subscriber on another host that no bridge republisher serves yet keeps this publisher
+    // in the vehicle beacon, matched with it or not: a large topic that left the vehicle
+    // beacon before that subscriber's match came back would otherwise never reach it.
+    if (p.scope == Scope::vehicle &&
+        std::none_of(e.matches.begin(), e.matches.end(), [](const lcmx_msgs::match_t& o) { return o.path == "bridge"; }))
+      ++unbridged;
     for (const auto& m : e.matches)
       if (static_cast<std::uint64_t>(m.publisher_participant) == ctx_.participant_id &&
           static_cast<std::uint64_t>(m.publisher_endpoint) == pub.id) {
         ++n;
-        if (p.scope == Scope::vehicle &&
-            std::none_of(e.matches.begin(), e.matches.end(), [](const lcmx_msgs::match_t& o) { return o.path == "bridge"; }))
-          ++unbridged;
         if (pub.options.history > 0 && p.scope != Scope::host) {
           const auto key = std::make_pair(p.participant, e.id);
           seen.insert(key);

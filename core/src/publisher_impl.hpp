@@ -47,8 +47,9 @@ class PublisherImpl final : public PublisherCore {
   void add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_ptr<PairCounters> stats);
   void remove_intra(const SubscriberCore* sub);
   // Subscribers of other processes: shm (this host), udp (other hosts, vehicle group),
-  // local_udp (neighbours, host-local group); unbridged_udp: of the udp ones, those that have
-  // no bridge republisher of the topic matched yet (their beacon lists no "bridge" match).
+  // local_udp (neighbours, host-local group); unbridged_udp: subscribers of the topic on other
+  // hosts, matched with this publisher or not yet, that have no bridge republisher of it
+  // matched (their beacon lists no "bridge" match).
   void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp,
                               std::size_t unbridged_udp);
   bool large() const { return large_.load(); }
