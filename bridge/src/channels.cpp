@@ -405,7 +405,7 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
   try {
     r->pub.publish(std::span<const std::byte>(static_cast<const std::byte*>(payload.data()), payload.size()));
   } catch (const std::exception& e) {
-    spdlog::warn("bridge {}: republishing {} failed: {}", cfg.name, topic, e.what());
+    spdlog::warn("bridge {}: republishing {} failed: {}", cfg.name, printable(topic), e.what());
     return;
   }
   // The commit woke every subscriber of this host at once. Subscribers woken onto this
@@ -429,7 +429,7 @@ std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(cons
   auto& slot = repubs[topic];
   if (slot && ((remake_for_history && slot->history != history) || slot->type != type)) {
     if (slot->type != type)
-      spdlog::info("bridge {}: {} is now of type {} at its origin (was {})", cfg.name, topic,
+      spdlog::info("bridge {}: {} is now of type {} at its origin (was {})", cfg.name, printable(topic),
                    type.name.empty() ? "raw" : type.name, slot->type.name.empty() ? "raw" : slot->type.name);
     if (!remake_for_history) history = slot->history;
     old = std::move(slot);
@@ -447,7 +447,7 @@ std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(cons
       r->touch();
       slot = std::move(r);
     } catch (const std::exception& e) {
-      spdlog::warn("bridge {}: cannot republish {}: {}", cfg.name, topic, e.what());
+      spdlog::warn("bridge {}: cannot republish {}: {}", cfg.name, printable(topic), e.what());
       repubs.erase(topic);
       return nullptr;
     }
