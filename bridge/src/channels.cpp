@@ -122,15 +122,42 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
     set_thread_nice(want_nice);
     niced = want_nice;
   }
-  if (!s.large.load(std::memory_order_relaxed)) {
-    if (m.data.size() <= rt_options.udp_limit) return;  // small: UDP carries it
-    s.large = true;
+  // One class per message, the publisher's (docs/bridge.md "One class per message"): an lcmx
+  // publisher stamps each message it writes into shared memory with the class it routed it by.
+  // A large one it leaves to the bridges to reach other hosts: forwarded. A small one it sends
+  // over UDP itself where other hosts want it: not forwarded, whatever this bridge's own
+  // udp_limit or carry say (forwarding it too reached those hosts twice; a publisher whose
+  // limit is lower than ours had its first large messages forwarded by nobody). Only a message
+  // without a stamp (not from an lcmx publisher's shared memory) is judged here, as before:
+  // large when its topic is, or over udp_limit.
+  const std::optional<bool> said = m.published_large();
+  if (said ? !*said : !s.large.load(std::memory_order_relaxed) && m.data.size() <= rt_options.udp_limit) {
+    if (said && !s.small_said_logged && (m.data.size() > rt_options.udp_limit || cfg.carried(s.topic))) {
+      s.small_said_logged = true;  // once per topic: both sides' settings stay as they are
+      if (m.data.size() > rt_options.udp_limit)
+        spdlog::warn("bridge {}: topic {}: a {}-byte message over this bridge's udp_limit ({}) that its publisher "
+                     "classes small (its LCMX_UDP_LIMIT is higher, or LCMX_SMALL_TOPICS names it): not bridged, it "
+                     "reaches other hosts over LCM UDP (the publisher's class wins)",
+                     cfg.name, printable(s.topic), m.data.size(), rt_options.udp_limit);
+      else
+        spdlog::warn("bridge {}: topic {} matches carry, but its publisher classes small what it publishes "
+                     "(LCMX_SMALL_TOPICS names it?): not bridged, it reaches other hosts over LCM UDP (the "
+                     "publisher's class wins)",
+                     cfg.name, printable(s.topic));
+    }
+    return;  // small: UDP carries it
+  }
+  if (!s.large.exchange(true)) {
     {
       std::lock_guard lock(view_mu);
       sticky_large.insert(s.topic);
     }
-    spdlog::info("bridge {}: topic {} is large ({} bytes > udp_limit {}): bridged from now on", cfg.name, s.topic,
-                 m.data.size(), rt_options.udp_limit);
+    if (said)
+      spdlog::info("bridge {}: topic {} is large (its publisher says so, at a {}-byte message): bridged from now on",
+                   cfg.name, printable(s.topic), m.data.size());
+    else
+      spdlog::info("bridge {}: topic {} is large ({} bytes > udp_limit {}): bridged from now on", cfg.name,
+                   printable(s.topic), m.data.size(), rt_options.udp_limit);
   }
   std::size_t targets[kMaxPeers];  // load_config() allows at most kMaxPeers peers
   std::size_t n = 0;

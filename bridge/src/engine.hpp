@@ -277,6 +277,9 @@ struct Bridge::Impl {
     std::vector<std::size_t> peers;
     std::shared_ptr<PinWatch> pins = std::make_shared<PinWatch>();
     RawSubscriber sub;
+    // executor thread (on_local_message): a message its publisher classes small although this
+    // bridge would have bridged it (over udp_limit, or carried) was logged.
+    bool small_said_logged = false;
     // control thread (note_local_drops): the subscription's drops counted into lost_local,
     // and logged so far.
     std::uint64_t drops_counted = 0, drops_logged = 0;

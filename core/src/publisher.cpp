@@ -168,7 +168,7 @@ PublisherImpl::Written PublisherImpl::write_encoded(const void* object, std::siz
       type.encode(object, loan.data(), size);
       if (udp) out.sent = send_udp({loan.data(), size});
       if (keeps_encoding()) out.kept = make_bytes({loan.data(), size});
-      writer_->commit(std::move(loan), size);
+      writer_->commit(std::move(loan), size, slot_flags());  // after note_size: this message's class
     } catch (const shm::Error& e) {
       throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
     }
@@ -262,7 +262,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   const bool history = options.history > 0;
   if (history || writer_->registered_readers() > 0) {
     try {
-      writer_->write(data.data(), data.size());
+      writer_->write(data.data(), data.size(), slot_flags());
     } catch (const shm::Error& e) {
       throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
     }
@@ -324,7 +324,7 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
     loan_cv_.notify_all();
   };
   try {
-    writer_->commit(std::move(loan), size);
+    writer_->commit(std::move(loan), size, slot_flags());
     shm_dropped_.store(writer_->dropped(), std::memory_order_relaxed);
   } catch (const shm::Error& e) {
     end();

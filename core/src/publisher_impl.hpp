@@ -52,6 +52,12 @@ class PublisherImpl final : public PublisherCore {
   void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp,
                               std::size_t unbridged_udp);
   bool large() const { return large_.load(); }
+  // The bits committed with each message into its shared memory (shm::Writer::commit's
+  // `flags`): this publisher's class of that very message, which the Message Bridges of this
+  // host follow (RawMessage::published_large; docs/bridge.md "One class per message").
+  static constexpr std::uint64_t kSlotClassSaid = 1;  // the publisher says (older writers: 0)
+  static constexpr std::uint64_t kSlotLarge = 2;      // large: other hosts get it through the bridges
+  std::uint64_t slot_flags() const { return kSlotClassSaid | (large_.load() ? kSlotLarge : 0); }
   // Large, a bridge of this host carries it, and every subscriber on other hosts is matched
   // with a bridge republisher: other hosts reach it only through the bridges, so the vehicle
   // beacon leaves it out (DESIGN.md "Discovery", scopes).

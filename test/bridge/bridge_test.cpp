@@ -1842,7 +1842,7 @@ TEST_CASE("publisher and bridge with different udp limits or a small class force
     const long long total = published_total(*p);
     REQUIRE(total == warm[ch] + 30);
     auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == total - 1; }, 15000ms);
-    INFO(ch << ": received " << st.num("received") << " min " << st.num("min") << " last " << st.num("last")
+    WARN(ch << ": received " << st.num("received") << " min " << st.num("min") << " last " << st.num("last")
             << " duplicates " << st.num("duplicates") << " gaps " << st.num("gaps") << " paths " << st.str("paths"));
     CHECK(ok);
     check_clean(st);
