@@ -1868,14 +1868,22 @@ TEST_CASE("vehicle group and bridges on A and B: a late subscriber on bridge-les
   const auto ch = w.channel("LATE_C");
   auto& ba = w.bridge(0, {1});
   auto& bb = w.bridge(1, {0});
-  auto& sub_b = w.sub(1, {ch});
-  auto& pub = w.spawn(0, {LCMX_BRIDGE_PUB, "--channel", ch, "--size", "300000", "--id", "A"}, true);
+  // Settled first (as in "vehicle group and bridges: the message that makes a topic large..."):
+  // small messages over UDP, and B's republisher matched (bridges offer small topics too), then
+  // the topic turns large and reaches B through the bridges only. (Bridges that set up while
+  // the topic is already large may deliver a few messages twice at that moment: docs/bridge.md
+  // "From UDP to the bridges without a loss"; not what this test is about.)
+  auto& sub_b = w.sub(1, {ch}, {"--publishers", "2"});
+  auto& pub = w.spawn(0, {LCMX_BRIDGE_PUB, "--channel", ch, "--size", "1000", "--id", "A"}, true);
   REQUIRE(pub.expect("READY", 10000ms));
-  const long long warm = warm_up(pub, {&sub_b}, ch);
+  const bool matched_b = static_cast<bool>(sub_b.expect("MATCHED", 15000ms));
   INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output() << "\nsubscriber B:\n" << sub_b.output());
-  // Settled: B's subscriber receives through the bridges only (A's publisher is bridged only).
+  REQUIRE(matched_b);
+  long long total = warm_up(pub, {&sub_b}, ch);
+  pub.send("size 300000");
+  REQUIRE(pub.expect("SIZE 300000", 5000ms));
+  // B's subscriber takes it from the bridges only now (A's publisher is bridged only).
   const auto deadline = Clock::now() + 15000ms;
-  long long total = warm;
   while (status_of(sub_b, ch).str("paths") != "bridge" && Clock::now() < deadline) {
     pub.send(pub_cmd(1, 0));
     total = published_total(pub);
@@ -1893,12 +1901,17 @@ TEST_CASE("vehicle group and bridges on A and B: a late subscriber on bridge-les
   total = published_total(pub);
   REQUIRE(total == warm_c + 20);
   auto [sc, okc] = wait_sub(sub_c, ch, [&](const Summary& x) { return x.num("last") == total - 1; }, 15000ms);
+  auto [sb, okb] = wait_sub(sub_b, ch, [&](const Summary& x) { return x.num("last") == total - 1; }, 15000ms);
+  WARN("C: received " << sc.num("received") << " min " << sc.num("min") << " last " << sc.num("last") << " duplicates "
+                      << sc.num("duplicates") << " gaps " << sc.num("gaps") << " paths " << sc.str("paths")
+                      << "; B: received " << sb.num("received") << " min " << sb.num("min") << " last " << sb.num("last")
+                      << " duplicates " << sb.num("duplicates") << " gaps " << sb.num("gaps") << " paths "
+                      << sb.str("paths"));
   CHECK(okc);
   check_clean(sc);
   CHECK(sc.num("gaps") == 0);
   CHECK(sc.num("received") == sc.num("last") - sc.num("min") + 1);
   CHECK(sc.str("paths") == "udp");
-  auto [sb, okb] = wait_sub(sub_b, ch, [&](const Summary& x) { return x.num("last") == total - 1; }, 15000ms);
   CHECK(okb);
   check_clean(sb);  // no duplicates: B ignores the fragments meant for C
   CHECK(sb.num("gaps") == 0);
