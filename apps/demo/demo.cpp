@@ -49,6 +49,9 @@ struct Recorder {
   std::int64_t first_ns = 0, last_ns = 0;
   std::int64_t last_seq = -1;
   std::uint64_t gaps = 0;
+  // Each gap: (publish stamp of the message after it, messages missing), the first 256: the
+  // two-chip mode gives each to the phase it happened in (the link switch that lost them).
+  std::vector<std::pair<std::int64_t, std::uint64_t>> gap_events;
 
   void on(const lcmx_examples::header_t& h) {
     const auto t = now_ns();
@@ -56,8 +59,20 @@ struct Recorder {
     latency_us.push_back(static_cast<double>(t - h.stamp_ns) / 1000.0);
     if (first_ns == 0) first_ns = t;
     last_ns = t;
-    if (last_seq >= 0 && h.seq > last_seq + 1) gaps += static_cast<std::uint64_t>(h.seq - last_seq - 1);
+    if (last_seq >= 0 && h.seq > last_seq + 1) {
+      const auto n = static_cast<std::uint64_t>(h.seq - last_seq - 1);
+      gaps += n;
+      if (gap_events.size() < 256) gap_events.emplace_back(h.stamp_ns, n);
+    }
     last_seq = h.seq;
+  }
+
+  // "<stamp_ns>:<missing>,..." or "-".
+  std::string gap_list() {
+    std::lock_guard lock(mu);
+    std::string s;
+    for (const auto& [stamp, n] : gap_events) s += (s.empty() ? "" : ",") + std::to_string(stamp) + ":" + std::to_string(n);
+    return s.empty() ? "-" : s;
   }
 
   // "<received> <rate_hz> <p50_us> <p99_us> <lost>"
@@ -132,6 +147,8 @@ int run_subscriber(const std::string& name, const std::vector<std::string>& topi
   }
   if (want_cam) std::cout << result_line(name, kCamera, cam, cam_sub.stats(), cam_path) << "\n";
   if (want_pose) std::cout << result_line(name, kPose, pose, pose_sub.stats(), pose_path) << "\n";
+  // "GAPS <subscriber> <topic> <stamp_ns>:<missing>,...": where its losses were (two-chip mode).
+  if (want_cam) std::cout << "GAPS " << name << " " << kCamera << " " << cam.gap_list() << "\n";
   std::cout << "END" << std::endl;
   return 0;
 }
@@ -213,10 +230,15 @@ int run_single_host(const char* self, double seconds, int width, int height, dou
   lines.push_back(result_line("local_viewer", kCamera, local_cam, local_sub.stats()));
   int rc = 0;
   for (auto& c : children) {
-    for (int i = 0; i < 3; ++i) {
+    // Its RESULT lines (and a GAPS line, not shown here) up to END; EOF without END: failed.
+    for (int i = 0; i < 16; ++i) {
       auto line = read_line(c.out);
       if (line.rfind("RESULT", 0) == 0) lines.push_back(line);
-      else if (line != "END") rc = 1;
+      else if (line == "END") break;
+      else if (line.rfind("GAPS", 0) != 0) {
+        rc = 1;
+        break;
+      }
     }
     int status = 0;
     waitpid(c.pid, &status, 0);

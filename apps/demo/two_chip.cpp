@@ -10,19 +10,28 @@
 // once over the active link; B's bridge republishes it into B's shared memory, where both
 // camera subscribers read it. The pose is small: LCM UDP multicast on the vehicle group (eth).
 // A third of the way in the pcie link goes down (the bridges fail over to eth), two thirds
-// in it comes back (they fail back). The demo prints the bytes each link carried per phase and
-// per image, and the subscriber table.
+// in it comes back (they fail back). The demo prints, per phase, the bytes each link carried,
+// the camera images each subscriber on B missed (its losses given to the phase its next image
+// was published in) and what the bridges counted of them (`lcmx bridge status --json` on both
+// chips at each phase's start: B's `lost` in flight, A's `drops` and `lost_local`); then the
+// bytes per image and the subscriber table. A failover loses what was in flight on pcie, all
+// counted; a fail-back loses nothing (issue 37).
 #include "demo.hpp"
 
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <array>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
+#include <map>
 #include <optional>
+#include <sstream>
 #include <thread>
 
 #ifdef LCMX_DEMO_TWO_CHIP
@@ -79,6 +88,35 @@ std::string mb(std::uint64_t bytes) {
   char b[32];
   std::snprintf(b, sizeof b, "%.1f", static_cast<double>(bytes) / 1e6);
   return b;
+}
+
+// What the bridges counted so far of the camera's losses to chip B: B's `lost` (in transit) and
+// A's `drops` (its queue to B) and `lost_local` (never read from A's shared memory), from
+// `lcmx bridge status --json` on each chip. -1 each when a status could not be read.
+struct Counted {
+  long long lost = -1, drops = -1, lost_local = -1;
+};
+long long json_sum(const std::string& text, const std::string& key) {
+  long long n = 0;
+  const std::string k = "\"" + key + "\":";
+  for (auto at = text.find(k); at != std::string::npos; at = text.find(k, at + 1))
+    n += std::strtoll(text.c_str() + at + k.size(), nullptr, 10);
+  return n;
+}
+std::string status_json(const Emulation& emu, const std::string& lcmx, int host) {
+  try {
+    auto status = emu.spawn(host, {lcmx, "bridge", "status", "--json", "--wait", "1500"});
+    std::string text;
+    while (auto line = status.read_line(5s)) text += *line;
+    return status.wait(2s) == 0 ? text : std::string();
+  } catch (const std::exception&) {
+    return {};
+  }
+}
+Counted counted(const Emulation& emu, const std::string& lcmx) {
+  const std::string a = status_json(emu, lcmx, 0), b = status_json(emu, lcmx, 1);
+  if (a.empty() || b.empty()) return {};
+  return {json_sum(b, "lost"), json_sum(a, "drops"), json_sum(a, "lost_local")};
 }
 
 // Runs `lcmx bridge status` on chip B and prints what it says (indented).
@@ -161,21 +199,36 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
     const char* what;
     Bytes before, after;
   };
+  // Each phase's start (CLOCK_MONOTONIC, the subscribers' clock too: their losses are given to
+  // the phase their next image was published in) and what the bridges had counted then.
   std::vector<Phase> phases = {{"pcie up", {}, {}}, {"pcie DOWN", {}, {}}, {"pcie up again", {}, {}}};
   phases[0].before = sent_by_a(emu);
+  std::int64_t phase_start[4] = {now_ns(), 0, 0, 0};
+  Counted count_at[4];
+  // The bridges count from when chip B's bridge has republished an image (the chain is up):
+  // what A's queue dropped before is no phase's (the subscribers on B had received nothing).
+  while (Clock::now() < start + third / 2) {
+    if (json_sum(status_json(emu, lcmx, 1), "messages_received") > 0) break;
+  }
+  count_at[0] = counted(emu, lcmx);
   std::this_thread::sleep_until(start + third);  // pacing, not synchronisation
   phases[0].after = phases[1].before = sent_by_a(emu);
+  count_at[1] = counted(emu, lcmx);
   std::cerr << "lcmx-demo: taking the pcie link of chip A down\n";
+  phase_start[1] = now_ns();
   emu.set_link_up(0, "pcie", false);
   std::this_thread::sleep_until(start + 2 * third);
   phases[1].after = phases[2].before = sent_by_a(emu);
   std::cout << "\nbridge status on chip B while pcie is down:\n";
   show_status(emu, lcmx);
+  count_at[2] = counted(emu, lcmx);
   std::cerr << "lcmx-demo: pcie link of chip A up again\n";
+  phase_start[2] = now_ns();
   emu.set_link_up(0, "pcie", true);
   const auto done = pub.expect("DONE", std::chrono::milliseconds(static_cast<int>(seconds * 1000)) + 30s);
   phases[2].after = sent_by_a(emu);
   if (!done) throw std::runtime_error("chip A's publisher did not finish");
+  phase_start[3] = std::numeric_limits<std::int64_t>::max();
   unsigned long long cams = 0, poses = 0;
   std::sscanf(done->c_str(), "DONE %llu %llu", &cams, &poses);
   std::cout << "\nbridge status on chip B after fail-back:\n";
@@ -183,12 +236,34 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
 
   // The tail of the camera stream is still crossing: give it a moment, then stop everyone.
   std::this_thread::sleep_for(500ms);  // pacing, not synchronisation
+  count_at[3] = counted(emu, lcmx);
   std::vector<std::string> lines;
+  // Camera images each subscriber on B missed, per phase (from its GAPS line).
+  std::map<std::string, std::array<unsigned long long, 3>> lost_in;
   bool ok = true;
   for (auto& p : sub_procs) {
     p.kill(SIGTERM);
     while (auto line = p.read_line(10s)) {
       if (line->rfind("RESULT", 0) == 0) lines.push_back(*line);
+      if (line->rfind("GAPS ", 0) == 0) {
+        std::istringstream in(line->substr(5));
+        std::string who, topic, list;
+        in >> who >> topic >> list;
+        auto& per = lost_in[who];
+        per = {0, 0, 0};
+        std::istringstream items(list == "-" ? std::string() : list);
+        for (std::string item; std::getline(items, item, ',');) {
+          const auto colon = item.find(':');
+          if (colon == std::string::npos) continue;
+          const long long stamp = std::strtoll(item.c_str(), nullptr, 10);
+          const unsigned long long n = std::strtoull(item.c_str() + colon + 1, nullptr, 10);
+          for (int ph = 2; ph >= 0; --ph)
+            if (stamp >= phase_start[ph]) {
+              per[static_cast<std::size_t>(ph)] += n;
+              break;
+            }
+        }
+      }
       if (*line == "END") break;
     }
     if (p.wait(10s) != 0) ok = false;
@@ -200,14 +275,30 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
   std::printf("\nlcmx demo (two chips): %.0f s, camera %dx%d rgb8 (%.1f MB) at %.0f Hz, pose at 100 Hz\n",
               seconds, width, height, image_mb, cam_hz);
   std::printf("published on chip A: camera %llu, pose %llu\n\n", cams, poses);
-  std::printf("bytes chip A sent per link (all traffic: images, poses, beacons, heartbeats):\n\n");
-  std::printf("| %-14s | %10s | %10s |\n", "phase", "pcie MB", "eth MB");
-  std::printf("|----------------|------------|------------|\n");
+  std::printf("bytes chip A sent per link (all traffic: images, poses, beacons, heartbeats), and the camera\n"
+              "images the subscribers on chip B missed in each phase (a failover loses what was in flight on\n"
+              "the dead link, and what A's queue drops until eth carries the traffic: all counted by the\n"
+              "bridges; a fail-back loses nothing):\n\n");
+  std::printf("| %-14s | %10s | %10s | %13s | %13s | %18s |\n", "phase", "pcie MB", "eth MB", "lost cam_b1",
+              "lost cam_b2", "counted (bridges)");
+  std::printf("|----------------|------------|------------|---------------|---------------|--------------------|\n");
   std::uint64_t total = 0;
-  for (const auto& ph : phases) {
+  for (std::size_t i = 0; i < phases.size(); ++i) {
+    const auto& ph = phases[i];
     const auto p = ph.after.pcie - ph.before.pcie, e = ph.after.eth - ph.before.eth;
     total += p + e;
-    std::printf("| %-14s | %10s | %10s |\n", ph.what, mb(p).c_str(), mb(e).c_str());
+    auto lost = [&](const char* who) {
+      const auto it = lost_in.find(who);
+      return it == lost_in.end() ? std::string("?") : std::to_string(it->second[i]);
+    };
+    const Counted &c0 = count_at[i], &c1 = count_at[i + 1];
+    std::string counted_text = "?";
+    if (c0.lost >= 0 && c1.lost >= 0) {
+      const long long lost_b = c1.lost - c0.lost, drops = c1.drops - c0.drops, never = c1.lost_local - c0.lost_local;
+      counted_text = std::to_string(lost_b + drops + never) + " (" + std::to_string(lost_b) + " in flight)";
+    }
+    std::printf("| %-14s | %10s | %10s | %13s | %13s | %18s |\n", ph.what, mb(p).c_str(), mb(e).c_str(),
+                lost("cam_b1").c_str(), lost("cam_b2").c_str(), counted_text.c_str());
   }
   // Images chip B received (cam_b1's count; cam_b2 got the same ones from the same slot).
   unsigned long long on_b = 0;

@@ -133,7 +133,14 @@ void Bridge::Impl::start() {
       l->cfg = e;
       p->links.push_back(std::move(l));
     }
-    for (std::size_t c = 0; c < channels.size(); ++c) p->chans.push_back(std::make_unique<PeerChannel>());
+    for (std::size_t c = 0; c < channels.size(); ++c) {
+      // Held while a gap may still fill from another link's socket: at most max(hwm, 4)
+      // messages (the channel's own bound, as its RCVHWM), for at most link_timeout (what an
+      // up link takes to answer).
+      auto pc = std::make_unique<PeerChannel>(std::max<std::size_t>(channels[c]->cfg.hwm, 4), cfg.link_timeout);
+      pc->dealers.resize(p->links.size());
+      p->chans.push_back(std::move(pc));
+    }
     peer_by_name[p->cfg.name] = i;
     peers.push_back(std::move(p));
   }
@@ -240,7 +247,8 @@ void Bridge::Impl::stop() {
   for (auto& p : peers) {
     for (auto& l : p->links) l->ctl.reset();
     for (auto& pc : p->chans) {
-      pc->dealer.reset();
+      pc->dealer = nullptr;
+      pc->dealers.clear();
       std::lock_guard lock(pc->mu);
       pc->queue.clear();
     }

@@ -122,15 +122,42 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
     set_thread_nice(want_nice);
     niced = want_nice;
   }
-  if (!s.large.load(std::memory_order_relaxed)) {
-    if (m.data.size() <= rt_options.udp_limit) return;  // small: UDP carries it
-    s.large = true;
+  // One class per message, the publisher's (docs/bridge.md "One class per message"): an lcmx
+  // publisher stamps each message it writes into shared memory with the class it routed it by.
+  // A large one it leaves to the bridges to reach other hosts: forwarded. A small one it sends
+  // over UDP itself where other hosts want it: not forwarded, whatever this bridge's own
+  // udp_limit or carry say (forwarding it too reached those hosts twice; a publisher whose
+  // limit is lower than ours had its first large messages forwarded by nobody). Only a message
+  // without a stamp (not from an lcmx publisher's shared memory) is judged here, as before:
+  // large when its topic is, or over udp_limit.
+  const std::optional<bool> said = m.published_large();
+  if (said ? !*said : !s.large.load(std::memory_order_relaxed) && m.data.size() <= rt_options.udp_limit) {
+    if (said && !s.small_said_logged && (m.data.size() > rt_options.udp_limit || cfg.carried(s.topic))) {
+      s.small_said_logged = true;  // once per topic: both sides' settings stay as they are
+      if (m.data.size() > rt_options.udp_limit)
+        spdlog::warn("bridge {}: topic {}: a {}-byte message over this bridge's udp_limit ({}) that its publisher "
+                     "classes small (its LCMX_UDP_LIMIT is higher, or LCMX_SMALL_TOPICS names it): not bridged, it "
+                     "reaches other hosts over LCM UDP (the publisher's class wins)",
+                     cfg.name, printable(s.topic), m.data.size(), rt_options.udp_limit);
+      else
+        spdlog::warn("bridge {}: topic {} matches carry, but its publisher classes small what it publishes "
+                     "(LCMX_SMALL_TOPICS names it?): not bridged, it reaches other hosts over LCM UDP (the "
+                     "publisher's class wins)",
+                     cfg.name, printable(s.topic));
+    }
+    return;  // small: UDP carries it
+  }
+  if (!s.large.exchange(true)) {
     {
       std::lock_guard lock(view_mu);
       sticky_large.insert(s.topic);
     }
-    spdlog::info("bridge {}: topic {} is large ({} bytes > udp_limit {}): bridged from now on", cfg.name, s.topic,
-                 m.data.size(), rt_options.udp_limit);
+    if (said)
+      spdlog::info("bridge {}: topic {} is large (its publisher says so, at a {}-byte message): bridged from now on",
+                   cfg.name, printable(s.topic), m.data.size());
+    else
+      spdlog::info("bridge {}: topic {} is large ({} bytes > udp_limit {}): bridged from now on", cfg.name,
+                   printable(s.topic), m.data.size(), rt_options.udp_limit);
   }
   std::size_t targets[kMaxPeers];  // load_config() allows at most kMaxPeers peers
   std::size_t n = 0;
@@ -175,15 +202,21 @@ void Bridge::Impl::on_local_message(Served& s, const RawMessage& m) {
 void Bridge::Impl::channel_loop(Channel& ch) {
   set_thread_nice(ch.nice);
   std::vector<zmq::pollitem_t> items;
+  Clock::time_point held_due = Clock::time_point::max();  // expire_held
   while (!stopping.load()) {
-    // Follow the active links.
+    // Follow the active links. The socket of the link left is kept, not closed: it still
+    // sends what it was handed (ZeroMQ's pipe, ZMQ_SNDHWM 2, and the message being written),
+    // so a planned switch loses nothing; the receiver orders the two sockets' messages
+    // (datapath::RxOrder). On a dead link its pipe goes with the connection (ZMQ_IMMEDIATE).
     for (auto& p : peers) {
       PeerChannel& pc = *p->chans[ch.index];
       const int want = p->active.load();
       std::lock_guard sock(pc.sock_mu);
       if (want >= 0 && want != pc.connected_link) {
         try {
-          pc.dealer = make_data_dealer(*p, ch, *p->links[static_cast<std::size_t>(want)]);
+          auto& d = pc.dealers[static_cast<std::size_t>(want)];
+          if (!d) d = make_data_dealer(*p, ch, *p->links[static_cast<std::size_t>(want)]);
+          pc.dealer = d.get();
           pc.connected_link = want;
         } catch (const zmq::error_t& e) {
           spdlog::error("bridge {}: channel {}: cannot connect to {}: {}", cfg.name, ch.cfg.name, p->cfg.name, e.what());
@@ -199,14 +232,21 @@ void Bridge::Impl::channel_loop(Channel& ch) {
         items.push_back({pc.dealer->handle(), 0, ZMQ_POLLOUT, 0});  // see PeerChannel::sock_mu
       }
     }
+    // Wake for the earliest hold that falls due (a gap given up on), at the latest in 100 ms.
+    auto timeout = std::chrono::milliseconds(100);
+    if (held_due != Clock::time_point::max()) {
+      const auto left = std::chrono::ceil<std::chrono::milliseconds>(held_due - Clock::now());
+      timeout = std::clamp(left, std::chrono::milliseconds(0), timeout);
+    }
     try {
-      zmq::poll(items.data(), items.size(), std::chrono::milliseconds(100));
+      zmq::poll(items.data(), items.size(), timeout);
     } catch (const zmq::error_t& e) {
       if (e.num() == ETERM) break;
       continue;
     }
     if (items[1].revents & ZMQ_POLLIN) ch.wake->drain();
     if (items[0].revents & ZMQ_POLLIN) receive_data(ch);
+    held_due = expire_held(ch, Clock::now());
     for (auto& p : peers) flush(ch, *p);
   }
 }
@@ -321,23 +361,53 @@ void Bridge::Impl::receive_data(Channel& ch) {
       count_bad("channel " + ch.cfg.name + ": bad topic or header from " + id);
       continue;
     }
-    const std::string topic = parts[1].to_string();
     const auto h = wire::decode_header(static_cast<const unsigned char*>(parts[2].data()));
     PeerChannel& pc = *p.chans[ch.index];
-    const auto lost = pc.rx.accept(h);
-    if (!lost) {
-      count_bad("channel " + ch.cfg.name + ": stale sequence number from " + id);
-      continue;  // never deliver twice or out of order (e.g. late data of an old link)
-    }
-    if (*lost > 0) pc.lost.fetch_add(*lost, std::memory_order_relaxed);
-    const std::size_t bytes = topic.size() + parts[3].size();
-    pc.recv_msgs.fetch_add(1, std::memory_order_relaxed);
-    pc.recv_bytes.fetch_add(bytes, std::memory_order_relaxed);
-    if (int l = link_of(p, peer_address(parts[3])); l >= 0)
-      p.links[static_cast<std::size_t>(l)]->bytes_received.fetch_add(bytes, std::memory_order_relaxed);
-    // A peer's keep sizes a ring of this host: at most this channel's max_keep (docs/bridge.md "Trust").
-    republish(topic, parts[3], static_cast<std::uint32_t>(std::min<std::uint64_t>(h.keep, ch.cfg.max_keep)));
+    const std::size_t bytes = parts[1].size() + parts[3].size();
+    const int link = link_of(p, peer_address(parts[3]));
+    if (link >= 0) p.links[static_cast<std::size_t>(link)]->bytes_received.fetch_add(bytes, std::memory_order_relaxed);
+    // In order, once (datapath::RxOrder): a message that overtook what another link of the
+    // peer still carries waits for it. A peer's keep sizes a ring of this host: at most this
+    // channel's max_keep (docs/bridge.md "Trust").
+    Incoming in{parts[1].to_string(), std::move(parts[3]),
+                static_cast<std::uint32_t>(std::min<std::uint64_t>(h.keep, ch.cfg.max_keep))};
+    datapath::RxOrder<Incoming>::Out out;
+    pc.rx.push(h, parts[0].to_string_view(), link, std::move(in), Clock::now(), out);
+    deliver_received(ch, pc, out);
   }
+}
+
+void Bridge::Impl::deliver_received(Channel& ch, PeerChannel& pc, datapath::RxOrder<Incoming>::Out& out) {
+  if (out.lost > 0) pc.lost.fetch_add(out.lost, std::memory_order_relaxed);
+  if (out.stale > 0) {
+    // Late data of a link given up on (its gap is counted in `lost`), or a replay: not
+    // delivered, never twice nor out of order.
+    pc.stale += out.stale;
+    spdlog::debug("bridge {}: channel {}: {} message(s) not above the last delivered one dropped ({} so far)", cfg.name,
+                  ch.cfg.name, out.stale, pc.stale);
+  }
+  for (auto& m : out.deliver) {
+    pc.recv_msgs.fetch_add(1, std::memory_order_relaxed);
+    pc.recv_bytes.fetch_add(m.topic.size() + m.payload.size(), std::memory_order_relaxed);
+    republish(m.topic, m.payload, m.keep);
+  }
+}
+
+Clock::time_point Bridge::Impl::expire_held(Channel& ch, Clock::time_point now) {
+  Clock::time_point due = Clock::time_point::max();
+  for (auto& p : peers) {
+    PeerChannel& pc = *p->chans[ch.index];
+    if (!pc.rx.holding()) continue;
+    // The gap would come over the link of the last delivered message: when this bridge sees
+    // that link down (its own heartbeats unanswered), nothing more comes over it.
+    const int l = pc.rx.last_link();
+    const bool down = l >= 0 && !p->links[static_cast<std::size_t>(l)]->up_flag.load(std::memory_order_relaxed);
+    datapath::RxOrder<Incoming>::Out out;
+    pc.rx.expire(now, down, out);
+    deliver_received(ch, pc, out);
+    if (pc.rx.holding()) due = std::min(due, pc.rx.due());
+  }
+  return due;
 }
 
 // Channel threads: into this host's shared memory.
@@ -362,7 +432,7 @@ void Bridge::Impl::republish(const std::string& topic, const zmq::message_t& pay
   try {
     r->pub.publish(std::span<const std::byte>(static_cast<const std::byte*>(payload.data()), payload.size()));
   } catch (const std::exception& e) {
-    spdlog::warn("bridge {}: republishing {} failed: {}", cfg.name, topic, e.what());
+    spdlog::warn("bridge {}: republishing {} failed: {}", cfg.name, printable(topic), e.what());
     return;
   }
   // The commit woke every subscriber of this host at once. Subscribers woken onto this
@@ -386,7 +456,7 @@ std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(cons
   auto& slot = repubs[topic];
   if (slot && ((remake_for_history && slot->history != history) || slot->type != type)) {
     if (slot->type != type)
-      spdlog::info("bridge {}: {} is now of type {} at its origin (was {})", cfg.name, topic,
+      spdlog::info("bridge {}: {} is now of type {} at its origin (was {})", cfg.name, printable(topic),
                    type.name.empty() ? "raw" : type.name, slot->type.name.empty() ? "raw" : slot->type.name);
     if (!remake_for_history) history = slot->history;
     old = std::move(slot);
@@ -404,7 +474,7 @@ std::shared_ptr<Bridge::Impl::Republisher> Bridge::Impl::ensure_republisher(cons
       r->touch();
       slot = std::move(r);
     } catch (const std::exception& e) {
-      spdlog::warn("bridge {}: cannot republish {}: {}", cfg.name, topic, e.what());
+      spdlog::warn("bridge {}: cannot republish {}: {}", cfg.name, printable(topic), e.what());
       repubs.erase(topic);
       return nullptr;
     }

@@ -112,7 +112,7 @@ void Bridge::Impl::note_local_drops(Served& s, bool final) {
     spdlog::warn("bridge {}: {} local message(s) of {} lost before this bridge read them (the publisher's "
                  "shared-memory ring overwrote them: the bridge fell behind, e.g. stopped or short of CPU); "
                  "{} in total for this topic",
-                 cfg.name, s.drops_counted - s.drops_logged, s.topic, s.drops_counted);
+                 cfg.name, s.drops_counted - s.drops_logged, printable(s.topic), s.drops_counted);
     s.drops_logged = s.drops_counted;
   }
 }
@@ -171,7 +171,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
     note_local_drops(*it->second, gone);
     if (gone) {
       it->second->sub.reset();  // waits for a running callback; we hold no lock
-      spdlog::debug("bridge {}: no longer serving {}", cfg.name, it->first);
+      spdlog::debug("bridge {}: no longer serving {}", cfg.name, printable(it->first));
       it = served.erase(it);
     } else {
       ++it;
@@ -183,7 +183,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       const auto ch = cfg.channel_of(t);
       if (!ch) {
         if (no_channel_logged.insert(t).second)
-          spdlog::warn("bridge {}: topic {} matches no channel's topics: not bridged", cfg.name, t);
+          spdlog::warn("bridge {}: topic {} matches no channel's topics: not bridged", cfg.name, printable(t));
         continue;
       }
       auto s = std::make_unique<Served>();
@@ -199,10 +199,10 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       try {
         s->sub = channels[*ch]->node->subscribe_raw(t, [this, raw](const RawMessage& m) { on_local_message(*raw, m); }, so);
       } catch (const std::exception& e) {
-        spdlog::warn("bridge {}: cannot subscribe to {}: {}", cfg.name, t, e.what());
+        spdlog::warn("bridge {}: cannot subscribe to {}: {}", cfg.name, printable(t), e.what());
         continue;
       }
-      spdlog::debug("bridge {}: serving {} on channel {}", cfg.name, t, channels[*ch]->cfg.name);
+      spdlog::debug("bridge {}: serving {} on channel {}", cfg.name, printable(t), channels[*ch]->cfg.name);
       served.emplace(t, std::move(s));
     } else {
       if (large[t]) it->second->large = true;

@@ -173,6 +173,14 @@ struct PinWatch {
   }
 };
 
+// A message from a peer on its way into this host's shared memory (republish), possibly held
+// a while by the channel's datapath::RxOrder.
+struct Incoming {
+  std::string topic;
+  zmq::message_t payload;
+  std::uint32_t keep = 0;  // the topic's keep last N at the origin, capped by the channel's max_keep
+};
+
 struct Outgoing {
   std::shared_ptr<const std::string> topic;
   // A refcounted copy (zmq_msg_copy) of the message made by retained_payload(): the pinned
@@ -201,23 +209,33 @@ struct Bridge::Impl {
   // from the shm callback (node executor thread) when nothing is queued before it, else into
   // `queue`, which the channel thread sends in order when the dealer is writable.
   struct PeerChannel {
+    // `hold_cap`, `hold`: the receiving order's bounds (RxOrder: at most max(hwm, 4) messages
+    // held, for at most link_timeout).
+    PeerChannel(std::size_t hold_cap, Clock::duration hold) : rx(hold_cap, hold) {}
     std::mutex mu;  // guards queue
     std::deque<Outgoing> queue;
     std::atomic<std::uint64_t> sent_msgs{0}, sent_bytes{0}, drops{0}, recv_msgs{0}, recv_bytes{0}, lost{0};
     std::atomic<std::int32_t> queued{0};
     std::atomic<std::int64_t> last_sent_ns{0};  // steady clock of the last message the socket took; 0: never
-    // Guards dealer, connected_link and seq: held by the channel thread while it (re)connects
-    // and flushes, and taken with try_lock by on_local_message (under mu, with the queue
-    // empty) to send directly. The only use of the dealer without it is the channel thread's
-    // zmq::poll for POLLOUT, which it makes only while the queue is not empty, and only the
-    // channel thread empties the queue: then on_local_message queues and never touches it.
-    // Lock order: mu -> sock_mu by try_lock only; the channel thread takes sock_mu -> mu.
+    // Guards dealer, dealers, connected_link and seq: held by the channel thread while it
+    // (re)connects and flushes, and taken with try_lock by on_local_message (under mu, with
+    // the queue empty) to send directly. The only use of the dealer without it is the channel
+    // thread's zmq::poll for POLLOUT, which it makes only while the queue is not empty, and
+    // only the channel thread empties the queue: then on_local_message queues and never
+    // touches it. Lock order: mu -> sock_mu by try_lock only; the channel thread takes
+    // sock_mu -> mu.
     std::mutex sock_mu;
-    std::unique_ptr<zmq::socket_t> dealer;
+    // One DEALER per link of the peer (index: link), made when the link first becomes active
+    // and kept until the bridge stops: after a switch the old one still sends what it was
+    // handed (a planned fail-back loses nothing: the receiver's RxOrder puts the two sockets'
+    // messages back in order), and a link that comes back finds its socket reconnected.
+    std::vector<std::unique_ptr<zmq::socket_t>> dealers;
+    zmq::socket_t* dealer = nullptr;  // the active link's, dealers[connected_link]
     int connected_link = -1;
-    std::uint64_t seq = 0;
+    std::uint64_t seq = 0;  // per (peer, channel), over every link's socket
     // channel thread:
-    datapath::RxSequence rx;
+    datapath::RxOrder<Incoming> rx;
+    std::uint64_t stale = 0;  // messages not delivered: late data of a link given up on
     std::uint64_t drops_logged = 0;
     RateLimit drop_log;
   };
@@ -259,6 +277,9 @@ struct Bridge::Impl {
     std::vector<std::size_t> peers;
     std::shared_ptr<PinWatch> pins = std::make_shared<PinWatch>();
     RawSubscriber sub;
+    // executor thread (on_local_message): a message its publisher classes small although this
+    // bridge would have bridged it (over udp_limit, or carried) was logged.
+    bool small_said_logged = false;
     // control thread (note_local_drops): the subscription's drops counted into lost_local,
     // and logged so far.
     std::uint64_t drops_counted = 0, drops_logged = 0;
@@ -380,6 +401,11 @@ struct Bridge::Impl {
   // false when the socket would block or failed (logged): the caller queues it again.
   bool send_now(Channel& ch, Peer& p, PeerChannel& pc, Outgoing& out);
   void receive_data(Channel& ch);
+  // Channel thread: republishes what pc's receiving order released and counts what it gave up on.
+  void deliver_received(Channel& ch, PeerChannel& pc, datapath::RxOrder<Incoming>::Out& out);
+  // Channel thread: gives up on held messages whose hold is due, or whose gap's link is down.
+  // Returns the earliest time a hold of this channel is due (Clock::time_point::max(): none).
+  Clock::time_point expire_held(Channel& ch, Clock::time_point now);
   // Channel threads: into this host's shared memory.
   void republish(const std::string& topic, const zmq::message_t& payload, std::uint32_t keep);
   // Makes the topic's republisher with keep last `history`, or remakes it when the type the

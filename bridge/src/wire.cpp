@@ -24,7 +24,57 @@ bool parse_num(std::string_view s, T& out, int base = 10) {
 
 }  // namespace
 
-bool valid_topic(std::string_view t) { return valid_word(t, kMaxTopic); }
+bool valid_topic(std::string_view t) {
+  return !t.empty() && t.size() <= kMaxTopic && t.find('\0') == std::string_view::npos;
+}
+
+namespace {
+bool needs_escape(unsigned char c) { return c <= ' ' || c == 0x7f || c == '%'; }
+constexpr char kHex[] = "0123456789ABCDEF";
+int hex_digit(char c) {  // upper case only: one spelling per byte
+  if (c >= '0' && c <= '9') return c - '0';
+  if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+  return -1;
+}
+}  // namespace
+
+std::string encode_topic(std::string_view t) {
+  std::string o;
+  o.reserve(t.size());
+  for (unsigned char c : t) {
+    if (needs_escape(c)) {
+      o += '%';
+      o += kHex[c >> 4];
+      o += kHex[c & 0xf];
+    } else {
+      o += static_cast<char>(c);
+    }
+  }
+  return o;
+}
+
+std::optional<std::string> decode_topic(std::string_view w) {
+  if (w.empty() || w.size() > 3 * kMaxTopic) return std::nullopt;
+  std::string t;
+  for (std::size_t i = 0; i < w.size(); ++i) {
+    const auto c = static_cast<unsigned char>(w[i]);
+    if (c == '%') {
+      if (i + 2 >= w.size()) return std::nullopt;
+      const int hi = hex_digit(w[i + 1]), lo = hex_digit(w[i + 2]);
+      if (hi < 0 || lo < 0) return std::nullopt;
+      const auto b = static_cast<unsigned char>(hi << 4 | lo);
+      if (!needs_escape(b)) return std::nullopt;  // not the canonical spelling
+      t += static_cast<char>(b);
+      i += 2;
+    } else if (needs_escape(c)) {
+      return std::nullopt;  // a byte that must be escaped, bare
+    } else {
+      t += static_cast<char>(c);
+    }
+  }
+  if (!valid_topic(t)) return std::nullopt;
+  return t;
+}
 bool valid_type_name(std::string_view name) { return valid_word(name, Control::kMaxTypeName); }
 
 std::string encode(const Control& c) {
@@ -38,13 +88,13 @@ std::string encode(const Control& c) {
       s += "control " + std::to_string(c.control_port) + "\n";
       for (const auto& [name, port] : c.channels) s += "channel " + name + " " + std::to_string(port) + "\n";
       s += "demand\n";
-      for (const auto& t : c.want) s += "want " + t + "\n";
-      for (const auto& t : c.offer) s += "offer " + t + "\n";
-      for (const auto& [t, n] : c.keep) s += "keep " + t + " " + std::to_string(n) + "\n";
-      for (const auto& t : c.have) s += "have " + t + "\n";
+      for (const auto& t : c.want) s += "want " + encode_topic(t) + "\n";
+      for (const auto& t : c.offer) s += "offer " + encode_topic(t) + "\n";
+      for (const auto& [t, n] : c.keep) s += "keep " + encode_topic(t) + " " + std::to_string(n) + "\n";
+      for (const auto& t : c.have) s += "have " + encode_topic(t) + "\n";
       for (const auto& [t, ty] : c.types) {
         std::snprintf(hex, sizeof hex, "%016llx", static_cast<unsigned long long>(ty.fingerprint));
-        s += "type " + t + " " + hex + " " + ty.name + "\n";
+        s += "type " + encode_topic(t) + " " + hex + " " + ty.name + "\n";
       }
     }
   }
@@ -103,15 +153,19 @@ std::optional<Control> decode(std::string_view f) {
       c.has_demand = true;
     } else if ((key == "want" || key == "offer") && c.has_demand) {
       auto& set = key == "want" ? c.want : c.offer;
-      if (!valid_topic(val) || set.size() >= kMaxDemand) return std::nullopt;
-      set.emplace(val);
+      if (set.size() >= kMaxDemand) return std::nullopt;
+      auto t = decode_topic(val);
+      if (!t) return std::nullopt;
+      set.insert(std::move(*t));
     } else if (key == "keep" && c.has_demand) {
       const auto sp2 = val.find(' ');
       std::uint32_t n = 0;
-      if (sp2 == std::string_view::npos || !valid_topic(val.substr(0, sp2)) ||
-          !parse_num(val.substr(sp2 + 1), n) || n > Control::kMaxKeep || c.keep.size() >= kMaxCatalogue)
+      if (sp2 == std::string_view::npos || !parse_num(val.substr(sp2 + 1), n) || n > Control::kMaxKeep ||
+          c.keep.size() >= kMaxCatalogue)
         return std::nullopt;
-      c.keep[std::string(val.substr(0, sp2))] = n;
+      auto t = decode_topic(val.substr(0, sp2));
+      if (!t) return std::nullopt;
+      c.keep[std::move(*t)] = n;
     } else if (key == "type" && c.has_demand) {
       // "<topic> <16 hex> <name>"
       const auto sp2 = val.find(' ');
@@ -119,13 +173,17 @@ std::optional<Control> decode(std::string_view f) {
       const auto rest = val.substr(sp2 + 1);
       const auto sp3 = rest.find(' ');
       std::uint64_t fp = 0;
-      if (sp3 != 16 || !valid_topic(val.substr(0, sp2)) || !parse_num(rest.substr(0, 16), fp, 16) ||
-          !valid_type_name(rest.substr(17)) || c.types.size() >= kMaxCatalogue)
+      if (sp3 != 16 || !parse_num(rest.substr(0, 16), fp, 16) || !valid_type_name(rest.substr(17)) ||
+          c.types.size() >= kMaxCatalogue)
         return std::nullopt;
-      c.types[std::string(val.substr(0, sp2))] = {static_cast<std::int64_t>(fp), std::string(rest.substr(17))};
+      auto t = decode_topic(val.substr(0, sp2));
+      if (!t) return std::nullopt;
+      c.types[std::move(*t)] = {static_cast<std::int64_t>(fp), std::string(rest.substr(17))};
     } else if (key == "have" && c.has_demand) {
-      if (!valid_topic(val) || c.have.size() >= kMaxCatalogue) return std::nullopt;
-      c.have.emplace(val);
+      if (c.have.size() >= kMaxCatalogue) return std::nullopt;
+      auto t = decode_topic(val);
+      if (!t) return std::nullopt;
+      c.have.insert(std::move(*t));
     } else {
       return std::nullopt;
     }

@@ -67,8 +67,6 @@ void Pairs::match_local_locked(PublisherImpl& pub, SubscriberCore& sub, Outcome&
   m->publisher_participant = ctx_.participant_id;
   m->publisher_endpoint = pub.id;
   m->path = Path::intra;
-  m->stats->publisher_participant = ctx_.participant_id;  // who sends through the pair (PairCounters)
-  m->stats->publisher_endpoint = pub.id;
   pub.add_intra(subs_.at(sub.id), m->stats);
   {
     std::lock_guard lock(sub.state->mu);
@@ -112,10 +110,17 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
     if (path == Path::shm &&
         dead_publishers_.count({static_cast<std::uint64_t>(p.participant), static_cast<std::uint64_t>(e.id)}))
       continue;
-    wanted.insert({static_cast<std::uint64_t>(p.participant), static_cast<std::uint64_t>(e.id)});
     const Path chosen = path == Path::shm && from_bridge ? Path::bridge : path;
     candidates.push_back({std::move(p), chosen});
   }
+  // A subscriber that a bridge of its host serves the channel takes no large topic of another
+  // host over UDP: a large publisher sends UDP only for the subscribers without a bridge (on
+  // a host where none runs, or whose bridge does not republish it), on the vehicle group this
+  // host hears too, and its bridge forwards the same messages here (each arrived twice).
+  if (std::any_of(candidates.begin(), candidates.end(), [](const Candidate& c) { return c.path == Path::bridge; }))
+    std::erase_if(candidates, [](const Candidate& c) { return c.path == Path::udp && c.p.e.large != 0; });
+  for (const auto& c : candidates)
+    wanted.insert({static_cast<std::uint64_t>(c.p.participant), static_cast<std::uint64_t>(c.p.e.id)});
   std::lock_guard lock(st.mu);
   const auto before = st.matches.size();
   std::size_t revived = 0;
@@ -158,9 +163,6 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
     m->publisher_participant = key.first;
     m->publisher_endpoint = key.second;
     m->path = path;
-    m->stats->publisher_participant = key.first;  // who sends through the pair (PairCounters)
-    m->stats->publisher_endpoint = key.second;
-    m->stats->path = path;
     if (path == Path::shm || path == Path::bridge) {
       const auto fkey = std::make_tuple(sub.id, key.first, key.second);
       try {
@@ -212,7 +214,8 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
 // segment, or receive it over UDP), and reports remote subscribers of another type.
 void Pairs::count_remote_locked(PublisherImpl& pub, Outcome& out) {
   std::size_t counts[3] = {0, 0, 0};  // shm (this host), udp (other hosts), neighbours
-  std::size_t unbridged = 0;          // subscribers on other hosts no bridge republisher serves yet
+  std::size_t unbridged = 0;          // of counts[1]: no bridge republisher matched yet
+  std::size_t unbridged_elsewhere = 0;  // on other hosts, no bridge match, matched with us or not
   std::set<std::pair<std::int64_t, std::int64_t>> seen;  // subscribers given a replay, still here
   for (const auto& p : ctx_.peers.endpoints_on(pub.channel(), lcmx_msgs::endpoint_t::KIND_SUBSCRIBER)) {
     const auto& e = p.e;
@@ -226,16 +229,14 @@ void Pairs::count_remote_locked(PublisherImpl& pub, Outcome& out) {
                              pub.channel(), text, pub.errors, out);
       continue;
     }
-    // A subscriber on another host that no bridge republisher serves yet keeps this publisher
-    // in the vehicle beacon, matched with it or not: a large topic that left the vehicle
-    // beacon before that subscriber's match came back would otherwise never reach it.
-    if (p.scope == Scope::vehicle &&
-        std::none_of(e.matches.begin(), e.matches.end(), [](const lcmx_msgs::match_t& o) { return o.path == "bridge"; }))
-      ++unbridged;
+    const bool bridged =
+        std::any_of(e.matches.begin(), e.matches.end(), [](const lcmx_msgs::match_t& o) { return o.path == "bridge"; });
+    if (p.scope == Scope::vehicle && !bridged) ++unbridged_elsewhere;
     for (const auto& m : e.matches)
       if (static_cast<std::uint64_t>(m.publisher_participant) == ctx_.participant_id &&
           static_cast<std::uint64_t>(m.publisher_endpoint) == pub.id) {
         ++n;
+        if (p.scope == Scope::vehicle && !bridged) ++unbridged;
         if (pub.options.history > 0 && p.scope != Scope::host) {
           const auto key = std::make_pair(p.participant, e.id);
           seen.insert(key);
@@ -249,7 +250,7 @@ void Pairs::count_remote_locked(PublisherImpl& pub, Outcome& out) {
   // Sent after this (Replays::send): the subscriber counts are set first, so every message
   // published after the replay's snapshot is sent live.
   const bool was_bridged_only = pub.bridged_only();
-  pub.set_remote_subscribers(counts[0], counts[1], counts[2], unbridged);
+  pub.set_remote_subscribers(counts[0], counts[1], counts[2], unbridged, unbridged_elsewhere);
   // Leaving the vehicle beacon (bridged_only) is announced at once.
   if (pub.bridged_only() != was_bridged_only) out.announce = true;
   std::erase_if(pub.replayed, [&](const auto& k) { return !seen.count(k); });

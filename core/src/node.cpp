@@ -741,6 +741,13 @@ std::optional<RetainedBytes> RawMessage::retain_zero_copy() const noexcept {
   return std::nullopt;
 }
 
+std::optional<bool> RawMessage::published_large() const noexcept {
+  if (source == nullptr || source->sample == nullptr) return std::nullopt;
+  const std::uint64_t f = source->sample->flags();  // kept by a detached (retained) sample's shell too
+  if ((f & detail::PublisherImpl::kSlotClassSaid) == 0) return std::nullopt;
+  return (f & detail::PublisherImpl::kSlotLarge) != 0;
+}
+
 RetainedBytes RawMessage::retain() const {
   if (auto r = retain_zero_copy()) return std::move(*r);
   if (source != nullptr && source->copy) {

@@ -73,7 +73,8 @@ bool PublisherImpl::wants_vehicle() const {
 }
 
 bool PublisherImpl::bridged_only() const {
-  return large_.load() && node->runtime->bridge_on_host() && unbridged_udp_subscribers_.load() == 0;
+  return large_.load() && node->runtime->bridge_on_host() && unbridged_udp_subscribers_.load() == 0 &&
+         unbridged_elsewhere_.load() == 0;
 }
 
 bool PublisherImpl::wants_udp(std::size_t size) {
@@ -145,6 +146,12 @@ PublisherImpl::UdpSent PublisherImpl::send_udp(std::span<const std::byte> encode
       spdlog::warn("lcmx: topic '{}' is large and no Message Bridge runs on this host: sending it "
                    "to other hosts as UDP fragments (start `lcmx bridge` on every host)",
                    channel_);
+    } else if (large_.load() && rt.bridge_on_host() && !warned_unbridged_udp_) {
+      warned_unbridged_udp_ = true;
+      spdlog::warn("lcmx: topic '{}' is large: sending it as UDP fragments to {} subscriber(s) on hosts "
+                   "where no Message Bridge republishes it (none runs there, or it is no peer of this "
+                   "host's; start `lcmx bridge` on every host)",
+                   channel_, unbridged_udp_subscribers_.load());
     }
     sent.vehicle = send(*rt.vehicle_group, "vehicle");
   }
@@ -168,7 +175,7 @@ PublisherImpl::Written PublisherImpl::write_encoded(const void* object, std::siz
       type.encode(object, loan.data(), size);
       if (udp) out.sent = send_udp({loan.data(), size});
       if (keeps_encoding()) out.kept = make_bytes({loan.data(), size});
-      writer_->commit(std::move(loan), size);
+      writer_->commit(std::move(loan), size, slot_flags());  // after note_size: this message's class
     } catch (const shm::Error& e) {
       throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
     }
@@ -262,7 +269,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   const bool history = options.history > 0;
   if (history || writer_->registered_readers() > 0) {
     try {
-      writer_->write(data.data(), data.size());
+      writer_->write(data.data(), data.size(), slot_flags());
     } catch (const shm::Error& e) {
       throw Error(Errc::transport, "publish on '" + channel_ + "': " + e.what());
     }
@@ -324,7 +331,7 @@ void PublisherImpl::publish_loan(shm::WriteLoan&& loan, std::size_t size) {
     loan_cv_.notify_all();
   };
   try {
-    writer_->commit(std::move(loan), size);
+    writer_->commit(std::move(loan), size, slot_flags());
     shm_dropped_.store(writer_->dropped(), std::memory_order_relaxed);
   } catch (const shm::Error& e) {
     end();
@@ -383,12 +390,13 @@ void PublisherImpl::remove_intra(const SubscriberCore* sub) {
 }
 
 void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp,
-                                           std::size_t unbridged_udp) {
+                                           std::size_t unbridged_udp, std::size_t unbridged_elsewhere) {
   std::lock_guard lock(intra_mu);
   if (remote_subscribers_ != shm + udp + local_udp && interrupt_on_match.load()) node->interrupt();
   remote_subscribers_ = shm + udp + local_udp;
   udp_subscribers_.store(udp);
   unbridged_udp_subscribers_.store(unbridged_udp);
+  unbridged_elsewhere_.store(unbridged_elsewhere);
   local_udp_subscribers_.store(local_udp);
   subs_cv.notify_all();
 }

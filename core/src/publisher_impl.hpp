@@ -47,15 +47,24 @@ class PublisherImpl final : public PublisherCore {
   void add_intra(std::shared_ptr<SubscriberCore> sub, std::shared_ptr<PairCounters> stats);
   void remove_intra(const SubscriberCore* sub);
   // Subscribers of other processes: shm (this host), udp (other hosts, vehicle group),
-  // local_udp (neighbours, host-local group); unbridged_udp: subscribers of the topic on other
-  // hosts, matched with this publisher or not yet, that have no bridge republisher of it
-  // matched (their beacon lists no "bridge" match).
+  // local_udp (neighbours, host-local group); unbridged_udp: of the udp ones, those that have
+  // no bridge republisher of the topic matched yet (their beacon lists no "bridge" match);
+  // unbridged_elsewhere: subscribers of the channel on other hosts with no bridge match,
+  // matched with this publisher or not (yet): while there are any, it stays in the vehicle
+  // beacon, so that they can find it.
   void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp,
-                              std::size_t unbridged_udp);
+                              std::size_t unbridged_udp, std::size_t unbridged_elsewhere);
   bool large() const { return large_.load(); }
-  // Large, a bridge of this host carries it, and every subscriber on other hosts is matched
-  // with a bridge republisher: other hosts reach it only through the bridges, so the vehicle
-  // beacon leaves it out (DESIGN.md "Discovery", scopes).
+  // The bits committed with each message into its shared memory (shm::Writer::commit's
+  // `flags`): this publisher's class of that very message, which the Message Bridges of this
+  // host follow (RawMessage::published_large; docs/bridge.md "One class per message").
+  static constexpr std::uint64_t kSlotClassSaid = 1;  // the publisher says (older writers: 0)
+  static constexpr std::uint64_t kSlotLarge = 2;      // large: other hosts get it through the bridges
+  std::uint64_t slot_flags() const { return kSlotClassSaid | (large_.load() ? kSlotLarge : 0); }
+  // Large, a bridge of this host carries it, and every subscriber of the channel on other
+  // hosts is matched with a bridge republisher: other hosts reach it only through the bridges,
+  // so the vehicle beacon leaves it out (DESIGN.md "Discovery", scopes). A subscriber that
+  // starts later on a host without a bridge brings it back (it could not find it otherwise).
   bool bridged_only() const;
   // Keep last N (options.history): the kept encodings for a UDP replay to one late subscriber
   // on the vehicle group (vehicle) or the host-local group (a neighbour), oldest first, with
@@ -130,10 +139,12 @@ class PublisherImpl final : public PublisherCore {
   std::size_t remote_subscribers_ = 0;  // same host (shm) + other hosts (udp)
   std::atomic<std::size_t> udp_subscribers_{0};
   std::atomic<std::size_t> unbridged_udp_subscribers_{0};  // of udp_subscribers_ (set_remote_subscribers)
+  std::atomic<std::size_t> unbridged_elsewhere_{0};  // set_remote_subscribers
   std::atomic<std::size_t> local_udp_subscribers_{0};  // neighbours: sent on the host-local group
   std::atomic<bool> large_{false};
   const bool mirrored_;  // RuntimeOptions::mirror / mirror_channels select this channel
   bool warned_large_udp_ = false;        // guarded by publish_mu
+  bool warned_unbridged_udp_ = false;    // guarded by publish_mu
   bool warned_mirror_size_ = false;      // guarded by publish_mu
   std::uint64_t udp_send_failures_ = 0;  // guarded by publish_mu
   std::chrono::steady_clock::time_point last_udp_failure_log_{};  // guarded by publish_mu

@@ -211,7 +211,7 @@ struct WriterImpl {
   std::optional<std::uint32_t> acquire_slot();
   bool readers_caught_up() const noexcept;
   void abort_loan(std::uint32_t slot) noexcept;
-  std::uint64_t commit(std::uint32_t slot, std::size_t size);
+  std::uint64_t commit(std::uint32_t slot, std::size_t size, std::uint64_t flags);
   void bump_and_wake(const Segment& s) noexcept;
   void release_old_generations(bool reclaim_dead) noexcept;
 };

@@ -239,7 +239,7 @@ bool ReaderImpl::follow_fault() {
 
 ReadSample::ReadSample(ReadSample&& o) noexcept
     : reader_(std::exchange(o.reader_, nullptr)), pin_(std::exchange(o.pin_, -1)),
-      data_(o.data_), size_(o.size_), sequence_(o.sequence_) {}
+      data_(o.data_), size_(o.size_), sequence_(o.sequence_), flags_(o.flags_) {}
 
 ReadSample& ReadSample::operator=(ReadSample&& o) noexcept {
   if (this != &o) {
@@ -249,6 +249,7 @@ ReadSample& ReadSample::operator=(ReadSample&& o) noexcept {
     data_ = o.data_;
     size_ = o.size_;
     sequence_ = o.sequence_;
+    flags_ = o.flags_;
   }
   return *this;
 }
@@ -442,6 +443,7 @@ std::optional<ReadSample> Reader::take() {
     // size is read only once sq == next: the seq load read-from the Writer's release and
     // our pin keeps the slot stable from here on.
     const std::uint64_t size = sq == r.next ? sh.size : 0;
+    const std::uint64_t flags = sq == r.next ? sh.flags : 0;  // as size
     if (s.faulted()) {  // truncated while we looked: nothing read here is real
       pin_word.store(kPinFree, std::memory_order_release);
       continue;
@@ -457,7 +459,7 @@ std::optional<ReadSample> Reader::take() {
     ++r.next;
     ++r.received;
     r.publish_counters();
-    return ReadSample(&r, pin, s.payload(slot), static_cast<std::size_t>(size), seq);
+    return ReadSample(&r, pin, s.payload(slot), static_cast<std::size_t>(size), seq, flags);
   }
   if (r.drops != dropped_before) r.publish_counters();
   return std::nullopt;

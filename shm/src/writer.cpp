@@ -146,6 +146,7 @@ std::uint32_t WriterImpl::carry(const Segment& from, Segment& to) const {
     const auto [s, size] = tail[c - 1 - i];
     if (size != 0) std::memcpy(to.payload(i), from.payload(s), size);
     to.slot(i).size = size;
+    to.slot(i).flags = from.slot(s).flags;
     to.slot(i).seq.store(i, std::memory_order_relaxed);  // published by the magic release
     to.desc(i).store(pack_desc(i, i), std::memory_order_relaxed);
   }
@@ -272,7 +273,7 @@ void WriterImpl::abort_loan(std::uint32_t slot) noexcept {
   loan_out = false;
 }
 
-std::uint64_t WriterImpl::commit(std::uint32_t slot, std::size_t size) {
+std::uint64_t WriterImpl::commit(std::uint32_t slot, std::size_t size, std::uint64_t flags) {
   const std::uint64_t m = write_seq;
   ++commits;
   if (slot == kScratchSlot) {
@@ -289,7 +290,8 @@ std::uint64_t WriterImpl::commit(std::uint32_t slot, std::size_t size) {
   }
   auto& sh = seg->slot(slot);
   sh.size = size;
-  // Release: payload + size visible to a Reader whose slot.seq load reads m.
+  sh.flags = flags;
+  // Release: payload + size + flags visible to a Reader whose slot.seq load reads m.
   sh.seq.store(m, std::memory_order_release);
   // Release: pairs with the Reader's desc load (acquire).
   seg->desc(static_cast<std::uint32_t>(m % seg->geo.slot_count))
@@ -409,7 +411,7 @@ WriteLoan Writer::loan(std::size_t size) {
   return WriteLoan(&w, *s, w.seg->payload(*s), w.seg->geo.slot_size);
 }
 
-std::uint64_t Writer::commit(WriteLoan&& loan, std::size_t size) {
+std::uint64_t Writer::commit(WriteLoan&& loan, std::size_t size, std::uint64_t flags) {
   if (loan.writer_ != impl_.get()) {
     throw Error(Errc::invalid_argument, "Writer::commit: loan of another Writer (or empty)");
   }
@@ -417,13 +419,13 @@ std::uint64_t Writer::commit(WriteLoan&& loan, std::size_t size) {
     throw Error(Errc::invalid_argument, "Writer::commit: size > loan capacity");
   }
   loan.writer_ = nullptr;
-  return impl_->commit(loan.slot_, size);
+  return impl_->commit(loan.slot_, size, flags);
 }
 
-std::uint64_t Writer::write(const void* data, std::size_t size) {
+std::uint64_t Writer::write(const void* data, std::size_t size, std::uint64_t flags) {
   WriteLoan l = loan(size);
   if (size != 0) std::memcpy(l.data(), data, size);
-  return commit(std::move(l), size);
+  return commit(std::move(l), size, flags);
 }
 
 const std::string& Writer::segment_name() const { return impl_->seg->name; }

@@ -630,3 +630,53 @@ TEST_CASE("control wire format: want and offer lines are bounded", "[bridge][wir
   for (std::size_t i = 0; i <= wire::kMaxDemand; ++i) o += "offer O" + std::to_string(i) + "\n";
   CHECK_FALSE(wire::decode(o));
 }
+
+TEST_CASE("control wire format: any LCM channel name is one word, spelled one way", "[bridge][wire]") {
+  // Names with a space, a tab, a newline, '%', DEL, an escape sequence and UTF-8.
+  const std::vector<std::string> names = {"CAM FRONT", "a\tb", "x\ny", "100%", "%20", "d\x7f", "\x1b[2J",
+                                          "kam\xc3\xa9ra", std::string(63, ' ')};
+  for (const auto& n : names) {
+    INFO(n);
+    REQUIRE(wire::valid_topic(n));
+    const auto w = wire::encode_topic(n);
+    for (unsigned char c : w) CHECK((c > ' ' && c != 0x7f));  // one word of the text
+    CHECK(wire::decode_topic(w) == n);
+  }
+  CHECK(wire::encode_topic("CAM FRONT") == "CAM%20FRONT");
+  CHECK(wire::encode_topic("100%") == "100%25");
+  CHECK(wire::encode_topic("CAMERA") == "CAMERA");  // names that need nothing stay as they were
+  // One spelling per name: other escapes, lower-case hex, a cut escape, a bare '%' are refused.
+  for (const char* w : {"%41", "%2a", "%2", "%", "a%zz", "%00"}) CHECK_FALSE(wire::decode_topic(w));
+  CHECK_FALSE(wire::decode_topic(""));
+  CHECK_FALSE(wire::decode_topic(std::string(64, 'T')));                  // 64 bytes
+  CHECK_FALSE(wire::decode_topic(std::string(3 * 63 + 1, 'T')));
+  CHECK(wire::decode_topic(wire::encode_topic(std::string(63, '%'))));    // 189 characters, 63 bytes
+  CHECK_FALSE(wire::valid_topic(std::string("a\0b", 3)));                 // NUL: never a channel name
+  CHECK_FALSE(wire::valid_topic(""));
+  // In frames: every topic line, round trip.
+  wire::Control c;
+  c.from = "chipA";
+  c.instance = 1;
+  c.link = "pcie";
+  c.t_ns = 1;
+  c.has_demand = true;
+  c.control_port = 7700;
+  c.want = {"CAM FRONT", "100%"};
+  c.offer = {"CAM FRONT"};
+  c.have = {"CAM FRONT"};
+  c.keep = {{"CAM FRONT", 3}};
+  c.types = {{"CAM FRONT", {42, "lcmx_examples.image_t"}}};
+  const auto text = wire::encode(c);
+  CHECK(text.find("want CAM%20FRONT\n") != std::string::npos);
+  CHECK(text.find("keep CAM%20FRONT 3\n") != std::string::npos);
+  const auto d = wire::decode(text);
+  REQUIRE(d);
+  CHECK(d->want == c.want);
+  CHECK(d->offer == c.offer);
+  CHECK(d->have == c.have);
+  CHECK(d->keep == c.keep);
+  CHECK(d->types == c.types);
+  const std::string head = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\ncontrol 7700\ndemand\n";
+  CHECK_FALSE(wire::decode(head + "want CAM FRONT\n"));  // a bare space: two words
+  CHECK_FALSE(wire::decode(head + "have %41\n"));
+}

@@ -73,19 +73,120 @@ TEST_CASE("channel queues: bounded by hwm, drop oldest or newest, drops reported
   CHECK(q == std::deque<int>{10});
 }
 
-TEST_CASE("channel sequence check: in order once, gaps counted, a restart starts over", "[bridge][channels]") {
-  datapath::RxSequence rx;
-  using H = wire::DataHeader;
-  CHECK(rx.accept(H{7, 1}) == 0u);
-  CHECK(rx.accept(H{7, 2}) == 0u);
-  CHECK(rx.accept(H{7, 5}) == 2u);            // 3 and 4 lost
-  CHECK_FALSE(rx.accept(H{7, 5}));            // a duplicate
-  CHECK_FALSE(rx.accept(H{7, 4}));            // late data of an old link
-  CHECK(rx.accept(H{8, 1}) == 0u);            // the peer restarted: a new instance
-  CHECK(rx.accept(H{8, 2}) == 0u);
-  CHECK(rx.accept(H{7, 100}) == 0u);          // another instance again: starts over, no loss counted
-  datapath::RxSequence first;
-  CHECK(first.accept(H{1, 42}) == 0u);        // joining mid-stream is not a loss
+namespace {
+using Order = datapath::RxOrder<int>;
+using H = wire::DataHeader;
+// Pushes message `seq` of instance `inst` from `socket` (its payload: seq) and returns what came out.
+Order::Out push(Order& rx, std::uint64_t inst, std::uint64_t seq, const char* socket, int link = 0,
+                Order::Clock::time_point now = Order::Clock::time_point{}) {
+  Order::Out out;
+  rx.push(H{inst, seq}, socket, link, static_cast<int>(seq), now, out);
+  return out;
+}
+}  // namespace
+
+TEST_CASE("channel order: in order once, a gap on the same socket lost at once, a restart starts over",
+          "[bridge][channels]") {
+  Order rx(4, 600ms);
+  CHECK(push(rx, 7, 1, "A/x").deliver == std::vector<int>{1});
+  CHECK(push(rx, 7, 2, "A/x").deliver == std::vector<int>{2});
+  auto o = push(rx, 7, 5, "A/x");  // 3 and 4 were on this socket, which delivers in order: lost
+  CHECK(o.deliver == std::vector<int>{5});
+  CHECK(o.lost == 2u);
+  o = push(rx, 7, 5, "A/x");  // a duplicate
+  CHECK(o.deliver.empty());
+  CHECK(o.stale == 1u);
+  CHECK(push(rx, 7, 4, "A/y").stale == 1u);  // late data of a gap given up on
+  CHECK(push(rx, 8, 1, "A/z").deliver == std::vector<int>{1});  // the peer restarted: a new instance
+  CHECK(push(rx, 8, 2, "A/z").deliver == std::vector<int>{2});
+  o = push(rx, 7, 100, "A/x");  // another instance again: starts over, no loss counted
+  CHECK(o.deliver == std::vector<int>{100});
+  CHECK(o.lost == 0u);
+  Order first(4, 600ms);
+  o = push(first, 1, 42, "A/x");  // joining mid-stream is not a loss
+  CHECK(o.deliver == std::vector<int>{42});
+  CHECK(o.lost == 0u);
+  CHECK_FALSE(first.holding());
+}
+
+TEST_CASE("channel order: after a switch the new socket's messages wait for the old socket's, none lost",
+          "[bridge][channels][failover]") {
+  // A planned fail-back: 1..3 went over eth (socket E), then the sender moved to pcie (socket
+  // P); 4 and 5 are still on their way over eth when 6 and 7 arrive over pcie.
+  Order rx(4, 600ms);
+  const auto t0 = Order::Clock::now();
+  for (std::uint64_t s = 1; s <= 3; ++s) push(rx, 7, s, "A/E", 1, t0);
+  CHECK(rx.last_link() == 1);
+  CHECK(push(rx, 7, 6, "A/P", 0, t0).deliver.empty());
+  CHECK(push(rx, 7, 7, "A/P", 0, t0).deliver.empty());
+  CHECK(rx.holding());
+  CHECK(rx.held() == 2u);
+  CHECK(rx.due() == t0 + 600ms);
+  Order::Out o;
+  rx.expire(t0 + 599ms, false, o);  // not yet due
+  CHECK(o.deliver.empty());
+  CHECK(push(rx, 7, 4, "A/E", 1, t0).deliver == std::vector<int>{4});
+  o = push(rx, 7, 5, "A/E", 1, t0);
+  CHECK(o.deliver == std::vector<int>{5, 6, 7});
+  CHECK(o.lost == 0u);
+  CHECK_FALSE(rx.holding());
+  CHECK(rx.last_link() == 0);
+  CHECK(push(rx, 7, 8, "A/P", 0, t0).deliver == std::vector<int>{8});
+}
+
+TEST_CASE("channel order: a gap that never fills is given up on when due, when its link is down, or when full",
+          "[bridge][channels][failover]") {
+  const auto t0 = Order::Clock::now();
+  {  // due: what was in flight on the dead link is counted lost once, then arrives too late
+    Order rx(4, 600ms);
+    push(rx, 7, 1, "A/P", 0, t0);
+    push(rx, 7, 5, "A/E", 1, t0 + 10ms);
+    push(rx, 7, 6, "A/E", 1, t0 + 20ms);
+    Order::Out o;
+    rx.expire(t0 + 610ms, false, o);
+    CHECK(o.deliver == std::vector<int>{5, 6});
+    CHECK(o.lost == 3u);
+    CHECK_FALSE(rx.holding());
+    CHECK(push(rx, 7, 3, "A/P", 0, t0).stale == 1u);
+  }
+  {  // the old socket's link is down (force): at once
+    Order rx(4, 600ms);
+    push(rx, 7, 1, "A/P", 0, t0);
+    push(rx, 7, 3, "A/E", 1, t0);
+    Order::Out o;
+    rx.expire(t0, true, o);
+    CHECK(o.deliver == std::vector<int>{3});
+    CHECK(o.lost == 1u);
+  }
+  {  // more than `cap` held: bounded memory, so given up on
+    Order rx(2, 600ms);
+    push(rx, 7, 1, "A/P", 0, t0);
+    CHECK(push(rx, 7, 4, "A/E", 1, t0).deliver.empty());
+    CHECK(push(rx, 7, 5, "A/E", 1, t0).deliver.empty());
+    auto o = push(rx, 7, 7, "A/E", 1, t0);  // (6: lost too)
+    CHECK(o.deliver == std::vector<int>{4, 5, 7});
+    CHECK(o.lost == 3u);
+    CHECK_FALSE(rx.holding());
+  }
+  {  // the held socket goes on beyond a gap of its own: the gap below it is given up on
+    Order rx(8, 600ms);
+    push(rx, 7, 1, "A/P", 0, t0);
+    push(rx, 7, 4, "A/E", 1, t0);       // held: 2, 3 may come over P
+    auto o = push(rx, 7, 2, "A/P", 0, t0);
+    CHECK(o.deliver == std::vector<int>{2});
+    o = push(rx, 7, 6, "A/P", 0, t0);  // P delivers in order: 3 and 5 are not on it
+    CHECK(o.deliver == std::vector<int>{4, 6});
+    CHECK(o.lost == 2u);
+    CHECK_FALSE(rx.holding());
+  }
+  {  // a restart while holding: the old instance's gap never fills
+    Order rx(8, 600ms);
+    push(rx, 7, 1, "A/P", 0, t0);
+    push(rx, 7, 3, "A/E", 1, t0);
+    auto o = push(rx, 9, 1, "A/Q", 0, t0);
+    CHECK(o.deliver == std::vector<int>{3, 1});
+    CHECK(o.lost == 1u);
+  }
 }
 
 TEST_CASE("ZAP without CURVE: only from a configured peer's address, as that peer", "[bridge][security]") {

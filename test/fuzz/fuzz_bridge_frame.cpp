@@ -8,8 +8,11 @@
 //    is a fixed point: what a bridge re-sends is what it read);
 //  - the fields encode() carries survive the round trip.
 // The input is also one data frame's topic and header, as the channel threads check them:
-// byte 0 = topic length, then the topic, then the rest as the 16-byte header (accepted only
-// when exactly 16 bytes); decode_header + encode_header give back the same 16 bytes.
+// byte 0 = topic length, then the topic, then the rest as the 24-byte header (accepted only
+// when exactly 24 bytes); decode_header + encode_header give back the same 24 bytes. And the
+// whole input is one word of a control frame naming a topic (decode_topic): one that decodes is
+// the canonical spelling of a valid topic (encode_topic gives the word back), and any valid
+// topic (the input's first up to 63 bytes) encodes to one word that decodes to it.
 // A failed check prints what failed and aborts, which libFuzzer reports as a crash.
 
 #include <cstdint>
@@ -113,10 +116,24 @@ void check_data(const std::uint8_t* data, std::size_t size) {
   FUZZ_CHECK(std::memcmp(in, out, wire::kDataHeader) == 0);
 }
 
+void check_topic_word(std::string_view in) {
+  if (const auto t = wire::decode_topic(in)) {
+    FUZZ_CHECK(wire::valid_topic(*t));
+    FUZZ_CHECK(wire::encode_topic(*t) == in);
+  }
+  const std::string_view t = in.substr(0, wire::kMaxTopic);
+  if (!wire::valid_topic(t)) return;
+  const std::string w = wire::encode_topic(t);
+  for (unsigned char c : w) FUZZ_CHECK(c > ' ' && c != 0x7f);
+  const auto back = wire::decode_topic(w);
+  FUZZ_CHECK(back && *back == t);
+}
+
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   check_control(std::string_view(reinterpret_cast<const char*>(data), size));
   check_data(data, size);
+  check_topic_word(std::string_view(reinterpret_cast<const char*>(data), size));
   return 0;
 }

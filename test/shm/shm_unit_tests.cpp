@@ -565,3 +565,36 @@ TEST_CASE("tampered descriptors and sizes are dropped, never read out of bounds"
   CHECK(r.drops() == 2);
   CHECK(r.received() == 1);
 }
+
+// The Writer's per-message bits (Writer::commit's `flags`; the core stamps a message's class
+// there for the Message Bridges): read back with the message, also by a late Reader of a kept
+// message carried into a larger generation.
+TEST_CASE("per-message flags: read with the message, carried into a new generation", "[shm][keep]") {
+  Watchdog wd(15s);
+  const auto base = unique_base("flags");
+  ShmGuard g(base);
+  WriterOptions o = opts(8);
+  o.keep = 2;
+  auto w = Writer::create(base, o);
+  auto r = Reader::open(w.segment_name());
+  std::vector<unsigned char> msg(64, 7);
+  w.write(msg.data(), msg.size(), 3);
+  w.write(msg.data(), msg.size());  // none
+  auto l = w.loan(64);
+  std::memcpy(l.data(), msg.data(), 64);
+  w.commit(std::move(l), 64, 2);
+  for (std::uint64_t want : {3u, 0u, 2u}) {
+    auto s = r.take();
+    REQUIRE(s);
+    CHECK(s->flags() == want);
+    auto moved = std::move(*s);
+    CHECK(moved.flags() == want);
+  }
+  // A larger message moves the Writer to a new generation carrying the last 2: their flags too.
+  std::vector<unsigned char> big(1 << 16, 9);
+  w.write(big.data(), big.size(), 1);
+  auto late = Reader::open(base, 2);
+  std::vector<std::uint64_t> seen;
+  while (auto s = late.take()) seen.push_back(s->flags());
+  CHECK(seen == std::vector<std::uint64_t>{2, 1});
+}

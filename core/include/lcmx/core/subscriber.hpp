@@ -157,6 +157,11 @@ struct RawMessage {
   // this publisher held, encoded bytes, or no source). May be called again later in the same
   // callback (e.g. after waiting for a holder to release a sample). Never throws.
   std::optional<RetainedBytes> retain_zero_copy() const noexcept;
+  // The publisher's class of this very message, as it routed it: true when large (it leaves
+  // the message to this host's Message Bridges to reach other hosts), false when small (it
+  // sends it over UDP where other hosts want it). Shared-memory path only (lcmx publishers
+  // stamp it into the slot); nullopt on the other paths. Any thread, during the callback.
+  std::optional<bool> published_large() const noexcept;
 };
 
 using RawSubscriber = Subscriber<void>;

@@ -136,10 +136,12 @@ class Writer {
   // Readers with one futex wake. size <= loan.capacity(). Returns the message's sequence:
   // global across generations, 0 for the Writer's first message, +1 per commit (aborted loans
   // take none). Throws Error(invalid_argument) for a loan of another Writer or size > capacity.
-  std::uint64_t commit(WriteLoan&& loan, std::size_t size);
+  // `flags`: the caller's bits for this message, opaque to shm; Readers see them with it
+  // (ReadSample::flags), also when it is carried into a new generation.
+  std::uint64_t commit(WriteLoan&& loan, std::size_t size, std::uint64_t flags = 0);
 
   // Copy-in convenience: loan + memcpy + commit.
-  std::uint64_t write(const void* data, std::size_t size);
+  std::uint64_t write(const void* data, std::size_t size, std::uint64_t flags = 0);
 
   const std::string& segment_name() const;     // current generation's name
   std::uint64_t published() const noexcept;    // messages committed so far (dropped included)
@@ -168,6 +170,7 @@ class ReadSample {
   const std::byte* data() const noexcept { return data_; }
   std::size_t size() const noexcept { return size_; }
   std::uint64_t sequence() const noexcept { return sequence_; }  // as returned by commit()
+  std::uint64_t flags() const noexcept { return flags_; }        // as given to commit()
   // Call AFTER reading (decoding/copying) the data: true if the slot still holds this message
   // and this Reader's registration was never taken over, i.e. nothing rewrote what was read
   // (seqlock-style re-check). False after a hostile truncation or a broken pin: discard what
@@ -187,13 +190,14 @@ class ReadSample {
 
  private:
   friend class Reader;
-  ReadSample(detail::ReaderImpl* r, int pin, const std::byte* d, std::size_t n, std::uint64_t s)
-      : reader_(r), pin_(pin), data_(d), size_(n), sequence_(s) {}
+  ReadSample(detail::ReaderImpl* r, int pin, const std::byte* d, std::size_t n, std::uint64_t s, std::uint64_t f)
+      : reader_(r), pin_(pin), data_(d), size_(n), sequence_(s), flags_(f) {}
   detail::ReaderImpl* reader_ = nullptr;
   int pin_ = -1;
   const std::byte* data_ = nullptr;
   std::size_t size_ = 0;
   std::uint64_t sequence_ = 0;
+  std::uint64_t flags_ = 0;
 };
 
 // A sample detached from its Reader (ReadSample::detach): a pinned, zero-copy message that

@@ -6,8 +6,11 @@
 //   PING only: control <port>, channel <name> <port> (repeated), and on the active link
 //   "demand" followed by "want <topic>", "offer <topic>" and "have <topic>" lines (the full
 //   sets; "have": the sender's catalogue, at most kMaxCatalogue topics), "keep <topic> <N>" and
-//   "type <topic> <fingerprint, 16 hex> <lcm type name>" lines.
-// Data (channel ports, DEALER -> ROUTER): [topic][header: instance u64 LE, seq u64 LE][payload].
+//   "type <topic> <fingerprint, 16 hex> <lcm type name>" lines. A topic is written as one word
+//   (encode_topic: bytes up to the space, DEL and '%' as %XX), so any LCM channel name can be
+//   demanded.
+// Data (channel ports, DEALER -> ROUTER): [topic, the name's bytes as they are][header: instance
+// u64 LE, seq u64 LE, keep u64 LE][payload].
 #pragma once
 
 #include <cstdint>
@@ -64,8 +67,15 @@ struct Control {
   static constexpr std::size_t kMaxTypeName = 255;
 };
 
-// A topic that the text format can carry: 1..63 bytes, no whitespace or control characters.
+// A topic the bridges carry: any LCM channel name, 1..kMaxTopic bytes of anything but NUL.
 bool valid_topic(std::string_view t);
+// A topic as one word of a control frame's text: bytes up to the space (0x00..0x20), DEL and
+// '%' as "%XX" (two upper-case hex digits), every other byte as it is. `t` must be valid_topic.
+std::string encode_topic(std::string_view t);
+// The topic a word of a control frame names; nullopt unless `word` is encode_topic's spelling of
+// a valid_topic (so each topic has exactly one spelling: no other escape, no lower-case hex, no
+// bare byte that needs one). Bounded: at most 3 x kMaxTopic bytes are looked at.
+std::optional<std::string> decode_topic(std::string_view word);
 // An lcm type name that a "type" line can carry: 1..Control::kMaxTypeName bytes, no whitespace or
 // control characters. A bridge sends only those: one the decoder refuses would void the frame.
 bool valid_type_name(std::string_view name);

@@ -141,7 +141,11 @@ struct SubscriberEntry {
 struct SlotHeader {
   std::atomic<std::uint64_t> seq;        // kSlotEmpty / kSlotWriting / message seq
   std::uint64_t size;                    // committed payload bytes (valid when seq is a seq)
-  std::uint64_t reserved[6];
+  // The Writer's bits for this message (Writer::commit's `flags`), opaque to shm: written and
+  // read like `size` (valid when seq is a seq), carried with the message into a new
+  // generation. A Writer that sets none (older ones wrote 0 to this reserved word) says nothing.
+  std::uint64_t flags;
+  std::uint64_t reserved[5];
 };
 
 inline constexpr std::size_t kHeaderSize = sizeof(SegmentHeader);
@@ -174,6 +178,8 @@ static_assert(offsetof(SubscriberEntry, armed) == 8);
 static_assert(offsetof(SubscriberEntry, pins) == 16);
 static_assert(offsetof(SubscriberEntry, next) == 56);
 static_assert(sizeof(SlotHeader) == kCacheLine);
+static_assert(offsetof(SlotHeader, size) == 8);
+static_assert(offsetof(SlotHeader, flags) == 16);
 
 constexpr std::uint64_t round_up(std::uint64_t v, std::uint64_t a) noexcept {
   return (v + a - 1) / a * a;
