@@ -284,6 +284,8 @@ TEST_CASE("participants meet in the registry: join, update on a structural chang
     return b;
   };
   Discovery a(o, [] { return beacon_of(1, lcmx::discovery::host_id(), {"POSE"}); }, la.fn());
+  // a speaks for the registry (the speaker reads every slot: only a listener skips).
+  REQUIRE(eventually([&] { return a.speaking(); }));
   Log lc;
   Discovery c(o, [] { return beacon_of(3, lcmx::discovery::host_id(), {"OTHER"}); }, lc.fn());  // shares no topic with b
   {
