@@ -67,6 +67,8 @@ void Pairs::match_local_locked(PublisherImpl& pub, SubscriberCore& sub, Outcome&
   m->publisher_participant = ctx_.participant_id;
   m->publisher_endpoint = pub.id;
   m->path = Path::intra;
+  m->stats->publisher_participant = ctx_.participant_id;  // who sends through the pair (PairCounters)
+  m->stats->publisher_endpoint = pub.id;
   pub.add_intra(subs_.at(sub.id), m->stats);
   {
     std::lock_guard lock(sub.state->mu);
@@ -163,6 +165,9 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
     m->publisher_participant = key.first;
     m->publisher_endpoint = key.second;
     m->path = path;
+    m->stats->publisher_participant = key.first;  // who sends through the pair (PairCounters)
+    m->stats->publisher_endpoint = key.second;
+    m->stats->path = path;
     if (path == Path::shm || path == Path::bridge) {
       const auto fkey = std::make_tuple(sub.id, key.first, key.second);
       try {
