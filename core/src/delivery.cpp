@@ -39,14 +39,6 @@ Pairs::Outcome Pairs::deliver_udp(bool vehicle, std::int64_t sender, const udpm:
       }
     }
     if (!match && sender != 0) continue;  // not matched (type mismatch, or not yet)
-    if (match && !match->foreign && m.data.size() > ctx_.options.udp_limit &&
-        std::any_of(st.matches.begin(), st.matches.end(), [](const auto& x) { return x->path == Path::bridge; })) {
-      // A large message of another host's lcmx publisher, to a subscriber that this host's
-      // bridge serves the channel: the bridges bring it (the publisher sent it over UDP too
-      // because it had not heard of this subscriber's bridge match yet, discovery's few ms).
-      // Taking this copy as well would deliver it twice.
-      continue;
-    }
     const std::string source_text = udpm::to_string(source);
     if (!match && !sub->type().raw() && !fingerprint_is(m.data, sub->type().fingerprint)) {
       // A stock LCM sender of another type on this channel: not delivered, reported once.

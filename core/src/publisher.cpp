@@ -166,8 +166,6 @@ PublisherImpl::UdpSent PublisherImpl::send_udp(std::span<const std::byte> encode
 // copy of the encoding when keep last N keeps it for UDP replays (keeps_encoding), else null,
 // and what went out over UDP. publish_mu held.
 PublisherImpl::Written PublisherImpl::write_encoded(const void* object, std::size_t size, bool shm, bool udp) {
-  check_size(size);
-  note_size(size);
   Written out;
   if (shm) {
     try {
@@ -224,14 +222,13 @@ void PublisherImpl::publish_ref(const void* object,
   const bool history = options.history > 0;
   const bool shm = history || writer_->registered_readers() > 0;
   const std::size_t size = type.encoded_size(object);
+  // Checked and classified first, even when it is not encoded (in-process subscribers only, or
+  // none): a Message Bridge lists the large topics of its host for its peers' pattern
+  // subscribers (docs/bridge.md "Pattern subscribers"), and the message that turns the topic
+  // large goes where large ones go (not over UDP and through the bridges both).
+  check_size(size);
+  note_size(size);
   const bool udp = wants_udp(size);
-  // Not encoded when nobody reads through shm or UDP (in-process subscribers only, or none), but
-  // checked and classified all the same: a Message Bridge lists the large topics of its host
-  // for its peers' pattern subscribers (docs/bridge.md "Pattern subscribers").
-  if (!shm && !udp) {
-    check_size(size);
-    note_size(size);
-  }
   // In-process subscribers first: handing over a pointer is cheaper than encoding.
   std::shared_ptr<const void> shared;
   if (!t->empty() || history) shared = copy(object);
@@ -249,11 +246,9 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   const bool history = options.history > 0;
   const bool shm = history || writer_->registered_readers() > 0;
   const std::size_t size = type.encoded_size(object.get());
+  check_size(size);  // as publish_ref
+  note_size(size);
   const bool udp = wants_udp(size);
-  if (!shm && !udp) {  // as publish_ref
-    check_size(size);
-    note_size(size);
-  }
   if (!t->empty()) deliver_intra(*t, object);
   Written w;
   if (shm || udp) w = write_encoded(object.get(), size, shm, udp);

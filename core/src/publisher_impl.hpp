@@ -108,7 +108,8 @@ class PublisherImpl final : public PublisherCore {
     std::shared_ptr<const Bytes> kept;  // the encoding, when kept for UDP replays (keeps_encoding)
     UdpSent sent;
   };
-  Written write_encoded(const void* object, std::size_t size, bool shm, bool udp);  // size: encoded_size
+  // size: encoded_size, already checked and classified (check_size, note_size) by the caller.
+  Written write_encoded(const void* object, std::size_t size, bool shm, bool udp);
   void note_generation();  // publish_mu held
 
   std::unique_lock<std::mutex> lock_no_loan(const char* what);

@@ -337,6 +337,28 @@ std::string bridge_status(World& w, int host, bool json = false) {
   return c.text();
 }
 
+// Waits until `host` knows (`lcmx topics --json` there) that a subscriber of `channel` on
+// another host receives it through a bridge republisher: from then on a publisher of `host`
+// that turns the topic large leaves it to the bridges alone (before, it also sends it over UDP
+// to that subscriber, which may then get the switching message twice: docs/bridge.md "From UDP
+// to the bridges without a loss").
+void wait_bridge_match_known(World& w, int host, const std::string& channel, ms timeout = 15000ms) {
+  const auto deadline = Clock::now() + timeout;
+  std::string text;
+  for (;;) {
+    auto& t = w.spawn(host, {LCMX_TOOL, "topics", "--json", "--wait", "600"}, true);
+    REQUIRE(t.wait(15000ms) == 0);
+    text = t.text();
+    const auto at = text.find("{\"topic\":\"" + channel + "\"");
+    if (at != std::string::npos) {
+      const auto end = text.find("{\"topic\":\"", at + 1);
+      const auto bridged = text.find("\"path\":\"bridge\"", at);
+      if (bridged != std::string::npos && (end == std::string::npos || bridged < end)) return;
+    }
+    if (Clock::now() >= deadline) FAIL("host " << host << " never learnt the bridge match of " << channel << ":\n" << text);
+  }
+}
+
 }  // namespace
 
 TEST_CASE("the only subscriber on host B leaves, the bridges stop carrying the topic, a new subscriber on B gets it again",
@@ -1249,6 +1271,7 @@ TEST_CASE("vehicle group and bridges: the message that makes a topic large, and 
   pub.send(pub_cmd(5, 0));
   REQUIRE(published_total(pub) == warm + 5);
   REQUIRE(wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == warm + 4; }, 5000ms).second);
+  wait_bridge_match_known(w, 0, ch);  // settled: A knows B's subscriber takes it from B's republisher
   pub.send("size 300000");  // over udp_limit (65000): message warm + 5 makes the topic large
   REQUIRE(pub.expect("SIZE 300000", 5000ms));
   pub.send(pub_cmd(4, 50));
@@ -1834,7 +1857,10 @@ TEST_CASE("publisher and bridge with different udp limits or a small class force
   std::map<std::string, long long> warm;
   for (auto [p, ch] : {std::pair{&p_hi, hi}, std::pair{&p_lo, lo}, std::pair{&p_forced, forced}})
     warm[ch] = warm_up(*p, {&sub}, ch, 20000ms);
-  // The low-limit publisher's messages grow past its limit but stay under the bridge's.
+  // The low-limit publisher's messages grow past its limit but stay under the bridge's; it
+  // turns the topic large once it knows that B's subscriber takes it through B's republisher
+  // (a switch before that is the UDP-to-bridges window, not what this test is about).
+  wait_bridge_match_known(w, 0, lo);
   p_lo.send("size 50000");
   REQUIRE(p_lo.expect("SIZE 50000", 5000ms));
   for (auto* p : {&p_hi, &p_lo, &p_forced}) p->send(pub_cmd(30, 50));
@@ -1880,6 +1906,7 @@ TEST_CASE("vehicle group and bridges on A and B: a late subscriber on bridge-les
   INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output() << "\nsubscriber B:\n" << sub_b.output());
   REQUIRE(matched_b);
   long long total = warm_up(pub, {&sub_b}, ch);
+  wait_bridge_match_known(w, 0, ch);  // settled: A knows B's subscriber takes it from B's republisher
   pub.send("size 300000");
   REQUIRE(pub.expect("SIZE 300000", 5000ms));
   // B's subscriber takes it from the bridges only now (A's publisher is bridged only).

@@ -166,7 +166,11 @@ struct Recorder {
     if (min < 0 || seq < min) min = seq;
     auto& s = sources[source];
     ++s.received;
-    if (!s.seen.insert(seq).second) ++s.duplicates;
+    if (!s.seen.insert(seq).second) {
+      ++s.duplicates;
+      // LCMX_PEER_DUP_TRACE=1: which message came twice (in a test's output, to debug).
+      if (std::getenv("LCMX_PEER_DUP_TRACE")) std::fprintf(stderr, "DUP %lld\n", static_cast<long long>(seq));
+    }
     else if (s.last >= 0 && seq < s.last) ++s.out_of_order;
     else if (s.last >= 0 && seq > s.last + 1) {
       s.gaps += static_cast<std::uint64_t>(seq - s.last - 1);
