@@ -360,7 +360,7 @@ int main(int argc, char** argv) {
   app.add_option("--name", name, "subscriber name (--role sub)");
   app.add_option("--topics", topics, "subscriber: camera,pose or one of them (--role sub)");
   app.add_option("--timeout", timeout_s, "subscriber: give up after this many seconds");
-  app.add_option("--seconds", seconds, "how long to publish (default: 5 single-host, 9 two-chip)")
+  app.add_option("--seconds", seconds, "how long to publish (default: 5 single-host, 9 two-chip: three phases of a third each, plus up to 4 s for the bridges' counts between them)")
       ->check(CLI::Range(0.5, 3600.0));
   app.add_option("--camera-hz", cam_hz, "camera rate (default: 30 single-host, 10 two-chip)")
       ->check(CLI::Range(1.0, 200.0));

@@ -27,6 +27,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <future>
 #include <iostream>
 #include <limits>
 #include <map>
@@ -114,7 +115,10 @@ std::string status_json(const Emulation& emu, const std::string& lcmx, int host)
   }
 }
 Counted counted(const Emulation& emu, const std::string& lcmx) {
-  const std::string a = status_json(emu, lcmx, 0), b = status_json(emu, lcmx, 1);
+  // Both chips at once: each `lcmx bridge status` takes about a second (discovery, then 300 ms
+  // for other daemons), and the phases wait for it.
+  auto on_a = std::async(std::launch::async, [&] { return status_json(emu, lcmx, 0); });
+  const std::string b = status_json(emu, lcmx, 1), a = on_a.get();
   if (a.empty() || b.empty()) return {};
   return {json_sum(b, "lost"), json_sum(a, "drops"), json_sum(a, "lost_local")};
 }
@@ -168,7 +172,11 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
   std::vector<Child> bridges;
   for (int h = 0; h < 2; ++h) bridges.push_back(emu.spawn(h, {lcmx, "bridge", "--config", configs[h]}, bridge_env));
 
-  const int timeout_s = static_cast<int>(seconds) + 60;
+  // Chip A publishes a little longer than the three phases of seconds/3: between them the demo
+  // asks the bridges for their counts (a few seconds), and the link changes only after that, so
+  // each phase's bytes and losses are those between two link changes.
+  const double publish_s = seconds + 4;
+  const int timeout_s = static_cast<int>(publish_s) + 60;
   struct Sub {
     int host;
     std::string name, topics;
@@ -182,14 +190,14 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
                                   env));
     if (!sub_procs.back().expect("READY", 20s)) throw std::runtime_error("subscriber " + s.name + " did not start");
   }
-  auto pub = emu.spawn(0, {self, "--role", "chip-a", "--seconds", std::to_string(seconds), "--width",
+  auto pub = emu.spawn(0, {self, "--role", "chip-a", "--seconds", std::to_string(publish_s), "--width",
                            std::to_string(width), "--height", std::to_string(height), "--camera-hz",
                            std::to_string(cam_hz)},
                        env);
   if (!pub.expect("PUBLISHING", 20s)) throw std::runtime_error("chip A's publisher did not start");
   const double image_mb = width * height * 3 / 1e6;
   std::cerr << "lcmx-demo: chip A publishes " << width << "x" << height << " rgb8 (" << image_mb << " MB) at "
-            << cam_hz << " Hz and poses at 100 Hz for " << seconds << " s\n";
+            << cam_hz << " Hz and poses at 100 Hz for " << publish_s << " s\n";
 
   // Phases: pcie up, pcie down (failover to eth), pcie up again (fail-back).
   using Clock = std::chrono::steady_clock;
@@ -211,22 +219,28 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
     if (json_sum(status_json(emu, lcmx, 1), "messages_received") > 0) break;
   }
   count_at[0] = counted(emu, lcmx);
+  // Each phase: its bytes and losses from one link change to the next. The counts are asked for
+  // at the end of a phase, before its link change (what they take is the phase's steady state).
+  Clock::time_point phase_at[4] = {start, {}, {}, {}};
   std::this_thread::sleep_until(start + third);  // pacing, not synchronisation
-  phases[0].after = phases[1].before = sent_by_a(emu);
   count_at[1] = counted(emu, lcmx);
+  phases[0].after = phases[1].before = sent_by_a(emu);
   std::cerr << "lcmx-demo: taking the pcie link of chip A down\n";
   phase_start[1] = now_ns();
+  phase_at[1] = Clock::now();
   emu.set_link_up(0, "pcie", false);
-  std::this_thread::sleep_until(start + 2 * third);
-  phases[1].after = phases[2].before = sent_by_a(emu);
+  std::this_thread::sleep_until(phase_at[1] + third);
   std::cout << "\nbridge status on chip B while pcie is down:\n";
   show_status(emu, lcmx);
   count_at[2] = counted(emu, lcmx);
+  phases[1].after = phases[2].before = sent_by_a(emu);
   std::cerr << "lcmx-demo: pcie link of chip A up again\n";
   phase_start[2] = now_ns();
+  phase_at[2] = Clock::now();
   emu.set_link_up(0, "pcie", true);
-  const auto done = pub.expect("DONE", std::chrono::milliseconds(static_cast<int>(seconds * 1000)) + 30s);
+  const auto done = pub.expect("DONE", std::chrono::milliseconds(static_cast<int>(publish_s * 1000)) + 30s);
   phases[2].after = sent_by_a(emu);
+  phase_at[3] = Clock::now();
   if (!done) throw std::runtime_error("chip A's publisher did not finish");
   phase_start[3] = std::numeric_limits<std::int64_t>::max();
   unsigned long long cams = 0, poses = 0;
@@ -273,15 +287,15 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
     if (!b.wait(10s)) b.kill(SIGKILL);
 
   std::printf("\nlcmx demo (two chips): %.0f s, camera %dx%d rgb8 (%.1f MB) at %.0f Hz, pose at 100 Hz\n",
-              seconds, width, height, image_mb, cam_hz);
+              publish_s, width, height, image_mb, cam_hz);
   std::printf("published on chip A: camera %llu, pose %llu\n\n", cams, poses);
   std::printf("bytes chip A sent per link (all traffic: images, poses, beacons, heartbeats), and the camera\n"
               "images the subscribers on chip B missed in each phase (a failover loses what was in flight on\n"
               "the dead link, and what A's queue drops until eth carries the traffic: all counted by the\n"
               "bridges; a fail-back loses nothing):\n\n");
-  std::printf("| %-14s | %10s | %10s | %13s | %13s | %18s |\n", "phase", "pcie MB", "eth MB", "lost cam_b1",
-              "lost cam_b2", "counted (bridges)");
-  std::printf("|----------------|------------|------------|---------------|---------------|--------------------|\n");
+  std::printf("| %-14s | %6s | %10s | %10s | %13s | %13s | %18s |\n", "phase", "s", "pcie MB", "eth MB",
+              "lost cam_b1", "lost cam_b2", "counted (bridges)");
+  std::printf("|----------------|--------|------------|------------|---------------|---------------|--------------------|\n");
   std::uint64_t total = 0;
   for (std::size_t i = 0; i < phases.size(); ++i) {
     const auto& ph = phases[i];
@@ -297,8 +311,9 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
       const long long lost_b = c1.lost - c0.lost, drops = c1.drops - c0.drops, never = c1.lost_local - c0.lost_local;
       counted_text = std::to_string(lost_b + drops + never) + " (" + std::to_string(lost_b) + " in flight)";
     }
-    std::printf("| %-14s | %10s | %10s | %13s | %13s | %18s |\n", ph.what, mb(p).c_str(), mb(e).c_str(),
-                lost("cam_b1").c_str(), lost("cam_b2").c_str(), counted_text.c_str());
+    const double secs = std::chrono::duration<double>(phase_at[i + 1] - phase_at[i]).count();
+    std::printf("| %-14s | %6.1f | %10s | %10s | %13s | %13s | %18s |\n", ph.what, secs, mb(p).c_str(),
+                mb(e).c_str(), lost("cam_b1").c_str(), lost("cam_b2").c_str(), counted_text.c_str());
   }
   // Images chip B received (cam_b1's count; cam_b2 got the same ones from the same slot).
   unsigned long long on_b = 0;
