@@ -29,7 +29,6 @@
 #include <fstream>
 #include <future>
 #include <iostream>
-#include <limits>
 #include <map>
 #include <optional>
 #include <sstream>
@@ -207,8 +206,9 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
     const char* what;
     Bytes before, after;
   };
-  // Each phase's start (CLOCK_MONOTONIC, the subscribers' clock too: their losses are given to
-  // the phase their next image was published in) and what the bridges had counted then.
+  // Each phase's start and the run's end (CLOCK_MONOTONIC, the subscribers' clock too: their
+  // losses are given to the phase their next image was published in) and what the bridges had
+  // counted then.
   std::vector<Phase> phases = {{"pcie up", {}, {}}, {"pcie DOWN", {}, {}}, {"pcie up again", {}, {}}};
   phases[0].before = sent_by_a(emu);
   std::int64_t phase_start[4] = {now_ns(), 0, 0, 0};
@@ -221,28 +221,25 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
   count_at[0] = counted(emu, lcmx);
   // Each phase: its bytes and losses from one link change to the next. The counts are asked for
   // at the end of a phase, before its link change (what they take is the phase's steady state).
-  Clock::time_point phase_at[4] = {start, {}, {}, {}};
   std::this_thread::sleep_until(start + third);  // pacing, not synchronisation
   count_at[1] = counted(emu, lcmx);
   phases[0].after = phases[1].before = sent_by_a(emu);
   std::cerr << "lcmx-demo: taking the pcie link of chip A down\n";
   phase_start[1] = now_ns();
-  phase_at[1] = Clock::now();
+  const auto down_at = Clock::now();
   emu.set_link_up(0, "pcie", false);
-  std::this_thread::sleep_until(phase_at[1] + third);
+  std::this_thread::sleep_until(down_at + third);
   std::cout << "\nbridge status on chip B while pcie is down:\n";
   show_status(emu, lcmx);
   count_at[2] = counted(emu, lcmx);
   phases[1].after = phases[2].before = sent_by_a(emu);
   std::cerr << "lcmx-demo: pcie link of chip A up again\n";
   phase_start[2] = now_ns();
-  phase_at[2] = Clock::now();
   emu.set_link_up(0, "pcie", true);
   const auto done = pub.expect("DONE", std::chrono::milliseconds(static_cast<int>(publish_s * 1000)) + 30s);
   phases[2].after = sent_by_a(emu);
-  phase_at[3] = Clock::now();
+  phase_start[3] = now_ns();
   if (!done) throw std::runtime_error("chip A's publisher did not finish");
-  phase_start[3] = std::numeric_limits<std::int64_t>::max();
   unsigned long long cams = 0, poses = 0;
   std::sscanf(done->c_str(), "DONE %llu %llu", &cams, &poses);
   std::cout << "\nbridge status on chip B after fail-back:\n";
@@ -311,7 +308,7 @@ int run_two_chip(const char* self, double seconds, int width, int height, double
       const long long lost_b = c1.lost - c0.lost, drops = c1.drops - c0.drops, never = c1.lost_local - c0.lost_local;
       counted_text = std::to_string(lost_b + drops + never) + " (" + std::to_string(lost_b) + " in flight)";
     }
-    const double secs = std::chrono::duration<double>(phase_at[i + 1] - phase_at[i]).count();
+    const double secs = static_cast<double>(phase_start[i + 1] - phase_start[i]) / 1e9;
     std::printf("| %-14s | %6.1f | %10s | %10s | %13s | %13s | %18s |\n", ph.what, secs, mb(p).c_str(),
                 mb(e).c_str(), lost("cam_b1").c_str(), lost("cam_b2").c_str(), counted_text.c_str());
   }
