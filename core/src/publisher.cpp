@@ -72,9 +72,10 @@ bool PublisherImpl::wants_vehicle() const {
   return udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always;
 }
 
+// unbridged_elsewhere_ counts every subscriber that unbridged_udp_subscribers_ counts (and those
+// not matched with this publisher yet): it alone decides.
 bool PublisherImpl::bridged_only() const {
-  return large_.load() && node->runtime->bridge_on_host() && unbridged_udp_subscribers_.load() == 0 &&
-         unbridged_elsewhere_.load() == 0;
+  return large_.load() && node->runtime->bridge_on_host() && unbridged_elsewhere_.load() == 0;
 }
 
 bool PublisherImpl::wants_udp(std::size_t size) {
