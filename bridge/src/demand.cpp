@@ -158,6 +158,12 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
         }
       }
     }
+    // When each topic's demand began, published here or not yet.
+    std::set<std::string> wanted_now;
+    for (const auto& pp : peers)
+      for (const auto& t : pp->wants) wanted_now.insert(t);
+    std::erase_if(wanted_since, [&](const auto& kv) { return !wanted_now.count(kv.first); });
+    for (const auto& t : wanted_now) wanted_since.emplace(t, now);
     for (const auto& [t, v] : want) {
       large[t] = is_large_locked(t);
       if (auto k = kept.find(t); k != kept.end()) keep_local[t] = k->second;
@@ -196,6 +202,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       Served* raw = s.get();
       SubscriberOptions so;
       so.from_bridges = false;
+      if (auto ws = wanted_since.find(t); ws != wanted_since.end()) so.since = ws->second;
       try {
         s->sub = channels[*ch]->node->subscribe_raw(t, [this, raw](const RawMessage& m) { on_local_message(*raw, m); }, so);
       } catch (const std::exception& e) {

@@ -175,7 +175,8 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
         // beacon is not trusted).
         const auto backlog = static_cast<std::uint32_t>(
             std::clamp<std::int32_t>(e.history, 0, static_cast<std::int32_t>(PublisherOptions::kMaxHistory)));
-        m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e.shm_segment, backlog));
+        // The start-up race: what it committed since this subscription began, too.
+        m->reader = std::make_unique<shm::Reader>(shm::Reader::open(e.shm_segment, backlog, st.since_ns));
         open_failures_.erase(fkey);
         ctx_.deaths.watch(key.first, key.second, p.pid_namespace, e.shm_segment);
       } catch (const shm::Error& err) {

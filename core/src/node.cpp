@@ -523,6 +523,11 @@ void add_subscriber(NodeImpl& node, const std::shared_ptr<SubscriberCore>& sub) 
   sub->state = std::make_shared<SubscriberState>();
   sub->state->node = node.shared_from_this();
   sub->state->node_name = node.name;
+  sub->state->since_ns = sub->options().since == std::chrono::steady_clock::time_point{}
+                            ? shm::monotonic_ns()
+                            : static_cast<std::uint64_t>(std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                                             sub->options().since.time_since_epoch())
+                                                             .count());
   sub->id = node.runtime->new_endpoint_id();
   node.add(sub);
   node.runtime->add_subscriber(sub);
@@ -706,6 +711,7 @@ ChannelSubscription Node::subscribe_channels(std::function<bool(const std::strin
   core->options = options;
   core->max_channels = max_channels;
   core->node = impl_;
+  core->since_ns = shm::monotonic_ns();
   impl_->runtime->add_channel_subscription(core);
   return ChannelSubscription(std::move(core));
 }

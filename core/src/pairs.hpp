@@ -45,6 +45,7 @@ struct ChannelSubscriptionCore {
   SubscriberOptions options;
   std::size_t max_channels = 0;
   std::shared_ptr<NodeImpl> node;  // strong, like SubscriberState::node
+  std::uint64_t since_ns = 0;      // shm::monotonic_ns() at subscribe_channels: its children's since
   // Guarded by Pairs::mu_.
   std::map<std::string, std::shared_ptr<SubscriberCore>> children;
   std::set<std::string> declined;  // names the filter refused (a cache, cleared when large)

@@ -25,6 +25,11 @@ PublisherImpl::PublisherImpl(std::shared_ptr<NodeImpl> n, std::string channel,
   w.max_message_size = options.max_message_size;
   try {
     writer_.emplace(shm::Writer::create(node->runtime->shm_base_prefix + std::to_string(id), w));
+    // The first lease, at least 2 s: a peer's match reaches us within a beacon exchange, which
+    // a loaded machine can stretch past a short lease.
+    startup_until_ = std::chrono::steady_clock::now() +
+                     std::max<std::chrono::steady_clock::duration>(node->runtime->options.lease, std::chrono::seconds(2));
+    writer_->set_hot_slot(false);  // the start-up window: the ring keeps recent messages
     announced_segment_ = writer_->segment_name();
     large_ = node->runtime->class_of(channel_) == TopicClass::large;
   } catch (const shm::Error& e) {
@@ -65,11 +70,20 @@ void PublisherImpl::deliver_intra(const Targets& t, std::shared_ptr<const void> 
 // a topic may turn large before), those still get it over UDP, so the switch loses nothing.
 // Messages still on their way through the bridges when a subscriber matches the republisher
 // reach it a second time (docs/bridge.md "From UDP to the bridges without a loss").
-bool PublisherImpl::wants_vehicle() const {
+bool PublisherImpl::wants_vehicle(std::size_t size) {
   const auto& rt = *node->runtime;
   if (!rt.vehicle_group) return false;
   if (large_.load() && rt.bridge_on_host()) return unbridged_udp_subscribers_.load() > 0;
-  return udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always;
+  if (udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always) return true;
+  return size <= rt.options.udp_limit && in_startup();
+}
+
+bool PublisherImpl::in_startup() {
+  if (!startup_) return false;
+  if (std::chrono::steady_clock::now() < startup_until_) return true;
+  startup_ = false;
+  writer_->set_hot_slot(true);
+  return false;
 }
 
 // unbridged_elsewhere_ counts every subscriber that unbridged_udp_subscribers_ counts (and those
@@ -79,7 +93,7 @@ bool PublisherImpl::bridged_only() const {
 }
 
 bool PublisherImpl::wants_udp(std::size_t size) {
-  return wants_vehicle() || mirrors(size) || local_udp_subscribers_.load() > 0;
+  return wants_vehicle(size) || mirrors(size) || local_udp_subscribers_.load() > 0;
 }
 
 // The mirror takes small messages (<= udp_limit), judged message by message: a channel whose
@@ -141,7 +155,7 @@ PublisherImpl::UdpSent PublisherImpl::send_udp(std::span<const std::byte> encode
       return std::nullopt;
     }
   };
-  if (wants_vehicle()) {
+  if (wants_vehicle(encoded.size())) {
     if (large_.load() && !rt.bridge_on_host() && !warned_large_udp_) {
       warned_large_udp_ = true;
       spdlog::warn("lcmx: topic '{}' is large and no Message Bridge runs on this host: sending it "
@@ -221,7 +235,7 @@ void PublisherImpl::publish_ref(const void* object,
   auto lock = lock_no_loan("publish");
   auto t = targets();
   const bool history = options.history > 0;
-  const bool shm = history || writer_->registered_readers() > 0;
+  const bool shm = history || writer_->registered_readers() > 0 || in_startup();
   const std::size_t size = type.encoded_size(object);
   // Checked and classified first, even when it is not encoded (in-process subscribers only, or
   // none): a Message Bridge lists the large topics of its host for its peers' pattern
@@ -245,7 +259,7 @@ void PublisherImpl::publish_shared(std::shared_ptr<const void> object) {
   auto lock = lock_no_loan("publish");  // then the targets: see publish_ref
   auto t = targets();
   const bool history = options.history > 0;
-  const bool shm = history || writer_->registered_readers() > 0;
+  const bool shm = history || writer_->registered_readers() > 0 || in_startup();
   const std::size_t size = type.encoded_size(object.get());
   check_size(size);  // as publish_ref
   note_size(size);
@@ -263,7 +277,7 @@ void PublisherImpl::publish_bytes(std::span<const std::byte> data) {
   auto t = targets();
   note_size(data.size());
   const bool history = options.history > 0;
-  if (history || writer_->registered_readers() > 0) {
+  if (history || writer_->registered_readers() > 0 || in_startup()) {
     try {
       writer_->write(data.data(), data.size(), slot_flags());
     } catch (const shm::Error& e) {

@@ -154,7 +154,16 @@ class PublisherImpl final : public PublisherCore {
   UdpSent send_udp(std::span<const std::byte> encoded);
   bool wants_udp(std::size_t size);  // vehicle, mirror or neighbours; publish_mu held
   bool mirrors(std::size_t size);    // the mirror takes a message of this size; publish_mu held
-  bool wants_vehicle() const;  // other hosts, over UDP (not while a bridge carries the topic)
+  // Other hosts, over UDP (not while a bridge carries the topic), for a message of `size`.
+  bool wants_vehicle(std::size_t size);
+  // The start-up window (the publisher's first lease, at least 2 s): subscribers that exist already may not
+  // have matched it yet, since its first beacon is on its way. Meanwhile every message is
+  // written into its shm ring (a subscriber that matches takes what was committed after its
+  // own creation: Reader::open's since) and small ones go to the vehicle group too (taken as a
+  // stock sender's until the beacon arrives). Costs nothing after. publish_mu held.
+  bool in_startup();
+  bool startup_ = true;                                    // guarded by publish_mu
+  std::chrono::steady_clock::time_point startup_until_{};  // set at construction
   void note_size(std::size_t size);
   std::atomic<std::uint64_t> published_{0};
   // shm::Writer::dropped(): messages no shm subscriber got because every slot was pinned.

@@ -105,6 +105,7 @@ void Pairs::expand_locked(const std::string& channel, Outcome& out) {
     sub->state = std::make_shared<SubscriberState>();
     sub->state->node = p->node;
     sub->state->node_name = p->node->name;
+    sub->state->since_ns = p->since_ns;
     sub->id = new_endpoint_id();
     p->node->add(sub);  // NodeImpl::mu after Pairs::mu_: the lock order
     subs_[sub->id] = sub;

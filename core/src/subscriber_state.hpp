@@ -48,6 +48,10 @@ struct SubscriberState {
   // broken by remove_subscriber() (the Subscriber handle's destructor).
   std::shared_ptr<NodeImpl> node;
   std::string node_name;
+  // shm::monotonic_ns() when the subscription began (a channel subscription's child: when the
+  // channel subscription began): a publisher it matches later is read from the messages it
+  // committed since then, as far as its ring holds them (the start-up race, Reader::open).
+  std::uint64_t since_ns = 0;
 
   std::mutex mu;                        // guards queue, matches, version, errors
   std::condition_variable matched_cv;   // matches changed (wait_for_publishers)

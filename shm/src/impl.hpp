@@ -87,6 +87,7 @@ struct Segment {
   std::uint64_t generation = 0;
   std::uint64_t first_global_seq = 0;  // global number of seq 0 (see layout.hpp)
   std::uint32_t carried = 0;           // validated copy of SegmentHeader::carried
+  std::uint64_t writer_created_ns = 0; // copy of SegmentHeader::writer_created_ns
   SegmentHeader* hdr = nullptr;
 
   std::byte* base() const noexcept { return static_cast<std::byte*>(map.addr); }
@@ -115,6 +116,7 @@ struct HeaderInfo {
   std::int32_t owner_pid = 0;
   std::uint64_t owner_start_time = 0;
   std::uint64_t owner_pidns = 0;
+  std::uint64_t writer_created_ns = 0;
 };
 std::optional<HeaderInfo> validate_header(const void* mem, std::uint64_t file_size,
                                           std::string* why);
@@ -129,7 +131,7 @@ std::optional<HeaderInfo> validate_header(const void* mem, std::uint64_t file_si
 // see the generation without its carried messages. first_global_seq is of seq 0.
 std::unique_ptr<Segment> create_segment(
     const std::string& name, const Geometry& geo, std::uint64_t generation,
-    std::uint64_t first_global_seq, std::int32_t pid, std::uint64_t start_time,
+    std::uint64_t first_global_seq, std::int32_t pid, std::uint64_t start_time, std::uint64_t created_ns,
     const std::function<std::uint32_t(Segment&)>& fill = {});
 
 // Opens and validates an existing segment read-write: a regular file owned by our euid or
@@ -194,12 +196,14 @@ struct WriterImpl {
   bool loan_out = false;
   std::uint32_t loan_slot = 0;
   bool loan_scratch = false;            // the loan is the drop buffer (every slot pinned)
+  bool hot_slot = true;                 // Writer::set_hot_slot
   std::vector<std::byte> scratch;       // drop buffer, allocated on first need
   std::uint64_t dropped = 0;            // messages dropped because every slot was pinned
   std::chrono::steady_clock::time_point next_reclaim{};
   std::int32_t pid = 0;
   std::uint64_t start_time = 0;
   std::uint64_t pidns = 0;
+  std::uint64_t created_ns = 0;         // CLOCK_MONOTONIC at Writer::create
 
   ~WriterImpl();
   void grow(std::size_t size, bool same_size = false);

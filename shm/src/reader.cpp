@@ -51,6 +51,21 @@ inline void cpu_relax() noexcept {
 #endif
 }
 
+// The commit time of message m of segment s, if the ring still holds it: read between two
+// loads of the slot's seq that both see m (acquire: pairs with the Writer's seq release, after
+// its relaxed commit_ns store). nullopt if it was overwritten or never written.
+std::optional<std::uint64_t> commit_time(const Segment& s, std::uint64_t m) {
+  const std::uint32_t n = s.geo.slot_count;
+  const std::uint64_t d = s.desc(static_cast<std::uint32_t>(m % n)).load(std::memory_order_acquire);
+  if (d == kDescEmpty || desc_seq(d) != m || desc_slot(d) >= n) return std::nullopt;
+  const auto& sh = s.slot(desc_slot(d));
+  if (sh.seq.load(std::memory_order_acquire) != m) return std::nullopt;
+  const std::uint64_t t = sh.commit_ns.load(std::memory_order_relaxed);
+  std::atomic_thread_fence(std::memory_order_acquire);
+  if (sh.seq.load(std::memory_order_relaxed) != m) return std::nullopt;
+  return t;
+}
+
 std::shared_ptr<GenView> make_view(std::unique_ptr<Segment> seg, std::int32_t pid) {
   auto v = std::make_shared<GenView>();
   std::tie(v->entry, v->word) = register_subscriber(*seg, seg->lock.get(), pid);
@@ -342,7 +357,7 @@ Reader::~Reader() = default;
 
 static_assert(Reader::kMaxPins == detail::kMaxPins);
 
-Reader Reader::open(const std::string& segment_name, std::uint32_t backlog) {
+Reader Reader::open(const std::string& segment_name, std::uint32_t backlog, std::uint64_t since_ns) {
   using namespace detail;
   if (segment_name.empty() || segment_name.size() > 240 ||
       segment_name.find('/') != std::string::npos) {
@@ -376,6 +391,24 @@ Reader Reader::open(const std::string& segment_name, std::uint32_t backlog) {
   const std::uint64_t w = s.hdr->write_seq.load(std::memory_order_acquire);
   const std::uint64_t k = std::min<std::uint64_t>({backlog, w, s.geo.slot_count - 1u});
   impl->next = w - k;
+  if (since_ns != 0) {
+    // The oldest seq the ring may still hold (one slot is the one being written).
+    const std::uint64_t lo = w - std::min<std::uint64_t>(w, s.geo.slot_count - 1u);
+    std::uint64_t first = w;  // first wanted seq found in the ring
+    if (since_ns <= s.writer_created_ns) {
+      // Everything the Writer committed is wanted: what the ring no longer holds is lost.
+      first = lo;
+      impl->drops += s.first_global_seq + lo;
+    } else {
+      // Newest first: stop at a message older than since_ns, or one no longer held.
+      for (std::uint64_t m = w; m > lo; --m) {
+        const auto t = commit_time(s, m - 1);
+        if (!t || *t < since_ns) break;
+        first = m - 1;
+      }
+    }
+    impl->next = std::min(impl->next, first);
+  }
   impl->publish_counters();
   return Reader(std::move(impl));
 }

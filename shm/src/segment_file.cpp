@@ -105,6 +105,7 @@ std::optional<HeaderInfo> validate_header(const void* mem, std::uint64_t file_si
   info.owner_pid = h->owner_pid;
   info.owner_start_time = h->owner_start_time;
   info.owner_pidns = h->owner_pidns;
+  info.writer_created_ns = h->writer_created_ns;
   return info;
 }
 
@@ -149,7 +150,7 @@ bool unlink_segment(const std::string& name) noexcept {
 
 std::unique_ptr<Segment> create_segment(
     const std::string& name, const Geometry& geo, std::uint64_t generation,
-    std::uint64_t first_global_seq, std::int32_t pid, std::uint64_t start_time,
+    std::uint64_t first_global_seq, std::int32_t pid, std::uint64_t start_time, std::uint64_t created_ns,
     const std::function<std::uint32_t(Segment&)>& fill) {
   int fd = -1;
   for (int attempt = 0; attempt < 2 && fd < 0; ++attempt) {
@@ -209,6 +210,8 @@ std::unique_ptr<Segment> create_segment(
   h->owner_pid = pid;
   h->owner_start_time = start_time;
   h->owner_pidns = self_pidns();
+  h->writer_created_ns = created_ns;
+  seg->writer_created_ns = created_ns;
   h->first_global_seq = first_global_seq;
   h->subscribers_offset = geo.subscribers_offset;
   h->desc_offset = geo.desc_offset;
@@ -286,6 +289,7 @@ std::unique_ptr<Segment> open_segment(const std::string& name) {
   seg->generation = info->generation;
   seg->first_global_seq = info->first_global_seq;
   seg->carried = info->carried;
+  seg->writer_created_ns = info->writer_created_ns;
   seg->hdr = static_cast<SegmentHeader*>(a);
   if (auto sg = split_generation(name); sg && sg->second != seg->generation) {
     throw Error(Errc::corrupt, "segment " + name + ": generation field does not match the name");

@@ -29,12 +29,20 @@
 #include <algorithm>
 #include <climits>
 #include <cstring>
+#include <ctime>
 #include <utility>
 
 #include "impl.hpp"
 #include "lcmx/shm/futex.hpp"
 
 namespace lcmx::shm {
+
+std::uint64_t monotonic_ns() noexcept {
+  timespec ts{};
+  ::clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<std::uint64_t>(ts.tv_sec) * 1000000000u + static_cast<std::uint64_t>(ts.tv_nsec);
+}
+
 namespace detail {
 namespace {
 
@@ -146,6 +154,7 @@ std::uint32_t WriterImpl::carry(const Segment& from, Segment& to) const {
     const auto [s, size] = tail[c - 1 - i];
     if (size != 0) std::memcpy(to.payload(i), from.payload(s), size);
     to.slot(i).size = size;
+    to.slot(i).commit_ns.store(from.slot(s).commit_ns.load(std::memory_order_relaxed), std::memory_order_relaxed);
     to.slot(i).flags = from.slot(s).flags;
     to.slot(i).seq.store(i, std::memory_order_relaxed);  // published by the magic release
     to.desc(i).store(pack_desc(i, i), std::memory_order_relaxed);
@@ -183,7 +192,7 @@ void WriterImpl::grow(std::size_t size, bool same_size) {
     return carried;
   };
   const std::uint64_t total = seg->first_global_seq + write_seq;
-  auto next = create_segment(generation_name(base, gen), geo, gen, total, pid, start_time,
+  auto next = create_segment(generation_name(base, gen), geo, gen, total, pid, start_time, created_ns,
                              opt.keep != 0 ? std::function<std::uint32_t(Segment&)>(fill)
                                            : std::function<std::uint32_t(Segment&)>());
   // The new generation is fully initialised (carried messages, write_seq, magic published).
@@ -216,16 +225,20 @@ bool WriterImpl::pinned(std::uint64_t seq) const noexcept {
 
 // True when every Reader registered here has taken every committed message (and none is
 // still in an older generation): then no Reader needs the newest message's slot any more.
+// True when at least one Reader is registered and every one has taken every message. (No
+// Reader at all: false, so the ring keeps recent messages for a Reader that comes late.)
 bool WriterImpl::readers_caught_up() const noexcept {
   if (!old_gens.empty() || write_seq == 0) return false;
+  bool any = false;
   const std::uint32_t hw =
       std::min(seg->hdr->sub_high_water.load(std::memory_order_acquire), seg->geo.max_subscribers);
   for (std::uint32_t i = 0; i < hw; ++i) {
     const auto& e = seg->sub(i);
     if (sub_state(e.state.load(std::memory_order_acquire)) == kSubFree) continue;
     if (e.next.load(std::memory_order_relaxed) < write_seq) return false;
+    any = true;
   }
-  return true;
+  return any;
 }
 
 std::optional<std::uint32_t> WriterImpl::acquire_slot() {
@@ -235,7 +248,7 @@ std::optional<std::uint32_t> WriterImpl::acquire_slot() {
   // worth of cache misses). Its pin check below still protects a Reader reading it now.
   // Not with keep > 0: reusing the newest message's slot would overwrite it (the last
   // `keep` messages must stay readable for late Readers).
-  if (opt.keep == 0 && readers_caught_up()) {
+  if (opt.keep == 0 && hot_slot && readers_caught_up()) {
     const std::uint32_t hot = desc_slot(seg->desc(static_cast<std::uint32_t>((write_seq - 1) % n))
                                             .load(std::memory_order_relaxed));
     if (hot < n && slot_seq[hot] == write_seq - 1) next_slot = hot;
@@ -254,6 +267,9 @@ std::optional<std::uint32_t> WriterImpl::acquire_slot() {
       }
       next_slot = (s + 1) % n;
       slot_seq[s] = kSlotWriting;
+      // Release: the WRITING store comes before the new commit_ns (and payload) stores for a
+      // Reader that reads commit_ns without a pin (reader.cpp commit_time: its acquire fence).
+      std::atomic_thread_fence(std::memory_order_release);
       return s;
     }
     // Every slot pinned: clear pins of dead Readers, then one more round.
@@ -290,8 +306,9 @@ std::uint64_t WriterImpl::commit(std::uint32_t slot, std::size_t size, std::uint
   }
   auto& sh = seg->slot(slot);
   sh.size = size;
+  sh.commit_ns.store(monotonic_ns(), std::memory_order_relaxed);
   sh.flags = flags;
-  // Release: payload + size + flags visible to a Reader whose slot.seq load reads m.
+  // Release: payload + size + commit_ns + flags visible to a Reader whose slot.seq load reads m.
   sh.seq.store(m, std::memory_order_release);
   // Release: pairs with the Reader's desc load (acquire).
   seg->desc(static_cast<std::uint32_t>(m % seg->geo.slot_count))
@@ -382,8 +399,9 @@ Writer Writer::create(const std::string& base_name, const WriterOptions& options
   impl->pidns = self_pidns();
   const Geometry geo =
       make_geometry(options.slot_count, options.max_subscribers, initial_slot_size(options));
+  impl->created_ns = monotonic_ns();
   impl->seg = create_segment(generation_name(base_name, 0), geo, 0, 0, impl->pid,
-                             impl->start_time);
+                             impl->start_time, impl->created_ns);
   impl->slot_seq.assign(geo.slot_count, kSlotEmpty);
   return Writer(std::move(impl));
 }
@@ -464,5 +482,7 @@ std::uint32_t Writer::registered_readers() const noexcept {
   for (const auto& old : impl_->old_gens) n += count(*old);
   return n;
 }
+
+void Writer::set_hot_slot(bool allowed) noexcept { impl_->hot_slot = allowed; }
 
 }  // namespace lcmx::shm

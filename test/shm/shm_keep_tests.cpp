@@ -135,7 +135,7 @@ TEST_CASE("keep: growth carries the last messages into the new generation", "[sh
   std::memcpy(&first, img.data() + offsetof(detail::SegmentHeader, first_global_seq), 8);
   std::memcpy(&write_seq, img.data() + offsetof(detail::SegmentHeader, write_seq), 8);
   CHECK(version == detail::kVersion);
-  CHECK(version == 4);
+  CHECK(version == 5);
   CHECK(carried == 3);
   CHECK(first == 0);
   CHECK(write_seq == 4);
@@ -213,4 +213,51 @@ TEST_CASE("keep: keep >= slot_count is invalid_argument", "[shm][keep]") {
   CHECK_FALSE(shm_exists(base + "_g0"));
   auto w = Writer::create(base, keep_opts(7, 8));  // slot_count - 1 is fine
   CHECK(w.segment_name() == base + "_g0");
+}
+
+// Reader::open's since (the start-up race, issue 37): what a Writer committed at or after a
+// time, as far as its ring holds it.
+TEST_CASE("since: a Writer made after `since` is read from its first message, what its ring lost is counted",
+          "[shm][keep][since]") {
+  Watchdog wd(10s);
+  const auto base = unique_base("since_new");
+  ShmGuard g(base);
+  const auto before = monotonic_ns();
+  auto w = Writer::create(base, opts(8));  // no keep: the ring alone
+  for (std::uint64_t i = 1; i <= 5; ++i) write_msg(w, i, 64);
+  auto r = Reader::open(base, 0, before);
+  CHECK(indices(drain(r)) == V{1, 2, 3, 4, 5});
+  CHECK(r.drops() == 0);
+  // Lapped before the Reader came: 7 slots' worth is still there, the first 13 are lost.
+  const auto base2 = unique_base("since_lapped");
+  ShmGuard g2(base2);
+  auto w2 = Writer::create(base2, opts(8));
+  for (std::uint64_t i = 1; i <= 20; ++i) write_msg(w2, i, 64);
+  auto r2 = Reader::open(base2, 0, before);
+  CHECK(indices(drain(r2)) == V{14, 15, 16, 17, 18, 19, 20});
+  CHECK(r2.drops() == 13);
+  write_msg(w2, 21, 64);
+  CHECK(indices(drain(r2)) == V{21});
+}
+
+TEST_CASE("since: a Writer made before `since` is read from its first message committed at or after it",
+          "[shm][keep][since]") {
+  Watchdog wd(10s);
+  const auto base = unique_base("since_old");
+  ShmGuard g(base);
+  auto w = Writer::create(base, opts(8));
+  for (std::uint64_t i = 1; i <= 3; ++i) write_msg(w, i, 64);
+  const auto since = monotonic_ns();
+  for (std::uint64_t i = 4; i <= 5; ++i) write_msg(w, i, 64);
+  auto r = Reader::open(base, 0, since);
+  CHECK(indices(drain(r)) == V{4, 5});
+  CHECK(r.drops() == 0);
+  // A backlog reaching further back wins: the older of the two starts.
+  auto rb = Reader::open(base, 4, since);
+  CHECK(indices(drain(rb)) == V{2, 3, 4, 5});
+  // since in the future: nothing before the next commit.
+  auto rf = Reader::open(base, 0, monotonic_ns() + 1000000000ull);
+  CHECK(indices(drain(rf)).empty());
+  write_msg(w, 6, 64);
+  CHECK(indices(drain(rf)) == V{6});
 }

@@ -86,6 +86,13 @@ struct SubscriberOptions {
   // including this process's own. A gateway's export subscribers use it, so no gateway sends
   // back to DDS what a gateway imported from DDS (docs/dds.md "Loops").
   bool from_dds_gateways = true;
+  // Shared memory: a publisher matched later is read from the messages it committed at or
+  // after this time, as far as its ring still holds them (the start-up race: a subscriber that
+  // existed before it matched a publisher gets what was published meanwhile; what the ring
+  // lost is counted in drops). Default (epoch): when the subscription is made. A relay that
+  // subscribes on someone else's behalf (the Message Bridge, for a peer's demand) sets the
+  // time that demand began. steady_clock is CLOCK_MONOTONIC: one clock for the whole host.
+  std::chrono::steady_clock::time_point since{};
 };
 
 // A topic's class decides its path to other hosts (DESIGN.md "Delivery").

@@ -151,6 +151,10 @@ class Writer {
   // ones included until reclaimed. Cheap (no /proc access): for the publish hot path;
   // live_readers() checks each reader's process (current generation only).
   std::uint32_t registered_readers() const noexcept;
+  // While false, a commit never reuses the newest message's slot (the cache-hot choice when
+  // every Reader has caught up), so the ring keeps the last slot_count - 1 messages for a
+  // Reader that opens late with a backlog or a `since` (the start-up window). Default true.
+  void set_hot_slot(bool allowed) noexcept;
 
  private:
   explicit Writer(std::unique_ptr<detail::WriterImpl> impl);
@@ -267,8 +271,16 @@ class Reader {
   // it is a drop, as for any lagging Reader. Only what the Writer still holds can be
   // returned: with WriterOptions::keep < backlog, messages beyond keep may already be gone
   // (drops). backlog 0: the first message returned is the next one committed after open.
+  // since_ns (monotonic_ns(); 0: none): also every message committed at or after that time,
+  // as far as the ring still holds it — a subscriber that existed before it matched the
+  // publisher gets what was published meanwhile (the start-up race). When the Writer was
+  // created at or after since_ns, every message it ever committed is wanted: those the ring
+  // no longer holds are counted as drops at once. (When it was created before, and the ring
+  // holds no message older than since_ns, how many were overwritten cannot be known; the
+  // oldest held is the first returned.) The first message returned is the older of the
+  // backlog's and since's.
   // Called on any thread; the Reader is then used by one thread at a time.
-  static Reader open(const std::string& segment_name, std::uint32_t backlog = 0);
+  static Reader open(const std::string& segment_name, std::uint32_t backlog = 0, std::uint64_t since_ns = 0);
 
   Reader(Reader&&) noexcept;
   Reader& operator=(Reader&&) noexcept;
@@ -331,5 +343,9 @@ struct ReclaimReport {
   std::size_t skipped = 0;
 };
 ReclaimReport reclaim_orphans(const std::string& prefix = kPrefix);
+
+// CLOCK_MONOTONIC in nanoseconds: the clock of commit times and Reader::open's since_ns, one
+// clock for every process of a host (and its containers).
+std::uint64_t monotonic_ns() noexcept;
 
 }  // namespace lcmx::shm

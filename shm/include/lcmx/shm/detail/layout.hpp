@@ -45,7 +45,8 @@ inline constexpr std::uint32_t kMagic = 0x584d434cu;  // "LCMX" little-endian
 // word with an epoch, armed flag, owner pid namespace, final_seq. 4: `carried` (was
 // reserved0) and first_global_seq = global number of seq 0 (a version-3 Reader would
 // deliver carried messages twice and miscount drops: it is refused as "unsupported version").
-inline constexpr std::uint32_t kVersion = 4;
+// 5: SlotHeader::commit_ns and SegmentHeader::writer_created_ns (Reader::open's `since`).
+inline constexpr std::uint32_t kVersion = 5;
 inline constexpr int kMaxPins = 4;                     // == Reader::kMaxPins
 
 inline constexpr std::uint64_t kSlotEmpty = ~std::uint64_t{0} - 1;
@@ -119,7 +120,10 @@ struct SegmentHeader {
   std::atomic<std::uint64_t> final_seq;
   // ---- line 2: writer-side index ----
   std::atomic<std::uint64_t> write_seq;  // messages committed in this generation
-  std::uint64_t reserved2[7];
+  // CLOCK_MONOTONIC (ns) when the Writer was created (its first generation), the same in
+  // every generation. Immutable once magic is published.
+  std::uint64_t writer_created_ns;
+  std::uint64_t reserved2[6];
   // ---- line 3: wake-up ----
   std::atomic<std::uint32_t> futex_word; // +1 on every commit (and on next_generation/close)
   std::atomic<std::uint32_t> waiters;    // Readers between arm() and disarm()
@@ -141,11 +145,14 @@ struct SubscriberEntry {
 struct SlotHeader {
   std::atomic<std::uint64_t> seq;        // kSlotEmpty / kSlotWriting / message seq
   std::uint64_t size;                    // committed payload bytes (valid when seq is a seq)
+  // CLOCK_MONOTONIC (ns) of the commit, stored (relaxed) before seq's release; a Reader
+  // trusts it only between two loads of seq that both read the message's seq.
+  std::atomic<std::uint64_t> commit_ns;
   // The Writer's bits for this message (Writer::commit's `flags`), opaque to shm: written and
   // read like `size` (valid when seq is a seq), carried with the message into a new
-  // generation. A Writer that sets none (older ones wrote 0 to this reserved word) says nothing.
+  // generation. A Writer that sets none says nothing (0).
   std::uint64_t flags;
-  std::uint64_t reserved[5];
+  std::uint64_t reserved[4];
 };
 
 inline constexpr std::size_t kHeaderSize = sizeof(SegmentHeader);
@@ -171,6 +178,7 @@ static_assert(offsetof(SegmentHeader, next_generation) == 1 * kCacheLine + 32);
 static_assert(offsetof(SegmentHeader, owner_pidns) == 1 * kCacheLine + 48);
 static_assert(offsetof(SegmentHeader, final_seq) == 1 * kCacheLine + 56);
 static_assert(offsetof(SegmentHeader, write_seq) == 2 * kCacheLine);
+static_assert(offsetof(SegmentHeader, writer_created_ns) == 2 * kCacheLine + 8);
 static_assert(offsetof(SegmentHeader, futex_word) == 3 * kCacheLine);
 static_assert(offsetof(SegmentHeader, waiters) == 3 * kCacheLine + 4);
 static_assert(sizeof(SubscriberEntry) == kCacheLine);
@@ -179,7 +187,8 @@ static_assert(offsetof(SubscriberEntry, pins) == 16);
 static_assert(offsetof(SubscriberEntry, next) == 56);
 static_assert(sizeof(SlotHeader) == kCacheLine);
 static_assert(offsetof(SlotHeader, size) == 8);
-static_assert(offsetof(SlotHeader, flags) == 16);
+static_assert(offsetof(SlotHeader, commit_ns) == 16);
+static_assert(offsetof(SlotHeader, flags) == 24);
 
 constexpr std::uint64_t round_up(std::uint64_t v, std::uint64_t a) noexcept {
   return (v + a - 1) / a * a;

@@ -1,0 +1,58 @@
+// The start-up race across hosts (issue 37): a publisher on host B that publishes as soon as it
+// starts reaches a subscriber and `lcmx record` already running on host A over UDP, though A
+// has not heard its beacon yet: during its first lease a publisher sends small messages on the
+// vehicle group whoever listens, and A takes them as a stock sender's until the beacon comes
+// (then from the participant: one datagram, one delivery). On a880031 B sent nothing until A's
+// subscriber had announced its match: the first messages were neither delivered nor counted.
+#include <csignal>
+
+#include "lcmx/log/eventlog.hpp"
+#include "lcmx/test/catch_netns.hpp"
+#include "lcmx_examples/bench_t.hpp"
+#include "multihost.hpp"
+
+using namespace lcmx::mh;
+
+TEST_CASE("start-up race across hosts over UDP: a publisher on host B that publishes at once at start - a "
+          "subscriber and lcmx record already running on host A get 100 of 100",
+          "[multihost][startup]") {
+  LCMX_REQUIRE_NETNS();
+  Hosts h(2, 81);
+  lcmx::it::TmpDir d;
+  const std::string log = d.file("startup_udp.lcmlog");
+  const auto ch = h.channel("STARTUP_UDP");
+  auto& sub = h.peer(0, {"sub", "--channel", ch, "--type", "bench", "--queue-depth", "256"});
+  REQUIRE(sub.expect("READY"));
+  auto& rec = h.spawn(0, {LCMX_TOOL, "record", log, "-c", ch, "--json"}, h.lcmx_env(), true);
+  REQUIRE(rec.expect("lcmx record: recording to"));
+  auto& pub = h.peer(1, {"pub", "--channel", ch, "--type", "bench", "--size", "64", "--count", "100", "--rate",
+                         "200", "--subscribers", "0", "--hold", "--id", "U"});
+  REQUIRE(pub.expect("PUBLISHED", 20000ms));
+  lcmx::it::poll_sub(sub, ch, [](const Summary& x) { return x.num("received") >= 100; }, 10000ms);
+  const auto st = of(sub.summaries("quit"), ch);
+  INFO(sub.output());
+  check_exact(st, 100);
+  CHECK(st.str("paths").find("udp") != std::string::npos);
+  CHECK(sub.wait() == 0);
+  auto logged = [&] {
+    std::vector<std::int64_t> out;
+    try {
+      auto r = lcmx::eventlog::Reader::open(log);
+      lcmx::eventlog::Event e;
+      while (r.next(e)) {
+        lcmx_examples::bench_t m;
+        if (e.channel == ch && m.decode(e.data.data(), 0, static_cast<int>(e.data.size())) > 0) out.push_back(m.seq);
+      }
+    } catch (const lcmx::eventlog::Error&) {
+    }
+    return out;
+  };
+  REQUIRE(lcmx::it::wait_until([&] { return logged().size() >= 100; }, 10000ms, 20ms));
+  rec.signal(SIGINT);
+  REQUIRE(rec.wait(10000ms) == 0);
+  const auto seqs = logged();
+  REQUIRE(seqs.size() == 100);
+  for (std::size_t i = 0; i < seqs.size(); ++i) CHECK(seqs[i] == static_cast<std::int64_t>(i));
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
