@@ -20,25 +20,41 @@ std::int64_t now_ns() {
 // subscribers here read shm); from a matched participant of another host (or a neighbour)
 // they go to the subscribers matched with it, and from senders that are not lcmx participants
 // (stock LCM programs) to every subscriber of the channel that takes their type.
+//
+// The start-up race (docs/ARCHITECTURE.md): a new publisher sends its first messages on the
+// vehicle group before its record has reached this host, and its participant may be known
+// already (it joined a moment before) or not. Until its record lists the publisher, its
+// messages are taken as from a stock sender's socket (a foreign match, the type checked by
+// fingerprint); once it does, the pair's matching takes over (sync_remote_locked ends the
+// foreign match): each datagram is delivered once, by one of the two.
 Pairs::Outcome Pairs::deliver_udp(bool vehicle, std::int64_t sender, const udpm::Source& source,
                                   const udpm::Message& m, std::vector<Target>& targets) {
   Outcome out;
   const std::string channel(m.channel);
   std::lock_guard lock(mu_);
   if (!channel_subs_.empty()) expand_locked(channel, out);
+  std::optional<PeerTable::Publishing> announced;  // of `sender`, looked up once
   for (auto& sub : subscribers_of_locked(channel)) {
     auto& st = *sub->state;
     std::lock_guard l2(st.mu);
-    std::shared_ptr<Match> match;
+    std::shared_ptr<Match> match, by_source;
     for (auto& x : st.matches) {
       if (x->path != Path::udp) continue;
-      if (sender != 0 ? x->publisher_participant == static_cast<std::uint64_t>(sender)
-                      : (x->foreign && x->foreign_source == source)) {
+      if (sender != 0 && x->publisher_participant == static_cast<std::uint64_t>(sender)) {
         match = x;
         break;
       }
+      if (x->foreign && x->foreign_source == source) by_source = x;
     }
-    if (!match && sender != 0) continue;  // not matched (type mismatch, or not yet)
+    if (!match && sender != 0) {
+      // Not matched with it: refused (a bridge's or DDS gateway's publisher this subscriber
+      // does not take, its type, a large topic a bridge of this host carries), or not yet.
+      if (!announced) announced = ctx_.peers.publishing(sender, channel);
+      if ((announced->flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) && !sub->options().from_bridges) continue;
+      if ((announced->flags & lcmx_msgs::beacon_t::FLAG_DDS_GATEWAY) && !sub->options().from_dds_gateways) continue;
+      if (announced->publishes) continue;  // its record says so, and matching refused it
+    }
+    if (!match) match = by_source;
     const std::string source_text = udpm::to_string(source);
     if (!match && !sub->type().raw() && !fingerprint_is(m.data, sub->type().fingerprint)) {
       // A stock LCM sender of another type on this channel: not delivered, reported once.
@@ -70,8 +86,12 @@ Pairs::Outcome Pairs::deliver_udp(bool vehicle, std::int64_t sender, const udpm:
       st.matches.push_back(match);
       ++st.version;
       st.matched_cv.notify_all();
-      spdlog::info("lcmx: channel '{}': receiving from LCM sender {} ({} group)", sub->channel(), source_text,
-                   vehicle ? "vehicle" : "host-local");
+      if (sender == 0)
+        spdlog::info("lcmx: channel '{}': receiving from LCM sender {} ({} group)", sub->channel(), source_text,
+                     vehicle ? "vehicle" : "host-local");
+      else
+        spdlog::debug("lcmx: channel '{}': receiving from participant {} ({}) before its record lists the publisher",
+                      sub->channel(), sender, source_text);
     }
     if (match->foreign) match->foreign_seen_ns.store(now_ns(), std::memory_order_relaxed);
     {  // keep last N: see accept_history

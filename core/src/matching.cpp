@@ -91,8 +91,14 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
     Path path;
   };
   std::vector<Candidate> candidates;
+  // The sockets of the other hosts' (and neighbours') publishers on the channel: a foreign match
+  // made for one before its record came (deliver_udp, the start-up race) ends now — the
+  // pair is matched below, or refused.
+  std::vector<udpm::Source> announced;
   for (auto& p : ctx_.peers.endpoints_on(sub.channel(), lcmx_msgs::endpoint_t::KIND_PUBLISHER)) {
     const Path path = p.scope == Scope::host ? Path::shm : Path::udp;
+    if (p.scope != Scope::host)
+      if (auto from = ctx_.peers.source_of(p.participant, p.scope == Scope::vehicle)) announced.push_back(*from);
     const bool from_bridge = (p.flags & lcmx_msgs::beacon_t::FLAG_BRIDGE) != 0;
     if (from_bridge && !sub.options().from_bridges) continue;
     if ((p.flags & lcmx_msgs::beacon_t::FLAG_DDS_GATEWAY) && !sub.options().from_dds_gateways) continue;
@@ -126,9 +132,16 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
   std::lock_guard lock(st.mu);
   const auto before = st.matches.size();
   std::size_t revived = 0;
+  bool removed_foreign = false;
   std::vector<std::shared_ptr<Match>> removed;
   std::erase_if(st.matches, [&](const std::shared_ptr<Match>& m) {
-    if (m->path == Path::intra || m->foreign || m->retiring) return false;
+    if (m->foreign) {
+      if (std::find(announced.begin(), announced.end(), m->foreign_source) == announced.end()) return false;
+      st.retired_drops += m->stats->drops.load();
+      removed_foreign = true;
+      return true;
+    }
+    if (m->path == Path::intra || m->retiring) return false;
     if (wanted.count({m->publisher_participant, m->publisher_endpoint})) return false;
     removed.push_back(m);
     if (m->reader) {  // keep it until the executor has read what was committed
@@ -207,7 +220,7 @@ void Pairs::sync_remote_locked(SubscriberCore& sub, Outcome& out) {
                           "channel '" + sub.channel() + "': node '" + st.node_name +
                               "' lost a shm publisher (participant " + std::to_string(m->publisher_participant) +
                               ")"});
-  if (st.matches.size() != before || !removed.empty() || revived > 0) {
+  if (st.matches.size() != before || !removed.empty() || revived > 0 || removed_foreign) {
     ++st.version;
     st.matched_cv.notify_all();
   }

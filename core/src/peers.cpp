@@ -177,6 +177,17 @@ std::set<std::string> PeerTable::published_by(std::int64_t id) const {
   return out;
 }
 
+PeerTable::Publishing PeerTable::publishing(std::int64_t id, const std::string& topic) const {
+  Publishing out;
+  std::lock_guard lock(mu_);
+  auto p = peers_.find(id);
+  if (p == peers_.end()) return out;
+  out.flags = p->second.beacon.flags;
+  for (const auto& e : p->second.beacon.endpoints)
+    if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER && e.topic == topic) out.publishes = true;
+  return out;
+}
+
 PeerTable::Sender PeerTable::sender(bool vehicle, const udpm::Source& source, bool local_address) const {
   std::lock_guard lock(mu_);
   auto found = [&](std::int64_t id) {

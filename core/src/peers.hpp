@@ -60,6 +60,14 @@ class PeerTable {
   std::set<std::string> published_topics() const;
   // The channels participant `id` publishes (UDP loss settlement), empty if unknown.
   std::set<std::string> published_by(std::int64_t id) const;
+  // What participant `id` announces of `topic`: whether it publishes it, and its flags
+  // (beacon_t::FLAG_*). A new publisher's first messages may come before its record says so
+  // (the start-up race, Pairs::deliver_udp).
+  struct Publishing {
+    bool publishes = false;
+    std::int8_t flags = 0;
+  };
+  Publishing publishing(std::int64_t id, const std::string& topic) const;
 
   // Who sent a datagram from `source`: on the vehicle group (`vehicle`), or on the host-local
   // group, where `local_address` says whether the source address is one of this host's.

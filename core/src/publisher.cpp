@@ -75,7 +75,12 @@ bool PublisherImpl::wants_vehicle(std::size_t size) {
   if (!rt.vehicle_group) return false;
   if (large_.load() && rt.bridge_on_host()) return unbridged_udp_subscribers_.load() > 0;
   if (udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always) return true;
-  return size <= rt.options.udp_limit && in_startup();
+  if (!in_startup()) return false;
+  // The start-up window: small messages whoever listens (a subscriber of another host may
+  // have matched us before we heard of it); larger ones, fragmented, once a subscriber of
+  // another host that takes them is known, matched with us or not yet (a service's reply:
+  // its client matched the reply publisher from the probe's answer and calls at once).
+  return size <= rt.options.udp_limit || unbridged_elsewhere_.load() > 0;
 }
 
 bool PublisherImpl::in_startup() {

@@ -159,8 +159,9 @@ class PublisherImpl final : public PublisherCore {
   // The start-up window (the publisher's first lease, at least 2 s): subscribers that exist already may not
   // have matched it yet, since its first beacon is on its way. Meanwhile every message is
   // written into its shm ring (a subscriber that matches takes what was committed after its
-  // own creation: Reader::open's since) and small ones go to the vehicle group too (taken as a
-  // stock sender's until the beacon arrives). Costs nothing after. publish_mu held.
+  // own creation: Reader::open's since), small ones go to the vehicle group too (taken as from
+  // a stock sender's socket until its record arrives: Pairs::deliver_udp), and larger ones
+  // once a subscriber of another host is known. Costs nothing after. publish_mu held.
   bool in_startup();
   bool startup_ = true;                                    // guarded by publish_mu
   std::chrono::steady_clock::time_point startup_until_{};  // set at construction

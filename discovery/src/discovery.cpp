@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <cerrno>
 #include <cstdio>
@@ -37,9 +38,15 @@ using lcmx_msgs::host_beacon_t;
 // (this process was stopped, or starved of a CPU, in between) reads again, at most kMaxReads times.
 constexpr auto kStall = std::chrono::milliseconds(100);
 constexpr int kMaxReads = 3;
-// Registry passes: at most one per kCoalesce (a 500-process launch changes the registry
-// thousands of times a second; every reader folds them into few passes).
+// Registry passes: on average at most one per kCoalesce (a 500-process launch changes the
+// registry thousands of times a second; every reader folds them into few passes), in bursts of
+// up to kPassBurst: a new participant changes its slot up to three times in a few milliseconds
+// (it joins, writes its first state, then its first endpoints), and the last change must not
+// wait a whole kCoalesce — a publisher's ring holds what it publishes meanwhile only for so
+// long (the start-up race). Only passes made for a change count (not the full pass of every
+// period, nor a retry of a slot read half-written: those come once per kCoalesce).
 constexpr auto kCoalesce = std::chrono::milliseconds(20);
+constexpr std::size_t kPassBurst = 4;
 // The speaker polls its participants' pidfds at least this often (death notice).
 constexpr auto kSpeakerTick = std::chrono::milliseconds(20);
 // The speaker sends the records of changed participants this long after the first change.
@@ -171,6 +178,11 @@ struct Discovery::Impl {
   std::vector<Known> known;
   std::uint32_t seen_changes = 0;
   Clock::time_point last_pass{};
+  // The start times of the last kPassBurst passes (a ring, oldest at pass_ring_next): the next
+  // pass is due kPassBurst * kCoalesce after the oldest of them (next_pass_at).
+  std::array<Clock::time_point, kPassBurst> pass_ring{};
+  std::size_t pass_ring_next = 0;
+  Clock::time_point next_pass_at() const { return pass_ring[pass_ring_next] + kPassBurst * kCoalesce; }
   std::vector<std::string> own_topics;
   bool wildcard = false;  // reads every participant (observer, bridge, pattern subscriptions, speaker)
   std::uint64_t own_struct = 0, own_stats = 0;
@@ -1206,8 +1218,17 @@ struct Discovery::Impl {
         full_due = true;
       }
       const bool reads = reg && (host_scope || is_speaker);
-      if (reads && (full_due || recheck_skipped || retry_soon || changed_since_pass())) {
-        if (Clock::now() - last_pass >= kCoalesce || full_due) {
+      if (reads) {
+        // A pass: every period (full), for a change (in bursts, next_pass_at), or to retry a
+        // slot read half-written (one kCoalesce after the last pass: a retry is no change).
+        const auto now = Clock::now();
+        const bool changed = recheck_skipped || changed_since_pass();
+        const bool for_change = changed && now >= next_pass_at();
+        if (full_due || for_change || (retry_soon && now - last_pass >= kCoalesce)) {
+          if (for_change && !full_due) {
+            pass_ring[pass_ring_next] = now;
+            pass_ring_next = (pass_ring_next + 1) % kPassBurst;
+          }
           retry_soon = false;
           registry_pass();
         }
@@ -1220,14 +1241,21 @@ struct Discovery::Impl {
       // Sleep until the next period, a host's lease, a change of the registry, or a wake-up.
       auto until = std::min(next_periodic, next_host_expiry());
       if (retry_soon) until = std::min(until, last_pass + kCoalesce);
+      // A change waits for its pass no longer than the coalescing says (the speaker too).
+      if (reads && changed_since_pass()) until = std::min(until, next_pass_at());
       if (is_speaker) until = std::min({until, Clock::now() + kSpeakerTick, flush_at});
       if (is_deputy) until = std::min(until, Clock::now() + kSpeakerTick);
       const auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       const auto ms = std::clamp<std::int64_t>(wait.count(), 0, 1000);
+      // A wake-up that came while this pass ran (announce_now() or query() after the flags
+      // were read above: a publisher made while our first beacon was being built) is served
+      // now, not at the next period. wake() sets the flag before it bumps wake_word: loaded
+      // first, a wake-up after the check changes the word we wait on.
+      const auto expected_wake = wake_word.load(std::memory_order_acquire);
+      if (want_announce.load() || want_query.load()) continue;
       if (is_speaker && reads && !changed_since_pass()) {
         // The speaker also wakes on a change of the registry (a participant's new state), not
         // only at its next tick: its records then go out at once (schedule_flush).
-        const auto expected_wake = wake_word.load(std::memory_order_acquire);
         std::uint64_t v;
         [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);  // keep the eventfd from filling
         shm::WaitToken t[2] = {{&wake_word, expected_wake, true}, {&reg->header->changes, seen_changes, false}};
@@ -1240,11 +1268,10 @@ struct Discovery::Impl {
           [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);
         }
       } else {
-        // Coalesce: a pass ran less than kCoalesce ago -> wait for wake-ups only until then.
-        const auto since = Clock::now() - last_pass;
-        const auto expected_wake = wake_word.load(std::memory_order_acquire);
-        if (since < kCoalesce) {
-          const auto rest = std::min<std::int64_t>(ms, std::chrono::duration_cast<std::chrono::milliseconds>(kCoalesce - since).count() + 1);
+        // Coalesce: no pass is due yet -> wait for wake-ups only until then.
+        const auto left = next_pass_at() - Clock::now();
+        if (left > Clock::duration::zero()) {
+          const auto rest = std::min<std::int64_t>(ms, std::chrono::duration_cast<std::chrono::milliseconds>(left).count() + 1);
           shm::WaitToken t{&wake_word, expected_wake, true};
           shm::wait_any(std::span(&t, 1), std::chrono::milliseconds(rest));
           if (changed_since_pass()) continue;  // else: nothing changed meanwhile, sleep for real below
