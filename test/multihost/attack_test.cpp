@@ -1,10 +1,11 @@
 // The attack suite (issue 34, DESIGN.md "Trust"): a machine on the robot's LAN that is not part
 // of the robot — host 2 of the emulation, a network namespace of its own on the same switch —
 // attacks an ordinary computer (host 0: default route via its LAN interface, LCM's default
-// group, nothing configured), as a laptop plugged into the vehicle switch would. Each attack
-// is a test that failed on the code before the defence it checks (see the closing notes of
-// issue 34): every one proves the hostile traffic reached the victim (interface counters, or a
-// stock socket that hears it, as LCM's design lets it) and that lcmx did not take it.
+// group, nothing configured), or the robot's hosts 0 and 1 on an unkeyed vehicle group, as a
+// laptop plugged into the vehicle switch would. Each attack is a test that failed on the code
+// before the defence it checks, or with that defence disabled (see the closing notes of issue
+// 34): every one proves the hostile traffic reached the victim (interface counters, or a stock
+// socket that hears it, as LCM's design lets it) and that lcmx did not take it.
 #include <arpa/inet.h>
 #include <netinet/in.h>
 #include <netinet/ip.h>
