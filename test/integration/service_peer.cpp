@@ -5,6 +5,8 @@
 //   server --name N
 //     Serves N, prints "READY participant=<id>", then reads commands on stdin:
 //       "block"  from now on a request with x < 0 prints "CALLED <x>" and never returns
+//       "stats"  prints "STATS requests=<r> failed=<f> probes=<p> refused=<x> clients=<c>"
+//                (lcmx::ServerStats)
 //       "quit"   (or EOF) prints "SERVED <requests>" and exits 0
 //   client --name N --calls K [--size BYTES] [--call-timeout-ms T] [--servers S] [--first X] [--go]
 //          [--no-wait] [--async]
@@ -84,6 +86,11 @@ int run_server(const std::string& name) {
     if (line == "block") {
       block = true;
       say("BLOCKING");
+    } else if (line == "stats") {
+      const auto st = server.stats();
+      say("STATS requests=" + std::to_string(st.requests) + " failed=" + std::to_string(st.failed) +
+          " probes=" + std::to_string(st.probes) + " refused=" + std::to_string(st.refused) +
+          " clients=" + std::to_string(st.clients));
     } else if (line == "quit") {
       break;
     }
