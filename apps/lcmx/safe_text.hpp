@@ -15,33 +15,12 @@
 #include <string>
 #include <string_view>
 
+#include "lcmx/types/detail/text.hpp"
+
 namespace lcmx::cli {
 
 namespace detail {
-// Length of the valid UTF-8 sequence at s[i] (1 for ASCII), or 0 when the bytes there are
-// not UTF-8 (a stray continuation byte, an overlong form, a surrogate, past U+10FFFF, cut).
-// `cp` receives the code point.
-inline std::size_t utf8_at(std::string_view s, std::size_t i, char32_t& cp) {
-  const auto c = static_cast<unsigned char>(s[i]);
-  std::size_t n = 0;
-  if (c < 0x80) {
-    cp = c;
-    return 1;
-  }
-  if (c >= 0xc2 && c <= 0xdf) n = 2, cp = c & 0x1f;
-  else if (c >= 0xe0 && c <= 0xef) n = 3, cp = c & 0x0f;
-  else if (c >= 0xf0 && c <= 0xf4) n = 4, cp = c & 0x07;
-  else return 0;
-  if (i + n > s.size()) return 0;
-  for (std::size_t k = 1; k < n; ++k) {
-    const auto cc = static_cast<unsigned char>(s[i + k]);
-    if ((cc & 0xc0) != 0x80) return 0;
-    cp = (cp << 6) | (cc & 0x3f);
-  }
-  if ((n == 3 && (cp < 0x800 || (cp >= 0xd800 && cp <= 0xdfff))) || (n == 4 && (cp < 0x10000 || cp > 0x10ffff)))
-    return 0;
-  return n;
-}
+using types::detail::utf8_at;
 
 inline void append_escape(std::string& o, const char* format, unsigned v) {
   char b[12];
@@ -77,34 +56,12 @@ inline std::string printable(std::string_view s) {
 // A JSON string literal of `s`, quotes included: the escapes JSON requires (", \, C0 controls),
 // and DEL and the C1 controls as \u escapes too (valid JSON that no terminal acts on); a byte
 // that is not UTF-8 becomes \u00XX, its Latin-1 code point (as lcmx::types::to_json writes
-// message strings), so the output is always valid UTF-8.
+// message strings: the same function, lcmx/types/detail/text.hpp), so the output is always
+// valid UTF-8.
 inline std::string json_text(std::string_view s) {
-  std::string o = "\"";
-  for (std::size_t i = 0; i < s.size();) {
-    char32_t cp = 0;
-    std::size_t n = detail::utf8_at(s, i, cp);
-    if (n == 0) {
-      cp = static_cast<unsigned char>(s[i]);
-      n = 1;
-      detail::append_escape(o, "\\u%04x", static_cast<unsigned>(cp));
-      i += n;
-      continue;
-    }
-    switch (cp) {
-      case '"': o += "\\\""; break;
-      case '\\': o += "\\\\"; break;
-      case '\n': o += "\\n"; break;
-      case '\r': o += "\\r"; break;
-      case '\t': o += "\\t"; break;
-      default:
-        if (cp < 0x20 || cp == 0x7f || (cp >= 0x80 && cp <= 0x9f))
-          detail::append_escape(o, "\\u%04x", static_cast<unsigned>(cp));
-        else
-          o.append(s.substr(i, n));
-    }
-    i += n;
-  }
-  return o + "\"";
+  std::string o;
+  types::detail::append_json_string(o, s, types::detail::C1Controls::escape);
+  return o;
 }
 
 // A text value for a CSV cell, neutralised against formula injection (OWASP "CSV injection"):

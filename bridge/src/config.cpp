@@ -1,24 +1,22 @@
 #include "lcmx/bridge/config.hpp"
 
 #include <arpa/inet.h>
-#include <fcntl.h>
 #include <fnmatch.h>
-#include <sys/stat.h>
-#include <unistd.h>
 #include <zmq.h>
 
 #include <algorithm>
 #include <cerrno>
-#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <map>
 #include <set>
 #include <sstream>
 #include <toml++/toml.h>
+#include <variant>
 
 #include "lcmx/bridge/detail/toml_check.hpp"
 #include "lcmx/bridge/detail/wire.hpp"
+#include "lcmx/udpm/detail/key_file.hpp"
 
 namespace lcmx::bridge {
 namespace {
@@ -240,83 +238,27 @@ void write_key_pair(const std::filesystem::path& prefix, const KeyPair& keys, bo
   // planted at chipA.key would otherwise be followed, or silently replaced).
   const std::filesystem::path secret(prefix.string() + ".key"), pub(prefix.string() + ".pub");
   // Both targets are checked before either is written.
-  for (const auto& p : {secret, pub}) {
-    struct stat st {};
-    if (::lstat(p.c_str(), &st) == 0) {
-      if (S_ISLNK(st.st_mode)) throw ConfigError(p.string() + ": is a symbolic link: refused (remove it first)");
-      if (!S_ISREG(st.st_mode)) throw ConfigError(p.string() + ": exists and is not a regular file: refused");
-      if (!overwrite) throw ConfigError(p.string() + ": cannot create: " + std::strerror(EEXIST));
-    } else if (errno != ENOENT) {
-      throw ConfigError(p.string() + ": cannot create: " + std::strerror(errno));
-    }
-  }
+  for (const auto& p : {secret, pub})
+    if (const auto problem = udpm::detail::check_key_file_target(p.string(), overwrite))
+      throw ConfigError(p.string() + ": " + problem->why);
   auto write = [&](const std::filesystem::path& p, const std::string& key, mode_t mode, const char* what) {
-    std::string tmp = p.string() + ".XXXXXX";
-    const int fd = ::mkostemp(tmp.data(), O_CLOEXEC);  // mode 0600, O_EXCL
-    if (fd < 0) throw ConfigError(p.string() + ": cannot create: " + std::strerror(errno));
     const std::string text = "# lcmx bridge CURVE " + std::string(what) + " key (Z85)\n" + key + "\n";
-    const bool ok = ::fchmod(fd, mode) == 0 &&
-                    ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) && ::fsync(fd) == 0;
-    const int e = errno;
-    ::close(fd);
-    if (!ok) {
-      ::unlink(tmp.c_str());
-      throw ConfigError(p.string() + ": write failed: " + std::strerror(e));
-    }
-    // Without overwrite, link() fails with EEXIST if the name appeared meanwhile (no race).
-    const int r = overwrite ? ::rename(tmp.c_str(), p.c_str()) : ::link(tmp.c_str(), p.c_str());
-    const int re = errno;
-    if (!overwrite || r != 0) ::unlink(tmp.c_str());
-    if (r != 0) throw ConfigError(p.string() + ": cannot create: " + std::strerror(re));
+    if (const auto problem = udpm::detail::write_key_file_bytes(p.string(), text, mode, overwrite))
+      throw ConfigError(p.string() + ": " + problem->why);
   };
   write(secret, keys.secret_key, 0600, "secret");
   write(pub, keys.public_key, 0644, "public");
 }
 
 std::string read_key_file(const std::filesystem::path& file, KeyFile kind) {
-  // Not an ifstream: a device or FIFO (/dev/zero, /dev/stdin) would be read without end.
-  const int fd = ::open(file.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
-  if (fd < 0) throw ConfigError(file.string() + ": cannot read: " + std::strerror(errno));
-  struct stat st {};
-  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_size > static_cast<off_t>(kMaxKeyFileBytes)) {
-    ::close(fd);
-    throw ConfigError(file.string() + ": not a key file (expected a regular file of at most " +
-                      std::to_string(kMaxKeyFileBytes) + " bytes, as `lcmx bridge keygen` writes)");
-  }
-  // Owner and mode of the file opened (fstat: no race with a rename meanwhile). A secret key
-  // anyone else can read is no secret; a public key anyone else can write is a key they chose.
-  const uid_t me = ::geteuid();
-  char mode[8];
-  std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(st.st_mode & 07777));
-  if (kind == KeyFile::secret && (st.st_uid != me || (st.st_mode & 077) != 0)) {
-    ::close(fd);
-    throw ConfigError(file.string() + ": a secret key must be owned by this user (uid " + std::to_string(me) +
-                      ") and readable by nobody else (mode " + mode + ", owner uid " + std::to_string(st.st_uid) +
-                      "): chmod 600 it (and chown it to this user)");
-  }
-  if (kind == KeyFile::public_key && ((st.st_uid != me && st.st_uid != 0) || (st.st_mode & 022) != 0)) {
-    ::close(fd);
-    throw ConfigError(file.string() + ": a public key must be owned by this user or root and writable by nobody "
-                      "else (mode " + std::string(mode) + ", owner uid " + std::to_string(st.st_uid) +
-                      "): chmod go-w it");
-  }
-  std::string text(kMaxKeyFileBytes + 1, '\0');
-  std::size_t got = 0;
-  while (got < text.size()) {
-    const ssize_t n = ::read(fd, text.data() + got, text.size() - got);
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) {
-      const int e = errno;
-      ::close(fd);
-      throw ConfigError(file.string() + ": cannot read: " + std::strerror(e));
-    }
-    if (n == 0) break;
-    got += static_cast<std::size_t>(n);
-  }
-  ::close(fd);
-  if (got > kMaxKeyFileBytes) throw ConfigError(file.string() + ": not a key file (larger than " +
-                                                std::to_string(kMaxKeyFileBytes) + " bytes)");
-  text.resize(got);
+  // Owner and mode: a secret key anyone else can read is no secret; a public key anyone else
+  // can write is a key they chose.
+  const bool secret = kind == KeyFile::secret;
+  auto read = udpm::detail::read_key_file_bytes(
+      file.string(), secret ? udpm::detail::KeyFileAccess::owner_only : udpm::detail::KeyFileAccess::public_key,
+      {secret ? "a secret key" : "a public key", "`lcmx bridge keygen`"}, kMaxKeyFileBytes);
+  if (const auto* p = std::get_if<udpm::detail::KeyFileProblem>(&read)) throw ConfigError(file.string() + ": " + p->why);
+  const std::string& text = std::get<std::string>(read);
   std::istringstream in(text);
   std::string line;
   while (std::getline(in, line)) {

@@ -1,19 +1,18 @@
-// Group keys: key ids, key files (read with owner and mode checks; written never through a
-// symbolic link), and the per-source refusal record of a keyed group.
+// Group keys: key ids, key files (their format here; reading them with owner and mode checks and
+// writing them never through a symbolic link in key_file.cpp, shared with the bridge's CURVE
+// keys), and the per-source refusal record of a keyed group.
 #include "lcmx/udpm/keys.hpp"
 
 #include <arpa/inet.h>
-#include <fcntl.h>
 #include <sodium.h>
-#include <sys/stat.h>
-#include <unistd.h>
 
-#include <cerrno>
 #include <cstdio>
 #include <cstring>
 #include <sstream>
+#include <variant>
 
 #include "envelope.hpp"
+#include "lcmx/udpm/detail/key_file.hpp"
 #include "lcmx/udpm/error.hpp"
 
 namespace lcmx::udpm {
@@ -61,39 +60,10 @@ GroupKey generate_key() {
 
 GroupKeys read_key_file(const std::string& path) {
   if (path.empty()) bad(path, "no file named");
-  // Not an ifstream: a device or FIFO (/dev/zero, /dev/stdin) would be read without end.
-  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
-  if (fd < 0) bad(path, std::string("cannot read: ") + std::strerror(errno));
-  struct stat st {};
-  if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode) || st.st_size > static_cast<off_t>(kMaxKeyFileBytes)) {
-    ::close(fd);
-    bad(path, "not a key file (expected a regular file of at most " + std::to_string(kMaxKeyFileBytes) +
-                  " bytes, as `lcmx keygen --group` writes)");
-  }
-  const uid_t me = ::geteuid();
-  if (st.st_uid != me || (st.st_mode & 077) != 0) {
-    ::close(fd);
-    char mode[8];
-    std::snprintf(mode, sizeof mode, "%04o", static_cast<unsigned>(st.st_mode & 07777));
-    bad(path, "a group key must be owned by this user (uid " + std::to_string(me) +
-                  ") and readable by nobody else (mode " + mode + ", owner uid " + std::to_string(st.st_uid) +
-                  "): chmod 600 it (and chown it to this user)");
-  }
-  std::string text(kMaxKeyFileBytes + 1, '\0');
-  std::size_t got = 0;
-  while (got < text.size()) {
-    const ssize_t n = ::read(fd, text.data() + got, text.size() - got);
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) {
-      const int e = errno;
-      ::close(fd);
-      bad(path, std::string("cannot read: ") + std::strerror(e));
-    }
-    if (n == 0) break;
-    got += static_cast<std::size_t>(n);
-  }
-  ::close(fd);
-  text.resize(got);
+  auto read = detail::read_key_file_bytes(path, detail::KeyFileAccess::owner_only,
+                                          {"a group key", "`lcmx keygen --group`"}, kMaxKeyFileBytes);
+  if (const auto* p = std::get_if<detail::KeyFileProblem>(&read)) bad(path, p->why);
+  std::string& text = std::get<std::string>(read);
   GroupKeys keys;
   keys.origin = path;
   auto add = [&](const std::array<std::uint8_t, kKeySize>& b) {
@@ -102,7 +72,7 @@ GroupKeys read_key_file(const std::string& path) {
     keys.keys.push_back(make_key(b));
     if (keys.keys.size() == 2 && keys.keys[0].bytes == keys.keys[1].bytes) bad(path, "the same key twice");
   };
-  if (got == kKeySize) {  // the raw form (the text form has at least 64 characters)
+  if (text.size() == kKeySize) {  // the raw form (the text form has at least 64 characters)
     std::array<std::uint8_t, kKeySize> b{};
     std::memcpy(b.data(), text.data(), kKeySize);
     add(b);
@@ -143,14 +113,7 @@ GroupKeys read_key_file(const std::string& path) {
 
 void write_key_file(const std::string& path, const GroupKeys& keys, bool overwrite) {
   if (keys.keys.empty() || keys.keys.size() > 2) bad(path, "one or two keys are written");
-  struct stat st {};
-  if (::lstat(path.c_str(), &st) == 0) {
-    if (S_ISLNK(st.st_mode)) bad(path, "is a symbolic link: refused (remove it first)");
-    if (!S_ISREG(st.st_mode)) bad(path, "exists and is not a regular file: refused");
-    if (!overwrite) bad(path, std::string("cannot create: ") + std::strerror(EEXIST) + " (--force replaces it)");
-  } else if (errno != ENOENT) {
-    bad(path, std::string("cannot create: ") + std::strerror(errno));
-  }
+  if (const auto p = detail::check_key_file_target(path, overwrite, " (--force replaces it)")) bad(path, p->why);
   std::string text =
       "# lcmx group key (lcmx keygen --group): keep it secret, mode 0600.\n"
       "# The first key seals what this host sends; every key listed (at most two) is accepted.\n"
@@ -161,24 +124,9 @@ void write_key_file(const std::string& path, const GroupKeys& keys, bool overwri
     std::snprintf(id, sizeof id, "%08x", k.id);
     text += "# key id " + std::string(id) + "\n" + hex(k.bytes.data(), k.bytes.size()) + "\n";
   }
-  std::string tmp = path + ".XXXXXX";
-  const int fd = ::mkostemp(tmp.data(), O_CLOEXEC);  // mode 0600, O_EXCL: a new file, never a link's target
-  if (fd < 0) bad(path, std::string("cannot create: ") + std::strerror(errno));
-  const bool ok = ::fchmod(fd, 0600) == 0 &&
-                  ::write(fd, text.data(), text.size()) == static_cast<ssize_t>(text.size()) && ::fsync(fd) == 0;
-  const int e = errno;
-  ::close(fd);
+  const auto p = detail::write_key_file_bytes(path, text, 0600, overwrite);
   sodium_memzero(text.data(), text.size());
-  if (!ok) {
-    ::unlink(tmp.c_str());
-    bad(path, std::string("write failed: ") + std::strerror(e));
-  }
-  // Without overwrite, link() fails with EEXIST if the name appeared meanwhile (no race); a
-  // rename replaces the directory entry, never what a link there points to.
-  const int r = overwrite ? ::rename(tmp.c_str(), path.c_str()) : ::link(tmp.c_str(), path.c_str());
-  const int re = errno;
-  if (!overwrite || r != 0) ::unlink(tmp.c_str());
-  if (r != 0) bad(path, std::string("cannot create: ") + std::strerror(re));
+  if (p) bad(path, p->why);
 }
 
 const char* to_string(Refusal r) noexcept {
