@@ -953,9 +953,27 @@ struct Discovery::Impl {
     if (on_change) on_change(change, copy);
   }
 
+  // Whether `id` is this process's participant or one in this host's registry (a slot in use;
+  // a claimed slot may still name its previous, dead owner: refusing that id costs nothing).
+  // Any thread: the registry is read with atomics only.
+  bool of_this_host(std::int64_t id) const {
+    if (id != 0 && id == self_id.load()) return true;
+    if (!reg) return false;
+    const auto hw = std::min(reg->header->high_water.load(std::memory_order_acquire), reg->slot_count);
+    for (std::uint32_t i = 0; i < hw; ++i) {
+      const auto& s = reg->slot(i);
+      if (reg::state_of(s.state.load(std::memory_order_acquire)) != reg::kFree &&
+          s.participant_id.load(std::memory_order_relaxed) == id)
+        return true;
+    }
+    return false;
+  }
+
   // The trust rules (docs/discovery.md "Trust"): a record or goodbye of host H only from the
   // address H's speakers send from (first contact binds it), its source claims only with that
-  // address, a participant id only for the host that first announced it. Returns why not ("": ok).
+  // address, a participant id only for the host that first announced it, never one of this
+  // host's (this process's, or one in this host's registry: known there, not from the
+  // network). Called for records of other hosts only. Returns why not ("": ok).
   std::string check_record(const beacon_t& b, std::uint32_t ip) {
     std::lock_guard lock(mutex);
     const auto h = b.host_id;
@@ -970,6 +988,10 @@ struct Discovery::Impl {
     auto it = peers.find(b.participant_id);
     if (it != peers.end() && it->second.host != h)
       return "a record of participant " + std::to_string(b.participant_id) + " claimed by another host";
+    // (A known peer passed this at its first record: the registry is scanned for newcomers only.)
+    if (it == peers.end() && of_this_host(b.participant_id))
+      return "a record of participant " + std::to_string(b.participant_id) + " of this host claimed by host " +
+             std::to_string(h);
     return {};
   }
 

@@ -37,14 +37,21 @@ void append_float(std::string& out, F v) {
   out.append(b, r.ptr);
 }
 
-// Length of the valid UTF-8 sequence at s[i], 0 if invalid.
+// Length of the valid UTF-8 sequence at s[i], 0 if invalid: well-formed as Unicode's table 3-7
+// says (no overlong form, no surrogate U+D800..U+DFFF, nothing above U+10FFFF).
 std::size_t utf8_len(std::string_view s, std::size_t i) {
   const auto c = static_cast<unsigned char>(s[i]);
   std::size_t n = c < 0x80 ? 1 : (c >> 5) == 6 ? 2 : (c >> 4) == 14 ? 3 : (c >> 3) == 30 ? 4 : 0;
   if (n == 0 || i + n > s.size()) return 0;
   for (std::size_t k = 1; k < n; ++k)
     if ((static_cast<unsigned char>(s[i + k]) >> 6) != 2) return 0;
-  if (n == 2 && c < 0xC2) return 0;  // overlong
+  if (n == 1) return 1;
+  const auto c1 = static_cast<unsigned char>(s[i + 1]);
+  if (n == 2 && c < 0xC2) return 0;                    // overlong
+  if (c == 0xE0 && c1 < 0xA0) return 0;                // overlong
+  if (c == 0xED && c1 >= 0xA0) return 0;               // a surrogate
+  if (c == 0xF0 && c1 < 0x90) return 0;                // overlong
+  if (c > 0xF4 || (c == 0xF4 && c1 >= 0x90)) return 0;  // above U+10FFFF
   return n;
 }
 }  // namespace

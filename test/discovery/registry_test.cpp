@@ -632,6 +632,50 @@ TEST_CASE("trust: goodbyes, newer records and source claims only from the host's
   CHECK(lr.count(Change::left, 5) == 1);
 }
 
+TEST_CASE("trust: another host's record naming this process or a participant of this host is refused", "[discovery][hostile]") {
+  const auto v = group_of(25);
+  FakeHost a(0xc6, group_of(26), v);
+  a.add(61, {"X"});  // another participant of this host (its own registry object, as another process)
+  lcmx::discovery::Options o;
+  o.group = v;
+  o.scope = beacon_t::SCOPE_VEHICLE;
+  o.period = 50ms;
+  o.lease = 500ms;
+  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(v));
+  o.registry = Registry::open({.host_id = 0xc6, .group = group_of(26), .directory = a.dir.path});
+  Log lr;
+  Discovery r(o, [] { return beacon_of(62, 0xc6, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());  // this process
+  auto in_registry = [&](std::int64_t id) {
+    auto& ri = r.registry()->impl();
+    for (std::uint32_t i = 0; i < ri.slot_count; ++i)
+      if (lcmx::discovery::reg::state_of(ri.slot(i).state.load()) == lcmx::discovery::reg::kLive &&
+          ri.slot(i).participant_id.load() == id)
+        return true;
+    return false;
+  };
+  REQUIRE(eventually([&] { return in_registry(61) && in_registry(62); }));
+  // Host 78 (bound to its address by its heartbeat) claims 61 and 62, and announces 63.
+  const char* ip = "10.9.0.1";
+  auto rec = [](std::int64_t id) {
+    auto b = beacon_of(id, 78, {"X"}, beacon_t::SCOPE_VEHICLE);
+    b.version = lcmx::discovery::kBeaconVersion;
+    b.revision = 1;
+    b.vehicle_source = "10.9.0.1:7668";
+    return b;
+  };
+  r.deliver(message_of(lcmx::discovery::encode_host_beacon(heartbeat_of(78, {{61, 1}, {62, 1}, {63, 1}})), ip));
+  r.deliver(message_of(lcmx::discovery::encode_beacon(rec(61)), ip));
+  r.deliver(message_of(lcmx::discovery::encode_beacon(rec(62)), ip));
+  r.deliver(message_of(lcmx::discovery::encode_beacon(rec(63)), ip));
+  CHECK(r.counters().forged == 2);
+  CHECK(lr.count(Change::joined, 61) == 0);
+  CHECK(lr.count(Change::joined, 62) == 0);
+  CHECK(lr.count(Change::joined, 63) == 1);  // the host's own participant is taken
+  const auto ps = r.participants();
+  REQUIRE(ps.size() == 1);
+  CHECK(ps[0].beacon.participant_id == 63);
+}
+
 TEST_CASE("a full table never expires a known peer - its host's heartbeat keeps it", "[discovery][hostile]") {
   lcmx::discovery::Options o;
   o.group = group_of(18);

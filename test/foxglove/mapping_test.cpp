@@ -154,6 +154,34 @@ TEST_CASE("foxglove mapping: unknown types and base64", "[foxglove]") {
   CHECK_THROWS(base64_decode("a$=="));
 }
 
+TEST_CASE("foxglove mapping: JSON strings carry valid UTF-8 as is, each byte of invalid UTF-8 escaped", "[foxglove]") {
+  auto js = [](std::string_view s) {
+    std::string o;
+    json_string_append(o, s);
+    return o;
+  };
+  // Valid: 2, 3 and 4 bytes, at the edges of each range (U+0080, U+07FF, U+0800, U+D7FF,
+  // U+E000, U+FFFF, U+10000, U+10FFFF) and ordinary text.
+  for (const std::string_view v : {"\xC2\x80", "\xDF\xBF", "\xE0\xA0\x80", "\xED\x9F\xBF", "\xEE\x80\x80", "\xEF\xBF\xBF",
+                                   "\xF0\x90\x80\x80", "\xF4\x8F\xBF\xBF", "caf\xC3\xA9 \xE6\x97\xA5\xE6\x9C\xAC \xF0\x9F\x98\x80"}) {
+    INFO(v);
+    CHECK(js(v) == "\"" + std::string(v) + "\"");
+  }
+  // Invalid: each byte escaped on its own (a continuation byte alone is invalid too).
+  CHECK(js("\xED\xA0\x80") == R"("\u00ed\u00a0\u0080")");           // U+D800, a surrogate
+  CHECK(js("\xED\xBF\xBF") == R"("\u00ed\u00bf\u00bf")");           // U+DFFF
+  CHECK(js("\xE0\x9F\xBF") == R"("\u00e0\u009f\u00bf")");           // overlong U+07FF
+  CHECK(js("\xE0\x80\x80") == R"("\u00e0\u0080\u0080")");           // overlong U+0000
+  CHECK(js("\xF0\x8F\xBF\xBF") == R"("\u00f0\u008f\u00bf\u00bf")"); // overlong U+FFFF
+  CHECK(js("\xF4\x90\x80\x80") == R"("\u00f4\u0090\u0080\u0080")"); // U+110000
+  CHECK(js("\xF5\x80\x80\x80") == R"("\u00f5\u0080\u0080\u0080")"); // lead bytes F5..F7
+  CHECK(js("\xF7\xBF\xBF\xBF") == R"("\u00f7\u00bf\u00bf\u00bf")");
+  CHECK(js("\xC0\x80") == R"("\u00c0\u0080")");                     // overlong 2-byte
+  CHECK(js("\xE6\x97") == R"("\u00e6\u0097")");                     // truncated
+  // Around an invalid sequence, the rest is unchanged.
+  CHECK(js("a\xED\xA0\x80\xC3\xA9\"\x01") == R"("a\u00ed\u00a0\u0080)" "\xC3\xA9" R"(\"\u0001")");
+}
+
 namespace {
 QueuedMessage msg(std::uint32_t sub, std::size_t bytes) {
   return {sub, 0, Payload::of(std::string(bytes, 'x')), 0};

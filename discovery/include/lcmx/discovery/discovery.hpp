@@ -93,7 +93,8 @@ struct Counters {
   std::uint64_t exits_seen = 0;  // peers declared gone because their process exited (pidfd)
   std::uint64_t goodbyes = 0;
   std::uint64_t refused = 0;  // beacons refused by max_participants / max_table_bytes
-  std::uint64_t forged = 0;   // goodbyes, records or source claims from the wrong address
+  std::uint64_t forged = 0;   // goodbyes, records or source claims from the wrong address;
+                              // records naming another host's (or this host's) participant
   std::uint64_t requests_answered = 0;  // speaker: index / record requests answered
   std::uint64_t requests_limited = 0;   // speaker: requests folded into a later answer
   std::uint64_t registry_reads = 0;     // state files read
