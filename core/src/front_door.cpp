@@ -324,6 +324,12 @@ void FrontDoor::dispatch(bool vehicle, const udpm::Message& m) {
   if (group.is_own(m.source)) return;  // our own, looped back
   const auto sender = ctx_.peers.sender(vehicle, m.source, local_address);
   if (sender.same_host) return;  // a participant of this host: its subscribers here read shm
+  // On the vehicle group, from one of this host's addresses and no participant we know: a
+  // participant of this host whose record we have not read yet (a new publisher sends there
+  // during its start-up window, and a subscriber made a moment ago has not read the registry).
+  // Its subscribers here read its ring, from when they began: taken here too, its first
+  // messages would arrive twice. Stock LCM programs on this host use the host-local group.
+  if (vehicle && sender.participant == 0 && local_address) return;
   if (m.channel == kHistoryChannel) {
     auto h = decode_history(m.data);
     if (!h) return;  // not ours to judge
