@@ -202,15 +202,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       Served* raw = s.get();
       SubscriberOptions so;
       so.from_bridges = false;
-      // From when the peer's demand began here, less the time a demand takes to arrive (the
-      // peer's view, refreshed on a change of its host or once a second, then its next
-      // heartbeat, then ours): a subscriber there that existed before the publisher here
-      // started gets its first messages (the start-up race), as far as its ring still holds
-      // them. A subscriber made on the peer within that time of the publisher's start may get a
-      // few messages published just before it subscribed.
-      if (auto ws = wanted_since.find(t); ws != wanted_since.end())
-        so.since = std::max(ws->second - (std::chrono::seconds(1) + 2 * cfg.heartbeat),
-                            Clock::time_point{} + std::chrono::nanoseconds(1));  // epoch would mean "now"
+      if (auto ws = wanted_since.find(t); ws != wanted_since.end()) so.since = ws->second;
       try {
         s->sub = channels[*ch]->node->subscribe_raw(t, [this, raw](const RawMessage& m) { on_local_message(*raw, m); }, so);
       } catch (const std::exception& e) {

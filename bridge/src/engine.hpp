@@ -358,10 +358,9 @@ struct Bridge::Impl {
   // Control thread only.
   std::map<std::string, std::unique_ptr<Served>> served;
   std::set<std::string> no_channel_logged;
-  // Topic -> when a peer's demand for it reached us (reconcile; control thread). A topic served
-  // later, once a publisher of this host appears, is read from about when that demand began
-  // there (SubscriberOptions::since, see reconcile): the publisher's first messages, published
-  // before this bridge matched it, still go.
+  // Topic -> when a peer's demand for it began (reconcile; control thread). A topic served
+  // later, once a publisher of this host appears, is read from that time on (SubscriberOptions::
+  // since): the publisher's first messages, published before this bridge matched it, still go.
   std::map<std::string, Clock::time_point> wanted_since;
   std::set<std::int64_t> other_bridges_warned;  // participant ids of other bridges on this host
   bool catalogue_cut_logged = false, announce_cut_logged = false, demand_cut_logged = false;
