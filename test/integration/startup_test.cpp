@@ -5,31 +5,10 @@
 // neither delivered nor counted.
 #include <csignal>
 
-#include "lcmx/log/eventlog.hpp"
-#include "lcmx_examples/bench_t.hpp"
+#include "logged.hpp"
 #include "support.hpp"
 
 using namespace lcmx::it;
-
-namespace {
-
-// The bench_t messages of `channel` in the LCM log at `path` (seq order as logged).
-std::vector<std::int64_t> startup_logged(const std::string& path, const std::string& channel) {
-  std::vector<std::int64_t> out;
-  try {
-    auto r = lcmx::eventlog::Reader::open(path);
-    lcmx::eventlog::Event e;
-    while (r.next(e)) {
-      if (e.channel != channel) continue;
-      lcmx_examples::bench_t m;
-      if (m.decode(e.data.data(), 0, static_cast<int>(e.data.size())) > 0) out.push_back(m.seq);
-    }
-  } catch (const lcmx::eventlog::Error&) {
-  }
-  return out;
-}
-
-}  // namespace
 
 // What a program does at start (a configuration, then telemetry): 30 messages at 20 Hz. Its
 // ring (the default 8 slots) holds 350 ms of them, far longer than discovery takes to match
@@ -58,12 +37,12 @@ TEST_CASE("start-up race on one host: a publisher that publishes at once at star
   CHECK(st.num("out_of_order") == 0);
   CHECK(st.num("drops") == 0);
   CHECK(sub.wait() == 0);
-  REQUIRE(wait_until([&] { return startup_logged(log, ch).size() >= 30; }, 10000ms, 20ms));
+  REQUIRE(wait_until([&] { return logged_bench_seqs(log, ch).size() >= 30; }, 10000ms, 20ms));
   rec.signal(SIGINT);
   REQUIRE(rec.wait(10000ms) == 0);
   INFO(rec.text());
   CHECK(json_num(json_line(rec.text()), "lost") == 0);
-  const auto seqs = startup_logged(log, ch);
+  const auto seqs = logged_bench_seqs(log, ch);
   REQUIRE(seqs.size() == 30);
   for (std::size_t i = 0; i < seqs.size(); ++i) CHECK(seqs[i] == static_cast<std::int64_t>(i));
   pub.send("quit");
@@ -99,12 +78,12 @@ TEST_CASE("start-up race on one host at 200 Hz: what the ring no longer held whe
   CHECK(st.num("out_of_order") == 0);
   CHECK(st.num("gaps") == 0);
   CHECK(sub.wait() == 0);
-  REQUIRE(wait_until([&] { return startup_logged(log, ch).size() >= 1 && startup_logged(log, ch).back() == 99; },
+  REQUIRE(wait_until([&] { return logged_bench_seqs(log, ch).size() >= 1 && logged_bench_seqs(log, ch).back() == 99; },
                      10000ms, 20ms));
   rec.signal(SIGINT);
   REQUIRE(rec.wait(10000ms) == 0);
   INFO(rec.text());
-  const auto seqs = startup_logged(log, ch);
+  const auto seqs = logged_bench_seqs(log, ch);
   CHECK(static_cast<std::int64_t>(seqs.size()) + json_num(json_line(rec.text()), "lost") == 100);
   for (std::size_t i = 1; i < seqs.size(); ++i) CHECK(seqs[i] == seqs[i - 1] + 1);
   pub.send("quit");

@@ -6,9 +6,8 @@
 // subscriber had announced its match: the first messages were neither delivered nor counted.
 #include <csignal>
 
-#include "lcmx/log/eventlog.hpp"
 #include "lcmx/test/catch_netns.hpp"
-#include "lcmx_examples/bench_t.hpp"
+#include "logged.hpp"
 #include "multihost.hpp"
 
 using namespace lcmx::mh;
@@ -34,19 +33,7 @@ TEST_CASE("start-up race across hosts over UDP: a publisher on host B that publi
   check_exact(st, 100);
   CHECK(st.str("paths").find("udp") != std::string::npos);
   CHECK(sub.wait() == 0);
-  auto logged = [&] {
-    std::vector<std::int64_t> out;
-    try {
-      auto r = lcmx::eventlog::Reader::open(log);
-      lcmx::eventlog::Event e;
-      while (r.next(e)) {
-        lcmx_examples::bench_t m;
-        if (e.channel == ch && m.decode(e.data.data(), 0, static_cast<int>(e.data.size())) > 0) out.push_back(m.seq);
-      }
-    } catch (const lcmx::eventlog::Error&) {
-    }
-    return out;
-  };
+  auto logged = [&] { return lcmx::it::logged_bench_seqs(log, ch); };
   REQUIRE(lcmx::it::wait_until([&] { return logged().size() >= 100; }, 10000ms, 20ms));
   rec.signal(SIGINT);
   REQUIRE(rec.wait(10000ms) == 0);
