@@ -10,6 +10,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "host_registries.hpp"
 #include "lcmx/log/eventlog.hpp"
 #include "lcmx/test/catch_netns.hpp"
 #include "lcmx/test/netns.hpp"
@@ -56,6 +57,7 @@ class World {
     for (auto& c : children_) pids.push_back(c->started_pid());
     children_.clear();
     for (auto p : pids) lcmx::it::remove_shm_of(p);
+    lcmx::it::remove_host_registries(emu_, discovery_url);
     std::error_code ec;
     fs::remove_all(dir, ec);
   }

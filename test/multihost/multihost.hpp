@@ -16,6 +16,7 @@
 #include <string>
 #include <vector>
 
+#include "host_registries.hpp"
 #include "lcmx/test/netns.hpp"
 #include "lcmx/test/watchdog.hpp"
 #include "support.hpp"
@@ -91,6 +92,7 @@ class Hosts {
     for (auto& c : children_) pids.push_back(c->started_pid());
     children_.clear();  // SIGKILL + reap
     for (auto p : pids) it::remove_shm_of(p);
+    it::remove_host_registries(emu_, discovery_url);
   }
 
   lcmx::test::Emulation& emu() { return emu_; }
