@@ -1979,3 +1979,56 @@ TEST_CASE("a channel name with a space and a percent sign is carried across by t
   CHECK(status.find("serves: " + ch) != std::string::npos);
   pub.send("quit");
 }
+
+// The start-up race through the bridges (issue 37): a program on A that publishes large
+// messages as soon as it starts reaches a subscriber and `lcmx record` already running on B.
+// B's bridge demanded the channel when B's subscriber appeared; A's bridge serves it from when
+// that demand began (SubscriberOptions::since), so the publisher's first messages, committed
+// before A's bridge matched it, are still read from its ring and forwarded.
+TEST_CASE("start-up race through the bridges: a publisher on A that publishes large messages at once at start - "
+          "a subscriber and lcmx record already running on B get 100 of 100",
+          "[bridge][multihost][startup]") {
+  LCMX_REQUIRE_NETNS();
+  World w(2, 74, {{.name = "eth"}});
+  const auto ch = w.channel("STARTUP");
+  auto& ba = w.bridge(0, {1});
+  auto& bb = w.bridge(1, {0});
+  auto& sub = w.sub(1, {ch});
+  const auto log = (w.dir / "startup_bridge.lcmlog").string();
+  auto& rec = w.spawn(1, {LCMX_TOOL, "record", log, "-c", ch, "--json"}, true);
+  REQUIRE(rec.expect("lcmx record: recording to", 10000ms));
+  // 200 KB at 20 Hz, from its first moment (--subscribers 0: nobody has matched it yet).
+  auto& pub = w.spawn(0, {LCMX_TEST_PEER, "pub", "--channel", ch, "--type", "bench", "--size", "200000", "--count",
+                          "100", "--rate", "20", "--subscribers", "0", "--hold", "--id", "A", "--timeout-ms", "45000"});
+  REQUIRE(pub.expect("PUBLISHED", 30000ms));
+  INFO("bridge A:\n" << ba.output() << "\nbridge B:\n" << bb.output() << "\nsubscriber:\n" << sub.output());
+  auto [st, ok] = wait_sub(sub, ch, [&](const Summary& x) { return x.num("last") == 99; }, 15000ms);
+  CHECK(ok);
+  CHECK(st.num("received") == 100);
+  CHECK(st.num("first") == 0);
+  CHECK(st.num("duplicates") == 0);
+  CHECK(st.num("out_of_order") == 0);
+  CHECK(st.num("drops") == 0);
+  CHECK(st.str("paths") == "bridge");
+  auto logged = [&] {
+    std::vector<std::int64_t> out;
+    try {
+      auto r = lcmx::eventlog::Reader::open(log);
+      lcmx::eventlog::Event e;
+      while (r.next(e)) {
+        lcmx_examples::bench_t m;
+        if (e.channel == ch && m.decode(e.data.data(), 0, static_cast<int>(e.data.size())) > 0) out.push_back(m.seq);
+      }
+    } catch (const lcmx::eventlog::Error&) {
+    }
+    return out;
+  };
+  CHECK(lcmx::it::wait_until([&] { return logged().size() >= 100; }, 10000ms, 20ms));
+  rec.signal(SIGINT);
+  CHECK(rec.wait(10000ms) == 0);
+  const auto seqs = logged();
+  INFO(rec.text());
+  REQUIRE(seqs.size() == 100);
+  for (std::size_t i = 0; i < seqs.size(); ++i) CHECK(seqs[i] == static_cast<std::int64_t>(i));
+  pub.send("quit");
+}
