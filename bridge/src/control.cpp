@@ -76,10 +76,16 @@ void Bridge::Impl::send_pings() {
   c.from = cfg.name;
   c.instance = instance;
   std::set<std::string> want, have;
+  std::map<std::string, std::uint32_t> want_age;  // ms: how long this host has wanted each
+  const auto now = Clock::now();
   {
     std::lock_guard lock(view_mu);
     want = demand;
     have = catalogue_locked();
+    for (const auto& [t, began] : demand_began) {
+      const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(now - began).count();
+      if (ms > 0) want_age[t] = static_cast<std::uint32_t>(std::min<std::int64_t>(ms, wire::Control::kMaxWantAgeMs));
+    }
   }
   // A frame holds at most wire::kMaxDemand want lines (peers refuse more).
   if (want.size() > wire::kMaxDemand) {
@@ -89,7 +95,6 @@ void Bridge::Impl::send_pings() {
     demand_cut_logged = true;
     want.erase(std::next(want.begin(), static_cast<std::ptrdiff_t>(wire::kMaxDemand)), want.end());
   }
-  const auto now = Clock::now();
   for (auto& p : peers) {
     const int active = p->active.load();
     // Every topic we serve it, small ones too: its republisher then exists (and its
@@ -120,6 +125,7 @@ void Bridge::Impl::send_pings() {
       c.active = static_cast<int>(i) == active;
       c.has_demand = c.active && full;
       c.want.clear();
+      c.want_age_ms.clear();
       c.offer.clear();
       c.keep.clear();
       c.types.clear();
@@ -129,6 +135,8 @@ void Bridge::Impl::send_pings() {
         c.control_port = cfg.control_port;
         for (const auto& ch : cfg.channels) c.channels.emplace_back(ch.name, ch.port);
         c.want = want;
+        for (const auto& t : want)
+          if (auto a = want_age.find(t); a != want_age.end()) c.want_age_ms.insert(*a);
         c.offer = offer;
         c.keep = keep;
         c.types = types;
@@ -207,6 +215,7 @@ void Bridge::Impl::receive_control() {
       p.instance = c->instance;
       std::lock_guard lock(view_mu);
       p.wants.clear();
+      p.want_since.clear();
       p.offers.clear();
       p.keeps.clear();
       p.types.clear();
@@ -217,7 +226,21 @@ void Bridge::Impl::receive_control() {
       check_hello(p, *c);
     }
     if (c->has_demand) {
+      // A newly wanted topic has been wanted at the peer's host since its age before now (the
+      // network's delay is not in it: we serve a little later than the demand began, never
+      // earlier). A topic wanted already keeps its time.
+      const auto now = Clock::now();
+      std::map<std::string, Clock::time_point> since;
       std::lock_guard lock(view_mu);
+      for (const auto& t : c->want) {
+        if (auto it = p.want_since.find(t); it != p.want_since.end()) {
+          since.insert(*it);
+        } else {
+          const auto a = c->want_age_ms.find(t);
+          since.emplace(t, now - std::chrono::milliseconds(a == c->want_age_ms.end() ? 0 : a->second));
+        }
+      }
+      p.want_since = std::move(since);
       p.wants = std::move(c->want);
       p.offers = std::move(c->offer);
       p.keeps = std::move(c->keep);

@@ -43,8 +43,11 @@ void Bridge::Impl::refresh_view() {
       }
     }
   }
+  const auto now = Clock::now();
   std::lock_guard lock(view_mu);
   demand = std::move(d);
+  std::erase_if(demand_began, [&](const auto& kv) { return !demand.count(kv.first); });
+  for (const auto& t : demand) demand_began.emplace(t, now);
   published = std::move(pubs);
   kept = std::move(keeps);
   typed.clear();
@@ -132,6 +135,7 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       Peer& p = *peers[i];
       if (p.demand_at != Clock::time_point{} && now - p.demand_at > demand_ttl) {
         p.wants.clear();
+        p.want_since.clear();
         p.offers.clear();
         p.demand_at = {};
       }
@@ -158,12 +162,16 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
         }
       }
     }
-    // When each topic's demand began, published here or not yet.
-    std::set<std::string> wanted_now;
+    // When each topic's demand began at the peers' hosts, published here or not yet.
+    std::map<std::string, Clock::time_point> wanted_now;
     for (const auto& pp : peers)
-      for (const auto& t : pp->wants) wanted_now.insert(t);
+      for (const auto& t : pp->wants) {
+        const auto ws = pp->want_since.find(t);
+        const auto began = ws != pp->want_since.end() ? ws->second : now;
+        if (auto [it, fresh] = wanted_now.try_emplace(t, began); !fresh) it->second = std::min(it->second, began);
+      }
     std::erase_if(wanted_since, [&](const auto& kv) { return !wanted_now.count(kv.first); });
-    for (const auto& t : wanted_now) wanted_since.emplace(t, now);
+    for (const auto& [t, began] : wanted_now) wanted_since.emplace(t, began);
     for (const auto& [t, v] : want) {
       large[t] = is_large_locked(t);
       if (auto k = kept.find(t); k != kept.end()) keep_local[t] = k->second;
@@ -177,12 +185,17 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
     note_local_drops(*it->second, gone);
     if (gone) {
       it->second->sub.reset();  // waits for a running callback; we hold no lock
+      served_end[it->first] = Clock::now();  // it read up to here: a later one starts after
       spdlog::debug("bridge {}: no longer serving {}", cfg.name, printable(it->first));
       it = served.erase(it);
     } else {
       ++it;
     }
   }
+  // An end older than any demand's age can be (wire::Control::kMaxWantAgeMs) bounds nothing.
+  std::erase_if(served_end, [&](const auto& kv) {
+    return now - kv.second > std::chrono::milliseconds(wire::Control::kMaxWantAgeMs);
+  });
   for (auto& [t, ps] : want) {
     auto it = served.find(t);
     if (it == served.end()) {
@@ -202,7 +215,12 @@ void Bridge::Impl::reconcile(Clock::time_point now) {
       Served* raw = s.get();
       SubscriberOptions so;
       so.from_bridges = false;
-      if (auto ws = wanted_since.find(t); ws != wanted_since.end()) so.since = ws->second;
+      // From when the peers' demand began, but never before what this bridge (or, before it
+      // started, its predecessor) may have forwarded already.
+      if (auto ws = wanted_since.find(t); ws != wanted_since.end()) {
+        so.since = std::max(ws->second, started);
+        if (auto se = served_end.find(t); se != served_end.end()) so.since = std::max(so.since, se->second);
+      }
       try {
         s->sub = channels[*ch]->node->subscribe_raw(t, [this, raw](const RawMessage& m) { on_local_message(*raw, m); }, so);
       } catch (const std::exception& e) {

@@ -259,6 +259,9 @@ struct Bridge::Impl {
     std::uint64_t full_sent_instance = 0;
     // guarded by view_mu:
     std::set<std::string> wants, offers;
+    // When its host began to want each of `wants` (our clock: the ping's arrival less the age
+    // it gave; kept while wanted, so later pings do not move it).
+    std::map<std::string, Clock::time_point> want_since;
     std::map<std::string, std::uint32_t> keeps;  // keep last N of offered topics (0: absent)
     std::map<std::string, wire::Control::TopicType> types;  // of its offered/catalogued topics
     std::set<std::string> has;     // its catalogue: the large topics its host publishes
@@ -347,6 +350,9 @@ struct Bridge::Impl {
   // Local view (guarded by view_mu).
   mutable std::mutex view_mu;
   std::set<std::string> demand;                 // topics local non-bridge participants subscribe to
+  // topic -> when this bridge first saw `demand` hold it (refresh_view): its age goes with
+  // each "want" line (wire::Control::want_age_ms).
+  std::map<std::string, Clock::time_point> demand_began;
   std::map<std::string, bool> published;        // topic -> some local non-bridge publisher is large
   std::map<std::string, std::uint32_t> kept;     // topic -> largest PublisherOptions::history of them
   // topic -> the lcm-gen type its local non-bridge publishers announce, when they all announce
@@ -358,10 +364,15 @@ struct Bridge::Impl {
   // Control thread only.
   std::map<std::string, std::unique_ptr<Served>> served;
   std::set<std::string> no_channel_logged;
-  // Topic -> when a peer's demand for it began (reconcile; control thread). A topic served
-  // later, once a publisher of this host appears, is read from that time on (SubscriberOptions::
-  // since): the publisher's first messages, published before this bridge matched it, still go.
+  // Topic -> when a peer's host began to want it (reconcile; control thread): the earliest
+  // Peer::want_since of the peers that want it. A topic served later, once a publisher of
+  // this host appears, is read from that time on (SubscriberOptions::since): the publisher's
+  // first messages, published before the demand reached this bridge, still go. Never before
+  // what an earlier subscription of the topic read (served_end) or before this bridge
+  // started (a restarted bridge's predecessor forwarded those): no message goes twice.
   std::map<std::string, Clock::time_point> wanted_since;
+  std::map<std::string, Clock::time_point> served_end;  // topic -> when its subscription ended
+  const Clock::time_point started = Clock::now();
   std::set<std::int64_t> other_bridges_warned;  // participant ids of other bridges on this host
   bool catalogue_cut_logged = false, announce_cut_logged = false, demand_cut_logged = false;
 

@@ -1,5 +1,6 @@
 #include "lcmx/bridge/detail/wire.hpp"
 
+#include <algorithm>
 #include <charconv>
 #include <cstdio>
 
@@ -88,7 +89,12 @@ std::string encode(const Control& c) {
       s += "control " + std::to_string(c.control_port) + "\n";
       for (const auto& [name, port] : c.channels) s += "channel " + name + " " + std::to_string(port) + "\n";
       s += "demand\n";
-      for (const auto& t : c.want) s += "want " + encode_topic(t) + "\n";
+      for (const auto& t : c.want) {
+        s += "want " + encode_topic(t);
+        if (auto a = c.want_age_ms.find(t); a != c.want_age_ms.end() && a->second > 0)
+          s += " " + std::to_string(std::min(a->second, Control::kMaxWantAgeMs));
+        s += "\n";
+      }
       for (const auto& t : c.offer) s += "offer " + encode_topic(t) + "\n";
       for (const auto& [t, n] : c.keep) s += "keep " + encode_topic(t) + " " + std::to_string(n) + "\n";
       for (const auto& t : c.have) s += "have " + encode_topic(t) + "\n";
@@ -154,8 +160,15 @@ std::optional<Control> decode(std::string_view f) {
     } else if ((key == "want" || key == "offer") && c.has_demand) {
       auto& set = key == "want" ? c.want : c.offer;
       if (set.size() >= kMaxDemand) return std::nullopt;
-      auto t = decode_topic(val);
+      // "want <topic> <age ms>": the age is optional (0), and only on "want".
+      const auto sp2 = key == "want" ? val.find(' ') : std::string_view::npos;
+      std::uint32_t age = 0;
+      if (sp2 != std::string_view::npos &&
+          (!parse_num(val.substr(sp2 + 1), age) || age == 0 || age > Control::kMaxWantAgeMs))
+        return std::nullopt;
+      auto t = decode_topic(val.substr(0, sp2));
       if (!t) return std::nullopt;
+      if (age > 0) c.want_age_ms[*t] = age;
       set.insert(std::move(*t));
     } else if (key == "keep" && c.has_demand) {
       const auto sp2 = val.find(' ');

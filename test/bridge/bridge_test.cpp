@@ -1982,9 +1982,11 @@ TEST_CASE("a channel name with a space and a percent sign is carried across by t
 
 // The start-up race through the bridges (issue 37): a program on A that publishes large
 // messages as soon as it starts reaches a subscriber and `lcmx record` already running on B.
-// B's bridge demanded the channel when B's subscriber appeared; A's bridge serves it from when
-// that demand began (SubscriberOptions::since), so the publisher's first messages, committed
-// before A's bridge matched it, are still read from its ring and forwarded.
+// B's bridge demands the channel when B's subscriber appears, but the demand reaches A's bridge
+// after the publisher's first messages (the bridges' link is still coming up: 95 of 100 before
+// the demand carried its age). Its age tells A's bridge when the demand began at B, and it
+// serves the topic from then (SubscriberOptions::since): the first messages are still read
+// from the publisher's ring and forwarded.
 TEST_CASE("start-up race through the bridges: a publisher on A that publishes large messages at once at start - "
           "a subscriber and lcmx record already running on B get 100 of 100",
           "[bridge][multihost][startup]") {

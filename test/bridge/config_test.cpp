@@ -619,6 +619,37 @@ TEST_CASE("keygen never writes through a symbolic link, with --force neither", "
   CHECK(files == 5);  // precious, the links chipA.key and chipB.pub, chipC.key, chipC.pub
 }
 
+TEST_CASE("control wire format: a want line may carry the demand's age in ms (the start-up race), nothing else",
+          "[bridge][wire]") {
+  const std::string head = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\nactive\n";
+  const std::string demand = head + "control 7700\ndemand\n";
+  const auto ok = wire::decode(demand + "want X 250\nwant Y\nwant Z " +
+                               std::to_string(wire::Control::kMaxWantAgeMs) + "\n");
+  REQUIRE(ok);
+  CHECK(ok->want == std::set<std::string>{"X", "Y", "Z"});
+  CHECK(ok->want_age_ms ==
+        std::map<std::string, std::uint32_t>{{"X", 250}, {"Z", wire::Control::kMaxWantAgeMs}});  // Y: absent, 0
+  const auto back = wire::decode(wire::encode(*ok));
+  REQUIRE(back);
+  CHECK(back->want == ok->want);
+  CHECK(back->want_age_ms == ok->want_age_ms);
+  CHECK_FALSE(wire::decode(demand + "want X 0\n"));  // 0 is written as no age: one spelling
+  CHECK_FALSE(wire::decode(demand + "want X -5\n"));
+  CHECK_FALSE(wire::decode(demand + "want X 12ms\n"));
+  CHECK_FALSE(wire::decode(demand + "want X 1 2\n"));
+  CHECK_FALSE(wire::decode(demand + "want X \n"));
+  CHECK_FALSE(wire::decode(demand + "want X " + std::to_string(wire::Control::kMaxWantAgeMs + 1) + "\n"));
+  CHECK_FALSE(wire::decode(demand + "offer X 250\n"));  // offers carry none
+  // The encoder writes an age above the limit as the limit, and none for a topic not wanted.
+  wire::Control c = *ok;
+  c.want_age_ms["X"] = wire::Control::kMaxWantAgeMs + 1000;
+  c.want_age_ms["NOT_WANTED"] = 5;
+  const auto text = wire::encode(c);
+  CHECK(text.find("want X " + std::to_string(wire::Control::kMaxWantAgeMs) + "\n") != std::string::npos);
+  CHECK(text.find("NOT_WANTED") == std::string::npos);
+  REQUIRE(wire::decode(text));
+}
+
 TEST_CASE("control wire format: want and offer lines are bounded", "[bridge][wire]") {
   std::string f = "LCMXB1 PING\nfrom a\ninstance 0000000000000001\nlink l\nt 1\ncontrol 7700\ndemand\n";
   for (std::size_t i = 0; i < wire::kMaxDemand; ++i) f += "want W" + std::to_string(i) + "\n";

@@ -4,8 +4,8 @@
 //   LCMXB1 PING | LCMXB1 PONG
 //   from <bridge name>            instance <16 hex>   link <link name>   t <sender ns>
 //   PING only: control <port>, channel <name> <port> (repeated), and on the active link
-//   "demand" followed by "want <topic>", "offer <topic>" and "have <topic>" lines (the full
-//   sets; "have": the sender's catalogue, at most kMaxCatalogue topics), "keep <topic> <N>" and
+//   "demand" followed by "want <topic> [<age ms>]", "offer <topic>" and "have <topic>" lines (the
+//   full sets; "have": the sender's catalogue, at most kMaxCatalogue topics), "keep <topic> <N>" and
 //   "type <topic> <fingerprint, 16 hex> <lcm type name>" lines. A topic is written as one word
 //   (encode_topic: bytes up to the space, DEL and '%' as %XX), so any LCM channel name can be
 //   demanded.
@@ -48,6 +48,11 @@ struct Control {
   std::vector<std::pair<std::string, int>> channels;
   bool has_demand = false;
   std::set<std::string> want, offer;
+  // A wanted topic's age: how long the sender's host has wanted it, in ms, when the frame was
+  // sent (at most kMaxWantAgeMs; absent: 0). The receiver serves it from then on, so a publisher
+  // that starts while the demand travels loses no message (the start-up race, docs/bridge.md).
+  std::map<std::string, std::uint32_t> want_age_ms;
+  static constexpr std::uint32_t kMaxWantAgeMs = 600000;
   // Keep last N of offered topics (PublisherOptions::history of the sender's publishers, at
   // most kMaxKeep): the receiver's republisher keeps as many. Absent: 0.
   std::map<std::string, std::uint32_t> keep;
