@@ -263,6 +263,23 @@ TEST_CASE("text rendering nests structs and abbreviates long arrays", "[unit]") 
   CHECK_THAT(to_text(decode(r, ab.data(), ab.size()), TextOptions{0, 2}), Contains("blob: <5 bytes: 00 01 7f 80 ff>"));
 }
 
+TEST_CASE("text rendering escapes a string's C0 and C1 controls (a terminal takes U+009B for CSI), JSON keeps C1 "
+          "as it is",
+          "[unit]") {
+  const TypeRegistry& r = corpus();
+  corpus_b::stamp_t st;
+  st.utime = 1;
+  st.frame = "a\x1b[2J\xc2\x9b" "2Jb\xc2\x85\xc3\xa9";  // ESC [ 2 J, CSI (U+009B) 2 J, NEL (U+0085), é
+  const auto bytes = lcm_encode(st);
+  const Value v = decode(r, bytes.data(), bytes.size());
+  const std::string text = to_text(v);
+  CHECK_THAT(text, Contains(R"(frame: "a\u001b[2J\u009b2Jb\u0085é")"));
+  for (const char c : text) CHECK(static_cast<unsigned char>(c) != 0x1b);
+  CHECK(text.find("\xc2\x9b") == std::string::npos);
+  CHECK(text.find("\xc2\x85") == std::string::npos);
+  CHECK(to_json(v) == "{\"utime\":1,\"frame\":\"a\\u001b[2J\xc2\x9b" "2Jb\xc2\x85\xc3\xa9\"}");
+}
+
 TEST_CASE("field paths select parts of a tree and name what is missing", "[unit]") {
   const TypeRegistry& r = corpus();
   const auto bytes = lcm_encode(make_scene());

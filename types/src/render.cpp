@@ -84,7 +84,9 @@ void inline_text(std::string& out, const Value& v, const TextOptions& o) {
         } else if constexpr (std::is_same_v<T, bool>) {
           out += x ? "true" : "false";
         } else if constexpr (std::is_same_v<T, std::string>) {
-          append_json_string(out, x);
+          // Text is for terminals (lcmx echo, lcmx action): the C1 controls escaped too, so a
+          // string from the network cannot act like ESC [ on the user's terminal.
+          detail::append_json_string(out, x, detail::C1Controls::escape);
         } else if constexpr (std::is_same_v<T, Bytes>) {
           static const char* hex = "0123456789abcdef";
           out += "<" + std::to_string(x.size()) + " bytes";

@@ -110,7 +110,8 @@ struct TextOptions {
   int indent = 2;              // spaces per nesting level
 };
 // Human-readable, one field per line, nested structs indented, long arrays abbreviated.
-// Ends with a newline.
+// Strings are JSON literals whose C0 and C1 controls are escaped (\u0080..\u009f too, unlike
+// to_json): safe to print on a terminal. Ends with a newline.
 std::string to_text(const Value& value, const TextOptions& options = {});
 
 }  // namespace lcmx::types

@@ -37,8 +37,8 @@ inline std::size_t utf8_at(std::string_view s, std::size_t i, char32_t& cp) noex
 // What append_json_string does with the C1 controls (U+0080..U+009F as UTF-8), which some
 // terminals act on like ESC [.
 enum class C1Controls {
-  keep,    // as they are (to_json, to_text)
-  escape,  // as \u0080.. (the tools' json_text: also safe on a terminal)
+  keep,    // as they are (to_json)
+  escape,  // as \u0080.. (to_text's strings, the tools' json_text: safe on a terminal)
 };
 
 // Appends `s` to `out` as a JSON string literal (RFC 8259), quotes included: " and \ escaped,
