@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "host_registries.hpp"
+#include "logged.hpp"
 #include "lcmx/log/eventlog.hpp"
 #include "lcmx/test/catch_netns.hpp"
 #include "lcmx/test/netns.hpp"
@@ -2012,19 +2013,7 @@ TEST_CASE("start-up race through the bridges: a publisher on A that publishes la
   CHECK(st.num("out_of_order") == 0);
   CHECK(st.num("drops") == 0);
   CHECK(st.str("paths") == "bridge");
-  auto logged = [&] {
-    std::vector<std::int64_t> out;
-    try {
-      auto r = lcmx::eventlog::Reader::open(log);
-      lcmx::eventlog::Event e;
-      while (r.next(e)) {
-        lcmx_examples::bench_t m;
-        if (e.channel == ch && m.decode(e.data.data(), 0, static_cast<int>(e.data.size())) > 0) out.push_back(m.seq);
-      }
-    } catch (const lcmx::eventlog::Error&) {
-    }
-    return out;
-  };
+  auto logged = [&] { return lcmx::it::logged_bench_seqs(log, ch); };
   CHECK(lcmx::it::wait_until([&] { return logged().size() >= 100; }, 10000ms, 20ms));
   rec.signal(SIGINT);
   CHECK(rec.wait(10000ms) == 0);
