@@ -135,8 +135,7 @@ void Bridge::Impl::send_pings() {
         c.control_port = cfg.control_port;
         for (const auto& ch : cfg.channels) c.channels.emplace_back(ch.name, ch.port);
         c.want = want;
-        for (const auto& t : want)
-          if (auto a = want_age.find(t); a != want_age.end()) c.want_age_ms.insert(*a);
+        c.want_age_ms = want_age;  // the encoder writes the ages of `want`'s topics only
         c.offer = offer;
         c.keep = keep;
         c.types = types;
