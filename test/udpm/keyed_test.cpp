@@ -4,6 +4,8 @@
 #include <fcntl.h>
 #include <sys/stat.h>
 
+#include <sodium.h>
+
 #include <catch2/catch.hpp>
 #include <ctime>
 #include <filesystem>
@@ -178,6 +180,25 @@ TEST_CASE("keyed: the envelope round-trips authenticated and encrypted, any chan
   CHECK(std::memcmp(buf.data(), "LCXK", 4) == 0);
   const bool clear = std::memcmp(buf.data() + kEnvelopeHeaderSize, inner.data(), inner.size()) == 0;
   CHECK(clear == !encrypt);
+  {  // The same bytes as libsodium's XChaCha20-Poly1305-IETF under nonce sender | 0^8 | counter
+     // (the envelope computes it as HChaCha20 once per sender, then ChaCha20-Poly1305-IETF).
+    unsigned char nonce[24] = {};
+    std::memcpy(nonce, buf.data() + 16, 8);
+    std::memcpy(nonce + 16, buf.data() + 24, 8);
+    std::vector<unsigned char> body(inner.size()), tag(kEnvelopeTagSize);
+    const auto* header = reinterpret_cast<const unsigned char*>(buf.data());
+    const auto* key = keys->keys.front().bytes.data();
+    if (encrypt) {
+      crypto_aead_xchacha20poly1305_ietf_encrypt_detached(body.data(), tag.data(), nullptr,
+                                                          reinterpret_cast<const unsigned char*>(inner.data()),
+                                                          inner.size(), header, kEnvelopeHeaderSize, nullptr, nonce, key);
+      CHECK(std::memcmp(body.data(), buf.data() + kEnvelopeHeaderSize, body.size()) == 0);
+    } else {
+      crypto_aead_xchacha20poly1305_ietf_encrypt_detached(nullptr, tag.data(), nullptr, nullptr, 0, header,
+                                                          kEnvelopeHeaderSize + inner.size(), nullptr, nonce, key);
+    }
+    CHECK(std::memcmp(tag.data(), buf.data() + kEnvelopeHeaderSize + inner.size(), tag.size()) == 0);
+  }
 
   for (std::size_t at = 0; at < buf.size(); ++at) {  // every byte: header, body, tag
     auto copy = buf;

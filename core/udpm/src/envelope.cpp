@@ -11,7 +11,7 @@
 namespace lcmx::udpm::detail {
 namespace {
 
-constexpr std::uint8_t kVersion = 1;
+constexpr std::uint8_t kVersion = 2;  // 1: the counter was in the nonce's first 16 bytes
 constexpr std::uint8_t kFlagEncrypted = 1;
 static_assert(crypto_aead_xchacha20poly1305_ietf_ABYTES == kEnvelopeTagSize);
 static_assert(crypto_aead_xchacha20poly1305_ietf_KEYBYTES == kKeySize);
@@ -40,10 +40,13 @@ auto* uc(const std::byte* p) { return reinterpret_cast<const unsigned char*>(p);
 constexpr std::size_t kOffVersion = 4, kOffFlags = 5, kOffKeyId = 8, kOffTime = 12, kOffSender = 16, kOffCounter = 24;
 static_assert(kOffCounter + 8 == kEnvelopeHeaderSize);
 
-// The nonce: sender id | counter | 8 zero bytes, i.e. the header's bytes 12..27 then zeros.
-void nonce_of(const std::byte* header, unsigned char (&nonce)[24]) {
-  std::memcpy(nonce, header + kOffSender, 16);
-  std::memset(nonce + 16, 0, 8);
+// The nonce (24 bytes): sender id | 8 zero bytes | counter. XChaCha20-Poly1305 of it is
+// ChaCha20-Poly1305-IETF keyed with HChaCha20(key, its first 16 bytes) (Subkey: once per
+// sender) under the 12-byte nonce 4 zero bytes | counter, which is what is computed here.
+void ietf_nonce_of(const std::byte* header, unsigned char (&nonce)[crypto_aead_chacha20poly1305_ietf_NPUBBYTES]) {
+  static_assert(crypto_aead_chacha20poly1305_ietf_NPUBBYTES == 12);
+  std::memset(nonce, 0, 4);
+  std::memcpy(nonce + 4, header + kOffCounter, 8);
 }
 
 }  // namespace
@@ -51,6 +54,23 @@ void nonce_of(const std::byte* header, unsigned char (&nonce)[24]) {
 void sodium_ready() {
   static const int r = ::sodium_init();  // thread-safe, once
   if (r < 0) throw Error(Error::Code::system, "udpm: libsodium failed to start (sodium_init)");
+}
+
+Subkey::~Subkey() {
+  ::sodium_memzero(sub_, sizeof sub_);
+  ::sodium_memzero(key_.data(), key_.size());
+}
+
+const unsigned char* Subkey::of(const GroupKey& key, std::uint64_t sender) noexcept {
+  if (!set_ || sender != sender_ || key.bytes != key_) {
+    std::byte in[crypto_core_hchacha20_INPUTBYTES] = {};  // sender id | 8 zero bytes
+    put_u64(in, sender);
+    ::crypto_core_hchacha20(sub_, uc(in), key.bytes.data(), nullptr);
+    key_ = key.bytes;
+    sender_ = sender;
+    set_ = true;
+  }
+  return sub_;
 }
 
 Sealer::Sealer() {
@@ -68,19 +88,18 @@ std::size_t Sealer::seal(const GroupKeys& keys, std::byte* buffer, std::size_t i
   put_u32(buffer + kOffTime, static_cast<std::uint32_t>(std::time(nullptr)));
   put_u64(buffer + kOffSender, sender_);
   put_u64(buffer + kOffCounter, ++counter_);  // 2^64 datagrams: never wraps
-  unsigned char nonce[24];
-  nonce_of(buffer, nonce);
+  unsigned char nonce[crypto_aead_chacha20poly1305_ietf_NPUBBYTES];
+  ietf_nonce_of(buffer, nonce);
+  const unsigned char* sub = subkey_.of(key, sender_);
   std::byte* body = buffer + kEnvelopeHeaderSize;
   std::byte* tag = body + inner_size;
   if (keys.encrypt) {
-    ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(uc(body), uc(tag), nullptr, uc(body), inner_size,
-                                                          uc(buffer), kEnvelopeHeaderSize, nullptr, nonce,
-                                                          key.bytes.data());
+    ::crypto_aead_chacha20poly1305_ietf_encrypt_detached(uc(body), uc(tag), nullptr, uc(body), inner_size,
+                                                         uc(buffer), kEnvelopeHeaderSize, nullptr, nonce, sub);
   } else {
     unsigned char none = 0;
-    ::crypto_aead_xchacha20poly1305_ietf_encrypt_detached(&none, uc(tag), nullptr, &none, 0, uc(buffer),
-                                                          kEnvelopeHeaderSize + inner_size, nullptr, nonce,
-                                                          key.bytes.data());
+    ::crypto_aead_chacha20poly1305_ietf_encrypt_detached(&none, uc(tag), nullptr, &none, 0, uc(buffer),
+                                                         kEnvelopeHeaderSize + inner_size, nullptr, nonce, sub);
   }
   return kEnvelopeOverhead + inner_size;
 }
@@ -121,20 +140,26 @@ Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::
   const std::size_t inner_size = d.size() - kEnvelopeOverhead;
   std::byte* body = d.data() + kEnvelopeHeaderSize;
   const std::byte* tag = body + inner_size;
-  unsigned char nonce[24];
-  nonce_of(d.data(), nonce);
+  unsigned char nonce[crypto_aead_chacha20poly1305_ietf_NPUBBYTES];
+  ietf_nonce_of(d.data(), nonce);
+  const std::uint64_t sender = get_u64(d.data() + kOffSender), counter = get_u64(d.data() + kOffCounter);
+  auto it = windows_.find(sender);
+  // A known sender's subkey is kept with its window; one not heard yet (or a forgery naming no
+  // known sender) costs HChaCha20 each time, in scratch_.
+  Subkey& subkey = it != windows_.end() ? it->second.subkey : scratch_;
   bool known = false, verified = false;
   for (const auto& key : keys.keys) {  // at most two; ids may collide (2^-32): try each that matches
     if (key.id != id) continue;
     known = true;
+    const unsigned char* sub = subkey.of(key, sender);
     unsigned char none = 0;
     const int r = (flags & kFlagEncrypted) != 0
-                      ? ::crypto_aead_xchacha20poly1305_ietf_decrypt_detached(
+                      ? ::crypto_aead_chacha20poly1305_ietf_decrypt_detached(
                             uc(body), nullptr, uc(body), inner_size, uc(tag), uc(d.data()), kEnvelopeHeaderSize,
-                            nonce, key.bytes.data())
-                      : ::crypto_aead_xchacha20poly1305_ietf_decrypt_detached(
+                            nonce, sub)
+                      : ::crypto_aead_chacha20poly1305_ietf_decrypt_detached(
                             &none, nullptr, &none, 0, uc(tag), uc(d.data()), kEnvelopeHeaderSize + inner_size,
-                            nonce, key.bytes.data());
+                            nonce, sub);
     if (r == 0) {
       verified = true;
       break;
@@ -143,9 +168,7 @@ Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::
   if (!known) return {{}, Refusal::unknown_key};
   if (!verified) return {{}, Refusal::bad_tag};
   // Authentic: now the sender's replay window.
-  const std::uint64_t sender = get_u64(d.data() + kOffSender), counter = get_u64(d.data() + kOffCounter);
   if (own_sender != 0 && sender == own_sender && !from_self) return {{}, Refusal::replayed};
-  auto it = windows_.find(sender);
   if (it == windows_.end()) {
     if (max_skew_s != 0) {
       const std::uint32_t stamp = get_u32(d.data() + kOffTime);

@@ -4,6 +4,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <array>
 #include <optional>
 #include <span>
 #include <unordered_map>
@@ -14,6 +15,26 @@ namespace lcmx::udpm::detail {
 
 // Starts libsodium once (sodium_init). Throws Error(system) if it cannot.
 void sodium_ready();
+
+// XChaCha20's subkey of one sender under one key: HChaCha20(key, sender id | 8 zero bytes), the
+// first 16 bytes of every nonce of that sender (docs/keyed-groups.md "Wire form"). Kept so that
+// each datagram costs ChaCha20-Poly1305-IETF alone (the same bytes as XChaCha20-Poly1305).
+// Wiped when dropped.
+class Subkey {
+ public:
+  Subkey() = default;
+  Subkey(const Subkey&) = delete;
+  Subkey& operator=(const Subkey&) = delete;
+  ~Subkey();
+  // The subkey for (key, sender), derived again only when either differs from the last call.
+  const unsigned char* of(const GroupKey& key, std::uint64_t sender) noexcept;
+
+ private:
+  bool set_ = false;
+  std::uint64_t sender_ = 0;
+  std::array<std::uint8_t, kKeySize> key_{};
+  unsigned char sub_[kKeySize] = {};
+};
 
 // The sending side of one Group. Not thread-safe: the Group's send mutex guards it.
 class Sealer {
@@ -30,6 +51,7 @@ class Sealer {
  private:
   std::uint64_t sender_ = 0;
   std::uint64_t counter_ = 0;  // of the last datagram sealed
+  Subkey subkey_;              // of this sender under the key it seals with
 };
 
 // Anti-replay window of one sender, as IPsec's (RFC 6479): the highest counter accepted and a
@@ -77,9 +99,11 @@ class Opener {
   struct Sender {
     ReplayWindow window;
     std::uint64_t heard = 0;  // value of tick_ when last accepted
+    Subkey subkey;            // of the key its last accepted datagram was sealed with
   };
   std::unordered_map<std::uint64_t, Sender> windows_;
   std::uint64_t tick_ = 0;
+  Subkey scratch_;  // of the last sender not known yet
 };
 
 }  // namespace lcmx::udpm::detail

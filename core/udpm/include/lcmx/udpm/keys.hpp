@@ -4,13 +4,14 @@
 // XChaCha20-Poly1305-IETF, and takes on receive only envelopes whose tag verifies, once.
 //
 // Envelope (all integers big-endian), kEnvelopeHeaderSize + the LCM datagram + kEnvelopeTagSize:
-//   u32 magic "LCXK" | u8 version 1 | u8 flags (bit 0: encrypted) | u16 reserved 0
+//   u32 magic "LCXK" | u8 version 2 | u8 flags (bit 0: encrypted) | u16 reserved 0
 //   | u32 key id | u32 time (the sender's CLOCK_REALTIME, seconds, mod 2^32) | u64 sender id
 //   | u64 counter | body | 16-byte tag
 // body: the LCM datagram (LC02, or one LC03 fragment) in the clear (authenticated: the AEAD
 // over an empty message, the whole header and body as additional data), or encrypted (the
 // body is the AEAD's ciphertext, the header its additional data). Nonce (24 bytes): sender id
-// | counter | 8 zero bytes. The sender id is random per Group (64 bits from randombytes), the
+// | 8 zero bytes | counter, so XChaCha20's subkey (HChaCha20 of the first 16) is one per
+// sender and kept (version 1 had the counter in those 16 bytes). The sender id is random per Group (64 bits from randombytes), the
 // counter starts at 1 and grows by one per datagram, so one Group never repeats a nonce; two
 // Groups repeat one only if they draw the same sender id (2^-64 per pair).
 // Stock liblcm drops a datagram with an unknown magic without a word: it neither hears nor
