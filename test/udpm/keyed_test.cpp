@@ -194,7 +194,8 @@ TEST_CASE("keyed: the envelope round-trips authenticated and encrypted, any chan
                                                           inner.size(), header, kEnvelopeHeaderSize, nullptr, nonce, key);
       CHECK(std::memcmp(body.data(), buf.data() + kEnvelopeHeaderSize, body.size()) == 0);
     } else {
-      crypto_aead_xchacha20poly1305_ietf_encrypt_detached(nullptr, tag.data(), nullptr, nullptr, 0, header,
+      unsigned char none = 0;
+      crypto_aead_xchacha20poly1305_ietf_encrypt_detached(&none, tag.data(), nullptr, &none, 0, header,
                                                           kEnvelopeHeaderSize + inner.size(), nullptr, nonce, key);
     }
     CHECK(std::memcmp(tag.data(), buf.data() + kEnvelopeHeaderSize + inner.size(), tag.size()) == 0);
@@ -314,7 +315,7 @@ TEST_CASE("keyed: unkeyed datagrams, another key and forged envelopes are refuse
   const std::byte magic[4] = {std::byte{'L'}, std::byte{'C'}, std::byte{'X'}, std::byte{'K'}};
   forged.insert(forged.begin(), kEnvelopeHeaderSize, std::byte{0});
   std::memcpy(forged.data(), magic, 4);
-  forged[4] = std::byte{1};
+  forged[4] = std::byte{kEnvelopeVersion};
   const auto id = cfg.keys->keys[0].id;  // the right key id, no valid tag
   for (int i = 0; i < 4; ++i) forged[8 + i] = std::byte(id >> (24 - 8 * i));
   forged.resize(forged.size() + kEnvelopeTagSize);

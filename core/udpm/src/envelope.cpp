@@ -11,7 +11,6 @@
 namespace lcmx::udpm::detail {
 namespace {
 
-constexpr std::uint8_t kVersion = 2;  // 1: the counter was in the nonce's first 16 bytes
 constexpr std::uint8_t kFlagEncrypted = 1;
 static_assert(crypto_aead_xchacha20poly1305_ietf_ABYTES == kEnvelopeTagSize);
 static_assert(crypto_aead_xchacha20poly1305_ietf_KEYBYTES == kKeySize);
@@ -81,7 +80,7 @@ Sealer::Sealer() {
 std::size_t Sealer::seal(const GroupKeys& keys, std::byte* buffer, std::size_t inner_size) noexcept {
   const GroupKey& key = keys.keys.front();
   put_u32(buffer, kMagicKeyed);
-  buffer[kOffVersion] = std::byte{kVersion};
+  buffer[kOffVersion] = std::byte{kEnvelopeVersion};
   buffer[kOffFlags] = std::byte{keys.encrypt ? kFlagEncrypted : std::uint8_t{0}};
   buffer[6] = buffer[7] = std::byte{0};
   put_u32(buffer + kOffKeyId, key.id);
@@ -133,7 +132,7 @@ bool ReplayWindow::accept(std::uint64_t counter) noexcept {
 Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::uint64_t own_sender,
                             bool from_self, std::uint32_t now_s, std::uint32_t max_skew_s) noexcept {
   if (d.size() < kEnvelopeOverhead || get_u32(d.data()) != kMagicKeyed) return {{}, Refusal::unkeyed};
-  if (std::to_integer<std::uint8_t>(d[kOffVersion]) != kVersion) return {{}, Refusal::unknown_key};
+  if (std::to_integer<std::uint8_t>(d[kOffVersion]) != kEnvelopeVersion) return {{}, Refusal::unknown_key};
   const std::uint8_t flags = std::to_integer<std::uint8_t>(d[kOffFlags]);
   if ((flags & ~kFlagEncrypted) != 0) return {{}, Refusal::bad_tag};  // (authenticated below anyway)
   const std::uint32_t id = get_u32(d.data() + kOffKeyId);

@@ -29,6 +29,8 @@
 namespace lcmx::udpm {
 
 inline constexpr std::uint32_t kMagicKeyed = 0x4c43584b;  // "LCXK"
+// 2: nonce sender id | 0 | counter (1: sender id | counter | 0; refused as an unknown key).
+inline constexpr std::uint8_t kEnvelopeVersion = 2;
 inline constexpr std::size_t kEnvelopeHeaderSize = 32;
 inline constexpr std::size_t kEnvelopeTagSize = 16;
 inline constexpr std::size_t kEnvelopeOverhead = kEnvelopeHeaderSize + kEnvelopeTagSize;
