@@ -2,10 +2,13 @@
 
 #include <arpa/inet.h>
 #include <ifaddrs.h>
+#include <linux/netlink.h>
+#include <linux/rtnetlink.h>
 #include <netinet/in.h>
 #include <spdlog/spdlog.h>
 #include <sys/epoll.h>
 #include <sys/eventfd.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include <cstring>
@@ -72,6 +75,50 @@ bool HostAddresses::is_local(std::uint32_t address_be) {
   refresh();
   std::lock_guard lock(mu_);
   return addresses_.count(address_be) > 0;
+}
+
+// ---------------------------------------------------------------- RouteWatch
+
+RouteWatch::RouteWatch() {
+  fd_ = ::socket(AF_NETLINK, SOCK_RAW | SOCK_CLOEXEC | SOCK_NONBLOCK, NETLINK_ROUTE);
+  if (fd_ < 0) {
+    spdlog::debug("lcmx: no rtnetlink socket ({}): routes and addresses are re-read every second", std::strerror(errno));
+    return;
+  }
+  sockaddr_nl sa{};
+  sa.nl_family = AF_NETLINK;
+  sa.nl_groups = RTMGRP_LINK | RTMGRP_IPV4_IFADDR | RTMGRP_IPV4_ROUTE;
+  if (::bind(fd_, reinterpret_cast<const sockaddr*>(&sa), sizeof sa) != 0) {
+    spdlog::debug("lcmx: cannot listen to rtnetlink ({}): routes and addresses are re-read every second",
+                  std::strerror(errno));
+    ::close(fd_);
+    fd_ = -1;
+  }
+}
+
+RouteWatch::~RouteWatch() {
+  if (fd_ >= 0) ::close(fd_);
+}
+
+bool RouteWatch::changed() {
+  bool any = first_ || fd_ < 0;
+  first_ = false;
+  if (fd_ < 0) return true;
+  char buf[8192];
+  for (int reads = 0; reads < 1024; ++reads) {  // bounded: a flood is "changed" all the same
+    const ssize_t r = ::recv(fd_, buf, sizeof buf, MSG_DONTWAIT);
+    if (r > 0) {
+      any = true;
+      continue;
+    }
+    if (r < 0 && errno == EINTR) continue;
+    if (r < 0 && errno == ENOBUFS) {  // notifications were lost: something changed
+      any = true;
+      continue;
+    }
+    break;  // EAGAIN: all read
+  }
+  return any;
 }
 
 // ---------------------------------------------------------------- FrontDoor
@@ -150,9 +197,13 @@ void FrontDoor::receive_loop() {
         std::lock_guard lock(recv_mu_);
         routes_checked_ = std::chrono::steady_clock::now();
         // Routes change (a laptop joins a network, a robot's DHCP comes late): stock programs
-        // started since then join and send where the group routes now.
-        ctx_.local->refresh();
-        addresses_.refresh();
+        // started since then join and send where the group routes now. Looked up again only
+        // when the kernel told of a change.
+        if (routes_.changed()) {
+          spdlog::debug("lcmx: routes and addresses re-read (first look, or the kernel told of a change)");
+          ctx_.local->refresh();
+          addresses_.refresh();
+        }
         // A drain also expires partial messages past their reassembly timeout: with no datagram
         // arriving after them (a sender whose large messages never complete), nothing else would.
         drain_locked(true);

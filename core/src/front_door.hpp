@@ -41,8 +41,9 @@
 
 namespace lcmx::detail {
 
-// This host's IPv4 addresses (every interface's, all of 127.0.0.0/8, and 0.0.0.0: see loopback()), re-read once a
-// second and at once (at most every 100 ms) when a source is not among them.
+// This host's IPv4 addresses (every interface's, all of 127.0.0.0/8, and 0.0.0.0: see loopback()), re-read within
+// a second of a change the kernel tells (RouteWatch) and at once (at most every 100 ms) when a source is not
+// among them.
 // Threads: thread-safe; leaf lock.
 class HostAddresses {
  public:
@@ -54,6 +55,28 @@ class HostAddresses {
   std::mutex mu_;
   std::set<std::uint32_t> addresses_;
   std::chrono::steady_clock::time_point read_at_{};
+};
+
+// Whether this host's (network namespace's) links, IPv4 addresses or IPv4 routes may have
+// changed: an rtnetlink socket subscribed to their notifications (RTMGRP_LINK, _IPV4_IFADDR,
+// _IPV4_ROUTE), read without blocking. So the once-a-second route and address checks cost
+// nothing while nothing changes (they cost two getifaddrs dumps and two sockets per second per
+// process before: a tenth of an idle process's CPU, docs/discovery.md). Without the socket
+// (refused) every call says "changed": the checks poll as before.
+// Threads: the receive thread only.
+class RouteWatch {
+ public:
+  RouteWatch();  // never throws
+  ~RouteWatch();
+  RouteWatch(const RouteWatch&) = delete;
+  RouteWatch& operator=(const RouteWatch&) = delete;
+  // Reads the notifications queued; true if there was any, if some were lost (ENOBUFS), on the
+  // first call, or without the socket.
+  bool changed();
+
+ private:
+  int fd_ = -1;
+  bool first_ = true;
 };
 
 class FrontDoor {
@@ -137,6 +160,7 @@ class FrontDoor {
 
   const Context ctx_;
   HostAddresses addresses_;
+  RouteWatch routes_;  // the receive thread's
   std::atomic<bool> stopped_{false};
 
   std::mutex recv_mu_;  // guards everything below (whoever drains)

@@ -251,11 +251,22 @@ TEST_CASE("a LAN route that comes after lcmx started: lcmx follows it - stock pr
   LCMX_REQUIRE_NETNS();
   Hosts h(1, 35, Ordinary{MulticastRoute::none});
   const auto ch = h.channel("LATE_ROUTE");
-  auto& sub = h.peer(0, {"sub", "--channel", ch, "--type", "bench", "--queue-depth", "4096"});
+  auto& sub = h.peer(0, {"sub", "--channel", ch, "--type", "bench", "--queue-depth", "4096"}, {"SPDLOG_LEVEL=debug"},
+                     true);
   REQUIRE(sub.expect("READY"));
+  // lcmx's first look at the routes (a second after its start), before the network comes up:
+  // from then on only the kernel's notice of a change makes it look again.
+  auto looked = [&] {  // the next debug line saying so, within 5 s
+    const auto deadline = Clock::now() + 5000ms;
+    while (const auto line = sub.read_line(std::chrono::duration_cast<ms>(deadline - Clock::now())))
+      if (line->find("lcmx: routes and addresses re-read") != std::string::npos) return true;
+    return false;
+  };
+  REQUIRE(looked());
   // The network comes up (DHCP after boot): a default route via eth.
   REQUIRE(lcmx::it::run_quiet({LCMX_IP, "-n", h.emu().ns(0), "route", "add", "default", "dev", "eth"}) == 0);
-  // A stock publisher started now sends on eth; lcmx re-reads the route about once a second.
+  REQUIRE(looked());
+  // A stock publisher started now sends on eth.
   auto& lcm = h.lcm_peer(0, {"pub", kLcmDefaultUrl, ch, "2000", "500", "200", "L"});
   REQUIRE(lcm.expect("ready"));
   REQUIRE(poll_sub(sub, ch, [](const Summary& s) { return s.num("received") >= 100; }, 10000ms));
