@@ -87,6 +87,25 @@ std::uint64_t structural_hash(beacon_t b) {
   return reg::fnv1a(bytes);
 }
 
+// What other hosts use of a participant's vehicle record (issue 33: a record is sent again only
+// when this changes): the structural hash of the record without its subscribers' local matches
+// (shm, intra-process, and foreign ones: they name publishers of its own host). A remote
+// publisher looks only for matches naming itself (udp) and for a bridge match (core's
+// Matching::count_remote_locked); tools read local matches and statistics from the records
+// sent in answer to their query (KIND_WANT_ALL), which are re-read in full. 0 if the bytes do
+// not decode (then every update is sent, as before).
+std::uint64_t vehicle_shape(std::span<const std::byte> section) {
+  auto b = decode_beacon(section);
+  if (!b) return 0;
+  for (auto& e : b->endpoints) {
+    std::erase_if(e.matches, [](const lcmx_msgs::match_t& m) {
+      return m.publisher_participant == 0 || (m.path != "udp" && m.path != "bridge");
+    });
+    e.num_matches = static_cast<std::int32_t>(e.matches.size());
+  }
+  return structural_hash(std::move(*b)) | 1;  // never 0
+}
+
 // Writes `revision` into an encoded beacon_t's revision field (after the fixed header and the
 // process name). Records carry the registry's revision, so a receiver's (id, revision) set and
 // its digest agree with the speaker's. False if the bytes are too short.
@@ -191,7 +210,8 @@ struct Discovery::Impl {
   off_t speaker_byte = 0;
   struct Spoken {
     std::uint32_t slot = 0;
-    std::int64_t revision = 0;
+    std::int64_t revision = 0;  // the record's: the registry revision when its shape last changed
+    std::uint64_t shape = 0;    // vehicle scope: vehicle_shape() of the record
     std::vector<std::byte> record;
     Clock::time_point sent{};
   };
@@ -626,11 +646,18 @@ struct Discovery::Impl {
     }
     auto& sp = spoken[id];
     sp.slot = slot;
-    const bool changed = sp.revision != revision || sp.record.empty();
-    sp.revision = revision;
+    // Host scope: every revision. Vehicle scope: only a change of what other hosts use
+    // (vehicle_shape): a local match, statistics or a change of the host section alone keep
+    // the record's revision and send nothing (the record is refreshed, for answers).
+    const std::uint64_t shape = host_scope ? 0 : vehicle_shape(section);
+    const bool changed = sp.record.empty() || (host_scope ? sp.revision != revision : shape != sp.shape || shape == 0);
+    if (changed) {
+      sp.revision = revision;
+      sp.shape = shape;
+    }
     sp.record = section;
-    patch_revision(sp.record, revision);
-    spoken_set[id] = revision;
+    patch_revision(sp.record, sp.revision);
+    spoken_set[id] = sp.revision;
     if (changed) {
       pending_records.insert(id);
       pending_goodbyes.erase(id);

@@ -599,11 +599,16 @@ void ServerImpl::start() {
         return false;
       },
       [](const RawMessage&) {});
-  for (const auto& u : {o.runtime.discovery_url, o.runtime.vehicle_url}) {
+  for (const bool vehicle : {false, true}) {
+    const auto& u = vehicle ? o.runtime.vehicle_url : o.runtime.discovery_url;
     if (u.empty()) continue;
     discovery::Options d;
     d.group = udpm::parse_url(u);
     d.observer = true;
+    // The vehicle group's observer is of the vehicle scope: no registry of its own (a host-scope
+    // one would open a registry for the vehicle group and take this host's speaker for a twin),
+    // as the tools' (apps/lcmx/tools_common.hpp).
+    d.scope = vehicle ? lcmx_msgs::beacon_t::SCOPE_VEHICLE : lcmx_msgs::beacon_t::SCOPE_HOST;
     observers.push_back(std::make_unique<discovery::Discovery>(d, nullptr, nullptr));
   }
   for (auto& d : observers) d->query();
