@@ -12,6 +12,7 @@
 #include <atomic>
 #include <chrono>
 #include <filesystem>
+#include <functional>
 #include <map>
 #include <mutex>
 #include <set>
@@ -457,7 +458,9 @@ struct FakeHost {
     ps.clear();
     Registry::remove(host, local, dir.path);
   }
-  void add(std::int64_t id, std::vector<std::string> topics) {
+  Log hlog;  // what the host scope tells
+  // `edit` (if any) changes both beacons of the participant each time they are built.
+  void add(std::int64_t id, std::vector<std::string> topics, std::function<void(beacon_t&)> edit = nullptr) {
     lcmx::discovery::Options o;
     o.group = local;
     o.period = 50ms;
@@ -466,11 +469,24 @@ struct FakeHost {
     // A registry object per participant, as per process (an OFD lock belongs to its open file).
     o.registry = Registry::open({.host_id = host, .group = local, .directory = dir.path});
     P p;
-    p.h = std::make_unique<Discovery>(o, [=, this] { return beacon_of(id, host, topics); }, nullptr);
+    p.h = std::make_unique<Discovery>(
+        o,
+        [=, this] {
+          auto b = beacon_of(id, host, topics);
+          if (edit) edit(b);
+          return b;
+        },
+        hlog.fn());
     o.group = vehicle;
     o.scope = beacon_t::SCOPE_VEHICLE;
-    p.v = std::make_unique<Discovery>(o, [=, this] { return beacon_of(id, host, topics, beacon_t::SCOPE_VEHICLE); },
-                                      vlog.fn());
+    p.v = std::make_unique<Discovery>(
+        o,
+        [=, this] {
+          auto b = beacon_of(id, host, topics, beacon_t::SCOPE_VEHICLE);
+          if (edit) edit(b);
+          return b;
+        },
+        vlog.fn());
     ps.push_back(std::move(p));
   }
 };
@@ -547,6 +563,45 @@ TEST_CASE("vehicle scope: each host's speaker speaks for its participants - reco
   leaving.h->stop();
   REQUIRE(eventually([&] { return b.vlog.count(Change::left, gone) == 2; }, 2000ms));
   CHECK(b.ps[0].v->counters().forged == 0);
+}
+
+TEST_CASE("vehicle scope: a local match sends no vehicle record again, a match across hosts does",
+          "[discovery][vehicle]") {
+  const auto v = group_of(27);
+  FakeHost a(0xa7, group_of(28), v), b(0xb8, group_of(29), v);
+  auto stage = std::make_shared<std::atomic<int>>(0);
+  auto match = [](std::int64_t participant, const char* path) {
+    lcmx_msgs::match_t m{};
+    m.publisher_participant = participant;
+    m.publisher_endpoint = 1;
+    m.path = path;
+    return m;
+  };
+  // Participant 71's subscriber of X: at stage 1 matched to 72 on its own host (shm), at stage 2
+  // to 81 on host b too (udp).
+  a.add(71, {"X"}, [=](beacon_t& bc) {
+    auto& e = bc.endpoints.at(0);
+    if (stage->load() >= 1) e.matches.push_back(match(72, "shm"));
+    if (stage->load() >= 2) e.matches.push_back(match(81, "udp"));
+    e.num_matches = static_cast<std::int32_t>(e.matches.size());
+  });
+  a.add(72, {"X"});  // shares the topic: its host scope is told of 71's changes
+  b.add(81, {"X"});
+  REQUIRE(eventually([&] { return b.vlog.count(Change::joined, 71) == 1 && b.vlog.count(Change::joined, 72) == 1; }));
+  auto records = [&] { return b.ps[0].v->counters().beacons_received; };
+  std::this_thread::sleep_for(300ms);  // let the join's records settle (6 periods)
+  const auto settled = records();
+  // The local match: host a's other participant is told (host scope), host b gets nothing.
+  const int host_updates = a.hlog.count(Change::updated, 71);
+  stage->store(1);
+  REQUIRE(eventually([&] { return a.hlog.count(Change::updated, 71) > host_updates; }));
+  std::this_thread::sleep_for(300ms);  // 10 record windows (30 ms) for a record that should not go
+  CHECK(records() == settled);
+  CHECK(b.vlog.count(Change::updated, 71) == 0);
+  // The match across hosts: host b gets the record.
+  stage->store(2);
+  REQUIRE(eventually([&] { return b.vlog.count(Change::updated, 71) == 1; }));
+  CHECK(records() > settled);
 }
 
 TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the missing records - repaired", "[discovery][vehicle]") {
