@@ -1,8 +1,9 @@
 #!/usr/bin/env python3
 """Counts LCM udpm bytes on a multicast group for a while, by sender address and by whether the
 channel is LCMX_BEACON (discovery) or not. Run inside the namespace whose interface is given.
-Usage: listen.py GROUP PORT IFACE_ADDR SECONDS  -> one JSON line {src: {"disc": bytes, "data": bytes}}
-at the end or on SIGTERM.
+Usage: listen.py GROUP PORT IFACE_ADDR SECONDS  -> one JSON line {src: {"disc": bytes, "data": bytes,
+"kinds": {kind: bytes}}} at the end or on SIGTERM; kinds split the discovery bytes: "record" (a
+participant's beacon_t), "heartbeat", "index", "request", "mark" (host_beacon_t), "other".
 """
 import json, signal, socket, struct, sys, time
 
@@ -25,10 +26,18 @@ while time.monotonic() < end and not stop:
         data, (src, _) = s.recvfrom(65536)
     except socket.timeout:
         continue
-    kind = "data"
+    kind, sub = "data", "other"
     if data[:4] == b"LC02":
-        ch = data[8:data.index(b"\0", 8)]
+        nul = data.index(b"\0", 8)
+        ch = data[8:nul]
         kind = "disc" if ch == b"LCMX_BEACON" else "data"
+        body = data[nul + 1:]
+        if kind == "disc" and len(body) >= 13:
+            version = struct.unpack(">i", body[8:12])[0]
+            if version == 1:  # host_beacon_t (kHostBeaconVersion); beacon_t is version 6
+                sub = {1: "heartbeat", 2: "index", 3: "request", 4: "mark"}.get(body[12], "other")
+            else:
+                sub = "record"
     elif data[:4] == b"LC03":
         seq = struct.unpack(">I", data[4:8])[0]
         fragno = struct.unpack(">H", data[16:18])[0]
@@ -36,6 +45,8 @@ while time.monotonic() < end and not stop:
             ch = data[20:data.index(b"\0", 20)]
             frag[(src, seq)] = "disc" if ch == b"LCMX_BEACON" else "data"
         kind = frag.get((src, seq), "data")
-    d = out.setdefault(src, {"disc": 0, "data": 0})
+    d = out.setdefault(src, {"disc": 0, "data": 0, "kinds": {}})
     d[kind] += len(data) + 28  # + IP and UDP headers
+    if kind == "disc":
+        d["kinds"][sub] = d["kinds"].get(sub, 0) + len(data) + 28
 print(json.dumps(out), flush=True)

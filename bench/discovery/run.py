@@ -255,6 +255,8 @@ def one_run(args, run):
                "lan_bytes_to_match": lan_to_match,
                # discovery datagrams only (LCMX_BEACON on the vehicle group), heard on the switch
                "lan_disc_bytes_to_match": sum(v["disc"] for v in cold_bytes.values()),
+               "lan_disc_bytes_to_match_by_kind": {k: sum(v.get("kinds", {}).get(k, 0) for v in cold_bytes.values())
+                                                   for k in sorted({k for v in cold_bytes.values() for k in v.get("kinds", {})})},
                "lan_disc_Bps_per_host_max": max([v["disc"] / w for v in steady_bytes.values()], default=0),
                "lan_data_Bps_total": sum(v["data"] for v in steady_bytes.values()) / w}
         if args.churn:
