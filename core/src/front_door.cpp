@@ -101,9 +101,9 @@ RouteWatch::~RouteWatch() {
 }
 
 bool RouteWatch::changed() {
-  bool any = first_ || fd_ < 0;
-  first_ = false;
   if (fd_ < 0) return true;
+  bool any = first_;
+  first_ = false;
   char buf[8192];
   for (int reads = 0; reads < 1024; ++reads) {  // bounded: a flood is "changed" all the same
     const ssize_t r = ::recv(fd_, buf, sizeof buf, MSG_DONTWAIT);
