@@ -23,6 +23,7 @@ PublisherImpl::PublisherImpl(std::shared_ptr<NodeImpl> n, std::string channel,
   w.keep = options.history;
   w.initial_slot_size = std::min(options.shm_initial_slot_size, options.max_message_size);
   w.max_message_size = options.max_message_size;
+  w.unique_base = true;  // shm_base_prefix + endpoint id: one runtime per process, ids never reused
   try {
     writer_.emplace(shm::Writer::create(node->runtime->shm_base_prefix + std::to_string(id), w));
     // The first lease, at least 2 s: a peer's match reaches us within a beacon exchange, which

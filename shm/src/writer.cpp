@@ -380,8 +380,9 @@ Writer Writer::create(const std::string& base_name, const WriterOptions& options
                     ") must be < slot_count (" + std::to_string(options.slot_count) +
                     "): one slot stays free for the message being written");
   }
-  // O_EXCL covers one name; a live Writer of the same base may be at a later generation.
-  for (const auto& n : list_shm(base_name + "_g")) {
+  // O_EXCL covers one name; a live Writer of the same base may be at a later generation
+  // (unless the caller vouches it cannot: WriterOptions::unique_base).
+  for (const auto& n : options.unique_base ? std::vector<std::string>{} : list_shm(base_name + "_g")) {
     auto sg = split_generation(n);
     if (!sg || sg->first != base_name) continue;
     if (writer_lock_held(n)) {

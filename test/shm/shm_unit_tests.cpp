@@ -348,6 +348,29 @@ TEST_CASE("reclaim leaves a live Writer's segment alone", "[shm]") {
   CHECK(shm_exists(w.segment_name()));
 }
 
+TEST_CASE("a second Writer of a live base is refused, with WriterOptions::unique_base at generation 0",
+          "[shm]") {
+  const auto base = unique_base("twice");
+  ShmGuard g(base);
+  auto w = Writer::create(base, opts(4));
+  auto vouched = opts(4);
+  vouched.unique_base = true;
+  CHECK_THROWS_AS(Writer::create(base, opts(4)), Error);
+  CHECK_THROWS_AS(Writer::create(base, vouched), Error);  // O_EXCL and the live owner's lock
+  // Grown to generation 1, no Reader: generation 0 is gone, only the scan of /dev/shm finds
+  // the live Writer (the check unique_base skips: its caller's names cannot collide).
+  write_msg(w, 0, 10000);
+  REQUIRE(w.segment_name() == base + "_g1");
+  REQUIRE(shm_names(base + "_g") == std::vector<std::string>{base + "_g1"});
+  try {
+    (void)Writer::create(base, opts(4));
+    FAIL("a live Writer at a later generation was not found");
+  } catch (const Error& e) {
+    CHECK(std::string(e.what()).find("in use by a live Writer") != std::string::npos);
+  }
+  CHECK(shm_names(base + "_g") == std::vector<std::string>{base + "_g1"});
+}
+
 TEST_CASE("Writer destruction unlinks, Readers keep their mapping", "[shm]") {
   const auto base = unique_base("close");
   ShmGuard g(base);

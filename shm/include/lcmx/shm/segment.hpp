@@ -68,6 +68,13 @@ struct WriterOptions {
   // pinned slot is skipped, so a newer one is overwritten). 0: nothing kept on purpose (the
   // Writer may then reuse the newest message's slot once every Reader has taken it).
   std::uint32_t keep = 0;
+  // The caller vouches that no other live Writer uses this base name (lcmx's runtime: its
+  // names hold the pid, the pid namespace and an endpoint id, and a process has one runtime).
+  // Writer::create then skips its scan of /dev/shm for a live Writer at a later generation of
+  // the base: one readdir of every segment of the host per Writer made a host's start
+  // quadratic (issue 33: 500 processes of 10 publishers, 5,000 segments). Creating generation
+  // 0 still refuses a name whose owner is alive.
+  bool unique_base = false;
 };
 
 namespace detail {
