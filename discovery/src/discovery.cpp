@@ -53,6 +53,11 @@ constexpr auto kSpeakerTick = std::chrono::milliseconds(20);
 constexpr auto kRecordDelay = std::chrono::milliseconds(30);
 // A claimed slot whose claimer is gone is freed after this long.
 constexpr std::int64_t kClaimTimeoutNs = 2'000'000'000;
+// A receiver's request (for a host's index or records) waits a random time up to this long,
+// then goes only for what no one asked meanwhile: every process of a host hears the same
+// heartbeat and the same index at the same moment, and one multicast answer serves them all
+// (issue 33: 8 hosts x 50 processes sent 3.4 MB of requests before any host matched).
+constexpr auto kRequestJitter = std::chrono::milliseconds(40);
 
 #ifndef SYS_pidfd_open
 #define SYS_pidfd_open 434
@@ -257,9 +262,24 @@ struct Discovery::Impl {
   std::map<std::int64_t, std::uint32_t> bound;  // host id -> the address its speakers send from
   struct Request {
     std::int64_t host;
-    std::vector<std::int64_t> wanted;  // empty: index
+    std::vector<std::pair<std::int64_t, std::int64_t>> wanted;  // (participant, revision); empty: index
+    Clock::time_point due;  // now + a random part of kRequestJitter
   };
-  std::vector<Request> requests;  // to send (discovery thread)
+  std::vector<Request> requests;  // to send, under mutex (send_requests: the discovery thread)
+  // Requests heard on the group (anyone's, ours too), per known host: what was asked and
+  // when. A request of ours for what was asked less than half a period ago is not sent: the
+  // speaker's multicast answer serves us too (and it answers a record at most that often).
+  struct Heard {
+    Clock::time_point index{};
+    std::map<std::int64_t, Clock::time_point> records;
+  };
+  std::map<std::int64_t, Heard> heard;  // under mutex; only hosts in `hosts`
+  std::uint64_t jitter_state = random_participant_id() | 1;  // under mutex (xorshift)
+  Clock::time_point request_due() {
+    jitter_state ^= jitter_state << 13, jitter_state ^= jitter_state >> 7, jitter_state ^= jitter_state << 17;
+    const auto span = std::chrono::duration_cast<Clock::duration>(kRequestJitter).count();
+    return Clock::now() + Clock::duration(static_cast<Clock::rep>(jitter_state % static_cast<std::uint64_t>(span + 1)));
+  }
 
   Impl(Options o, LocalFn l, ChangeFn c)
       : options(std::move(o)), local(std::move(l)), on_change(std::move(c)),
@@ -1035,6 +1055,7 @@ struct Discovery::Impl {
     if (h->kind == host_beacon_t::KIND_REQUEST) {
       std::lock_guard lock(mutex);
       audience_until = Clock::now() + 3 * options.lease;
+      note_request(*h);
       if (!is_speaker || (h->target_host != 0 && static_cast<std::uint64_t>(h->target_host) != own_host)) return;
       if (h->wanted.empty()) {
         if (want_index) ++counters.requests_limited;
@@ -1091,20 +1112,21 @@ struct Discovery::Impl {
         std::set<std::int64_t> listed(h->participants.begin(), h->participants.end());
         for (const auto& [id, rev] : host.members)
           if (!listed.count(id)) gone.push_back(id);
-        std::vector<std::int64_t> want;
+        std::vector<std::pair<std::int64_t, std::int64_t>> want;
         for (std::size_t k = 0; k < h->participants.size(); ++k) {
           auto mine = host.members.find(h->participants[k]);
-          if (mine == host.members.end() || mine->second != h->revisions[k]) want.push_back(h->participants[k]);
+          if (mine == host.members.end() || mine->second != h->revisions[k])
+            want.emplace_back(h->participants[k], h->revisions[k]);
         }
         for (auto id : gone) host.members.erase(id);
-        if (!want.empty() && want.size() <= 4096) requests.push_back({h->host_id, std::move(want)});
+        if (!want.empty() && want.size() <= 4096) requests.push_back({h->host_id, std::move(want), request_due()});
         ask = !requests.empty();
       } else if (static_cast<std::uint64_t>(h->digest) != digest_of(host.members)) {
         // Records may be on their way: ask after two heartbeats that disagree, once per period.
         if (++host.mismatches >= 2 && Clock::now() - host.last_request >= options.period) {
           host.last_request = Clock::now();
           host.mismatches = 0;
-          requests.push_back({h->host_id, {}});
+          requests.push_back({h->host_id, {}, request_due()});
           ask = true;
         }
       } else {
@@ -1113,6 +1135,21 @@ struct Discovery::Impl {
     }
     drop_members(gone);
     if (ask) wake();
+  }
+
+  // Under mutex: a request heard on the group (note the ids asked of a host we know).
+  void note_request(const host_beacon_t& h) {
+    if (h.target_host == 0 || !hosts.count(h.target_host)) return;
+    auto& e = heard[h.target_host];
+    const auto now = Clock::now();
+    if (h.wanted.empty()) {
+      e.index = now;
+      return;
+    }
+    if (h.wanted.size() == 1 && h.wanted[0] == host_beacon_t::WANT_ALL) return;
+    std::erase_if(e.records, [&](const auto& kv) { return now - kv.second >= options.period; });
+    for (auto id : h.wanted)
+      if (e.records.size() < 4096) e.records[id] = now;
   }
 
   void drop_members(const std::vector<std::int64_t>& ids) {
@@ -1132,19 +1169,51 @@ struct Discovery::Impl {
     for (auto& p : left) tell(Change::left, std::move(p));
   }
 
-  void send_requests() {
-    std::vector<Request> r;
+  // Sends the requests that are due, less what came or was asked by anyone meanwhile
+  // (kRequestJitter). Returns when the next one is due (max: none).
+  Clock::time_point send_requests() {
+    std::vector<host_beacon_t> out;
+    auto next = Clock::time_point::max();
     {
       std::lock_guard lock(mutex);
-      r.swap(requests);
+      const auto now = Clock::now();
+      std::erase_if(heard, [&](const auto& kv) { return !hosts.count(kv.first); });
+      std::erase_if(requests, [&](Request& q) {
+        if (q.due > now) {
+          next = std::min(next, q.due);
+          return false;
+        }
+        const auto host = hosts.find(q.host);
+        if (host == hosts.end()) return true;  // gone meanwhile
+        const auto e = heard.find(q.host);
+        const bool fresh_ask = e != heard.end();
+        if (q.wanted.empty()) {  // the index
+          if (fresh_ask && now - e->second.index < options.period / 2) {
+            ++counters.requests_folded;
+            return true;
+          }
+        } else {
+          const auto before = q.wanted.size();
+          std::erase_if(q.wanted, [&](const auto& w) {
+            const auto mine = host->second.members.find(w.first);
+            if (mine != host->second.members.end() && mine->second == w.second) return true;  // came meanwhile
+            if (!fresh_ask) return false;
+            const auto asked = e->second.records.find(w.first);
+            return asked != e->second.records.end() && now - asked->second < options.period / 2;
+          });
+          if (q.wanted.size() < before) ++counters.requests_folded;
+          if (q.wanted.empty()) return true;
+        }
+        auto h = host_message(host_beacon_t::KIND_REQUEST);
+        h.target_host = q.host;
+        for (const auto& w : q.wanted) h.wanted.push_back(w.first);
+        h.num_wanted = static_cast<std::int32_t>(h.wanted.size());
+        out.push_back(std::move(h));
+        return true;
+      });
     }
-    for (auto& q : r) {
-      auto h = host_message(host_beacon_t::KIND_REQUEST);
-      h.target_host = q.host;
-      h.wanted = std::move(q.wanted);
-      h.num_wanted = static_cast<std::int32_t>(h.wanted.size());
-      publish_udp(encode_host_beacon(h));
-    }
+    for (const auto& h : out) publish_udp(encode_host_beacon(h));
+    return next;
   }
 
   // An observer's query. With the registry (host scope) this host needs none: only the known
@@ -1284,11 +1353,12 @@ struct Discovery::Impl {
       }
       if (is_speaker) speaker_duties();
       mark_sequence();
-      send_requests();
+      const auto next_request = send_requests();
       expire_hosts();
 
-      // Sleep until the next period, a host's lease, a change of the registry, or a wake-up.
-      auto until = std::min(next_periodic, next_host_expiry());
+      // Sleep until the next period, a host's lease, a request's time, a change of the
+      // registry, or a wake-up.
+      auto until = std::min({next_periodic, next_host_expiry(), next_request});
       if (retry_soon) until = std::min(until, last_pass + kCoalesce);
       // A change waits for its pass no longer than the coalescing says (the speaker too).
       if (reads && changed_since_pass()) until = std::min(until, next_pass_at());

@@ -645,6 +645,71 @@ TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the mis
   Registry::remove(0xc4, group_of(16), rdir.path);
 }
 
+TEST_CASE("vehicle scope: receivers that miss the same records ask once between them, not once each",
+          "[discovery][vehicle]") {
+  const auto v = group_of(30);
+  FakeHost a(0xa9, group_of(31), v);
+  a.add(91, {"X"});
+  a.add(92, {"Y"});
+  // Six receivers (each its own host) hear the group only through this test's pump: a's
+  // records pass them by at first, then all six see a's heartbeats disagree at the same time.
+  constexpr int kReceivers = 6;
+  lcmx::test::TmpDir rdir("lcmx_vf");
+  std::vector<Log> logs(kReceivers);
+  std::vector<std::unique_ptr<Discovery>> rs;
+  for (int k = 0; k < kReceivers; ++k) {
+    lcmx::discovery::Options o;
+    o.group = v;
+    o.scope = beacon_t::SCOPE_VEHICLE;
+    o.period = 50ms;
+    o.lease = 500ms;
+    o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(v));
+    const std::uint64_t host = 0xd0 + static_cast<std::uint64_t>(k);
+    o.registry = Registry::open({.host_id = host, .group = group_of(32), .directory = rdir.path});
+    rs.push_back(std::make_unique<Discovery>(
+        o, [host, k] { return beacon_of(100 + k, host, {"Z"}, beacon_t::SCOPE_VEHICLE); }, logs[static_cast<std::size_t>(k)].fn()));
+  }
+  std::atomic<bool> pass_records{false}, stop{false};
+  std::atomic<int> requests_to_a{0};
+  std::thread pump([&] {
+    auto listen = lcmx::udpm::Group::open(v);
+    while (!stop) {
+      listen.drain([&](const lcmx::udpm::Message& m) {
+        if (m.channel != lcmx::discovery::kBeaconChannel) return;
+        const bool record = lcmx::discovery::fingerprint_of(m.data) == beacon_t::getHash();
+        if (!record) {
+          if (auto h = lcmx::discovery::decode_host_beacon(m.data);
+              h && h->kind == host_beacon_t::KIND_REQUEST && h->target_host == 0xa9 && pass_records)
+            ++requests_to_a;
+        }
+        if (!record || pass_records)
+          for (auto& r : rs) r->deliver(m);
+      });
+      std::this_thread::sleep_for(2ms);  // a test's pump: polls its socket
+    }
+  });
+  std::this_thread::sleep_for(300ms);  // (a's first records pass by unseen: the point of the test)
+  for (auto& l : logs) CHECK(l.count(Change::joined, 91) == 0);
+  pass_records = true;
+  const bool repaired = eventually([&] {
+    return std::all_of(logs.begin(), logs.end(),
+                       [](Log& l) { return l.count(Change::joined, 91) == 1 && l.count(Change::joined, 92) == 1; });
+  }, 3000ms);
+  stop = true;
+  pump.join();
+  std::uint64_t folded = 0;
+  for (auto& r : rs) folded += r->counters().requests_folded;
+  INFO("requests to a: " << requests_to_a.load() << ", folded: " << folded);
+  REQUIRE(repaired);
+  // Each asking for itself: an index request and a record request each (12). Folded: the first
+  // request's answer, multicast, serves the rest.
+  CHECK(requests_to_a.load() <= kReceivers);
+  CHECK(folded >= 1);
+  rs.clear();
+  Registry::remove(0xd0, group_of(32), rdir.path);
+  for (int k = 1; k < kReceivers; ++k) Registry::remove(0xd0 + static_cast<std::uint64_t>(k), group_of(32), rdir.path);
+}
+
 TEST_CASE("trust: goodbyes, newer records and source claims only from the host's own address", "[discovery][hostile]") {
   lcmx::discovery::Options o;
   o.group = group_of(17);

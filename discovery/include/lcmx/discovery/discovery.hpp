@@ -97,6 +97,8 @@ struct Counters {
                               // records naming another host's (or this host's) participant
   std::uint64_t requests_answered = 0;  // speaker: index / record requests answered
   std::uint64_t requests_limited = 0;   // speaker: requests folded into a later answer
+  std::uint64_t requests_folded = 0;    // receiver: own requests dropped or shortened (what they
+                                        // asked came, or someone asked it, meanwhile)
   std::uint64_t registry_reads = 0;     // state files read
   std::uint64_t registry_skipped = 0;   // changed participants none of whose topics concern us
   std::uint64_t speaker_terms = 0;      // times this Discovery became its group's speaker
