@@ -9,6 +9,10 @@ process's topics) within --spread seconds and measures, per run:
   group     bytes on the host-local group over the window (lcm-logger's log, which records
             everything on the group, as a stock user's recorder would)
   churn     CPU (ms) of all the other peers while one peer is SIGKILLed and one started
+  restart   (--host-restart, --hosts > 1) every peer of host 0 SIGKILLed, then all started again
+            within --spread: CPU (ms) of each peer of the other hosts from the kill until the
+            restarted ones matched again and 3 s more (idle subtracted), and the time from the
+            last restart until every restarted peer matched
 Everything runs inside network namespaces this script creates (lo only, or a bridge between
 emulated hosts with --hosts): no packet leaves them. They are removed at exit, even on failure.
 Usage (root): run.py --peer build/bench/discovery/lcmx_bench_discovery_peer --n 50 --runs 3
@@ -99,6 +103,7 @@ def main():
     ap.add_argument("--window", type=float, default=10.0)
     ap.add_argument("--settle", type=float, default=3.0)
     ap.add_argument("--churn", action="store_true")
+    ap.add_argument("--host-restart", action="store_true", help="kill and restart every peer of host 0 (--hosts > 1)")
     ap.add_argument("--logger", default=shutil.which("lcm-logger"))
     ap.add_argument("--label", default="")
     ap.add_argument("--json", default="")
@@ -121,6 +126,8 @@ def main():
         "lan_disc_bytes_to_match": round(statistics.median(r["lan_disc_bytes_to_match"] for r in results)) if args.hosts > 1 else None,
         "lan_disc_Bps_per_host_max": round(statistics.median(r["lan_disc_Bps_per_host_max"] for r in results)) if args.hosts > 1 else None,
         "churn_ms_per_other": results[0].get("churn_ms_per_other"),
+        "restart_ms_per_other": [r.get("restart_ms_per_other") for r in results] if args.host_restart else None,
+        "restart_rematch_s": [r.get("restart_rematch_s") for r in results] if args.host_restart else None,
         "last_ready_s": round(statistics.median(r["last_ready_s"] for r in results), 3),
     }
     print("SUMMARY " + json.dumps(summary), flush=True)
@@ -188,12 +195,15 @@ def one_run(args, run):
                     out += ["--sub", f"{h * args.n + (i + 1) % args.n}:{k}"]
             return out
 
+        host_of = {}
+
         def start(h, i):
             idx = h * args.n + i
             p = subprocess.Popen(["ip", "netns", "exec", net.hosts[h], args.peer, "--index", str(idx), "--n", str(total),
                                   "--topics", str(args.topics), "--prefix", f"T{tag}"] + subs_of(h, i),
                                  env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
             starts[idx] = time.monotonic_ns()
+            host_of[p.pid] = h
             return p
 
         order = [(h, i) for h in range(args.hosts) for i in range(args.n)]
@@ -275,6 +285,52 @@ def one_run(args, run):
             # the same window without churn, from the steady state above, is subtracted
             idle = (res["cpu_pct"] / 100.0) * (time.monotonic() - w0) * TICK * len(others) / len(procs)
             res["churn_ms_per_other"] = round(max(0.0, (c1 - c0) - idle) / TICK * 1000 / len(others), 3)
+        if args.host_restart and args.hosts > 1:
+            # The whole of host 0 restarts (its software stack; /dev/shm stays, as after a
+            # restart of the stack, not a reboot): every peer killed, then all started again.
+            victims = [k for k, (h, i) in enumerate(order) if h == 0 and procs[k].poll() is None]
+            others = [p.pid for p in procs if host_of[p.pid] != 0 and p.poll() is None]
+            c0 = sum(cpu_ticks(x) for x in others)
+            w0 = time.monotonic()
+            for k in victims:
+                procs[k].send_signal(signal.SIGKILL)
+            for k in victims:
+                procs[k].wait()
+            fresh = []
+            t0 = time.monotonic()
+            for n, k in enumerate(victims):
+                d = t0 + args.spread * n / max(1, len(victims) - 1) - time.monotonic()
+                if d > 0:
+                    time.sleep(d)
+                fresh.append(start(*order[k]))
+            last = time.monotonic_ns()
+            procs.extend(fresh)
+            done = {}
+            fbufs = [b""] * len(fresh)
+            for p in fresh:
+                os.set_blocking(p.stdout.fileno(), False)
+            deadline = time.monotonic() + args.timeout
+            while len(done) < len(fresh) and time.monotonic() < deadline:
+                for j, p in enumerate(fresh):
+                    if j in done:
+                        continue
+                    try:
+                        chunk = p.stdout.read()
+                    except (BlockingIOError, TypeError):
+                        chunk = None
+                    if chunk:
+                        fbufs[j] += chunk
+                        for line in fbufs[j].split(b"\n"):
+                            if line.startswith(b"MATCHED "):
+                                done[j] = int(line.split()[1])
+                time.sleep(0.02)
+            time.sleep(3.0)
+            c1 = sum(cpu_ticks(x) for x in others)
+            idle = (res["cpu_pct"] / 100.0) * (time.monotonic() - w0) * TICK * len(others) / len(order)
+            res["restart_ms_per_other"] = round(max(0.0, (c1 - c0) - idle) / TICK * 1000 / len(others), 3)
+            res["restart_rematch_s"] = (round(max(0, max(done.values()) - last) / 1e9, 3)
+                                        if len(done) == len(fresh) else None)
+            res["restart_rematched"] = f"{len(done)}/{len(fresh)}"
         return res
     finally:
         for p in procs:
