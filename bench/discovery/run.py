@@ -136,6 +136,34 @@ def main():
             f.write(json.dumps(summary) + "\n")
 
 
+def wait_matched(procs, timeout):
+    """Reads the peers' stdout until each printed MATCHED or `timeout` s passed: returns
+    {index: MATCHED ns}, {index: READY ns}, {index: CPU ms at READY}."""
+    matched, ready, ready_cpu = {}, {}, {}
+    for p in procs:
+        os.set_blocking(p.stdout.fileno(), False)
+    deadline = time.monotonic() + timeout
+    bufs = [b""] * len(procs)
+    while len(matched) < len(procs) and time.monotonic() < deadline:
+        for k, p in enumerate(procs):
+            if k in matched:
+                continue
+            try:
+                chunk = p.stdout.read()
+            except (BlockingIOError, TypeError):
+                chunk = None
+            if chunk:
+                bufs[k] += chunk
+                for line in bufs[k].split(b"\n"):
+                    if line.startswith(b"MATCHED "):
+                        matched[k] = int(line.split()[1])
+                    elif line.startswith(b"READY "):
+                        ready[k] = int(line.split()[1])
+                        ready_cpu[k] = int(line.split()[2]) / 1000.0
+        time.sleep(0.02)
+    return matched, ready, ready_cpu
+
+
 def one_run(args, run):
     tag = f"{os.getpid() % 10000}r{run}"
     net = Net(args.hosts, tag)
@@ -215,30 +243,7 @@ def one_run(args, run):
                 time.sleep(d)
             procs.append(start(h, i))
         last_start = max(starts.values())
-        matched = {}
-        ready = {}
-        ready_cpu = {}
-        for p in procs:
-            os.set_blocking(p.stdout.fileno(), False)
-        deadline = time.monotonic() + args.timeout
-        bufs = [b""] * len(procs)
-        while len(matched) < len(procs) and time.monotonic() < deadline:
-            for k, p in enumerate(procs):
-                if k in matched:
-                    continue
-                try:
-                    chunk = p.stdout.read()
-                except (BlockingIOError, TypeError):
-                    chunk = None
-                if chunk:
-                    bufs[k] += chunk
-                    for line in bufs[k].split(b"\n"):
-                        if line.startswith(b"MATCHED "):
-                            matched[k] = int(line.split()[1])
-                        elif line.startswith(b"READY "):
-                            ready[k] = int(line.split()[1])
-                            ready_cpu[k] = int(line.split()[2]) / 1000.0
-            time.sleep(0.02)
+        matched, ready, ready_cpu = wait_matched(procs, args.timeout)
         lan_to_match = sum(net.tx_bytes(h) - lan0[h] for h in range(args.hosts)) if args.hosts > 1 else 0
         cold_bytes = listened(cold)
         match_s = [max(0, t - last_start) / 1e9 for t in matched.values()]
@@ -305,25 +310,7 @@ def one_run(args, run):
                 fresh.append(start(*order[k]))
             last = time.monotonic_ns()
             procs.extend(fresh)
-            done = {}
-            fbufs = [b""] * len(fresh)
-            for p in fresh:
-                os.set_blocking(p.stdout.fileno(), False)
-            deadline = time.monotonic() + args.timeout
-            while len(done) < len(fresh) and time.monotonic() < deadline:
-                for j, p in enumerate(fresh):
-                    if j in done:
-                        continue
-                    try:
-                        chunk = p.stdout.read()
-                    except (BlockingIOError, TypeError):
-                        chunk = None
-                    if chunk:
-                        fbufs[j] += chunk
-                        for line in fbufs[j].split(b"\n"):
-                            if line.startswith(b"MATCHED "):
-                                done[j] = int(line.split()[1])
-                time.sleep(0.02)
+            done, _, _ = wait_matched(fresh, args.timeout)
             time.sleep(3.0)
             c1 = sum(cpu_ticks(x) for x in others)
             idle = (res["cpu_pct"] / 100.0) * (time.monotonic() - w0) * TICK * len(others) / len(order)

@@ -604,33 +604,62 @@ TEST_CASE("vehicle scope: a local match sends no vehicle record again, a match a
   CHECK(records() > settled);
 }
 
-TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the missing records - repaired", "[discovery][vehicle]") {
-  const auto v = group_of(14);
-  FakeHost a(0xa3, group_of(15), v);
-  a.add(31, {"X"});
-  a.add(32, {"Y"});
-  // r hears the vehicle group only through what this test hands it: no record at first.
+namespace {
+// A vehicle-scope Discovery's options for a receiver that hears the group only through what a
+// test hands it (Discovery::deliver, from a VehiclePump), with a registry of host `host`.
+lcmx::discovery::Options fed_vehicle_options(const lcmx::udpm::GroupConfig& v, std::uint64_t host,
+                                             const lcmx::udpm::GroupConfig& local, const std::string& dir) {
   lcmx::discovery::Options o;
   o.group = v;
   o.scope = beacon_t::SCOPE_VEHICLE;
   o.period = 50ms;
   o.lease = 500ms;
   o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(v));
+  o.registry = Registry::open({.host_id = host, .group = local, .directory = dir});
+  return o;
+}
+
+// Drains the vehicle group on a thread of its own and hands every discovery datagram to `fn`
+// (with whether it is a record) until destroyed.
+class VehiclePump {
+ public:
+  using Fn = std::function<void(const lcmx::udpm::Message&, bool record)>;
+  VehiclePump(const lcmx::udpm::GroupConfig& v, Fn fn)
+      : thread_([this, v, fn = std::move(fn)] {
+          auto listen = lcmx::udpm::Group::open(v);
+          while (!stop_) {
+            listen.drain([&](const lcmx::udpm::Message& m) {
+              if (m.channel != lcmx::discovery::kBeaconChannel) return;
+              fn(m, lcmx::discovery::fingerprint_of(m.data) == beacon_t::getHash());
+            });
+            std::this_thread::sleep_for(2ms);  // a test's pump: polls its socket
+          }
+        }) {}
+  ~VehiclePump() { stop(); }
+  void stop() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+  }
+
+ private:
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+}  // namespace
+
+TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the missing records - repaired", "[discovery][vehicle]") {
+  const auto v = group_of(14);
+  FakeHost a(0xa3, group_of(15), v);
+  a.add(31, {"X"});
+  a.add(32, {"Y"});
+  // r hears the vehicle group only through what this test hands it: no record at first.
   lcmx::test::TmpDir rdir("lcmx_vr");
-  o.registry = Registry::open({.host_id = 0xc4, .group = group_of(16), .directory = rdir.path});
   Log lr;
-  Discovery r(o, [] { return beacon_of(41, 0xc4, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
-  std::atomic<bool> pass_records{false}, stop{false};
-  std::thread pump([&] {
-    auto listen = lcmx::udpm::Group::open(v);
-    while (!stop) {
-      listen.drain([&](const lcmx::udpm::Message& m) {
-        if (m.channel != lcmx::discovery::kBeaconChannel) return;
-        const bool record = lcmx::discovery::fingerprint_of(m.data) == beacon_t::getHash();
-        if (!record || pass_records) r.deliver(m);
-      });
-      std::this_thread::sleep_for(2ms);  // a test's pump: polls its socket
-    }
+  Discovery r(fed_vehicle_options(v, 0xc4, group_of(16), rdir.path),
+              [] { return beacon_of(41, 0xc4, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
+  std::atomic<bool> pass_records{false};
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (!record || pass_records) r.deliver(m);
   });
   // a's records went out when its participants joined, and r missed them: heartbeats disagree.
   std::this_thread::sleep_for(300ms);  // (the first records pass by unseen: the point of the test)
@@ -640,8 +669,7 @@ TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the mis
   std::uint64_t answered = 0;
   for (auto& p : a.ps) answered += p.v->counters().requests_answered;
   CHECK(answered >= 1);
-  stop = true;
-  pump.join();
+  pump.stop();
   Registry::remove(0xc4, group_of(16), rdir.path);
 }
 
@@ -658,35 +686,22 @@ TEST_CASE("vehicle scope: receivers that miss the same records ask once between 
   std::vector<Log> logs(kReceivers);
   std::vector<std::unique_ptr<Discovery>> rs;
   for (int k = 0; k < kReceivers; ++k) {
-    lcmx::discovery::Options o;
-    o.group = v;
-    o.scope = beacon_t::SCOPE_VEHICLE;
-    o.period = 50ms;
-    o.lease = 500ms;
-    o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(v));
     const std::uint64_t host = 0xd0 + static_cast<std::uint64_t>(k);
-    o.registry = Registry::open({.host_id = host, .group = group_of(32), .directory = rdir.path});
     rs.push_back(std::make_unique<Discovery>(
-        o, [host, k] { return beacon_of(100 + k, host, {"Z"}, beacon_t::SCOPE_VEHICLE); }, logs[static_cast<std::size_t>(k)].fn()));
+        fed_vehicle_options(v, host, group_of(32), rdir.path),
+        [host, k] { return beacon_of(100 + k, host, {"Z"}, beacon_t::SCOPE_VEHICLE); },
+        logs[static_cast<std::size_t>(k)].fn()));
   }
-  std::atomic<bool> pass_records{false}, stop{false};
+  std::atomic<bool> pass_records{false};
   std::atomic<int> requests_to_a{0};
-  std::thread pump([&] {
-    auto listen = lcmx::udpm::Group::open(v);
-    while (!stop) {
-      listen.drain([&](const lcmx::udpm::Message& m) {
-        if (m.channel != lcmx::discovery::kBeaconChannel) return;
-        const bool record = lcmx::discovery::fingerprint_of(m.data) == beacon_t::getHash();
-        if (!record) {
-          if (auto h = lcmx::discovery::decode_host_beacon(m.data);
-              h && h->kind == host_beacon_t::KIND_REQUEST && h->target_host == 0xa9 && pass_records)
-            ++requests_to_a;
-        }
-        if (!record || pass_records)
-          for (auto& r : rs) r->deliver(m);
-      });
-      std::this_thread::sleep_for(2ms);  // a test's pump: polls its socket
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (!record && pass_records) {
+      if (auto h = lcmx::discovery::decode_host_beacon(m.data); h && h->kind == host_beacon_t::KIND_REQUEST &&
+                                                                 h->target_host == 0xa9)
+        ++requests_to_a;
     }
+    if (!record || pass_records)
+      for (auto& r : rs) r->deliver(m);
   });
   std::this_thread::sleep_for(300ms);  // (a's first records pass by unseen: the point of the test)
   for (auto& l : logs) CHECK(l.count(Change::joined, 91) == 0);
@@ -695,8 +710,7 @@ TEST_CASE("vehicle scope: receivers that miss the same records ask once between 
     return std::all_of(logs.begin(), logs.end(),
                        [](Log& l) { return l.count(Change::joined, 91) == 1 && l.count(Change::joined, 92) == 1; });
   }, 3000ms);
-  stop = true;
-  pump.join();
+  pump.stop();
   std::uint64_t folded = 0;
   for (auto& r : rs) folded += r->counters().requests_folded;
   INFO("requests to a: " << requests_to_a.load() << ", folded: " << folded);
