@@ -273,6 +273,8 @@ def one_run(args, run):
                "lan_disc_bytes_to_match_by_kind": {k: sum(v.get("kinds", {}).get(k, 0) for v in cold_bytes.values())
                                                    for k in sorted({k for v in cold_bytes.values() for k in v.get("kinds", {})})},
                "lan_disc_Bps_per_host_max": max([v["disc"] / w for v in steady_bytes.values()], default=0),
+               "lan_disc_Bps_steady_by_kind": {k: round(sum(v.get("kinds", {}).get(k, 0) for v in steady_bytes.values()) / w, 1)
+                                               for k in sorted({k for v in steady_bytes.values() for k in v.get("kinds", {})})},
                "lan_data_Bps_total": sum(v["data"] for v in steady_bytes.values()) / w}
         if args.churn:
             victim = procs[len(procs) // 2]

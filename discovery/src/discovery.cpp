@@ -1219,16 +1219,18 @@ struct Discovery::Impl {
   // An observer's query. With the registry (host scope) this host needs none: only the known
   // neighbours are asked, each by name (a query of everyone would make every participant of
   // every registry on the group hear every record). Without it: every host, at once.
-  // After data on the group (its sequence moved since our last marker), once a second, 3 times:
-  // a small marker from this participant's own socket, so a receiver sees the datagrams it
-  // lost at the end of a burst (the gap before the marker). v5 beacons did that every period.
+  // After data on the group (its sequence moved by more than our own discovery datagrams since
+  // our last marker), once a second, 3 times: a small marker from this participant's own
+  // socket, so a receiver sees the datagrams it lost at the end of a burst (the gap before the
+  // marker). v5 beacons did that every period. (A speaker's heartbeats move the sequence too:
+  // counted as data, they made every speaker send a marker every second, for nothing.)
   void mark_sequence() {
     if (options.observer || !options.shared_group) return;
     const auto now = Clock::now();
     if (now - last_mark < std::max<Clock::duration>(options.period, std::chrono::seconds(1))) return;
-    const auto next = group->next_sequence();
-    if (next != mark_next) mark_repeats = 3;  // data since our last marker: 3 markers, a second apart
-    if (mark_repeats == 0) return;            // (one may be lost with the data it follows)
+    const std::uint32_t moved = group->next_sequence() - mark_next;  // (wraps: unsigned)
+    if (static_cast<std::int64_t>(moved) > udp_sent - mark_udp_sent) mark_repeats = 3;  // data: 3 markers, a second apart
+    if (mark_repeats == 0) return;  // (one may be lost with the data it follows)
     --mark_repeats;
     last_mark = now;
     auto h = host_message(host_beacon_t::KIND_MARK);
@@ -1237,9 +1239,11 @@ struct Discovery::Impl {
     h.count = 0;
     publish_udp(encode_host_beacon(h));
     mark_next = group->next_sequence();
+    mark_udp_sent = udp_sent;
   }
   Clock::time_point last_mark{};
-  std::uint32_t mark_next = 0;
+  std::uint32_t mark_next = 0;     // the group's next sequence after our last marker
+  std::int64_t mark_udp_sent = 0;  // udp_sent then
   int mark_repeats = 0;
 
   void send_query() {

@@ -724,6 +724,35 @@ TEST_CASE("vehicle scope: receivers that miss the same records ask once between 
   for (int k = 1; k < kReceivers; ++k) Registry::remove(0xd0 + static_cast<std::uint64_t>(k), group_of(32), rdir.path);
 }
 
+TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own heartbeats", "[discovery][vehicle]") {
+  const auto v = group_of(33);
+  lcmx::test::TmpDir rdir("lcmx_vm");
+  auto o = fed_vehicle_options(v, 0xe1, group_of(34), rdir.path);
+  auto shared = o.shared_group;  // the runtime's socket: data and discovery from one sequence
+  Log log;
+  Discovery d(o, [] { return beacon_of(111, 0xe1, {"X"}, beacon_t::SCOPE_VEHICLE); }, log.fn());
+  std::atomic<int> heartbeats{0}, marks{0};
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (record) return;
+    if (auto h = lcmx::discovery::decode_host_beacon(m.data); h && h->host_id == 0xe1) {
+      if (h->kind == host_beacon_t::KIND_HEARTBEAT) ++heartbeats;
+      if (h->kind == host_beacon_t::KIND_MARK) ++marks;
+    }
+  });
+  REQUIRE(eventually([&] { return d.speaking() && heartbeats.load() >= 5; }, 5000ms));
+  // Two and a half marker intervals (a second each) of heartbeats alone: no marker.
+  std::this_thread::sleep_for(2500ms);  // the absence of a marker is what is checked
+  CHECK(heartbeats.load() >= 20);
+  CHECK(marks.load() == 0);
+  // Data on the socket: a marker within the next interval or two.
+  const std::vector<std::byte> data(100, std::byte{7});
+  shared->publish("MARK_DATA", data);
+  CHECK(eventually([&] { return marks.load() >= 1; }, 3000ms));
+  pump.stop();
+  d.stop();
+  Registry::remove(0xe1, group_of(34), rdir.path);
+}
+
 TEST_CASE("trust: goodbyes, newer records and source claims only from the host's own address", "[discovery][hostile]") {
   lcmx::discovery::Options o;
   o.group = group_of(17);
