@@ -136,6 +136,20 @@ def main():
             f.write(json.dumps(summary) + "\n")
 
 
+def by_kind(listened_bytes):
+    """Discovery bytes of every host summed by kind (listen.py's "kinds")."""
+    kinds = sorted({k for v in listened_bytes.values() for k in v.get("kinds", {})})
+    return {k: sum(v.get("kinds", {}).get(k, 0) for v in listened_bytes.values()) for k in kinds}
+
+
+def extra_ms_per(others, c0, since, cpu_pct, n_steady):
+    """CPU (ms) each of `others` (pids) spent since `since` beyond its idle share: their ticks
+    since c0, less the steady state's `cpu_pct` (of n_steady processes) over the same time."""
+    c1 = sum(cpu_ticks(x) for x in others)
+    idle = (cpu_pct / 100.0) * (time.monotonic() - since) * TICK * len(others) / n_steady
+    return round(max(0.0, (c1 - c0) - idle) / TICK * 1000 / len(others), 3)
+
+
 def wait_matched(procs, timeout):
     """Reads the peers' stdout until each printed MATCHED or `timeout` s passed: returns
     {index: MATCHED ns}, {index: READY ns}, {index: CPU ms at READY}."""
@@ -225,6 +239,16 @@ def one_run(args, run):
 
         host_of = {}
 
+        def launch(pairs):
+            """Starts a peer per (host, index), evenly over --spread s; returns them."""
+            out, t0 = [], time.monotonic()
+            for k, (h, i) in enumerate(pairs):
+                d = t0 + args.spread * k / max(1, len(pairs) - 1) - time.monotonic()
+                if d > 0:
+                    time.sleep(d)
+                out.append(start(h, i))
+            return out
+
         def start(h, i):
             idx = h * args.n + i
             p = subprocess.Popen(["ip", "netns", "exec", net.hosts[h], args.peer, "--index", str(idx), "--n", str(total),
@@ -235,13 +259,7 @@ def one_run(args, run):
             return p
 
         order = [(h, i) for h in range(args.hosts) for i in range(args.n)]
-        t0 = time.monotonic()
-        for k, (h, i) in enumerate(order):
-            target = t0 + args.spread * k / max(1, len(order) - 1)
-            d = target - time.monotonic()
-            if d > 0:
-                time.sleep(d)
-            procs.append(start(h, i))
+        procs.extend(launch(order))
         last_start = max(starts.values())
         matched, ready, ready_cpu = wait_matched(procs, args.timeout)
         lan_to_match = sum(net.tx_bytes(h) - lan0[h] for h in range(args.hosts)) if args.hosts > 1 else 0
@@ -270,11 +288,9 @@ def one_run(args, run):
                "lan_bytes_to_match": lan_to_match,
                # discovery datagrams only (LCMX_BEACON on the vehicle group), heard on the switch
                "lan_disc_bytes_to_match": sum(v["disc"] for v in cold_bytes.values()),
-               "lan_disc_bytes_to_match_by_kind": {k: sum(v.get("kinds", {}).get(k, 0) for v in cold_bytes.values())
-                                                   for k in sorted({k for v in cold_bytes.values() for k in v.get("kinds", {})})},
+               "lan_disc_bytes_to_match_by_kind": by_kind(cold_bytes),
                "lan_disc_Bps_per_host_max": max([v["disc"] / w for v in steady_bytes.values()], default=0),
-               "lan_disc_Bps_steady_by_kind": {k: round(sum(v.get("kinds", {}).get(k, 0) for v in steady_bytes.values()) / w, 1)
-                                               for k in sorted({k for v in steady_bytes.values() for k in v.get("kinds", {})})},
+               "lan_disc_Bps_steady_by_kind": {k: round(v / w, 1) for k, v in by_kind(steady_bytes).items()},
                "lan_data_Bps_total": sum(v["data"] for v in steady_bytes.values()) / w}
         if args.churn:
             victim = procs[len(procs) // 2]
@@ -288,10 +304,8 @@ def one_run(args, run):
             newp = start(h, i)
             procs.append(newp)
             time.sleep(3.0)
-            c1 = sum(cpu_ticks(x) for x in others)
             # the same window without churn, from the steady state above, is subtracted
-            idle = (res["cpu_pct"] / 100.0) * (time.monotonic() - w0) * TICK * len(others) / len(procs)
-            res["churn_ms_per_other"] = round(max(0.0, (c1 - c0) - idle) / TICK * 1000 / len(others), 3)
+            res["churn_ms_per_other"] = extra_ms_per(others, c0, w0, res["cpu_pct"], len(procs))
         if args.host_restart and args.hosts > 1:
             # The whole of host 0 restarts (its software stack; /dev/shm stays, as after a
             # restart of the stack, not a reboot): every peer killed, then all started again.
@@ -303,20 +317,12 @@ def one_run(args, run):
                 procs[k].send_signal(signal.SIGKILL)
             for k in victims:
                 procs[k].wait()
-            fresh = []
-            t0 = time.monotonic()
-            for n, k in enumerate(victims):
-                d = t0 + args.spread * n / max(1, len(victims) - 1) - time.monotonic()
-                if d > 0:
-                    time.sleep(d)
-                fresh.append(start(*order[k]))
+            fresh = launch([order[k] for k in victims])
             last = time.monotonic_ns()
             procs.extend(fresh)
             done, _, _ = wait_matched(fresh, args.timeout)
             time.sleep(3.0)
-            c1 = sum(cpu_ticks(x) for x in others)
-            idle = (res["cpu_pct"] / 100.0) * (time.monotonic() - w0) * TICK * len(others) / len(order)
-            res["restart_ms_per_other"] = round(max(0.0, (c1 - c0) - idle) / TICK * 1000 / len(others), 3)
+            res["restart_ms_per_other"] = extra_ms_per(others, c0, w0, res["cpu_pct"], len(order))
             res["restart_rematch_s"] = (round(max(0, max(done.values()) - last) / 1e9, 3)
                                         if len(done) == len(fresh) else None)
             res["restart_rematched"] = f"{len(done)}/{len(fresh)}"
