@@ -2,8 +2,8 @@
 """Counts LCM udpm bytes on a multicast group for a while, by sender address and by whether the
 channel is LCMX_BEACON (discovery) or not. Run inside the namespace whose interface is given.
 Usage: listen.py GROUP PORT IFACE_ADDR SECONDS  -> one JSON line {src: {"disc": bytes, "data": bytes,
-"kinds": {kind: bytes}}} at the end or on SIGTERM; kinds split the discovery bytes: "record" (a
-participant's beacon_t), "heartbeat", "index", "request", "mark" (host_beacon_t), "other".
+"kinds": {kind: bytes}, "disc_datagrams": n}} at the end or on SIGTERM; kinds split the discovery bytes: "record" (a
+participant's beacon_t, or a speaker's batch of them: records_t), "heartbeat", "index", "request", "mark" (host_beacon_t), "other".
 """
 import json, signal, socket, struct, sys, time
 
@@ -34,7 +34,7 @@ while time.monotonic() < end and not stop:
         body = data[nul + 1:]
         if kind == "disc" and len(body) >= 13:
             version = struct.unpack(">i", body[8:12])[0]
-            if version == 1:  # host_beacon_t (kHostBeaconVersion); beacon_t is version 6
+            if version == 1:  # host_beacon_t (kHostBeaconVersion); beacon_t and records_t are version 6
                 sub = {1: "heartbeat", 2: "index", 3: "request", 4: "mark"}.get(body[12], "other")
             else:
                 sub = "record"
@@ -45,8 +45,9 @@ while time.monotonic() < end and not stop:
             ch = data[20:data.index(b"\0", 20)]
             frag[(src, seq)] = "disc" if ch == b"LCMX_BEACON" else "data"
         kind = frag.get((src, seq), "data")
-    d = out.setdefault(src, {"disc": 0, "data": 0, "kinds": {}})
+    d = out.setdefault(src, {"disc": 0, "data": 0, "kinds": {}, "disc_datagrams": 0})
     d[kind] += len(data) + 28  # + IP and UDP headers
     if kind == "disc":
         d["kinds"][sub] = d["kinds"].get(sub, 0) + len(data) + 28
+        d["disc_datagrams"] += 1  # each one wakes every process of every other host
 print(json.dumps(out), flush=True)

@@ -289,6 +289,7 @@ def one_run(args, run):
                # discovery datagrams only (LCMX_BEACON on the vehicle group), heard on the switch
                "lan_disc_bytes_to_match": sum(v["disc"] for v in cold_bytes.values()),
                "lan_disc_bytes_to_match_by_kind": by_kind(cold_bytes),
+               "lan_disc_datagrams_to_match": sum(v.get("disc_datagrams", 0) for v in cold_bytes.values()),
                "lan_disc_Bps_per_host_max": max([v["disc"] / w for v in steady_bytes.values()], default=0),
                "lan_disc_Bps_steady_by_kind": {k: round(v / w, 1) for k, v in by_kind(steady_bytes).items()},
                "lan_data_Bps_total": sum(v["data"] for v in steady_bytes.values()) / w}

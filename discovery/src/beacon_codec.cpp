@@ -60,4 +60,53 @@ std::optional<lcmx_msgs::host_beacon_t> decode_host_beacon(std::span<const std::
   return b;
 }
 
+namespace {
+void put_be(std::vector<std::byte>& out, std::uint64_t v, int bytes) {
+  for (int k = bytes - 1; k >= 0; --k) out.push_back(static_cast<std::byte>((v >> (8 * k)) & 0xff));
+}
+}  // namespace
+
+std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std::vector<std::byte>> records) {
+  std::size_t total = kBatchHeaderBytes;
+  for (const auto& r : records) total += r.size() - 8;
+  std::vector<std::byte> out;
+  out.reserve(total);
+  put_be(out, static_cast<std::uint64_t>(lcmx_msgs::records_t::getHash()), 8);
+  put_be(out, static_cast<std::uint32_t>(kBeaconVersion), 4);
+  put_be(out, host_id, 8);
+  put_be(out, static_cast<std::uint32_t>(records.size()), 4);
+  for (const auto& r : records) out.insert(out.end(), r.begin() + 8, r.end());  // without its fingerprint
+  return out;
+}
+
+std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> bytes, std::string* why) {
+  auto reject = [&](const char* w) -> std::optional<lcmx_msgs::records_t> {
+    if (why) *why = w;
+    return std::nullopt;
+  };
+  if (bytes.size() < kBatchHeaderBytes) return reject("shorter than a records header");
+  if (bytes.size() > (16u << 20)) return reject("larger than 16 MiB");
+  if (fingerprint_of(bytes) != lcmx_msgs::records_t::getHash()) return reject("not a records_t (fingerprint)");
+  lcmx_msgs::records_t r;
+  if (!lcmtypes::decode(bytes, r)) return reject("malformed records (lengths or counts out of range)");
+  if (r.version != kBeaconVersion) return reject("unsupported records version");
+  for (const auto& b : r.records) {
+    if (b.version != kBeaconVersion) return reject("a record of an unsupported version in a batch");
+    if (b.host_id != r.host_id) return reject("a record of another host in a batch");
+  }
+  return r;
+}
+
+std::optional<std::vector<lcmx_msgs::beacon_t>> decode_any_records(std::span<const std::byte> bytes, std::string* why) {
+  const auto fp = fingerprint_of(bytes);
+  if (fp == lcmx_msgs::records_t::getHash()) {
+    auto r = decode_records(bytes, why);
+    if (!r) return std::nullopt;
+    return std::move(r->records);
+  }
+  auto b = decode_beacon(bytes, why);
+  if (!b) return std::nullopt;
+  return std::vector<lcmx_msgs::beacon_t>{std::move(*b)};
+}
+
 }  // namespace lcmx::discovery

@@ -715,21 +715,50 @@ struct Discovery::Impl {
     last_index = Clock::now();
   }
 
-  void send_record(std::int64_t id) {
+  // The records and goodbyes of one speaker pass go out together (records_t, docs/discovery.md
+  // "Batches"): every process of every other host that hears the group wakes once per batch,
+  // not once per record. Discovery thread.
+  struct Batch {
+    std::vector<std::vector<std::byte>> items;  // encode_beacon()'s bytes
+    std::size_t bytes = kBatchHeaderBytes;      // the records_t they make
+    std::uint64_t host = 0;                     // every record of a batch names one host
+  };
+  static std::uint64_t host_of_record(const std::vector<std::byte>& r) {  // host_id at offset 20
+    std::uint64_t h = 0;
+    for (std::size_t k = 20; k < 28 && k < r.size(); ++k) h = (h << 8) | std::to_integer<std::uint8_t>(r[k]);
+    return h;
+  }
+  void batch_send(Batch& b) {
+    if (b.items.size() == 1) publish_udp(b.items.front());  // alone: a plain beacon_t
+    else if (!b.items.empty()) publish_udp(encode_records(b.host, b.items));
+    b = Batch{};
+  }
+  void batch_add(Batch& b, std::vector<std::byte> record) {
+    if (record.size() < 28) return;
+    const auto n = record.size() - 8;  // nested: without its fingerprint
+    const auto host = host_of_record(record);
+    if (!b.items.empty() && (b.bytes + n > kBatchBytes || host != b.host)) batch_send(b);
+    b.host = host;
+    b.items.push_back(std::move(record));
+    b.bytes += n;
+    if (b.bytes > kBatchBytes) batch_send(b);  // a record larger than a batch goes alone
+  }
+
+  void send_record(Batch& batch, std::int64_t id) {
     auto it = spoken.find(id);
     if (it == spoken.end()) return;
-    publish_udp(it->second.record);
+    batch_add(batch, it->second.record);
     it->second.sent = Clock::now();
   }
 
-  void send_goodbye(std::int64_t id) {
+  void send_goodbye(Batch& batch, std::int64_t id) {
     beacon_t b{};
     b.version = kBeaconVersion;
     b.participant_id = id;
     b.host_id = static_cast<std::int64_t>(own_host);
     b.flags = beacon_t::FLAG_GOODBYE;
     b.scope = options.scope;
-    publish_udp(encode_beacon(b));
+    batch_add(batch, encode_beacon(b));
   }
 
   // Discovery thread, while speaking.
@@ -749,6 +778,7 @@ struct Discovery::Impl {
       if (want_all && now - last_all >= options.period) all = true, want_all = false;
       want.swap(wanted);
     }
+    Batch batch;  // this pass's records and goodbyes
     if (all) {
       // An observer's "everything": with the statistics as they are now (re-read).
       for (auto& [id, sp] : spoken) {
@@ -762,24 +792,26 @@ struct Discovery::Impl {
           }
         }
       }
-      for (const auto& [id, sp] : spoken) send_record(id);
+      for (const auto& [id, sp] : spoken) send_record(batch, id);
       last_all = now;
       index = true;
     } else {
       for (auto id : want)
-        if (auto it = spoken.find(id); it != spoken.end() && now - it->second.sent >= options.period / 2) send_record(id);
+        if (auto it = spoken.find(id); it != spoken.end() && now - it->second.sent >= options.period / 2)
+          send_record(batch, id);
     }
     if (now >= flush_at) {
       flush_at = Clock::time_point::max();
       last_flush = now;
       if (audience()) {
-        for (auto id : pending_records) send_record(id);
-        for (auto id : pending_goodbyes) send_goodbye(id);
+        for (auto id : pending_records) send_record(batch, id);
+        for (auto id : pending_goodbyes) send_goodbye(batch, id);
         if (!pending_records.empty() || !pending_goodbyes.empty()) index = true;
       }
       pending_records.clear();
       pending_goodbyes.clear();
     }
+    batch_send(batch);
     if (index) send_index();
     if (all || index || !want.empty()) {
       std::lock_guard lock(mutex);
@@ -911,6 +943,7 @@ struct Discovery::Impl {
     if (m.channel != kBeaconChannel) return;
     const auto fp = fingerprint_of(m.data);
     if (fp == host_beacon_t::getHash()) return on_host_message(m);
+    if (fp == lcmx_msgs::records_t::getHash()) return on_records(m);
     // A record of this host's own participants (its speaker's, heard by everyone on the group):
     // known through the registry; dropped before decoding (host_id at offset 20 of a beacon_t).
     if (fp == beacon_t::getHash() && m.data.size() >= 28) {
@@ -926,7 +959,36 @@ struct Discovery::Impl {
       warn_limited(last_malformed_log, "lcmx discovery: ignored a beacon: {}", why);
       return;
     }
-    if (b->flags & beacon_t::FLAG_QUERY) {  // an observer without the registry: everything, rate-limited
+    on_beacon(std::move(*b), m.source.address_be, m.data.size());
+  }
+
+  // A batch of one host's records and goodbyes (records_t): each as if it came alone.
+  void on_records(const udpm::Message& m) {
+    // This host's own (its speaker's, heard by everyone on the group): known through the
+    // registry; dropped before decoding (host_id at offset 12 of a records_t).
+    if (m.data.size() >= kBatchHeaderBytes) {
+      std::uint64_t h = 0;
+      for (int k = 12; k < 20; ++k) h = (h << 8) | std::to_integer<std::uint8_t>(m.data[static_cast<std::size_t>(k)]);
+      if (h == own_host) return;
+    }
+    std::string why;
+    auto r = decode_records(m.data, &why);
+    if (!r) {
+      std::lock_guard lock(mutex);
+      ++counters.malformed;
+      warn_limited(last_malformed_log, "lcmx discovery: ignored a batch of records: {}", why);
+      return;
+    }
+    for (auto& b : r->records) {
+      const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
+      on_beacon(std::move(b), m.source.address_be, bytes);
+    }
+  }
+
+  // One beacon_t heard (alone or in a batch): an observer's query, or a record or goodbye of
+  // another host. `ip` is the datagram's source, `bytes` the record's size (table bounds).
+  void on_beacon(beacon_t b, std::uint32_t ip, std::size_t bytes) {
+    if (b.flags & beacon_t::FLAG_QUERY) {  // an observer without the registry: everything, rate-limited
       std::lock_guard lock(mutex);
       if (is_speaker) {
         if (want_all) ++counters.requests_limited;
@@ -934,12 +996,12 @@ struct Discovery::Impl {
         audience_until = Clock::now() + 3 * options.lease;
       }
     }
-    if (b->flags & (beacon_t::FLAG_OBSERVER | beacon_t::FLAG_QUERY)) {
+    if (b.flags & (beacon_t::FLAG_OBSERVER | beacon_t::FLAG_QUERY)) {
       wake();
       return;
     }
-    if (static_cast<std::uint64_t>(b->host_id) == own_host) return;  // known through the registry
-    on_record(std::move(*b), m.source.address_be, m.data.size());
+    if (static_cast<std::uint64_t>(b.host_id) == own_host) return;  // known through the registry
+    on_record(std::move(b), ip, bytes);
   }
 
   void on_record(beacon_t b, std::uint32_t ip, std::size_t bytes) {

@@ -15,6 +15,8 @@ using namespace lcmx_msgs;
 constexpr std::size_t kString = 4 + 1;
 constexpr std::size_t kMatch = 8 + 8 + kString + 8 + 8;
 constexpr std::size_t kEndpoint = 8 + 1 + 3 * kString + 8 + kString + 1 + 8 + 4 + 8 + 8 + 8 + 4 + 4;
+// The smallest beacon_t without its fingerprint: fixed fields and empty strings and arrays.
+constexpr std::size_t kBeacon = 4 + 8 + 8 + 4 + 8 + 8 + kString + 8 + 8 + 1 + 4 + 8 + 1 + 2 * kString + 4 + 4 + 4;
 constexpr std::size_t kHistoryMessage = 1 + 4 + 4;
 constexpr std::size_t kGoalStatus = kString + 1 + kString + 4;
 constexpr std::size_t kLinkStatus = 2 * kString + 1 + 1 + 8 + 8 + 8 + 4;
@@ -103,6 +105,12 @@ void fields(Reader& r, beacon_t& b) {
   string_array(r, b.num_nodes, b.nodes);
   struct_array(r, b.num_endpoints, kEndpoint, b.endpoints, [](Reader& rr, endpoint_t& e) { fields(rr, e); });
   string_array(r, b.num_carried, b.carried);
+}
+
+void fields(Reader& r, records_t& b) {
+  b.version = r.i32();
+  b.host_id = r.i64();
+  struct_array(r, b.num_records, kBeacon, b.records, [](Reader& rr, beacon_t& x) { fields(rr, x); });
 }
 
 // An int64 array whose count member was read before (host_beacon_t: two arrays share one).
@@ -303,6 +311,7 @@ bool whole(std::span<const std::byte> bytes, T& out) {
 
 bool decode(std::span<const std::byte> b, beacon_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, host_beacon_t& out) { return whole(b, out); }
+bool decode(std::span<const std::byte> b, records_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, endpoint_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, match_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, history_t& out) { return whole(b, out); }

@@ -85,6 +85,46 @@ TEST_CASE("beacons round-trip through the codec", "[discovery][codec]") {
   CHECK(back->endpoints[1].matches[0].path == "shm");
 }
 
+TEST_CASE("a batch of records (records_t) is lcm-gen's encoding, checked like a beacon", "[discovery][codec]") {
+  const std::vector<std::vector<std::byte>> three = {lcmx::discovery::encode_beacon(sample_beacon(1)),
+                                                     lcmx::discovery::encode_beacon(sample_beacon(2)),
+                                                     lcmx::discovery::encode_beacon(sample_beacon(3))};
+  const auto bytes = lcmx::discovery::encode_records(7, three);
+  // What lcm-gen's own decoder reads (stock LCM tools see a valid message).
+  lcmx_msgs::records_t plain;
+  REQUIRE(plain.decode(bytes.data(), 0, static_cast<int>(bytes.size())) == static_cast<int>(bytes.size()));
+  CHECK(plain.host_id == 7);
+  REQUIRE(plain.records.size() == 3);
+  CHECK(plain.records[2].participant_id == 3);
+  CHECK(plain.records[1].endpoints[1].matches[0].path == "shm");
+  auto back = lcmx::discovery::decode_records(bytes);
+  REQUIRE(back);
+  CHECK(back->records.size() == 3);
+  auto any = lcmx::discovery::decode_any_records(bytes);
+  REQUIRE(any);
+  CHECK(any->size() == 3);
+  auto one = lcmx::discovery::decode_any_records(three[0]);
+  REQUIRE(one);
+  CHECK(one->size() == 1);
+  std::string why;
+  SECTION("every truncation") {
+    for (std::size_t n = 0; n < bytes.size(); ++n) CHECK_FALSE(lcmx::discovery::decode_records({bytes.data(), n}, &why));
+  }
+  SECTION("a record of another host than the batch's") {
+    auto other = sample_beacon(4);
+    other.host_id = 8;
+    const std::vector<std::vector<std::byte>> mixed = {three[0], lcmx::discovery::encode_beacon(other)};
+    CHECK_FALSE(lcmx::discovery::decode_records(lcmx::discovery::encode_records(7, mixed), &why));
+    CHECK_THAT(why, Catch::Contains("another host"));
+  }
+  SECTION("a count larger than the bytes") {
+    auto bad = bytes;
+    bad[20] = std::byte{0x7f};  // num_records, after fingerprint, version and host id
+    CHECK_FALSE(lcmx::discovery::decode_records(bad, &why));
+    CHECK_THAT(why, Catch::Contains("malformed"));
+  }
+}
+
 TEST_CASE("malformed beacons are rejected without crashing or allocating", "[discovery][codec]") {
   const auto good = lcmx::discovery::encode_beacon(sample_beacon(1));
   std::string why;

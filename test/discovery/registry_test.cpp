@@ -43,7 +43,7 @@ namespace {
 
 // A group of its own per test (salt) and process: ctest -j2 runs tests side by side.
 lcmx::udpm::GroupConfig group_of(int salt) {
-  const int id = static_cast<int>(::getpid()) * 32 + salt;
+  const int id = static_cast<int>(::getpid()) * 64 + salt;  // salt < 64: tests in parallel never meet
   lcmx::udpm::GroupConfig g;
   g.address = "239.252." + std::to_string((id >> 8) & 0xff) + "." + std::to_string(id & 0xff);
   g.port = static_cast<std::uint16_t>(20000 + id % 40000);
@@ -620,17 +620,18 @@ lcmx::discovery::Options fed_vehicle_options(const lcmx::udpm::GroupConfig& v, s
 }
 
 // Drains the vehicle group on a thread of its own and hands every discovery datagram to `fn`
-// (with whether it is a record) until destroyed.
+// (with whether it holds records: a beacon_t or a batch) until destroyed.
 class VehiclePump {
  public:
   using Fn = std::function<void(const lcmx::udpm::Message&, bool record)>;
+  // Joined to the group when constructed: it hears everything sent after.
   VehiclePump(const lcmx::udpm::GroupConfig& v, Fn fn)
-      : thread_([this, v, fn = std::move(fn)] {
-          auto listen = lcmx::udpm::Group::open(v);
+      : listen_(lcmx::udpm::Group::open(v)), thread_([this, fn = std::move(fn)] {
           while (!stop_) {
-            listen.drain([&](const lcmx::udpm::Message& m) {
+            listen_.drain([&](const lcmx::udpm::Message& m) {
               if (m.channel != lcmx::discovery::kBeaconChannel) return;
-              fn(m, lcmx::discovery::fingerprint_of(m.data) == beacon_t::getHash());
+              const auto fp = lcmx::discovery::fingerprint_of(m.data);
+              fn(m, fp == beacon_t::getHash() || fp == lcmx_msgs::records_t::getHash());
             });
             std::this_thread::sleep_for(2ms);  // a test's pump: polls its socket
           }
@@ -643,6 +644,7 @@ class VehiclePump {
 
  private:
   std::atomic<bool> stop_{false};
+  lcmx::udpm::Group listen_;
   std::thread thread_;
 };
 }  // namespace
@@ -724,6 +726,52 @@ TEST_CASE("vehicle scope: receivers that miss the same records ask once between 
   for (int k = 1; k < kReceivers; ++k) Registry::remove(0xd0 + static_cast<std::uint64_t>(k), group_of(32), rdir.path);
 }
 
+TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram for many, a large record alone",
+          "[discovery][vehicle]") {
+  const auto v = group_of(35);
+  FakeHost a(0xaa, group_of(36), v), b(0xbb, group_of(37), v);
+  b.add(200, {"Q"});  // an audience on another host
+  // Counts host a's discovery datagrams that hold records, and the records in them.
+  std::mutex mu;
+  int datagrams = 0, records = 0, alone = 0;
+  std::size_t largest_batch = 0;
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (!record) return;
+    auto rs = lcmx::discovery::decode_any_records(m.data);
+    if (!rs || rs->empty() || rs->front().host_id != 0xaa) return;
+    std::lock_guard lock(mu);
+    ++datagrams;
+    records += static_cast<int>(rs->size());
+    if (rs->size() == 1) ++alone;
+    else largest_batch = std::max(largest_batch, m.data.size());
+  });
+  // Twelve participants start at once, one of them with a record larger than a batch.
+  for (int k = 0; k < 12; ++k)
+    a.add(210 + k, {"T" + std::to_string(k)}, [k](beacon_t& bc) {
+      if (k == 5) bc.process_name = std::string(lcmx::discovery::kBatchBytes + 100, 'p');
+    });
+  REQUIRE(eventually([&] {
+    for (int k = 0; k < 12; ++k)
+      if (b.vlog.count(Change::joined, 210 + k) != 1) return false;
+    return true;
+  }, 5000ms));
+  // The pump polls its socket: it may be a few milliseconds behind b.
+  CHECK(eventually([&] {
+    std::lock_guard lock(mu);
+    return records >= 12;
+  }, 3000ms));
+  pump.stop();
+  std::lock_guard lock(mu);
+  INFO("datagrams " << datagrams << ", records " << records << ", alone " << alone << ", largest batch "
+                    << largest_batch);
+  // One per record without batches; with them, the burst's records share datagrams.
+  CHECK(2 * datagrams <= records);
+  CHECK(alone >= 1);  // the large one
+  CHECK(largest_batch <= lcmx::discovery::kBatchBytes);
+  CHECK(b.ps[0].v->counters().malformed == 0);
+  CHECK(b.ps[0].v->counters().forged == 0);
+}
+
 TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own heartbeats", "[discovery][vehicle]") {
   const auto v = group_of(33);
   lcmx::test::TmpDir rdir("lcmx_vm");
@@ -786,8 +834,14 @@ TEST_CASE("trust: goodbyes, newer records and source claims only from the host's
   claim.vehicle_source = "10.9.0.200:7668";
   r.deliver(message_of(lcmx::discovery::encode_beacon(claim), real));
   CHECK(r.counters().forged == 4);
+  // The same in a batch (records_t): each record is judged as if it came alone.
+  const std::vector<std::vector<std::byte>> batch = {lcmx::discovery::encode_beacon(bye),
+                                                     lcmx::discovery::encode_beacon(rec(7, 77, 1))};
+  r.deliver(message_of(lcmx::discovery::encode_records(77, batch), evil));
+  CHECK(r.counters().forged == 6);
   CHECK(lr.count(Change::left, 5) == 0);
   CHECK(lr.count(Change::joined, 6) == 0);
+  CHECK(lr.count(Change::joined, 7) == 0);
   auto ps = r.participants();
   REQUIRE(ps.size() == 1);
   CHECK(ps[0].beacon.revision == 1);

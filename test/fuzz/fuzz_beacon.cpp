@@ -1,4 +1,5 @@
-// libFuzzer target: lcmx::discovery::decode_beacon on hostile bytes.
+// libFuzzer target: lcmx::discovery::decode_beacon and decode_records (a speaker's batch,
+// chosen by the input's fingerprint) on hostile bytes.
 //
 // Checks:
 //  - a rejection says why;
@@ -6,9 +7,12 @@
 //    (getEncodedSize() <= input size: decoding allocates at most what was received);
 //  - it survives a round trip: encode_beacon, decode_beacon again, and the key fields (every
 //    field this target names; fields added later are covered by comparing the re-encodings)
-//    are equal, strings byte for byte.
+//    are equal, strings byte for byte;
+//  - a batch (records_t) that decodes is re-encoded by encode_records from its records'
+//    encode_beacon bytes to exactly the input, and each record survives the round trip above.
 // A failed check prints what failed and aborts, which libFuzzer reports as a crash.
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdio>
 #include <cstdlib>
@@ -94,10 +98,34 @@ void check_same(const lcmx_msgs::beacon_t& a, const lcmx_msgs::beacon_t& b) {
   for (std::size_t i = 0; i < a.carried.size(); ++i) check_string(a.carried[i], b.carried[i], "carried");
 }
 
+
+int check_batch(std::span<const std::byte> input) {
+  std::string why;
+  const auto batch = lcmx::discovery::decode_records(input, &why);
+  if (!batch) {
+    FUZZ_CHECK(!why.empty());
+    return 0;
+  }
+  FUZZ_CHECK(batch->version == lcmx::discovery::kBeaconVersion);
+  FUZZ_CHECK(batch->records.size() == static_cast<std::size_t>(batch->num_records));
+  std::vector<std::vector<std::byte>> each;
+  for (const auto& r : batch->records) {
+    FUZZ_CHECK(r.version == lcmx::discovery::kBeaconVersion && r.host_id == batch->host_id);
+    each.push_back(lcmx::discovery::encode_beacon(r));
+    const auto again = lcmx::discovery::decode_beacon(each.back(), &why);
+    FUZZ_CHECK(again.has_value());
+    check_same(r, *again);
+  }
+  const auto encoded = lcmx::discovery::encode_records(static_cast<std::uint64_t>(batch->host_id), each);
+  FUZZ_CHECK(encoded.size() == input.size() && std::equal(encoded.begin(), encoded.end(), input.begin()));
+  return 0;
+}
+
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   const std::span<const std::byte> input(reinterpret_cast<const std::byte*>(data), size);
+  if (lcmx::discovery::fingerprint_of(input) == lcmx_msgs::records_t::getHash()) return check_batch(input);
   std::string why;
   const auto first = lcmx::discovery::decode_beacon(input, &why);
   if (!first) {

@@ -310,6 +310,9 @@ int main(int argc, char** argv) {
   auto goodbye = beacon(1, 1);
   goodbye.flags = lcmx_msgs::beacon_t::FLAG_GOODBYE;
   ok &= write(dir / "beacon" / "goodbye.bin", lcmx::discovery::encode_beacon(goodbye));
+  // A speaker's batch (records_t): two records and the goodbye, as Discovery sends them.
+  const std::vector<Bytes> batch = {small, full, lcmx::discovery::encode_beacon(goodbye)};
+  ok &= write(dir / "beacon" / "batch.bin", lcmx::discovery::encode_records(0, batch));
 
   // Regression (kept, not a seed): a string with a NUL before its terminating NUL. Made here
   // rather than checked in because the bytes carry beacon_t's fingerprint, which follows

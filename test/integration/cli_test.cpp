@@ -34,7 +34,9 @@ class BeaconWatch {
     while (!hit && Clock::now() < deadline) {
       group_.poll(20ms, [&](const lcmx::udpm::Message& m) {
         if (hit || m.channel != lcmx::discovery::kBeaconChannel) return;
-        if (auto b = lcmx::discovery::decode_beacon(m.data)) hit = done(*b);
+        if (auto records = lcmx::discovery::decode_any_records(m.data))  // alone or a speaker's batch
+          for (const auto& b : *records)
+            if (!hit) hit = done(b);
       });
     }
     return hit;

@@ -26,6 +26,7 @@
 #include "lcmx_msgs/beacon_t.hpp"
 #include "lcmx_msgs/history_t.hpp"
 #include "lcmx_msgs/host_beacon_t.hpp"
+#include "lcmx_msgs/records_t.hpp"
 #include "lcmx_msgs/service_request_t.hpp"
 #include "multihost.hpp"
 
@@ -361,9 +362,15 @@ std::vector<beacon_t> records(const GroupListener& l) {
   std::vector<beacon_t> out;
   for (const auto& h : l.heard()) {
     if (h.channel != kBeacons) continue;
-    beacon_t b;
     const int n = static_cast<int>(h.payload.size());
-    if (b.decode(h.payload.data(), 0, n) == n && !(b.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(b));
+    beacon_t b;
+    lcmx_msgs::records_t batch;  // a speaker's records of one pass, together
+    if (b.decode(h.payload.data(), 0, n) == n) {
+      if (!(b.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(b));
+    } else if (batch.decode(h.payload.data(), 0, n) == n) {
+      for (auto& r : batch.records)
+        if (!(r.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(r));
+    }
   }
   return out;
 }

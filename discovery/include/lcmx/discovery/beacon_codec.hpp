@@ -9,6 +9,7 @@
 
 #include "lcmx_msgs/beacon_t.hpp"
 #include "lcmx_msgs/host_beacon_t.hpp"
+#include "lcmx_msgs/records_t.hpp"
 
 namespace lcmx::discovery {
 
@@ -32,6 +33,22 @@ std::optional<lcmx_msgs::beacon_t> decode_beacon(std::span<const std::byte> byte
 std::vector<std::byte> encode_host_beacon(const lcmx_msgs::host_beacon_t& beacon);
 std::optional<lcmx_msgs::host_beacon_t> decode_host_beacon(std::span<const std::byte> bytes,
                                                            std::string* why = nullptr);
+
+// Batches (records_t): records and goodbyes of one host that a speaker sends together, at most
+// kBatchBytes a datagram (about six Ethernet frames; a record larger than a batch goes alone,
+// as a beacon_t). encode_records builds the batch from encode_beacon()'s bytes without decoding
+// them (a nested struct is its top-level encoding without the fingerprint); every element must
+// be a beacon_t encoding. decode_records checks like decode_beacon, and that every record is
+// of the batch's version and host.
+inline constexpr std::size_t kBatchBytes = 8192;
+inline constexpr std::size_t kBatchHeaderBytes = 8 + 4 + 8 + 4;  // fingerprint, version, host, count
+std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std::vector<std::byte>> records);
+std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> bytes, std::string* why = nullptr);
+// Whichever of the two a discovery datagram holds: its records (a beacon_t is one). nullopt and
+// *why for anything else or malformed. For tools and tests that watch a group's records.
+std::optional<std::vector<lcmx_msgs::beacon_t>> decode_any_records(std::span<const std::byte> bytes,
+                                                                   std::string* why = nullptr);
+
 // The lcm-gen fingerprint an encoding starts with (0 if shorter than 8 bytes).
 std::int64_t fingerprint_of(std::span<const std::byte> bytes);
 
