@@ -78,10 +78,13 @@ bool PublisherImpl::wants_vehicle(std::size_t size) {
   if (udp_subscribers_.load() > 0 || rt.options.vehicle_publish == VehiclePublish::always) return true;
   if (!in_startup()) return false;
   // The start-up window: small messages whoever listens (a subscriber of another host may
-  // have matched us before we heard of it); larger ones, fragmented, once a subscriber of
-  // another host that takes them is known, matched with us or not yet (a service's reply:
-  // its client matched the reply publisher from the probe's answer and calls at once).
-  return size <= rt.options.udp_limit || unbridged_elsewhere_.load() > 0;
+  // have matched us before we heard of it) until this process has heard the whole vehicle
+  // (then every such subscriber is known and matched: udp_subscribers_ says; docs/discovery.md
+  // "Complete"); larger ones, fragmented, once a subscriber of another host that takes them is
+  // known, matched with us or not yet (a service's reply: its client matched the reply
+  // publisher from the probe's answer and calls at once).
+  if (unbridged_elsewhere_.load() > 0) return true;
+  return size <= rt.options.udp_limit && !rt.vehicle_complete();
 }
 
 bool PublisherImpl::in_startup() {

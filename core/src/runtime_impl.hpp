@@ -81,6 +81,10 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   std::uint64_t new_endpoint_id() { return pairs.new_endpoint_id(); }
   TopicClass class_of(const std::string& channel) const { return policy.class_of(channel); }
   bool bridge_on_host() const { return policy.bridge_on_host(); }
+  // Whether this process's vehicle Discovery has heard the whole vehicle once
+  // (discovery::Discovery::complete): every subscriber of another host that existed is known
+  // and matched. False without a vehicle group. Any thread.
+  bool vehicle_complete() const { return disco_vehicle_ && disco_vehicle_->complete(); }
   bool mirrored(const std::string& channel) const { return policy.mirrored(channel); }
   // Announce now. Takes no lock: publishers call it with publish_mu held.
   void changed();

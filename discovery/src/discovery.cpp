@@ -58,6 +58,9 @@ constexpr std::int64_t kClaimTimeoutNs = 2'000'000'000;
 // heartbeat and the same index at the same moment, and one multicast answer serves them all
 // (issue 33: 8 hosts x 50 processes sent 3.4 MB of requests before any host matched).
 constexpr auto kRequestJitter = std::chrono::milliseconds(40);
+// A vehicle-scope Discovery is complete (Discovery::complete) no sooner than this many periods
+// after it started: every live host's heartbeat came by then, with one late by half a period.
+constexpr double kCompleteAfter = 1.5;
 
 #ifndef SYS_pidfd_open
 #define SYS_pidfd_open 434
@@ -170,6 +173,12 @@ struct Discovery::Impl {
   std::int64_t udp_sent = 0;  // discovery thread only
   std::atomic<std::int64_t> self_id{0};
   std::atomic<bool> is_speaker{false};
+  // Discovery::complete(): latched by update_complete (under mutex), read by anyone.
+  std::atomic<bool> complete{false};
+  const Clock::time_point started = Clock::now();
+  Clock::time_point complete_due() const {
+    return started + std::chrono::duration_cast<Clock::duration>(kCompleteAfter * options.period);
+  }
   bool is_deputy = false;  // discovery thread only
   std::uint64_t observer_periods = 0;
 
@@ -1060,6 +1069,8 @@ struct Discovery::Impl {
       }
     }
     if (on_change) on_change(change, copy);
+    std::lock_guard lock(mutex);  // (deliver_mutex still held: told before complete can latch)
+    update_complete();
   }
 
   // Whether `id` is this process's participant or one in this host's registry (a slot in use;
@@ -1184,8 +1195,11 @@ struct Discovery::Impl {
         if (!want.empty() && want.size() <= 4096) requests.push_back({h->host_id, std::move(want), request_due()});
         ask = !requests.empty();
       } else if (static_cast<std::uint64_t>(h->digest) != digest_of(host.members)) {
-        // Records may be on their way: ask after two heartbeats that disagree, once per period.
-        if (++host.mismatches >= 2 && Clock::now() - host.last_request >= options.period) {
+        // Records may be on their way: ask after two heartbeats that disagree, once per period;
+        // after the first when we hold none of that host's records (we started after them:
+        // none are on their way to us). Folded between receivers like any request.
+        const int enough = host.members.empty() && h->count > 0 ? 1 : 2;
+        if (++host.mismatches >= enough && Clock::now() - host.last_request >= options.period) {
           host.last_request = Clock::now();
           host.mismatches = 0;
           requests.push_back({h->host_id, {}, request_due()});
@@ -1196,7 +1210,31 @@ struct Discovery::Impl {
       }
     }
     drop_members(gone);
+    check_complete();
     if (ask) wake();
+  }
+
+  // Latches `complete` once every host heard agrees with what we hold of it and
+  // kCompleteAfter periods have passed (Discovery::complete). Cheap once latched. Under
+  // deliver_mutex and mutex: every record counted in a host's members has been told to
+  // on_change (on_record tells under deliver_mutex), so a publisher that sees `complete`
+  // knows every subscriber those records name. check_complete takes both.
+  void check_complete() {
+    if (complete.load(std::memory_order_relaxed)) return;
+    std::lock_guard order(deliver_mutex);
+    std::lock_guard lock(mutex);
+    update_complete();
+  }
+  void update_complete() {
+    if (complete.load(std::memory_order_relaxed)) return;
+    if (host_scope) {
+      complete = true;
+      return;
+    }
+    if (Clock::now() < complete_due()) return;
+    for (const auto& [id, h] : hosts)
+      if (h.last_heard == Clock::time_point{} || static_cast<std::uint64_t>(h.digest) != digest_of(h.members)) return;
+    complete = true;
   }
 
   // Under mutex: a request heard on the group (note the ids asked of a host we know).
@@ -1421,10 +1459,13 @@ struct Discovery::Impl {
       mark_sequence();
       const auto next_request = send_requests();
       expire_hosts();
+      check_complete();
+      const bool completing = !complete.load(std::memory_order_relaxed);
 
       // Sleep until the next period, a host's lease, a request's time, a change of the
       // registry, or a wake-up.
       auto until = std::min({next_periodic, next_host_expiry(), next_request});
+      if (completing) until = std::min(until, std::max(complete_due(), Clock::now() + kSpeakerTick));
       if (retry_soon) until = std::min(until, last_pass + kCoalesce);
       // A change waits for its pass no longer than the coalescing says (the speaker too).
       if (reads && changed_since_pass()) until = std::min(until, next_pass_at());
@@ -1544,6 +1585,7 @@ Counters Discovery::counters() const {
 }
 
 bool Discovery::speaking() const { return impl_->is_speaker.load(); }
+bool Discovery::complete() const { return impl_->complete.load(std::memory_order_acquire); }
 std::shared_ptr<Registry> Discovery::registry() const { return impl_->registry; }
 const Options& Discovery::options() const { return impl_->options; }
 

@@ -772,6 +772,47 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   CHECK(b.ps[0].v->counters().forged == 0);
 }
 
+TEST_CASE("vehicle scope: complete once it holds what every host's digest names - not while records are missing",
+          "[discovery][vehicle]") {
+  const auto v = group_of(38);
+  FakeHost a(0xac, group_of(39), v);
+  a.add(301, {"X"});
+  a.add(302, {"Y"});
+  lcmx::test::TmpDir rdir("lcmx_vc");
+  Log lr;
+  Discovery r(fed_vehicle_options(v, 0xcd, group_of(40), rdir.path),
+              [] { return beacon_of(311, 0xcd, {"Z"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
+  // r hears a's heartbeats and index, not its records: it knows a holds two it lacks.
+  std::atomic<bool> pass_records{false};
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (!record || pass_records) r.deliver(m);
+  });
+  CHECK_FALSE(r.complete());
+  std::this_thread::sleep_for(400ms);  // 8 periods (complete could latch after 1.5): it must not
+  CHECK_FALSE(r.complete());
+  pass_records = true;
+  REQUIRE(eventually([&] { return r.complete(); }, 3000ms));
+  // Latched only after on_change was told of every record the digest names.
+  CHECK(lr.count(Change::joined, 301) == 1);
+  CHECK(lr.count(Change::joined, 302) == 1);
+  pump.stop();
+  Registry::remove(0xcd, group_of(40), rdir.path);
+}
+
+TEST_CASE("vehicle scope: alone on its group, complete after a period and a half", "[discovery][vehicle]") {
+  const auto v = group_of(41);
+  lcmx::test::TmpDir rdir("lcmx_va");
+  auto o = fed_vehicle_options(v, 0xce, group_of(42), rdir.path);
+  o.period = 200ms;
+  o.lease = 2000ms;
+  const auto start = Clock::now();
+  Discovery r(o, [] { return beacon_of(321, 0xce, {"Z"}, beacon_t::SCOPE_VEHICLE); }, nullptr);
+  CHECK_FALSE(r.complete());
+  REQUIRE(eventually([&] { return r.complete(); }, 3000ms));
+  CHECK(Clock::now() - start >= 300ms);  // no sooner: a host's heartbeat may still be on its way
+  Registry::remove(0xce, group_of(42), rdir.path);
+}
+
 TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own heartbeats", "[discovery][vehicle]") {
   const auto v = group_of(33);
   lcmx::test::TmpDir rdir("lcmx_vm");

@@ -130,6 +130,12 @@ class Discovery {
   Counters counters() const;
   // True while this Discovery is its registry's speaker on its group.
   bool speaking() const;
+  // Vehicle scope: whether it has heard the whole vehicle once (docs/discovery.md "Complete"):
+  // it listened for kCompleteAfter periods (every live host's heartbeat came) and holds, for
+  // every host heard, the records that host's digest names. Then a subscriber of another host
+  // that existed is known here (a publisher's start-up window ends its blind sends). Once true
+  // it stays true. Host scope: always true. Any thread; never blocks (an atomic).
+  bool complete() const;
   // The registry it uses (null for a vehicle-scope observer).
   std::shared_ptr<Registry> registry() const;
   const Options& options() const;
