@@ -81,6 +81,16 @@ std::uint32_t ip_of(const std::string& source) {  // "a.b.c.d:port" -> network-o
 
 // Hash of a beacon without what changes every period (statistics, sequence, time): a change of
 // it is structural (endpoints, matches, nodes, flags, sources).
+// The big-endian 64-bit field at `offset` of an encoding (0 if too short): a record's host id,
+// read before decoding (offset 20 of a beacon_t, 12 of a records_t).
+std::uint64_t be64_at(std::span<const std::byte> bytes, std::size_t offset) {
+  if (bytes.size() < offset + 8) return 0;
+  std::uint64_t v = 0;
+  for (std::size_t k = offset; k < offset + 8; ++k) v = (v << 8) | std::to_integer<std::uint8_t>(bytes[k]);
+  return v;
+}
+constexpr std::size_t kBeaconHostAt = 20, kRecordsHostAt = 12;
+
 std::uint64_t structural_hash(beacon_t b) {
   b.sequence = 0;
   b.timestamp_us = 0;
@@ -732,11 +742,6 @@ struct Discovery::Impl {
     std::size_t bytes = kBatchHeaderBytes;      // the records_t they make
     std::uint64_t host = 0;                     // every record of a batch names one host
   };
-  static std::uint64_t host_of_record(const std::vector<std::byte>& r) {  // host_id at offset 20
-    std::uint64_t h = 0;
-    for (std::size_t k = 20; k < 28 && k < r.size(); ++k) h = (h << 8) | std::to_integer<std::uint8_t>(r[k]);
-    return h;
-  }
   void batch_send(Batch& b) {
     if (b.items.size() == 1) publish_udp(b.items.front());  // alone: a plain beacon_t
     else if (!b.items.empty()) publish_udp(encode_records(b.host, b.items));
@@ -745,7 +750,7 @@ struct Discovery::Impl {
   void batch_add(Batch& b, std::vector<std::byte> record) {
     if (record.size() < 28) return;
     const auto n = record.size() - 8;  // nested: without its fingerprint
-    const auto host = host_of_record(record);
+    const auto host = be64_at(record, kBeaconHostAt);
     if (!b.items.empty() && (b.bytes + n > kBatchBytes || host != b.host)) batch_send(b);
     b.host = host;
     b.items.push_back(std::move(record));
@@ -954,12 +959,8 @@ struct Discovery::Impl {
     if (fp == host_beacon_t::getHash()) return on_host_message(m);
     if (fp == lcmx_msgs::records_t::getHash()) return on_records(m);
     // A record of this host's own participants (its speaker's, heard by everyone on the group):
-    // known through the registry; dropped before decoding (host_id at offset 20 of a beacon_t).
-    if (fp == beacon_t::getHash() && m.data.size() >= 28) {
-      std::uint64_t h = 0;
-      for (int k = 20; k < 28; ++k) h = (h << 8) | std::to_integer<std::uint8_t>(m.data[static_cast<std::size_t>(k)]);
-      if (h == own_host) return;
-    }
+    // known through the registry; dropped before decoding.
+    if (fp == beacon_t::getHash() && be64_at(m.data, kBeaconHostAt) == own_host) return;
     std::string why;
     auto b = decode_beacon(m.data, &why);
     if (!b) {
@@ -974,12 +975,8 @@ struct Discovery::Impl {
   // A batch of one host's records and goodbyes (records_t): each as if it came alone.
   void on_records(const udpm::Message& m) {
     // This host's own (its speaker's, heard by everyone on the group): known through the
-    // registry; dropped before decoding (host_id at offset 12 of a records_t).
-    if (m.data.size() >= kBatchHeaderBytes) {
-      std::uint64_t h = 0;
-      for (int k = 12; k < 20; ++k) h = (h << 8) | std::to_integer<std::uint8_t>(m.data[static_cast<std::size_t>(k)]);
-      if (h == own_host) return;
-    }
+    // registry; dropped before decoding.
+    if (be64_at(m.data, kRecordsHostAt) == own_host) return;
     std::string why;
     auto r = decode_records(m.data, &why);
     if (!r) {
