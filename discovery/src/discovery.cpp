@@ -936,6 +936,13 @@ struct Discovery::Impl {
   }
 
   // ------------------------------------------------------------ the group
+  // A datagram from the group that does not decode: counted, warned about (every 5 s at most).
+  void malformed(const char* what, const std::string& why) {
+    std::lock_guard lock(mutex);
+    ++counters.malformed;
+    warn_limited(last_malformed_log, "lcmx discovery: ignored {}: {}", what, why);
+  }
+
   void forged(const std::string& what) {
     std::lock_guard lock(mutex);
     ++counters.forged;
@@ -963,12 +970,7 @@ struct Discovery::Impl {
     if (fp == beacon_t::getHash() && be64_at(m.data, kBeaconHostAt) == own_host) return;
     std::string why;
     auto b = decode_beacon(m.data, &why);
-    if (!b) {
-      std::lock_guard lock(mutex);
-      ++counters.malformed;
-      warn_limited(last_malformed_log, "lcmx discovery: ignored a beacon: {}", why);
-      return;
-    }
+    if (!b) return malformed("a beacon", why);
     on_beacon(std::move(*b), m.source.address_be, m.data.size());
   }
 
@@ -979,12 +981,7 @@ struct Discovery::Impl {
     if (be64_at(m.data, kRecordsHostAt) == own_host) return;
     std::string why;
     auto r = decode_records(m.data, &why);
-    if (!r) {
-      std::lock_guard lock(mutex);
-      ++counters.malformed;
-      warn_limited(last_malformed_log, "lcmx discovery: ignored a batch of records: {}", why);
-      return;
-    }
+    if (!r) return malformed("a batch of records", why);
     for (auto& b : r->records) {
       const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
       on_beacon(std::move(b), m.source.address_be, bytes);
@@ -1115,12 +1112,7 @@ struct Discovery::Impl {
   void on_host_message(const udpm::Message& m) {
     std::string why;
     auto h = decode_host_beacon(m.data, &why);
-    if (!h) {
-      std::lock_guard lock(mutex);
-      ++counters.malformed;
-      warn_limited(last_malformed_log, "lcmx discovery: ignored a host beacon: {}", why);
-      return;
-    }
+    if (!h) return malformed("a host beacon", why);
     if (h->kind == host_beacon_t::KIND_MARK) return;  // for the runtime's loss accounting only
     if (h->kind == host_beacon_t::KIND_REQUEST) {
       std::lock_guard lock(mutex);
