@@ -306,7 +306,7 @@ def one_run(args, run):
             procs.append(newp)
             time.sleep(3.0)
             # the same window without churn, from the steady state above, is subtracted
-            res["churn_ms_per_other"] = extra_ms_per(others, c0, w0, res["cpu_pct"], len(procs))
+            res["churn_ms_per_other"] = extra_ms_per(others, c0, w0, res["cpu_pct"], len(pids))  # the steady window measured len(pids) processes
         if args.host_restart and args.hosts > 1:
             # The whole of host 0 restarts (its software stack; /dev/shm stays, as after a
             # restart of the stack, not a reboot): every peer killed, then all started again.

@@ -1266,7 +1266,6 @@ struct Discovery::Impl {
     {
       std::lock_guard lock(mutex);
       const auto now = Clock::now();
-      std::erase_if(heard, [&](const auto& kv) { return !hosts.count(kv.first); });
       std::erase_if(requests, [&](Request& q) {
         if (q.due > now) {
           next = std::min(next, q.due);
@@ -1305,9 +1304,6 @@ struct Discovery::Impl {
     return next;
   }
 
-  // An observer's query. With the registry (host scope) this host needs none: only the known
-  // neighbours are asked, each by name (a query of everyone would make every participant of
-  // every registry on the group hear every record). Without it: every host, at once.
   // After data on the group (its sequence moved by more than our own discovery datagrams since
   // our last marker), once a second, 3 times: a small marker from this participant's own
   // socket, so a receiver sees the datagrams it lost at the end of a burst (the gap before the
@@ -1335,6 +1331,9 @@ struct Discovery::Impl {
   std::int64_t mark_udp_sent = 0;  // udp_sent then
   int mark_repeats = 0;
 
+  // An observer's query. With the registry (host scope) this host needs none: only the known
+  // neighbours are asked, each by name (a query of everyone would make every participant of
+  // every registry on the group hear every record). Without it: every host, at once.
   void send_query() {
     std::vector<std::int64_t> targets;
     if (reg) {
@@ -1390,6 +1389,7 @@ struct Discovery::Impl {
           for (const auto& [id, p] : peers)
             if (p.host == h) gone.push_back(id), ++counters.leases_expired;
           hosts.erase(h);
+          heard.erase(h);  // only hosts in `hosts` (note_request)
         }
       }
       drop_members(gone);

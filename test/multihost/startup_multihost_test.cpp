@@ -70,7 +70,10 @@ TEST_CASE("start-up window across hosts: a publisher that nobody reads sends bli
   const auto blind = lan.count(ch, from);
   INFO("datagrams of the unread topic heard on host 0: " << blind);
   CHECK(blind >= 1);    // the window still opens: a subscriber there would have had the first ones
-  CHECK(blind <= 200);  // and closes once host 1 knows host 0 (1.5 beacon periods, 150 ms here)
+  // ... and closes once host 1 knows host 0: 1.5 beacon periods (150 ms here) and a request for
+  // host 0's records (33 heard on an idle machine); 400 when it stays open for its 2 s. The bound
+  // leaves a loaded machine (sanitizers, -j2) half a second more.
+  CHECK(blind <= 300);
   pub.send("quit");
   CHECK(pub.wait() == 0);
   there.send("quit");
