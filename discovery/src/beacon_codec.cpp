@@ -60,22 +60,16 @@ std::optional<lcmx_msgs::host_beacon_t> decode_host_beacon(std::span<const std::
   return b;
 }
 
-namespace {
-void put_be(std::vector<std::byte>& out, std::uint64_t v, int bytes) {
-  for (int k = bytes - 1; k >= 0; --k) out.push_back(static_cast<std::byte>((v >> (8 * k)) & 0xff));
-}
-}  // namespace
-
 std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std::vector<std::byte>> records) {
   std::size_t total = kBatchHeaderBytes;
   for (const auto& r : records) total += r.size() - 8;
-  std::vector<std::byte> out;
-  out.reserve(total);
-  put_be(out, static_cast<std::uint64_t>(lcmx_msgs::records_t::getHash()), 8);
-  put_be(out, static_cast<std::uint32_t>(kBeaconVersion), 4);
-  put_be(out, host_id, 8);
-  put_be(out, static_cast<std::uint32_t>(records.size()), 4);
-  for (const auto& r : records) out.insert(out.end(), r.begin() + 8, r.end());  // without its fingerprint
+  std::vector<std::byte> out(total);
+  lcmtypes::Writer w(out);
+  w.i64(lcmx_msgs::records_t::getHash());
+  w.i32(kBeaconVersion);
+  w.i64(static_cast<std::int64_t>(host_id));
+  w.i32(static_cast<std::int32_t>(records.size()));
+  for (const auto& r : records) w.bytes(std::span(r).subspan(8));  // without its fingerprint
   return out;
 }
 

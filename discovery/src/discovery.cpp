@@ -25,6 +25,7 @@
 
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/discovery/identity.hpp"
+#include "lcmx/lcmtypes/envelope.hpp"
 #include "lcmx/shm/futex.hpp"
 #include "registry_impl.hpp"
 
@@ -79,18 +80,19 @@ std::uint32_t ip_of(const std::string& source) {  // "a.b.c.d:port" -> network-o
   return htonl(a);
 }
 
+// A record's host id, read before decoding: the int64 at offset 20 of a beacon_t (after its
+// fingerprint, version and participant id), 12 of a records_t (fingerprint, version). 0 if the
+// bytes are too short.
+constexpr std::size_t kBeaconHostAt = 20, kRecordsHostAt = 12;
+std::uint64_t host_at(std::span<const std::byte> bytes, std::size_t offset) {
+  lcmtypes::Reader r(bytes);
+  r.bytes(offset);
+  const auto v = r.i64();
+  return r.ok() ? static_cast<std::uint64_t>(v) : 0;
+}
+
 // Hash of a beacon without what changes every period (statistics, sequence, time): a change of
 // it is structural (endpoints, matches, nodes, flags, sources).
-// The big-endian 64-bit field at `offset` of an encoding (0 if too short): a record's host id,
-// read before decoding (offset 20 of a beacon_t, 12 of a records_t).
-std::uint64_t be64_at(std::span<const std::byte> bytes, std::size_t offset) {
-  if (bytes.size() < offset + 8) return 0;
-  std::uint64_t v = 0;
-  for (std::size_t k = offset; k < offset + 8; ++k) v = (v << 8) | std::to_integer<std::uint8_t>(bytes[k]);
-  return v;
-}
-constexpr std::size_t kBeaconHostAt = 20, kRecordsHostAt = 12;
-
 std::uint64_t structural_hash(beacon_t b) {
   b.sequence = 0;
   b.timestamp_us = 0;
@@ -748,9 +750,9 @@ struct Discovery::Impl {
     b = Batch{};
   }
   void batch_add(Batch& b, std::vector<std::byte> record) {
-    if (record.size() < 28) return;
+    if (record.size() < kBeaconHostAt + 8) return;  // (encode_beacon's bytes always hold more)
     const auto n = record.size() - 8;  // nested: without its fingerprint
-    const auto host = be64_at(record, kBeaconHostAt);
+    const auto host = host_at(record, kBeaconHostAt);
     if (!b.items.empty() && (b.bytes + n > kBatchBytes || host != b.host)) batch_send(b);
     b.host = host;
     b.items.push_back(std::move(record));
@@ -967,7 +969,7 @@ struct Discovery::Impl {
     if (fp == lcmx_msgs::records_t::getHash()) return on_records(m);
     // A record of this host's own participants (its speaker's, heard by everyone on the group):
     // known through the registry; dropped before decoding.
-    if (fp == beacon_t::getHash() && be64_at(m.data, kBeaconHostAt) == own_host) return;
+    if (fp == beacon_t::getHash() && host_at(m.data, kBeaconHostAt) == own_host) return;
     std::string why;
     auto b = decode_beacon(m.data, &why);
     if (!b) return malformed("a beacon", why);
@@ -978,7 +980,7 @@ struct Discovery::Impl {
   void on_records(const udpm::Message& m) {
     // This host's own (its speaker's, heard by everyone on the group): known through the
     // registry; dropped before decoding.
-    if (be64_at(m.data, kRecordsHostAt) == own_host) return;
+    if (host_at(m.data, kRecordsHostAt) == own_host) return;
     std::string why;
     auto r = decode_records(m.data, &why);
     if (!r) return malformed("a batch of records", why);
