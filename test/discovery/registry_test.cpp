@@ -647,6 +647,30 @@ class VehiclePump {
   lcmx::udpm::Group listen_;
   std::thread thread_;
 };
+
+// A vehicle-scope receiver (participant `id` of host `host`, one topic) that hears the group
+// only through a VehiclePump: host messages always, records only once `pass_records` is set.
+struct GatedReceiver {
+  lcmx::test::TmpDir dir;
+  lcmx::udpm::GroupConfig local;
+  std::uint64_t host;
+  Log log;
+  Discovery r;
+  std::atomic<bool> pass_records{false};
+  VehiclePump pump;
+  GatedReceiver(const lcmx::udpm::GroupConfig& v, std::uint64_t h, const lcmx::udpm::GroupConfig& l, std::int64_t id,
+                std::string topic, const char* dir_name)
+      : dir(dir_name), local(l), host(h),
+        r(fed_vehicle_options(v, h, l, dir.path),
+          [=] { return beacon_of(id, h, {topic}, beacon_t::SCOPE_VEHICLE); }, log.fn()),
+        pump(v, [this](const lcmx::udpm::Message& m, bool record) {
+          if (!record || pass_records) r.deliver(m);
+        }) {}
+  ~GatedReceiver() {
+    pump.stop();
+    Registry::remove(host, local, dir.path);
+  }
+};
 }  // namespace
 
 TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the missing records - repaired", "[discovery][vehicle]") {
@@ -655,24 +679,16 @@ TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the mis
   a.add(31, {"X"});
   a.add(32, {"Y"});
   // r hears the vehicle group only through what this test hands it: no record at first.
-  lcmx::test::TmpDir rdir("lcmx_vr");
-  Log lr;
-  Discovery r(fed_vehicle_options(v, 0xc4, group_of(16), rdir.path),
-              [] { return beacon_of(41, 0xc4, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
-  std::atomic<bool> pass_records{false};
-  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
-    if (!record || pass_records) r.deliver(m);
-  });
+  GatedReceiver g(v, 0xc4, group_of(16), 41, "X", "lcmx_vr");
   // a's records went out when its participants joined, and r missed them: heartbeats disagree.
   std::this_thread::sleep_for(300ms);  // (the first records pass by unseen: the point of the test)
-  CHECK(lr.count(Change::joined, 31) == 0);
-  pass_records = true;
-  REQUIRE(eventually([&] { return lr.count(Change::joined, 31) == 1 && lr.count(Change::joined, 32) == 1; }, 3000ms));
+  CHECK(g.log.count(Change::joined, 31) == 0);
+  g.pass_records = true;
+  REQUIRE(eventually([&] { return g.log.count(Change::joined, 31) == 1 && g.log.count(Change::joined, 32) == 1; },
+                     3000ms));
   std::uint64_t answered = 0;
   for (auto& p : a.ps) answered += p.v->counters().requests_answered;
   CHECK(answered >= 1);
-  pump.stop();
-  Registry::remove(0xc4, group_of(16), rdir.path);
 }
 
 TEST_CASE("vehicle scope: receivers that miss the same records ask once between them, not once each",
@@ -778,25 +794,16 @@ TEST_CASE("vehicle scope: complete once it holds what every host's digest names 
   FakeHost a(0xac, group_of(39), v);
   a.add(301, {"X"});
   a.add(302, {"Y"});
-  lcmx::test::TmpDir rdir("lcmx_vc");
-  Log lr;
-  Discovery r(fed_vehicle_options(v, 0xcd, group_of(40), rdir.path),
-              [] { return beacon_of(311, 0xcd, {"Z"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
   // r hears a's heartbeats and index, not its records: it knows a holds two it lacks.
-  std::atomic<bool> pass_records{false};
-  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
-    if (!record || pass_records) r.deliver(m);
-  });
-  CHECK_FALSE(r.complete());
+  GatedReceiver g(v, 0xcd, group_of(40), 311, "Z", "lcmx_vc");
+  CHECK_FALSE(g.r.complete());
   std::this_thread::sleep_for(400ms);  // 8 periods (complete could latch after 1.5): it must not
-  CHECK_FALSE(r.complete());
-  pass_records = true;
-  REQUIRE(eventually([&] { return r.complete(); }, 3000ms));
+  CHECK_FALSE(g.r.complete());
+  g.pass_records = true;
+  REQUIRE(eventually([&] { return g.r.complete(); }, 3000ms));
   // Latched only after on_change was told of every record the digest names.
-  CHECK(lr.count(Change::joined, 301) == 1);
-  CHECK(lr.count(Change::joined, 302) == 1);
-  pump.stop();
-  Registry::remove(0xcd, group_of(40), rdir.path);
+  CHECK(g.log.count(Change::joined, 301) == 1);
+  CHECK(g.log.count(Change::joined, 302) == 1);
 }
 
 TEST_CASE("vehicle scope: alone on its group, complete after a period and a half", "[discovery][vehicle]") {

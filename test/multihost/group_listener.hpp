@@ -25,6 +25,39 @@ inline in_addr addr(const std::string& text) {
   return a;
 }
 
+// A group's address and port, from its URL ("udpm://G:P?...").
+struct GroupAddress {
+  std::string group;
+  std::uint16_t port = 0;
+};
+inline GroupAddress group_of_url(const std::string& url) {
+  const auto a = url.find("://") + 3, c = url.find(':', a), q = url.find('?', c);
+  return {url.substr(a, c - a), static_cast<std::uint16_t>(std::stoi(url.substr(c + 1, q - c - 1)))};
+}
+
+// A receive socket of `host` (non-blocking, 8 MiB buffer: a test may read it late) bound to
+// the group's address and port and joined on the host's "eth" address: what any machine on
+// the switch hears of that group. -1 if it cannot be made.
+inline int open_group_socket(lcmx::test::Emulation& emu, int host, const GroupAddress& g) {
+  const auto own = addr(emu.address(host, "eth"));
+  return emu.run_in(host, [&] {
+    const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
+    const int one = 1, buf = 8 << 20;
+    ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    ::setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &buf, sizeof buf);
+    sockaddr_in sa{};
+    sa.sin_family = AF_INET;
+    sa.sin_port = htons(g.port);
+    ::inet_pton(AF_INET, g.group.c_str(), &sa.sin_addr);
+    if (::bind(fd, reinterpret_cast<sockaddr*>(&sa), sizeof sa) != 0) return -1;
+    ip_mreq m{};
+    m.imr_multiaddr = sa.sin_addr;
+    m.imr_interface = own;
+    if (::setsockopt(fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &m, sizeof m) != 0) return -1;
+    return fd;
+  });
+}
+
 // A stock socket on a host that joined a group ("udpm://G:P?..."): keeps the LC02 datagrams it
 // hears (channel, sender address, bytes, arrival time; at most kKeep).
 class GroupListener {
@@ -39,26 +72,10 @@ class GroupListener {
   static constexpr std::size_t kKeep = 200000;
 
   GroupListener(lcmx::test::Emulation& emu, int host, const std::string& url) {
-    const auto a = url.find("://") + 3, c = url.find(':', a), q = url.find('?', c);
-    group_ = url.substr(a, c - a);
-    port_ = static_cast<std::uint16_t>(std::stoi(url.substr(c + 1, q - c - 1)));
-    const auto own = addr(emu.address(host, "eth"));
-    fd_ = emu.run_in(host, [&] {
-      const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
-      const int one = 1, buf = 8 << 20;
-      ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-      ::setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &buf, sizeof buf);
-      sockaddr_in sa{};
-      sa.sin_family = AF_INET;
-      sa.sin_port = htons(port_);
-      ::inet_pton(AF_INET, group_.c_str(), &sa.sin_addr);
-      if (::bind(fd, reinterpret_cast<sockaddr*>(&sa), sizeof sa) != 0) return -1;
-      ip_mreq m{};
-      ::inet_pton(AF_INET, group_.c_str(), &m.imr_multiaddr);
-      m.imr_interface = own;
-      if (::setsockopt(fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &m, sizeof m) != 0) return -1;
-      return fd;
-    });
+    const auto g = group_of_url(url);
+    group_ = g.group;
+    port_ = g.port;
+    fd_ = open_group_socket(emu, host, g);
     REQUIRE(fd_ >= 0);
   }
   GroupListener(const GroupListener&) = delete;

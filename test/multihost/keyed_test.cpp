@@ -12,6 +12,7 @@
 
 #include "lcmx/test/catch_netns.hpp"
 #include "lcmx/test/tmp_dir.hpp"
+#include "group_listener.hpp"
 #include "multihost.hpp"
 
 using namespace lcmx::mh;
@@ -46,26 +47,11 @@ bool wait_contains(Child& c, const std::string& needle, ms timeout) {
 class Recorder {
  public:
   Recorder(lcmx::test::Emulation& emu, int host, const std::string& vehicle_url) {
-    const auto a = vehicle_url.find("://") + 3, colon = vehicle_url.find(':', a);
-    group_ = vehicle_url.substr(a, colon - a);
-    port_ = static_cast<std::uint16_t>(std::stoi(vehicle_url.substr(colon + 1)));
+    const auto g = group_of_url(vehicle_url);
+    group_ = g.group;
+    port_ = g.port;
     const std::string own = emu.address(host, "eth");
-    fd_ = emu.run_in(host, [&] {
-      const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC | SOCK_NONBLOCK, 0);
-      const int one = 1, buffer = 8 << 20;
-      ::setsockopt(fd, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-      ::setsockopt(fd, SOL_SOCKET, SO_RCVBUFFORCE, &buffer, sizeof buffer);
-      sockaddr_in b{};
-      b.sin_family = AF_INET;
-      b.sin_port = htons(port_);
-      ::inet_pton(AF_INET, group_.c_str(), &b.sin_addr);
-      if (::bind(fd, reinterpret_cast<sockaddr*>(&b), sizeof b) != 0) return -1;
-      ip_mreq m{};
-      m.imr_multiaddr = b.sin_addr;
-      ::inet_pton(AF_INET, own.c_str(), &m.imr_interface);
-      if (::setsockopt(fd, IPPROTO_IP, IP_ADD_MEMBERSHIP, &m, sizeof m) != 0) return -1;
-      return fd;
-    });
+    fd_ = open_group_socket(emu, host, g);
     // Sent from the machine's own address (the receive socket is bound to the group address).
     out_ = emu.run_in(host, [&] {
       const int fd = ::socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
