@@ -12,7 +12,7 @@ packages=(
   libboost-dev                     # Boost.Interprocess
   catch2 clang libclang-rt-14-dev  # tests (Catch2 v2; clang + libFuzzer runtime for test/fuzz)
   libcli11-dev libspdlog-dev libtomlplusplus-dev libncurses-dev
-  zlib1g-dev                       # lcmx log export: MCAP CRC32
+  zlib1g-dev                       # discovery: compressed batches; lcmx log export: MCAP CRC32
   python3 python3-jsonschema       # tests: the independent MCAP reader (test/integration/mcap_check.py)
   python3-dev pybind11-dev python3-pytest  # the Python module (python/) and its tests
   nlohmann-json3-dev               # lcmx::types from_json (lcmx pub)

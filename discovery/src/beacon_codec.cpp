@@ -2,6 +2,8 @@
 
 #include <cstdint>
 
+#include <zlib.h>
+
 #include "lcmx/lcmtypes/envelope.hpp"
 
 namespace lcmx::discovery {
@@ -91,10 +93,70 @@ std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> by
   return r;
 }
 
+namespace {
+
+// The records_t `raw` deflated into a records_z_t; nullopt if zlib fails (it does not for
+// sizes it accepts) or the records_t is larger than receivers inflate.
+std::optional<std::vector<std::byte>> deflate_records(std::uint64_t host_id, std::span<const std::byte> raw) {
+  if (raw.size() > kMaxInflatedBytes) return std::nullopt;
+  uLongf n = compressBound(static_cast<uLong>(raw.size()));
+  std::vector<std::byte> z(n);
+  if (compress2(reinterpret_cast<Bytef*>(z.data()), &n, reinterpret_cast<const Bytef*>(raw.data()),
+                static_cast<uLong>(raw.size()), Z_BEST_COMPRESSION) != Z_OK)
+    return std::nullopt;
+  constexpr std::size_t kHeader = 8 + 4 + 8 + 4 + 4;  // fingerprint, version, host, raw_size, num_bytes
+  std::vector<std::byte> out(kHeader + n);
+  lcmtypes::Writer w(out);
+  w.i64(lcmx_msgs::records_z_t::getHash());
+  w.i32(kBeaconVersion);
+  w.i64(static_cast<std::int64_t>(host_id));
+  w.i32(static_cast<std::int32_t>(raw.size()));
+  w.i32(static_cast<std::int32_t>(n));
+  w.bytes(std::span(z).first(n));
+  if (!w.ok()) return std::nullopt;
+  return out;
+}
+
+}  // namespace
+
+std::vector<std::byte> encode_batch(std::uint64_t host_id, std::span<const std::vector<std::byte>> records) {
+  if (records.empty()) return {};
+  auto batch = encode_records(host_id, records);
+  const auto z = deflate_records(host_id, batch);
+  auto plain = records.size() == 1 ? records.front() : std::move(batch);  // one record: alone
+  if (z && z->size() < plain.size()) return *z;
+  return plain;
+}
+
+std::optional<lcmx_msgs::records_t> decode_batch(std::span<const std::byte> bytes, std::string* why) {
+  auto reject = [&](const char* w) -> std::optional<lcmx_msgs::records_t> {
+    if (why) *why = w;
+    return std::nullopt;
+  };
+  if (fingerprint_of(bytes) != lcmx_msgs::records_z_t::getHash()) return decode_records(bytes, why);
+  if (bytes.size() > (16u << 20)) return reject("larger than 16 MiB");
+  lcmx_msgs::records_z_t z;
+  if (!lcmtypes::decode(bytes, z)) return reject("malformed compressed records (lengths or counts out of range)");
+  if (z.version != kBeaconVersion) return reject("unsupported records version");
+  const auto declared = static_cast<std::size_t>(z.raw_size < 0 ? 0 : z.raw_size);
+  if (z.raw_size < static_cast<std::int32_t>(kBatchHeaderBytes) || declared > kMaxInflatedBytes ||
+      declared > kMaxInflateRatio * z.deflated.size())
+    return reject("compressed records of an impossible size");
+  std::vector<std::byte> raw(declared);
+  uLongf out = static_cast<uLongf>(raw.size());
+  uLong in = static_cast<uLong>(z.deflated.size());
+  if (uncompress2(reinterpret_cast<Bytef*>(raw.data()), &out, z.deflated.data(), &in) != Z_OK ||
+      out != raw.size() || in != z.deflated.size())
+    return reject("compressed records that do not inflate to their size");
+  auto r = decode_records(raw, why);
+  if (r && r->host_id != z.host_id) return reject("compressed records of another host");
+  return r;
+}
+
 std::optional<std::vector<lcmx_msgs::beacon_t>> decode_any_records(std::span<const std::byte> bytes, std::string* why) {
   const auto fp = fingerprint_of(bytes);
-  if (fp == lcmx_msgs::records_t::getHash()) {
-    auto r = decode_records(bytes, why);
+  if (fp == lcmx_msgs::records_t::getHash() || fp == lcmx_msgs::records_z_t::getHash()) {
+    auto r = decode_batch(bytes, why);
     if (!r) return std::nullopt;
     return std::move(r->records);
   }

@@ -81,8 +81,8 @@ std::uint32_t ip_of(const std::string& source) {  // "a.b.c.d:port" -> network-o
 }
 
 // A record's host id, read before decoding: the int64 at offset 20 of a beacon_t (after its
-// fingerprint, version and participant id), 12 of a records_t (fingerprint, version). 0 if the
-// bytes are too short.
+// fingerprint, version and participant id), 12 of a records_t or a records_z_t (fingerprint,
+// version). 0 if the bytes are too short.
 constexpr std::size_t kBeaconHostAt = 20, kRecordsHostAt = 12;
 std::uint64_t host_at(std::span<const std::byte> bytes, std::size_t offset) {
   lcmtypes::Reader r(bytes);
@@ -745,8 +745,8 @@ struct Discovery::Impl {
     std::uint64_t host = 0;                     // every record of a batch names one host
   };
   void batch_send(Batch& b) {
-    if (b.items.size() == 1) publish_udp(b.items.front());  // alone: a plain beacon_t
-    else if (!b.items.empty()) publish_udp(encode_records(b.host, b.items));
+    // The smallest of: a record alone (beacon_t), the records_t, the records_t compressed.
+    if (!b.items.empty()) publish_udp(encode_batch(b.host, b.items));
     b = Batch{};
   }
   void batch_add(Batch& b, std::vector<std::byte> record) {
@@ -966,7 +966,7 @@ struct Discovery::Impl {
     if (m.channel != kBeaconChannel) return;
     const auto fp = fingerprint_of(m.data);
     if (fp == host_beacon_t::getHash()) return on_host_message(m);
-    if (fp == lcmx_msgs::records_t::getHash()) return on_records(m);
+    if (fp == lcmx_msgs::records_t::getHash() || fp == lcmx_msgs::records_z_t::getHash()) return on_records(m);
     // A record of this host's own participants (its speaker's, heard by everyone on the group):
     // known through the registry; dropped before decoding.
     if (fp == beacon_t::getHash() && host_at(m.data, kBeaconHostAt) == own_host) return;
@@ -976,13 +976,14 @@ struct Discovery::Impl {
     on_beacon(std::move(*b), m.source.address_be, m.data.size());
   }
 
-  // A batch of one host's records and goodbyes (records_t): each as if it came alone.
+  // A batch of one host's records and goodbyes (records_t, or records_z_t: compressed): each
+  // as if it came alone.
   void on_records(const udpm::Message& m) {
     // This host's own (its speaker's, heard by everyone on the group): known through the
-    // registry; dropped before decoding.
+    // registry; dropped before decoding (the host id lies at the same offset in both).
     if (host_at(m.data, kRecordsHostAt) == own_host) return;
     std::string why;
-    auto r = decode_records(m.data, &why);
+    auto r = decode_batch(m.data, &why);
     if (!r) return malformed("a batch of records", why);
     for (auto& b : r->records) {
       const auto bytes = static_cast<std::size_t>(b.getEncodedSize());

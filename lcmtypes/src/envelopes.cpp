@@ -113,6 +113,13 @@ void fields(Reader& r, records_t& b) {
   struct_array(r, b.num_records, kBeacon, b.records, [](Reader& rr, beacon_t& x) { fields(rr, x); });
 }
 
+void fields(Reader& r, records_z_t& b) {
+  b.version = r.i32();
+  b.host_id = r.i64();
+  b.raw_size = r.i32();
+  byte_array(r, b.num_bytes, b.deflated);
+}
+
 // An int64 array whose count member was read before (host_beacon_t: two arrays share one).
 void i64_array(Reader& r, std::int32_t count, std::vector<std::int64_t>& out) {
   out.resize(r.count(count, 8));
@@ -312,6 +319,7 @@ bool whole(std::span<const std::byte> bytes, T& out) {
 bool decode(std::span<const std::byte> b, beacon_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, host_beacon_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, records_t& out) { return whole(b, out); }
+bool decode(std::span<const std::byte> b, records_z_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, endpoint_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, match_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, history_t& out) { return whole(b, out); }

@@ -19,6 +19,8 @@
 #include <random>
 #include <thread>
 
+#include <zlib.h>
+
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/discovery/discovery.hpp"
 #include "lcmx/discovery/identity.hpp"
@@ -122,6 +124,115 @@ TEST_CASE("a batch of records (records_t) is lcm-gen's encoding, checked like a 
     bad[20] = std::byte{0x7f};  // num_records, after fingerprint, version and host id
     CHECK_FALSE(lcmx::discovery::decode_records(bad, &why));
     CHECK_THAT(why, Catch::Contains("malformed"));
+  }
+}
+
+namespace {
+
+// A records_z_t around whatever deflated bytes and declared size a test wants (lcm-gen's encoder).
+std::vector<std::byte> records_z(std::int64_t host, std::int32_t raw_size, std::vector<std::uint8_t> deflated) {
+  lcmx_msgs::records_z_t z{};
+  z.version = lcmx::discovery::kBeaconVersion;
+  z.host_id = host;
+  z.raw_size = raw_size;
+  z.num_bytes = static_cast<std::int32_t>(deflated.size());
+  z.deflated = std::move(deflated);
+  std::vector<std::byte> out(static_cast<std::size_t>(z.getEncodedSize()));
+  z.encode(out.data(), 0, static_cast<int>(out.size()));
+  return out;
+}
+
+std::vector<std::uint8_t> deflate(std::span<const std::byte> raw) {
+  uLongf n = compressBound(static_cast<uLong>(raw.size()));
+  std::vector<std::uint8_t> z(n);
+  REQUIRE(compress2(z.data(), &n, reinterpret_cast<const Bytef*>(raw.data()), static_cast<uLong>(raw.size()), 6) == Z_OK);
+  z.resize(n);
+  return z;
+}
+
+}  // namespace
+
+TEST_CASE("a compressed batch (records_z_t) is smaller, inflates to the records_t, and is inflated only within its bounds",
+          "[discovery][codec]") {
+  std::vector<std::vector<std::byte>> records;
+  for (int k = 1; k <= 6; ++k) records.push_back(lcmx::discovery::encode_beacon(sample_beacon(k)));
+  const auto plain = lcmx::discovery::encode_records(7, records);
+  const auto sent = lcmx::discovery::encode_batch(7, records);
+  REQUIRE(lcmx::discovery::fingerprint_of(sent) == lcmx_msgs::records_z_t::getHash());
+  INFO("records_t " << plain.size() << " B, compressed " << sent.size() << " B");
+  CHECK(2 * sent.size() < plain.size());  // six alike records: well under half
+  // lcm-gen's own decoder reads it, and zlib's own inflate gives back exactly the records_t.
+  lcmx_msgs::records_z_t z;
+  REQUIRE(z.decode(sent.data(), 0, static_cast<int>(sent.size())) == static_cast<int>(sent.size()));
+  CHECK(z.host_id == 7);
+  REQUIRE(z.raw_size == static_cast<std::int32_t>(plain.size()));
+  std::vector<std::byte> inflated(plain.size());
+  uLongf n = static_cast<uLongf>(inflated.size());
+  REQUIRE(uncompress(reinterpret_cast<Bytef*>(inflated.data()), &n, z.deflated.data(), static_cast<uLong>(z.deflated.size())) == Z_OK);
+  CHECK(inflated == plain);
+  auto back = lcmx::discovery::decode_batch(sent);
+  REQUIRE(back);
+  REQUIRE(back->records.size() == 6);
+  CHECK(back->records[5].participant_id == 6);
+  CHECK(back->records[2].endpoints[1].matches[0].path == "shm");
+  auto any = lcmx::discovery::decode_any_records(sent);
+  REQUIRE(any);
+  CHECK(any->size() == 6);
+  // A plain records_t still decodes through decode_batch; a small record with little to
+  // compress (random fields) is sent alone, as it is; a compressible one is sent deflated.
+  CHECK(lcmx::discovery::decode_batch(plain));
+  std::mt19937_64 rng(7);
+  beacon_t tiny{};
+  tiny.version = lcmx::discovery::kBeaconVersion;
+  tiny.host_id = 7;
+  for (auto* f : {&tiny.participant_id, &tiny.start_time, &tiny.pid_namespace, &tiny.sequence, &tiny.revision, &tiny.timestamp_us})
+    *f = static_cast<std::int64_t>(rng());
+  for (int k = 0; k < 24; ++k) tiny.process_name += static_cast<char>('!' + rng() % 90);
+  const std::vector<std::vector<std::byte>> one = {lcmx::discovery::encode_beacon(tiny)};
+  CHECK(lcmx::discovery::encode_batch(7, one) == one.front());
+  const std::vector<std::vector<std::byte>> alike = {lcmx::discovery::encode_beacon(sample_beacon(1))};
+  const auto single = lcmx::discovery::encode_batch(7, alike);
+  CHECK(lcmx::discovery::fingerprint_of(single) == lcmx_msgs::records_z_t::getHash());
+  CHECK(single.size() < alike.front().size());
+
+  std::string why;
+  SECTION("every truncation") {
+    for (std::size_t k = 0; k < sent.size(); ++k) CHECK_FALSE(lcmx::discovery::decode_batch({sent.data(), k}, &why));
+  }
+  SECTION("a declared size that is not what the stream inflates to, either way") {
+    const auto d = deflate(plain);
+    const auto size = static_cast<std::int32_t>(plain.size());
+    CHECK(lcmx::discovery::decode_batch(records_z(7, size, d), &why));
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, size + 1, d), &why));
+    CHECK_THAT(why, Catch::Contains("do not inflate"));
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, size - 1, d), &why));
+    CHECK_THAT(why, Catch::Contains("do not inflate"));
+  }
+  SECTION("bytes after the stream, a broken checksum") {
+    auto d = deflate(plain);
+    auto longer = d;
+    longer.push_back(0);
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, static_cast<std::int32_t>(plain.size()), longer), &why));
+    CHECK_THAT(why, Catch::Contains("do not inflate"));
+    d.back() ^= 1;  // the Adler-32 at the end of the stream
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, static_cast<std::int32_t>(plain.size()), d), &why));
+  }
+  SECTION("a size no receiver inflates: above the bound, or above deflate's ratio for its bytes") {
+    // 8 MiB of zeros deflates to about 8 KB: a real stream, refused before anything is allocated.
+    const std::vector<std::byte> zeros(8u << 20);
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, static_cast<std::int32_t>(zeros.size()), deflate(zeros)), &why));
+    CHECK_THAT(why, Catch::Contains("impossible size"));
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, 1 << 20, {1, 2, 3}), &why));
+    CHECK_THAT(why, Catch::Contains("impossible size"));
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, -5, deflate(plain)), &why));
+    CHECK_THAT(why, Catch::Contains("impossible size"));
+  }
+  SECTION("a stream that is not a batch, or a batch of another host") {
+    const auto beacon = lcmx::discovery::encode_beacon(sample_beacon(1));
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(7, static_cast<std::int32_t>(beacon.size()), deflate(beacon)), &why));
+    CHECK_THAT(why, Catch::Contains("records_t"));
+    CHECK_FALSE(lcmx::discovery::decode_batch(records_z(8, static_cast<std::int32_t>(plain.size()), deflate(plain)), &why));
+    CHECK_THAT(why, Catch::Contains("another host"));
   }
 }
 

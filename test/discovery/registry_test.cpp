@@ -631,7 +631,8 @@ class VehiclePump {
             listen_.drain([&](const lcmx::udpm::Message& m) {
               if (m.channel != lcmx::discovery::kBeaconChannel) return;
               const auto fp = lcmx::discovery::fingerprint_of(m.data);
-              fn(m, fp == beacon_t::getHash() || fp == lcmx_msgs::records_t::getHash());
+              fn(m, fp == beacon_t::getHash() || fp == lcmx_msgs::records_t::getHash() ||
+                        fp == lcmx_msgs::records_z_t::getHash());
             });
             std::this_thread::sleep_for(2ms);  // a test's pump: polls its socket
           }
@@ -749,7 +750,7 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   b.add(200, {"Q"});  // an audience on another host
   // Counts host a's discovery datagrams that hold records, and the records in them.
   std::mutex mu;
-  int datagrams = 0, records = 0, alone = 0;
+  int datagrams = 0, records = 0, alone = 0, compressed = 0;
   std::size_t largest_batch = 0;
   VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
     if (!record) return;
@@ -757,6 +758,7 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
     if (!rs || rs->empty() || rs->front().host_id != 0xaa) return;
     std::lock_guard lock(mu);
     ++datagrams;
+    if (lcmx::discovery::fingerprint_of(m.data) == lcmx_msgs::records_z_t::getHash()) ++compressed;
     records += static_cast<int>(rs->size());
     if (rs->size() == 1) ++alone;
     else largest_batch = std::max(largest_batch, m.data.size());
@@ -779,11 +781,12 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   pump.stop();
   std::lock_guard lock(mu);
   INFO("datagrams " << datagrams << ", records " << records << ", alone " << alone << ", largest batch "
-                    << largest_batch);
+                    << largest_batch << ", compressed " << compressed);
   // One per record without batches; with them, the burst's records share datagrams.
   CHECK(2 * datagrams <= records);
   CHECK(alone >= 1);  // the large one
   CHECK(largest_batch <= lcmx::discovery::kBatchBytes);
+  CHECK(compressed >= 1);  // records of one host alike: the batches went deflated
   CHECK(b.ps[0].v->counters().malformed == 0);
   CHECK(b.ps[0].v->counters().forged == 0);
 }
@@ -887,9 +890,17 @@ TEST_CASE("trust: goodbyes, newer records and source claims only from the host's
                                                      lcmx::discovery::encode_beacon(rec(7, 77, 1))};
   r.deliver(message_of(lcmx::discovery::encode_records(77, batch), evil));
   CHECK(r.counters().forged == 6);
+  // And compressed (records_z_t): inflated, then the same rules.
+  const std::vector<std::vector<std::byte>> alike = {lcmx::discovery::encode_beacon(bye), lcmx::discovery::encode_beacon(rec(7, 77, 1)),
+                                                     lcmx::discovery::encode_beacon(rec(8, 77, 1)), lcmx::discovery::encode_beacon(rec(9, 77, 1))};
+  const auto deflated = lcmx::discovery::encode_batch(77, alike);
+  REQUIRE(lcmx::discovery::fingerprint_of(deflated) == lcmx_msgs::records_z_t::getHash());
+  r.deliver(message_of(deflated, evil));
+  CHECK(r.counters().forged == 10);
   CHECK(lr.count(Change::left, 5) == 0);
   CHECK(lr.count(Change::joined, 6) == 0);
   CHECK(lr.count(Change::joined, 7) == 0);
+  CHECK(lr.count(Change::joined, 8) == 0);
   auto ps = r.participants();
   REQUIRE(ps.size() == 1);
   CHECK(ps[0].beacon.revision == 1);

@@ -313,6 +313,9 @@ int main(int argc, char** argv) {
   // A speaker's batch (records_t): two records and the goodbye, as Discovery sends them.
   const std::vector<Bytes> batch = {small, full, lcmx::discovery::encode_beacon(goodbye)};
   ok &= write(dir / "beacon" / "batch.bin", lcmx::discovery::encode_records(0, batch));
+  // The same batch compressed (records_z_t), as a speaker sends it when that is smaller.
+  const std::vector<Bytes> many = {full, full, full, small, lcmx::discovery::encode_beacon(goodbye)};
+  ok &= write(dir / "beacon" / "batch_z.bin", lcmx::discovery::encode_batch(0, many));
 
   // Regression (kept, not a seed): a string with a NUL before its terminating NUL. Made here
   // rather than checked in because the bytes carry beacon_t's fingerprint, which follows

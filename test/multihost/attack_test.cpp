@@ -21,12 +21,15 @@
 #include <random>
 #include <set>
 
+#include <zlib.h>
+
 #include "lcmx/test/catch_netns.hpp"
 #include "lcmx_examples/bench_t.hpp"
 #include "lcmx_msgs/beacon_t.hpp"
 #include "lcmx_msgs/history_t.hpp"
 #include "lcmx_msgs/host_beacon_t.hpp"
 #include "lcmx_msgs/records_t.hpp"
+#include "lcmx_msgs/records_z_t.hpp"
 #include "lcmx_msgs/service_request_t.hpp"
 #include "group_listener.hpp"
 #include "multihost.hpp"
@@ -258,17 +261,27 @@ using lcmx_msgs::endpoint_t;
 using lcmx_msgs::host_beacon_t;
 
 // The discovery records (beacon_t, goodbyes left out) a listener heard, decoded by lcm-gen's
-// code: the test's own view of its own hosts' traffic.
+// code (and a compressed batch inflated by zlib's): the test's own view of its own hosts' traffic.
 std::vector<beacon_t> records(const GroupListener& l) {
   std::vector<beacon_t> out;
   for (const auto& h : l.heard()) {
     if (h.channel != kBeacons) continue;
-    const int n = static_cast<int>(h.payload.size());
+    const void* data = h.payload.data();
+    int n = static_cast<int>(h.payload.size());
     beacon_t b;
     lcmx_msgs::records_t batch;  // a speaker's records of one pass, together
-    if (b.decode(h.payload.data(), 0, n) == n) {
+    lcmx_msgs::records_z_t z;    // the same, compressed
+    std::vector<std::uint8_t> inflated;
+    if (z.decode(data, 0, n) == n && z.raw_size > 0) {
+      inflated.resize(static_cast<std::size_t>(z.raw_size));
+      uLongf size = static_cast<uLongf>(inflated.size());
+      if (uncompress(inflated.data(), &size, z.deflated.data(), static_cast<uLong>(z.deflated.size())) != Z_OK) continue;
+      data = inflated.data();
+      n = static_cast<int>(size);
+    }
+    if (b.decode(data, 0, n) == n) {
       if (!(b.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(b));
-    } else if (batch.decode(h.payload.data(), 0, n) == n) {
+    } else if (batch.decode(data, 0, n) == n) {
       for (auto& r : batch.records)
         if (!(r.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(r));
     }
