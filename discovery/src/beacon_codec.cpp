@@ -62,8 +62,9 @@ std::optional<lcmx_msgs::host_beacon_t> decode_host_beacon(std::span<const std::
   return b;
 }
 
-std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std::vector<std::byte>> records) {
-  std::size_t total = kBatchHeaderBytes;
+std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std::vector<std::byte>> records,
+                                      std::span<const std::byte> index) {
+  std::size_t total = kBatchHeaderBytes + (index.size() > 8 ? index.size() - 8 : 0);
   for (const auto& r : records) total += r.size() - 8;
   std::vector<std::byte> out(total);
   lcmtypes::Writer w(out);
@@ -72,6 +73,8 @@ std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std
   w.i64(static_cast<std::int64_t>(host_id));
   w.i32(static_cast<std::int32_t>(records.size()));
   for (const auto& r : records) w.bytes(std::span(r).subspan(8));  // without its fingerprint
+  w.i32(index.size() > 8 ? 1 : 0);
+  if (index.size() > 8) w.bytes(index.subspan(8));
   return out;
 }
 
@@ -90,6 +93,10 @@ std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> by
     if (b.version != kBeaconVersion) return reject("a record of an unsupported version in a batch");
     if (b.host_id != r.host_id) return reject("a record of another host in a batch");
   }
+  if (r.index.size() > 1) return reject("more than one index in a batch");
+  for (const auto& h : r.index)
+    if (h.version != kHostBeaconVersion || h.kind != lcmx_msgs::host_beacon_t::KIND_INDEX || h.host_id != r.host_id)
+      return reject("an index in a batch that is not its host's index");
   return r;
 }
 
@@ -119,11 +126,13 @@ std::optional<std::vector<std::byte>> deflate_records(std::uint64_t host_id, std
 
 }  // namespace
 
-std::vector<std::byte> encode_batch(std::uint64_t host_id, std::span<const std::vector<std::byte>> records) {
+std::vector<std::byte> encode_batch(std::uint64_t host_id, std::span<const std::vector<std::byte>> records,
+                                    std::span<const std::byte> index) {
   if (records.empty()) return {};
-  auto batch = encode_records(host_id, records);
+  auto batch = encode_records(host_id, records, index);
   const auto z = deflate_records(host_id, batch);
-  auto plain = records.size() == 1 ? records.front() : std::move(batch);  // one record: alone
+  const bool alone = records.size() == 1 && index.empty();  // a plain beacon_t
+  auto plain = alone ? records.front() : std::move(batch);
   if (z && z->size() < plain.size()) return *z;
   return plain;
 }

@@ -725,14 +725,19 @@ struct Discovery::Impl {
     return h;
   }
 
-  void send_index() {
+  // The index (KIND_INDEX): the (participant, revision) set this speaker speaks for. Built just
+  // before the datagram that carries it goes out (its `sequence` counts that datagram).
+  std::vector<std::byte> index_message() {
     auto h = host_message(host_beacon_t::KIND_INDEX);
     for (const auto& [id, rev] : spoken_set) {
       h.participants.push_back(id);
       h.revisions.push_back(rev);
     }
     h.num_entries = static_cast<std::int32_t>(h.participants.size());
-    publish_udp(encode_host_beacon(h));
+    return encode_host_beacon(h);
+  }
+  void send_index() {
+    publish_udp(index_message());
     last_index = Clock::now();
   }
 
@@ -744,10 +749,15 @@ struct Discovery::Impl {
     std::size_t bytes = kBatchHeaderBytes;      // the records_t they make
     std::uint64_t host = 0;                     // every record of a batch names one host
   };
-  void batch_send(Batch& b) {
+  // `with_index`: the pass's index rides in this batch (docs/discovery.md "Batches"), not in a
+  // datagram of its own. False if the batch was empty (nothing sent: send the index alone).
+  bool batch_send(Batch& b, bool with_index = false) {
+    if (b.items.empty()) return false;
     // The smallest of: a record alone (beacon_t), the records_t, the records_t compressed.
-    if (!b.items.empty()) publish_udp(encode_batch(b.host, b.items));
+    publish_udp(encode_batch(b.host, b.items, with_index ? index_message() : std::vector<std::byte>{}));
+    if (with_index) last_index = Clock::now();
     b = Batch{};
+    return true;
   }
   void batch_add(Batch& b, std::vector<std::byte> record) {
     if (record.size() < kBeaconHostAt + 8) return;  // (encode_beacon's bytes always hold more)
@@ -827,8 +837,9 @@ struct Discovery::Impl {
       pending_records.clear();
       pending_goodbyes.clear();
     }
-    batch_send(batch);
-    if (index) send_index();
+    // The index rides in this pass's last batch (records of this host's participants only),
+    // or goes alone when no record went out.
+    if (!batch_send(batch, index) && index) send_index();
     if (all || index || !want.empty()) {
       std::lock_guard lock(mutex);
       ++counters.requests_answered;
@@ -989,6 +1000,7 @@ struct Discovery::Impl {
       const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
       on_beacon(std::move(b), m.source.address_be, bytes);
     }
+    for (const auto& index : r->index) on_host_state(index, m.source.address_be);  // after the records it lists
   }
 
   // One beacon_t heard (alone or in a batch): an observer's query, or a record or goodbye of
@@ -1155,38 +1167,44 @@ struct Discovery::Impl {
       }
       return;
     }
+    on_host_state(*h, m.source.address_be);
+  }
+
+  // Another host's heartbeat or index (alone, or the index in a batch after its records) from
+  // address `ip`: its table here follows (a restart, members gone, records to ask for).
+  void on_host_state(const host_beacon_t& h, std::uint32_t ip) {
     std::vector<std::int64_t> gone;
     bool ask = false;
     {
       std::lock_guard lock(mutex);
       audience_until = Clock::now() + 3 * options.lease;  // another registry listens on this group
-      if (!source_ok(h->host_id, m.source.address_be))
+      if (!source_ok(h.host_id, ip))
         return (void)(++counters.forged);
-      auto& host = hosts[h->host_id];
-      if (host.registry_id != 0 && host.registry_id != h->registry_id) {
+      auto& host = hosts[h.host_id];
+      if (host.registry_id != 0 && host.registry_id != h.registry_id) {
         // The host restarted (a new registry): its old participants are gone.
         for (const auto& [id, rev] : host.members) gone.push_back(id);
         host.members.clear();
       }
-      host.registry_id = h->registry_id;
-      host.speaker = h->speaker;
+      host.registry_id = h.registry_id;
+      host.speaker = h.speaker;
       host.last_heard = Clock::now();
-      host.lease = lease_of(h->lease_ms);
-      host.digest = h->digest;
-      if (h->kind == host_beacon_t::KIND_INDEX) {
-        std::set<std::int64_t> listed(h->participants.begin(), h->participants.end());
+      host.lease = lease_of(h.lease_ms);
+      host.digest = h.digest;
+      if (h.kind == host_beacon_t::KIND_INDEX) {
+        std::set<std::int64_t> listed(h.participants.begin(), h.participants.end());
         for (const auto& [id, rev] : host.members)
           if (!listed.count(id)) gone.push_back(id);
         std::vector<std::pair<std::int64_t, std::int64_t>> want;
-        for (std::size_t k = 0; k < h->participants.size(); ++k) {
-          auto mine = host.members.find(h->participants[k]);
-          if (mine == host.members.end() || mine->second != h->revisions[k])
-            want.emplace_back(h->participants[k], h->revisions[k]);
+        for (std::size_t k = 0; k < h.participants.size(); ++k) {
+          auto mine = host.members.find(h.participants[k]);
+          if (mine == host.members.end() || mine->second != h.revisions[k])
+            want.emplace_back(h.participants[k], h.revisions[k]);
         }
         for (auto id : gone) host.members.erase(id);
-        if (!want.empty() && want.size() <= 4096) requests.push_back({h->host_id, std::move(want), request_due()});
+        if (!want.empty() && want.size() <= 4096) requests.push_back({h.host_id, std::move(want), request_due()});
         ask = !requests.empty();
-      } else if (static_cast<std::uint64_t>(h->digest) != digest_of(host.members)) {
+      } else if (static_cast<std::uint64_t>(h.digest) != digest_of(host.members)) {
         // Records may be on their way: ask after two heartbeats that disagree, once per period.
         // (Asking at the first when we hold none of that host's records made a launch of 2 x 50
         // processes send 20 % more records, newcomers asking every half period, and ended no
@@ -1194,7 +1212,7 @@ struct Discovery::Impl {
         if (++host.mismatches >= 2 && Clock::now() - host.last_request >= options.period) {
           host.last_request = Clock::now();
           host.mismatches = 0;
-          requests.push_back({h->host_id, {}, request_due()});
+          requests.push_back({h.host_id, {}, request_due()});
           ask = true;
         }
       } else {

@@ -17,6 +17,8 @@ constexpr std::size_t kMatch = 8 + 8 + kString + 8 + 8;
 constexpr std::size_t kEndpoint = 8 + 1 + 3 * kString + 8 + kString + 1 + 8 + 4 + 8 + 8 + 8 + 4 + 4;
 // The smallest beacon_t without its fingerprint: fixed fields and empty strings and arrays.
 constexpr std::size_t kBeacon = 4 + 8 + 8 + 4 + 8 + 8 + kString + 8 + 8 + 1 + 4 + 8 + 1 + 2 * kString + 4 + 4 + 4;
+// The smallest host_beacon_t without its fingerprint: fixed fields and empty arrays.
+constexpr std::size_t kHostBeacon = 4 + 1 + 1 + 8 + 8 + 8 + 8 + 4 + 8 + 4 + 4 + 8 + 4;
 constexpr std::size_t kHistoryMessage = 1 + 4 + 4;
 constexpr std::size_t kGoalStatus = kString + 1 + kString + 4;
 constexpr std::size_t kLinkStatus = 2 * kString + 1 + 1 + 8 + 8 + 8 + 4;
@@ -107,12 +109,6 @@ void fields(Reader& r, beacon_t& b) {
   string_array(r, b.num_carried, b.carried);
 }
 
-void fields(Reader& r, records_t& b) {
-  b.version = r.i32();
-  b.host_id = r.i64();
-  struct_array(r, b.num_records, kBeacon, b.records, [](Reader& rr, beacon_t& x) { fields(rr, x); });
-}
-
 void fields(Reader& r, records_z_t& b) {
   b.version = r.i32();
   b.host_id = r.i64();
@@ -148,6 +144,13 @@ void fields(Reader& r, host_beacon_t& h) {
   h.target_host = r.i64();
   h.num_wanted = r.i32();
   i64_array(r, h.num_wanted, h.wanted);
+}
+
+void fields(Reader& r, records_t& b) {
+  b.version = r.i32();
+  b.host_id = r.i64();
+  struct_array(r, b.num_records, kBeacon, b.records, [](Reader& rr, beacon_t& x) { fields(rr, x); });
+  struct_array(r, b.num_index, kHostBeacon, b.index, [](Reader& rr, host_beacon_t& x) { fields(rr, x); });
 }
 
 // --- keep last N (history.lcm) ---

@@ -750,7 +750,7 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   b.add(200, {"Q"});  // an audience on another host
   // Counts host a's discovery datagrams that hold records, and the records in them.
   std::mutex mu;
-  int datagrams = 0, records = 0, alone = 0, compressed = 0;
+  int datagrams = 0, records = 0, alone = 0, compressed = 0, with_index = 0;
   std::size_t largest_batch = 0;
   VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
     if (!record) return;
@@ -759,6 +759,7 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
     std::lock_guard lock(mu);
     ++datagrams;
     if (lcmx::discovery::fingerprint_of(m.data) == lcmx_msgs::records_z_t::getHash()) ++compressed;
+    if (auto batch = lcmx::discovery::decode_batch(m.data); batch && !batch->index.empty()) ++with_index;
     records += static_cast<int>(rs->size());
     if (rs->size() == 1) ++alone;
     else largest_batch = std::max(largest_batch, m.data.size());
@@ -781,12 +782,13 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   pump.stop();
   std::lock_guard lock(mu);
   INFO("datagrams " << datagrams << ", records " << records << ", alone " << alone << ", largest batch "
-                    << largest_batch << ", compressed " << compressed);
+                    << largest_batch << ", compressed " << compressed << ", with the index " << with_index);
   // One per record without batches; with them, the burst's records share datagrams.
   CHECK(2 * datagrams <= records);
   CHECK(alone >= 1);  // the large one
   CHECK(largest_batch <= lcmx::discovery::kBatchBytes);
   CHECK(compressed >= 1);  // records of one host alike: the batches went deflated
+  CHECK(with_index >= 1);  // the index after a flush rides in its last batch
   CHECK(b.ps[0].v->counters().malformed == 0);
   CHECK(b.ps[0].v->counters().forged == 0);
 }
