@@ -63,8 +63,8 @@ std::optional<lcmx_msgs::host_beacon_t> decode_host_beacon(std::span<const std::
 }
 
 std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std::vector<std::byte>> records,
-                                      std::span<const std::byte> index) {
-  std::size_t total = kBatchHeaderBytes + (index.size() > 8 ? index.size() - 8 : 0);
+                                      std::span<const std::byte> heartbeat) {
+  std::size_t total = kBatchHeaderBytes + (heartbeat.size() > 8 ? heartbeat.size() - 8 : 0);
   for (const auto& r : records) total += r.size() - 8;
   std::vector<std::byte> out(total);
   lcmtypes::Writer w(out);
@@ -73,8 +73,8 @@ std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std
   w.i64(static_cast<std::int64_t>(host_id));
   w.i32(static_cast<std::int32_t>(records.size()));
   for (const auto& r : records) w.bytes(std::span(r).subspan(8));  // without its fingerprint
-  w.i32(index.size() > 8 ? 1 : 0);
-  if (index.size() > 8) w.bytes(index.subspan(8));
+  w.i32(heartbeat.size() > 8 ? 1 : 0);
+  if (heartbeat.size() > 8) w.bytes(heartbeat.subspan(8));
   return out;
 }
 
@@ -93,10 +93,10 @@ std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> by
     if (b.version != kBeaconVersion) return reject("a record of an unsupported version in a batch");
     if (b.host_id != r.host_id) return reject("a record of another host in a batch");
   }
-  if (r.index.size() > 1) return reject("more than one index in a batch");
-  for (const auto& h : r.index)
-    if (h.version != kHostBeaconVersion || h.kind != lcmx_msgs::host_beacon_t::KIND_INDEX || h.host_id != r.host_id)
-      return reject("an index in a batch that is not its host's index");
+  if (r.state.size() > 1) return reject("more than one heartbeat in a batch");
+  for (const auto& h : r.state)
+    if (h.version != kHostBeaconVersion || h.kind != lcmx_msgs::host_beacon_t::KIND_HEARTBEAT || h.host_id != r.host_id)
+      return reject("a heartbeat in a batch that is not its host's heartbeat");
   return r;
 }
 
@@ -127,11 +127,11 @@ std::optional<std::vector<std::byte>> deflate_records(std::uint64_t host_id, std
 }  // namespace
 
 std::vector<std::byte> encode_batch(std::uint64_t host_id, std::span<const std::vector<std::byte>> records,
-                                    std::span<const std::byte> index) {
+                                    std::span<const std::byte> heartbeat) {
   if (records.empty()) return {};
-  auto batch = encode_records(host_id, records, index);
+  auto batch = encode_records(host_id, records, heartbeat);
   const auto z = deflate_records(host_id, batch);
-  const bool alone = records.size() == 1 && index.empty();  // a plain beacon_t
+  const bool alone = records.size() == 1 && heartbeat.empty();  // a plain beacon_t
   auto plain = alone ? records.front() : std::move(batch);
   if (z && z->size() < plain.size()) return *z;
   return plain;

@@ -107,23 +107,30 @@ std::uint64_t structural_hash(beacon_t b) {
   return reg::fnv1a(bytes);
 }
 
-// What other hosts use of a participant's vehicle record (issue 33: a record is sent again only
-// when this changes): the structural hash of the record without its subscribers' local matches
-// (shm, intra-process, and foreign ones: they name publishers of its own host). A remote
-// publisher looks only for matches naming itself (udp) and for a bridge match (core's
+// What other hosts use of a participant's vehicle record (issue 33): the record without its
+// subscribers' local matches (shm, intra-process, and foreign ones: they name publishers of its
+// own host) and without statistics (counts, rates, drops, sequence, time). A remote publisher
+// looks only for matches naming itself (udp) and for a bridge match (core's
 // Matching::count_remote_locked); tools read local matches and statistics from the records
-// sent in answer to their query (KIND_WANT_ALL), which are re-read in full. 0 if the bytes do
-// not decode (then every update is sent, as before).
-std::uint64_t vehicle_shape(std::span<const std::byte> section) {
+// sent in answer to their query (KIND_WANT_ALL), which are re-read and sent in full. The speaker
+// sends this view (it compresses to about two thirds of the full record), and sends a record
+// again only when its structural hash (Spoken::shape) changes. nullopt if the bytes do not decode.
+std::optional<beacon_t> vehicle_view(std::span<const std::byte> section) {
   auto b = decode_beacon(section);
-  if (!b) return 0;
+  if (!b) return std::nullopt;
+  b->sequence = 0;
+  b->timestamp_us = 0;
   for (auto& e : b->endpoints) {
     std::erase_if(e.matches, [](const lcmx_msgs::match_t& m) {
       return m.publisher_participant == 0 || (m.path != "udp" && m.path != "bridge");
     });
     e.num_matches = static_cast<std::int32_t>(e.matches.size());
+    e.messages = 0;
+    e.drops = 0;
+    e.rate_hz = 0;
+    for (auto& m : e.matches) m.received = 0, m.drops = 0;
   }
-  return structural_hash(std::move(*b)) | 1;  // never 0
+  return b;
 }
 
 // Writes `revision` into an encoded beacon_t's revision field (after the fixed header and the
@@ -237,8 +244,9 @@ struct Discovery::Impl {
   struct Spoken {
     std::uint32_t slot = 0;
     std::int64_t revision = 0;  // the record's: the registry revision when its shape last changed
-    std::uint64_t shape = 0;    // vehicle scope: vehicle_shape() of the record
-    std::vector<std::byte> record;
+    std::uint64_t shape = 0;    // vehicle scope: structural hash of vehicle_view() (never 0)
+    std::vector<std::byte> record;  // as the participant wrote it (answers to an observer's query)
+    std::vector<std::byte> view;    // vehicle scope: vehicle_view(), what other hosts are sent
     Clock::time_point sent{};
   };
   std::map<std::int64_t, Spoken> spoken;      // what this speaker speaks for
@@ -249,11 +257,14 @@ struct Discovery::Impl {
   // When changed records go out: at once if none went for kRecordDelay (a single change, e.g.
   // a subscriber that matched a bridge republisher, reaches other hosts in a millisecond, as
   // the publisher's choice of path needs), else kRecordDelay after the first of a burst (a
-  // launch of many processes goes out in few datagrams).
-  void schedule_flush() {
+  // launch of many processes goes out in few datagrams). A participant's first record waits
+  // kRecordDelay too: a runtime writes it when created, before its endpoints, which follow
+  // within milliseconds (sent at once, the small robot's cold start sent every participant's
+  // record twice, 30 ms apart, the first with no endpoints).
+  void schedule_flush(bool first_record = false) {
     if (flush_at != Clock::time_point::max()) return;
     const auto now = Clock::now();
-    flush_at = now - last_flush >= kRecordDelay ? now : now + kRecordDelay;
+    flush_at = !first_record && now - last_flush >= kRecordDelay ? now : now + kRecordDelay;
   }
   bool want_index = false, want_all = false;  // under mutex
   std::set<std::int64_t> wanted;               // under mutex
@@ -686,11 +697,14 @@ struct Discovery::Impl {
       return;
     }
     auto& sp = spoken[id];
+    const bool first = sp.record.empty();
     sp.slot = slot;
     // Host scope: every revision. Vehicle scope: only a change of what other hosts use
-    // (vehicle_shape): a local match, statistics or a change of the host section alone keep
+    // (vehicle_view): a local match, statistics or a change of the host section alone keep
     // the record's revision and send nothing (the record is refreshed, for answers).
-    const std::uint64_t shape = host_scope ? 0 : vehicle_shape(section);
+    std::optional<beacon_t> view;
+    if (!host_scope) view = vehicle_view(section);
+    const std::uint64_t shape = view ? structural_hash(*view) | 1 : 0;  // 0: not decoded, every update sent
     const bool changed = sp.record.empty() || (host_scope ? sp.revision != revision : shape != sp.shape || shape == 0);
     if (changed) {
       sp.revision = revision;
@@ -698,11 +712,17 @@ struct Discovery::Impl {
     }
     sp.record = section;
     patch_revision(sp.record, sp.revision);
+    if (view) {
+      view->revision = sp.revision;
+      sp.view = encode_beacon(*view);
+    } else {
+      sp.view.clear();
+    }
     spoken_set[id] = sp.revision;
     if (changed) {
       pending_records.insert(id);
       pending_goodbyes.erase(id);
-      schedule_flush();
+      schedule_flush(first);
     }
   }
 
@@ -725,19 +745,14 @@ struct Discovery::Impl {
     return h;
   }
 
-  // The index (KIND_INDEX): the (participant, revision) set this speaker speaks for. Built just
-  // before the datagram that carries it goes out (its `sequence` counts that datagram).
-  std::vector<std::byte> index_message() {
+  void send_index() {
     auto h = host_message(host_beacon_t::KIND_INDEX);
     for (const auto& [id, rev] : spoken_set) {
       h.participants.push_back(id);
       h.revisions.push_back(rev);
     }
     h.num_entries = static_cast<std::int32_t>(h.participants.size());
-    return encode_host_beacon(h);
-  }
-  void send_index() {
-    publish_udp(index_message());
+    publish_udp(encode_host_beacon(h));
     last_index = Clock::now();
   }
 
@@ -749,15 +764,14 @@ struct Discovery::Impl {
     std::size_t bytes = kBatchHeaderBytes;      // the records_t they make
     std::uint64_t host = 0;                     // every record of a batch names one host
   };
-  // `with_index`: the pass's index rides in this batch (docs/discovery.md "Batches"), not in a
-  // datagram of its own. False if the batch was empty (nothing sent: send the index alone).
-  bool batch_send(Batch& b, bool with_index = false) {
-    if (b.items.empty()) return false;
+  // `last`: the last batch of a pass, which carries the speaker's heartbeat as of its records
+  // (docs/discovery.md "Batches"; built just before it goes out: its `sequence` counts it).
+  void batch_send(Batch& b, bool last = false) {
+    if (b.items.empty()) return;
+    const auto heartbeat = last ? encode_host_beacon(host_message(host_beacon_t::KIND_HEARTBEAT)) : std::vector<std::byte>{};
     // The smallest of: a record alone (beacon_t), the records_t, the records_t compressed.
-    publish_udp(encode_batch(b.host, b.items, with_index ? index_message() : std::vector<std::byte>{}));
-    if (with_index) last_index = Clock::now();
+    publish_udp(encode_batch(b.host, b.items, heartbeat));
     b = Batch{};
-    return true;
   }
   void batch_add(Batch& b, std::vector<std::byte> record) {
     if (record.size() < kBeaconHostAt + 8) return;  // (encode_beacon's bytes always hold more)
@@ -770,10 +784,13 @@ struct Discovery::Impl {
     if (b.bytes > kBatchBytes) batch_send(b);  // a record larger than a batch goes alone
   }
 
-  void send_record(Batch& batch, std::int64_t id) {
+  // `full`: the record as its participant wrote it (an observer's query), else, on the vehicle
+  // group, what other hosts use of it (vehicle_view).
+  void send_record(Batch& batch, std::int64_t id, bool full = false) {
     auto it = spoken.find(id);
     if (it == spoken.end()) return;
-    batch_add(batch, it->second.record);
+    const auto& sp = it->second;
+    batch_add(batch, full || sp.view.empty() ? sp.record : sp.view);
     it->second.sent = Clock::now();
   }
 
@@ -818,7 +835,7 @@ struct Discovery::Impl {
           }
         }
       }
-      for (const auto& [id, sp] : spoken) send_record(batch, id);
+      for (const auto& [id, sp] : spoken) send_record(batch, id, true);
       last_all = now;
       index = true;
     } else {
@@ -832,14 +849,15 @@ struct Discovery::Impl {
       if (audience()) {
         for (auto id : pending_records) send_record(batch, id);
         for (auto id : pending_goodbyes) send_goodbye(batch, id);
-        if (!pending_records.empty() || !pending_goodbyes.empty()) index = true;
       }
       pending_records.clear();
       pending_goodbyes.clear();
     }
-    // The index rides in this pass's last batch (records of this host's participants only),
-    // or goes alone when no record went out.
-    if (!batch_send(batch, index) && index) send_index();
+    // No index after the records: their batch ends with a heartbeat, and a receiver that holds
+    // them and disagrees asks for the index (on_host_state). Before 2026-11-29 an index followed
+    // every flush: a third of the small robot's cold-start bytes.
+    batch_send(batch, true);
+    if (index) send_index();
     if (all || index || !want.empty()) {
       std::lock_guard lock(mutex);
       ++counters.requests_answered;
@@ -1000,7 +1018,7 @@ struct Discovery::Impl {
       const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
       on_beacon(std::move(b), m.source.address_be, bytes);
     }
-    for (const auto& index : r->index) on_host_state(index, m.source.address_be);  // after the records it lists
+    for (const auto& h : r->state) on_host_state(h, m.source.address_be, true);  // as of the records above
   }
 
   // One beacon_t heard (alone or in a batch): an observer's query, or a record or goodbye of
@@ -1167,12 +1185,13 @@ struct Discovery::Impl {
       }
       return;
     }
-    on_host_state(*h, m.source.address_be);
+    on_host_state(*h, m.source.address_be, false);
   }
 
-  // Another host's heartbeat or index (alone, or the index in a batch after its records) from
-  // address `ip`: its table here follows (a restart, members gone, records to ask for).
-  void on_host_state(const host_beacon_t& h, std::uint32_t ip) {
+  // Another host's heartbeat or index from address `ip`: its table here follows (a restart,
+  // members gone, records to ask for). `settled`: a heartbeat at the end of a batch, as of the
+  // records just taken from it (none of them can still be on its way).
+  void on_host_state(const host_beacon_t& h, std::uint32_t ip, bool settled) {
     std::vector<std::int64_t> gone;
     bool ask = false;
     {
@@ -1205,11 +1224,13 @@ struct Discovery::Impl {
         if (!want.empty() && want.size() <= 4096) requests.push_back({h.host_id, std::move(want), request_due()});
         ask = !requests.empty();
       } else if (static_cast<std::uint64_t>(h.digest) != digest_of(host.members)) {
-        // Records may be on their way: ask after two heartbeats that disagree, once per period.
+        // Records may be on their way: ask after two heartbeats that disagree, once per period;
+        // after a batch's heartbeat at once (its records came with it).
         // (Asking at the first when we hold none of that host's records made a launch of 2 x 50
         // processes send 20 % more records, newcomers asking every half period, and ended no
         // start-up window sooner: docs/discovery.md "Complete".)
-        if (++host.mismatches >= 2 && Clock::now() - host.last_request >= options.period) {
+        host.mismatches += settled ? 2 : 1;
+        if (host.mismatches >= 2 && Clock::now() - host.last_request >= options.period) {
           host.last_request = Clock::now();
           host.mismatches = 0;
           requests.push_back({h.host_id, {}, request_due()});

@@ -150,7 +150,7 @@ void fields(Reader& r, records_t& b) {
   b.version = r.i32();
   b.host_id = r.i64();
   struct_array(r, b.num_records, kBeacon, b.records, [](Reader& rr, beacon_t& x) { fields(rr, x); });
-  struct_array(r, b.num_index, kHostBeacon, b.index, [](Reader& rr, host_beacon_t& x) { fields(rr, x); });
+  struct_array(r, b.num_state, kHostBeacon, b.state, [](Reader& rr, host_beacon_t& x) { fields(rr, x); });
 }
 
 // --- keep last N (history.lcm) ---

@@ -125,47 +125,46 @@ TEST_CASE("a batch of records (records_t) is lcm-gen's encoding, checked like a 
     CHECK_FALSE(lcmx::discovery::decode_records(bad, &why));
     CHECK_THAT(why, Catch::Contains("malformed"));
   }
-  SECTION("the host's index after the records: one, an index, of the same host") {
-    lcmx_msgs::host_beacon_t index{};
-    index.version = lcmx::discovery::kHostBeaconVersion;
-    index.kind = lcmx_msgs::host_beacon_t::KIND_INDEX;
-    index.host_id = 7;
-    index.participants = {1, 2, 3};
-    index.revisions = {4, 5, 6};
-    index.num_entries = 3;
-    const auto with = lcmx::discovery::encode_records(7, three, lcmx::discovery::encode_host_beacon(index));
+  SECTION("the speaker's heartbeat after the records: one, a heartbeat, of the same host") {
+    lcmx_msgs::host_beacon_t heartbeat{};
+    heartbeat.version = lcmx::discovery::kHostBeaconVersion;
+    heartbeat.kind = lcmx_msgs::host_beacon_t::KIND_HEARTBEAT;
+    heartbeat.host_id = 7;
+    heartbeat.digest = 0x1234;
+    heartbeat.count = 3;
+    const auto with = lcmx::discovery::encode_records(7, three, lcmx::discovery::encode_host_beacon(heartbeat));
     lcmx_msgs::records_t read;  // lcm-gen's decoder
     REQUIRE(read.decode(with.data(), 0, static_cast<int>(with.size())) == static_cast<int>(with.size()));
-    REQUIRE(read.index.size() == 1);
-    CHECK(read.index[0].revisions[2] == 6);
-    auto ok = lcmx::discovery::decode_batch(lcmx::discovery::encode_batch(7, three, lcmx::discovery::encode_host_beacon(index)));
+    REQUIRE(read.state.size() == 1);
+    CHECK(read.state[0].digest == 0x1234);
+    auto ok = lcmx::discovery::decode_batch(lcmx::discovery::encode_batch(7, three, lcmx::discovery::encode_host_beacon(heartbeat)));
     REQUIRE(ok);
-    REQUIRE(ok->index.size() == 1);
-    CHECK(ok->index[0].participants == std::vector<std::int64_t>{1, 2, 3});
-    // With an index, even one record goes in a batch.
+    REQUIRE(ok->state.size() == 1);
+    CHECK(ok->state[0].count == 3);
+    // With a heartbeat, even one record goes in a batch.
     const std::vector<std::vector<std::byte>> one = {three[0]};
-    const auto single = lcmx::discovery::decode_batch(lcmx::discovery::encode_batch(7, one, lcmx::discovery::encode_host_beacon(index)));
+    const auto single = lcmx::discovery::decode_batch(lcmx::discovery::encode_batch(7, one, lcmx::discovery::encode_host_beacon(heartbeat)));
     REQUIRE(single);
-    CHECK(single->index.size() == 1);
-    // Refused: two indexes, a heartbeat, another host's index.
+    CHECK(single->state.size() == 1);
+    // Refused: two heartbeats, an index, another host's heartbeat.
     auto encode = [](lcmx_msgs::records_t r) {
       std::vector<std::byte> out(static_cast<std::size_t>(r.getEncodedSize()));
       r.encode(out.data(), 0, static_cast<int>(out.size()));
       return out;
     };
     auto two = read;
-    two.index = {index, index};
-    two.num_index = 2;
+    two.state = {heartbeat, heartbeat};
+    two.num_state = 2;
     CHECK_FALSE(lcmx::discovery::decode_records(encode(two), &why));
-    CHECK_THAT(why, Catch::Contains("more than one index"));
-    auto heartbeat = read;
-    heartbeat.index[0].kind = lcmx_msgs::host_beacon_t::KIND_HEARTBEAT;
-    CHECK_FALSE(lcmx::discovery::decode_records(encode(heartbeat), &why));
-    CHECK_THAT(why, Catch::Contains("not its host's index"));
+    CHECK_THAT(why, Catch::Contains("more than one heartbeat"));
+    auto index = read;
+    index.state[0].kind = lcmx_msgs::host_beacon_t::KIND_INDEX;
+    CHECK_FALSE(lcmx::discovery::decode_records(encode(index), &why));
+    CHECK_THAT(why, Catch::Contains("not its host's heartbeat"));
     auto other = read;
-    other.index[0].host_id = 8;
+    other.state[0].host_id = 8;
     CHECK_FALSE(lcmx::discovery::decode_records(encode(other), &why));
-    CHECK_THAT(why, Catch::Contains("not its host's index"));
+    CHECK_THAT(why, Catch::Contains("not its host's heartbeat"));
     CHECK(lcmx::discovery::decode_records(encode(read)));
   }
 }

@@ -750,7 +750,7 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   b.add(200, {"Q"});  // an audience on another host
   // Counts host a's discovery datagrams that hold records, and the records in them.
   std::mutex mu;
-  int datagrams = 0, records = 0, alone = 0, compressed = 0, with_index = 0;
+  int datagrams = 0, records = 0, alone = 0, compressed = 0, with_heartbeat = 0;
   std::size_t largest_batch = 0;
   VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
     if (!record) return;
@@ -759,7 +759,7 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
     std::lock_guard lock(mu);
     ++datagrams;
     if (lcmx::discovery::fingerprint_of(m.data) == lcmx_msgs::records_z_t::getHash()) ++compressed;
-    if (auto batch = lcmx::discovery::decode_batch(m.data); batch && !batch->index.empty()) ++with_index;
+    if (auto batch = lcmx::discovery::decode_batch(m.data); batch && !batch->state.empty()) ++with_heartbeat;
     records += static_cast<int>(rs->size());
     if (rs->size() == 1) ++alone;
     else largest_batch = std::max(largest_batch, m.data.size());
@@ -782,13 +782,13 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   pump.stop();
   std::lock_guard lock(mu);
   INFO("datagrams " << datagrams << ", records " << records << ", alone " << alone << ", largest batch "
-                    << largest_batch << ", compressed " << compressed << ", with the index " << with_index);
+                    << largest_batch << ", compressed " << compressed << ", with a heartbeat " << with_heartbeat);
   // One per record without batches; with them, the burst's records share datagrams.
   CHECK(2 * datagrams <= records);
   CHECK(alone >= 1);  // the large one
   CHECK(largest_batch <= lcmx::discovery::kBatchBytes);
   CHECK(compressed >= 1);  // records of one host alike: the batches went deflated
-  CHECK(with_index >= 1);  // the index after a flush rides in its last batch
+  CHECK(with_heartbeat >= 1);  // a pass's last batch ends with the speaker's heartbeat
   CHECK(b.ps[0].v->counters().malformed == 0);
   CHECK(b.ps[0].v->counters().forged == 0);
 }
@@ -908,6 +908,44 @@ TEST_CASE("trust: goodbyes, newer records and source claims only from the host's
   CHECK(ps[0].beacon.revision == 1);
   r.deliver(message_of(lcmx::discovery::encode_beacon(bye), real));  // the real one
   CHECK(lr.count(Change::left, 5) == 1);
+}
+
+TEST_CASE("vehicle scope: a batch whose closing heartbeat disagrees with what it holds asks for the index at once - one that agrees asks nothing",
+          "[discovery][vehicle]") {
+  lcmx::discovery::Options o;
+  o.group = group_of(43);
+  o.scope = beacon_t::SCOPE_VEHICLE;
+  o.observer = true;
+  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(o.group));
+  Log lr;
+  Discovery r(o, nullptr, lr.fn());
+  std::atomic<int> asked{0};  // requests for host 77's index heard on the group
+  VehiclePump pump(o.group, [&](const lcmx::udpm::Message& m, bool) {
+    auto h = lcmx::discovery::decode_host_beacon(m.data);
+    if (h && h->kind == host_beacon_t::KIND_REQUEST && h->target_host == 77 && h->wanted.empty()) ++asked;
+  });
+  const char* speaker = "10.9.0.1";
+  auto rec = [](std::int64_t id) {
+    auto b = beacon_of(id, 77, {"T"}, beacon_t::SCOPE_VEHICLE);
+    b.version = lcmx::discovery::kBeaconVersion;
+    b.revision = 1;
+    b.vehicle_source = "10.9.0.1:7668";
+    return lcmx::discovery::encode_beacon(b);
+  };
+  auto batch = [&](std::vector<std::vector<std::byte>> records, std::map<std::int64_t, std::int64_t> set) {
+    return lcmx::discovery::encode_batch(77, records, lcmx::discovery::encode_host_beacon(heartbeat_of(77, std::move(set))));
+  };
+  // Records 5 and 6, and a heartbeat that names exactly them: nothing to ask.
+  r.deliver(message_of(batch({rec(5), rec(6)}, {{5, 1}, {6, 1}}), speaker));
+  REQUIRE(lr.count(Change::joined, 6) == 1);
+  std::this_thread::sleep_for(300ms);  // several request jitters: the absence of a request is what is checked
+  CHECK(asked.load() == 0);
+  // Record 7, and a heartbeat that also names 8, which never came: the index is asked for at
+  // once, without a second heartbeat (none is sent here).
+  r.deliver(message_of(batch({rec(7)}, {{5, 1}, {6, 1}, {7, 1}, {8, 1}}), speaker));
+  CHECK(lr.count(Change::joined, 7) == 1);
+  CHECK(eventually([&] { return asked.load() >= 1; }, 2000ms));
+  pump.stop();
 }
 
 TEST_CASE("trust: another host's record naming this process or a participant of this host is refused", "[discovery][hostile]") {

@@ -120,21 +120,21 @@ int check_batch(std::span<const std::byte> input) {
     check_same(r, *again);
   }
   const auto host = static_cast<std::uint64_t>(batch->host_id);
-  FUZZ_CHECK(batch->index.size() <= 1);
-  std::vector<std::byte> index;  // the host's index after the records, if the batch has one
-  for (const auto& h : batch->index) {
-    FUZZ_CHECK(h.kind == lcmx_msgs::host_beacon_t::KIND_INDEX && h.host_id == batch->host_id);
-    index = lcmx::discovery::encode_host_beacon(h);
+  FUZZ_CHECK(batch->state.size() <= 1);
+  std::vector<std::byte> heartbeat;  // the speaker's heartbeat after the records, if the batch has one
+  for (const auto& h : batch->state) {
+    FUZZ_CHECK(h.kind == lcmx_msgs::host_beacon_t::KIND_HEARTBEAT && h.host_id == batch->host_id);
+    heartbeat = lcmx::discovery::encode_host_beacon(h);
   }
   if (!compressed) {
-    const auto encoded = lcmx::discovery::encode_records(host, each, index);
+    const auto encoded = lcmx::discovery::encode_records(host, each, heartbeat);
     FUZZ_CHECK(encoded.size() == input.size() && std::equal(encoded.begin(), encoded.end(), input.begin()));
     return 0;
   }
   // A compressed batch need not deflate to the same bytes again (another zlib, another level),
   // but what the speaker would send for its records must decode to them.
   if (each.empty()) return 0;
-  const auto again = lcmx::discovery::decode_any_records(lcmx::discovery::encode_batch(host, each, index), &why);
+  const auto again = lcmx::discovery::decode_any_records(lcmx::discovery::encode_batch(host, each, heartbeat), &why);
   FUZZ_CHECK(again.has_value() && again->size() == batch->records.size());
   for (std::size_t i = 0; i < again->size(); ++i) check_same(batch->records[i], (*again)[i]);
   return 0;

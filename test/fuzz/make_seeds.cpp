@@ -316,14 +316,14 @@ int main(int argc, char** argv) {
   // The same batch compressed (records_z_t), as a speaker sends it when that is smaller.
   const std::vector<Bytes> many = {full, full, full, small, lcmx::discovery::encode_beacon(goodbye)};
   ok &= write(dir / "beacon" / "batch_z.bin", lcmx::discovery::encode_batch(0, many));
-  // With the host's index after the records, as a speaker's flush sends it.
-  lcmx_msgs::host_beacon_t index{};
-  index.version = lcmx::discovery::kHostBeaconVersion;
-  index.kind = lcmx_msgs::host_beacon_t::KIND_INDEX;
-  index.participants = {1, 2};
-  index.revisions = {3, 4};
-  index.num_entries = 2;
-  ok &= write(dir / "beacon" / "batch_index.bin", lcmx::discovery::encode_records(0, batch, lcmx::discovery::encode_host_beacon(index)));
+  // With the speaker's heartbeat after the records, as the last batch of a pass ends.
+  lcmx_msgs::host_beacon_t heartbeat{};
+  heartbeat.version = lcmx::discovery::kHostBeaconVersion;
+  heartbeat.kind = lcmx_msgs::host_beacon_t::KIND_HEARTBEAT;
+  heartbeat.digest = 0x5eed;
+  heartbeat.count = 2;
+  ok &= write(dir / "beacon" / "batch_heartbeat.bin",
+              lcmx::discovery::encode_records(0, batch, lcmx::discovery::encode_host_beacon(heartbeat)));
 
   // Regression (kept, not a seed): a string with a NUL before its terminating NUL. Made here
   // rather than checked in because the bytes carry beacon_t's fingerprint, which follows

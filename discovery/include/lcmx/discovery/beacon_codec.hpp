@@ -37,22 +37,23 @@ std::optional<lcmx_msgs::host_beacon_t> decode_host_beacon(std::span<const std::
 
 // Batches (records_t): records and goodbyes of one host that a speaker sends together, at most
 // kBatchBytes of records_t before compression (a record larger than a batch goes alone), and
-// the host's index after a pass that changed its set. encode_records builds the batch from
-// encode_beacon()'s bytes (and encode_host_beacon()'s for the index, empty for none) without
-// decoding them (a nested struct is its top-level encoding without the fingerprint); every
-// element must be a beacon_t encoding. decode_records checks like decode_beacon, that every
-// record is of the batch's version and host, and that an index is one KIND_INDEX of the host.
+// at the end of a pass the speaker's heartbeat as of those records. encode_records builds the
+// batch from encode_beacon()'s bytes (and encode_host_beacon()'s for the heartbeat, empty for
+// none) without decoding them (a nested struct is its top-level encoding without the
+// fingerprint); every element must be a beacon_t encoding. decode_records checks like
+// decode_beacon, that every record is of the batch's version and host, and that a heartbeat is
+// one KIND_HEARTBEAT of the host.
 inline constexpr std::size_t kBatchBytes = 32768;
-// fingerprint, version, host, record count, index count
+// fingerprint, version, host, record count, heartbeat count
 inline constexpr std::size_t kBatchHeaderBytes = 8 + 4 + 8 + 4 + 4;
 std::vector<std::byte> encode_records(std::uint64_t host_id, std::span<const std::vector<std::byte>> records,
-                                      std::span<const std::byte> index = {});
+                                      std::span<const std::byte> heartbeat = {});
 std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> bytes, std::string* why = nullptr);
 
 // Compressed batches (records_z_t, docs/discovery.md "Compressed batches"). encode_batch gives
-// what a speaker sends for records of one host (and its index, if not empty): the smallest of
-// the record alone (a beacon_t; one record and no index only), the records_t, and the records_t
-// deflated by zlib (records_z_t; only up to kMaxInflatedBytes). decode_batch takes a records_t or a records_z_t: a compressed one is
+// what a speaker sends for records of one host (and its heartbeat, if not empty): the smallest
+// of the record alone (a beacon_t; one record and no heartbeat only), the records_t, and the
+// records_t deflated by zlib (records_z_t; only up to kMaxInflatedBytes). decode_batch takes a records_t or a records_z_t: a compressed one is
 // inflated only if it declares at most kMaxInflatedBytes and at most kMaxInflateRatio times its
 // deflated bytes (a hostile datagram cannot make a receiver allocate more than that), must
 // inflate to exactly its declared size with no bytes after the stream, and must hold a
@@ -60,7 +61,7 @@ std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> by
 inline constexpr std::size_t kMaxInflatedBytes = 4u << 20;
 inline constexpr std::size_t kMaxInflateRatio = 1032;  // deflate's own limit, about 1032:1
 std::vector<std::byte> encode_batch(std::uint64_t host_id, std::span<const std::vector<std::byte>> records,
-                                    std::span<const std::byte> index = {});
+                                    std::span<const std::byte> heartbeat = {});
 std::optional<lcmx_msgs::records_t> decode_batch(std::span<const std::byte> bytes, std::string* why = nullptr);
 // Whichever of the three a discovery datagram holds: its records (a beacon_t is one). nullopt and
 // *why for anything else or malformed. For tools and tests that watch a group's records.
