@@ -238,6 +238,7 @@ struct Discovery::Impl {
   std::vector<std::string> own_topics;
   bool wildcard = false;  // reads every participant (observer, bridge, pattern subscriptions, speaker)
   std::uint64_t own_struct = 0, own_stats = 0;
+  std::set<std::string> own_published;  // vehicle scope, under mutex: this participant's published topics
 
   // ---- speaker (discovery thread only, except the request state under mutex)
   off_t speaker_byte = 0;
@@ -422,6 +423,13 @@ struct Discovery::Impl {
     std::uint32_t flags = static_cast<std::uint8_t>(b.flags);
     if (b.flags & (beacon_t::FLAG_BRIDGE | beacon_t::FLAG_CHANNELS | beacon_t::FLAG_DDS_GATEWAY))
       flags |= reg::kSlotWildcard;
+    if (!host_scope && structural) {
+      std::set<std::string> published;
+      for (const auto& e : b.endpoints)
+        if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) published.insert(e.topic);
+      std::lock_guard lock(mutex);
+      own_published = std::move(published);
+    }
     reg->publish(!host_scope, encode_beacon(b), st, host_scope ? &topics : nullptr, flags,
                  host_scope ? 0 : group_hash);
     reg->heartbeat();
@@ -1351,6 +1359,12 @@ struct Discovery::Impl {
   // socket, so a receiver sees the datagrams it lost at the end of a burst (the gap before the
   // marker). v5 beacons did that every period. (A speaker's heartbeats move the sequence too:
   // counted as data, they made every speaker send a marker every second, for nothing.)
+  //
+  // On the vehicle group a marker goes only while a participant of another host reads what this
+  // one publishes (read_elsewhere): a publisher's blind start-up sends, which nobody may read,
+  // made every process of a starting host send 3 markers (the small robot's cold start: 4.4 KB
+  // of its 18). The markers wait, and go as soon as such a reader is known (a subscriber that
+  // matched us before we heard of it: the start-up race): one settles every gap before it.
   void mark_sequence() {
     if (options.observer || !options.shared_group) return;
     const auto now = Clock::now();
@@ -1358,6 +1372,10 @@ struct Discovery::Impl {
     const std::uint32_t moved = group->next_sequence() - mark_next;  // (wraps: unsigned)
     if (static_cast<std::int64_t>(moved) > udp_sent - mark_udp_sent) mark_repeats = 3;  // data: 3 markers, a second apart
     if (mark_repeats == 0) return;  // (one may be lost with the data it follows)
+    if (!host_scope && !read_elsewhere()) {
+      last_mark = now;  // asked again in a second
+      return;
+    }
     --mark_repeats;
     last_mark = now;
     auto h = host_message(host_beacon_t::KIND_MARK);
@@ -1367,6 +1385,20 @@ struct Discovery::Impl {
     publish_udp(encode_host_beacon(h));
     mark_next = group->next_sequence();
     mark_udp_sent = udp_sent;
+  }
+  // Whether a participant of another host may read this one's data on the vehicle group: it
+  // subscribes to a topic this one publishes, or takes channels by pattern (a recorder, echo),
+  // or is a bridge or DDS gateway. Under mutex (taken here); discovery thread.
+  bool read_elsewhere() {
+    std::lock_guard lock(mutex);
+    constexpr auto kWildcard = beacon_t::FLAG_BRIDGE | beacon_t::FLAG_CHANNELS | beacon_t::FLAG_DDS_GATEWAY;
+    for (const auto& [id, peer] : peers) {
+      if (peer.host == 0) continue;  // this host's
+      if (peer.p.beacon.flags & kWildcard) return true;
+      for (const auto& e : peer.p.beacon.endpoints)
+        if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER && own_published.count(e.topic)) return true;
+    }
+    return false;
   }
   Clock::time_point last_mark{};
   std::uint32_t mark_next = 0;     // the group's next sequence after our last marker

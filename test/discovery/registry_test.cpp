@@ -825,13 +825,39 @@ TEST_CASE("vehicle scope: alone on its group, complete after a period and a half
   Registry::remove(0xce, group_of(42), rdir.path);
 }
 
+namespace {
+
+// Participant `id` of host 0xf2 that subscribes to `topic`, told to `d` as its host's speaker
+// at 10.9.0.1 would (a heartbeat naming `set`, with a lease longer than the test, then the record).
+void tell_remote_reader(Discovery& d, const std::string& topic, std::int64_t id = 900,
+                        std::map<std::int64_t, std::int64_t> set = {{900, 1}}) {
+  auto b = beacon_of(id, 0xf2, {topic}, beacon_t::SCOPE_VEHICLE);
+  b.version = lcmx::discovery::kBeaconVersion;
+  b.revision = 1;
+  b.vehicle_source = "10.9.0.1:7668";
+  auto h = heartbeat_of(0xf2, std::move(set));
+  h.lease_ms = 60000;
+  d.deliver(message_of(lcmx::discovery::encode_host_beacon(h), "10.9.0.1"));
+  d.deliver(message_of(lcmx::discovery::encode_beacon(b), "10.9.0.1"));
+}
+
+beacon_t publisher_of(std::int64_t id, std::uint64_t host, const std::string& topic) {
+  auto b = beacon_of(id, host, {topic}, beacon_t::SCOPE_VEHICLE);
+  b.endpoints[0].kind = lcmx_msgs::endpoint_t::KIND_PUBLISHER;
+  return b;
+}
+
+}  // namespace
+
 TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own heartbeats", "[discovery][vehicle]") {
   const auto v = group_of(33);
   lcmx::test::TmpDir rdir("lcmx_vm");
   auto o = fed_vehicle_options(v, 0xe1, group_of(34), rdir.path);
   auto shared = o.shared_group;  // the runtime's socket: data and discovery from one sequence
   Log log;
-  Discovery d(o, [] { return beacon_of(111, 0xe1, {"X"}, beacon_t::SCOPE_VEHICLE); }, log.fn());
+  Discovery d(o, [] { return publisher_of(111, 0xe1, "MARK_DATA"); }, log.fn());
+  tell_remote_reader(d, "MARK_DATA");  // someone on another host reads what it publishes
+  REQUIRE(log.count(Change::joined, 900) == 1);
   std::atomic<int> heartbeats{0}, marks{0};
   VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
     if (record) return;
@@ -852,6 +878,41 @@ TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own hear
   pump.stop();
   d.stop();
   Registry::remove(0xe1, group_of(34), rdir.path);
+}
+
+TEST_CASE("vehicle scope: no data marker while no other host reads the data - the waiting one once a reader is known",
+          "[discovery][vehicle]") {
+  const auto v = group_of(44);
+  lcmx::test::TmpDir rdir("lcmx_vn");
+  auto o = fed_vehicle_options(v, 0xe2, group_of(45), rdir.path);
+  auto shared = o.shared_group;
+  Log log;
+  Discovery d(o, [] { return publisher_of(112, 0xe2, "BLIND"); }, log.fn());
+  std::atomic<int> heartbeats{0}, marks{0};
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (record) return;
+    if (auto h = lcmx::discovery::decode_host_beacon(m.data); h && h->host_id == 0xe2) {
+      if (h->kind == host_beacon_t::KIND_HEARTBEAT) ++heartbeats;
+      if (h->kind == host_beacon_t::KIND_MARK) ++marks;
+    }
+  });
+  REQUIRE(eventually([&] { return d.speaking() && heartbeats.load() >= 5; }, 5000ms));
+  // Data (a publisher's blind start-up sends) with a participant of another host that reads
+  // something else: no marker in two and a half intervals.
+  tell_remote_reader(d, "OTHER");
+  REQUIRE(log.count(Change::joined, 900) == 1);
+  const std::vector<std::byte> data(100, std::byte{7});
+  shared->publish("BLIND", data);
+  std::this_thread::sleep_for(2500ms);  // the absence of a marker is what is checked
+  CHECK(marks.load() == 0);
+  // A reader of it appears (it matched us before we heard of it): the waiting marker goes,
+  // with no new data.
+  tell_remote_reader(d, "BLIND", 901, {{900, 1}, {901, 1}});
+  REQUIRE(log.count(Change::joined, 901) == 1);
+  CHECK(eventually([&] { return marks.load() >= 1; }, 3000ms));
+  pump.stop();
+  d.stop();
+  Registry::remove(0xe2, group_of(45), rdir.path);
 }
 
 TEST_CASE("trust: goodbyes, newer records and source claims only from the host's own address", "[discovery][hostile]") {
