@@ -841,6 +841,21 @@ void tell_remote_reader(Discovery& d, const std::string& topic, std::int64_t id 
   d.deliver(message_of(lcmx::discovery::encode_beacon(b), "10.9.0.1"));
 }
 
+// Counts the heartbeats and data markers of `host` heard on the vehicle group `v`.
+struct HostBeaconCount {
+  std::atomic<int> heartbeats{0}, marks{0};
+  VehiclePump pump;
+  HostBeaconCount(const lcmx::udpm::GroupConfig& v, std::int64_t host)
+      : pump(v, [this, host](const lcmx::udpm::Message& m, bool record) {
+          if (record) return;
+          if (auto h = lcmx::discovery::decode_host_beacon(m.data); h && h->host_id == host) {
+            if (h->kind == host_beacon_t::KIND_HEARTBEAT) ++heartbeats;
+            if (h->kind == host_beacon_t::KIND_MARK) ++marks;
+          }
+        }) {}
+  void stop() { pump.stop(); }
+};
+
 beacon_t publisher_of(std::int64_t id, std::uint64_t host, const std::string& topic) {
   auto b = beacon_of(id, host, {topic}, beacon_t::SCOPE_VEHICLE);
   b.endpoints[0].kind = lcmx_msgs::endpoint_t::KIND_PUBLISHER;
@@ -858,14 +873,9 @@ TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own hear
   Discovery d(o, [] { return publisher_of(111, 0xe1, "MARK_DATA"); }, log.fn());
   tell_remote_reader(d, "MARK_DATA");  // someone on another host reads what it publishes
   REQUIRE(log.count(Change::joined, 900) == 1);
-  std::atomic<int> heartbeats{0}, marks{0};
-  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
-    if (record) return;
-    if (auto h = lcmx::discovery::decode_host_beacon(m.data); h && h->host_id == 0xe1) {
-      if (h->kind == host_beacon_t::KIND_HEARTBEAT) ++heartbeats;
-      if (h->kind == host_beacon_t::KIND_MARK) ++marks;
-    }
-  });
+  HostBeaconCount count(v, 0xe1);
+  auto& heartbeats = count.heartbeats;
+  auto& marks = count.marks;
   REQUIRE(eventually([&] { return d.speaking() && heartbeats.load() >= 5; }, 5000ms));
   // Two and a half marker intervals (a second each) of heartbeats alone: no marker.
   std::this_thread::sleep_for(2500ms);  // the absence of a marker is what is checked
@@ -875,7 +885,7 @@ TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own hear
   const std::vector<std::byte> data(100, std::byte{7});
   shared->publish("MARK_DATA", data);
   CHECK(eventually([&] { return marks.load() >= 1; }, 3000ms));
-  pump.stop();
+  count.stop();
   d.stop();
   Registry::remove(0xe1, group_of(34), rdir.path);
 }
@@ -888,14 +898,9 @@ TEST_CASE("vehicle scope: no data marker while no other host reads the data - th
   auto shared = o.shared_group;
   Log log;
   Discovery d(o, [] { return publisher_of(112, 0xe2, "BLIND"); }, log.fn());
-  std::atomic<int> heartbeats{0}, marks{0};
-  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
-    if (record) return;
-    if (auto h = lcmx::discovery::decode_host_beacon(m.data); h && h->host_id == 0xe2) {
-      if (h->kind == host_beacon_t::KIND_HEARTBEAT) ++heartbeats;
-      if (h->kind == host_beacon_t::KIND_MARK) ++marks;
-    }
-  });
+  HostBeaconCount count(v, 0xe2);
+  auto& heartbeats = count.heartbeats;
+  auto& marks = count.marks;
   REQUIRE(eventually([&] { return d.speaking() && heartbeats.load() >= 5; }, 5000ms));
   // Data (a publisher's blind start-up sends) with a participant of another host that reads
   // something else: no marker in two and a half intervals.
@@ -910,7 +915,7 @@ TEST_CASE("vehicle scope: no data marker while no other host reads the data - th
   tell_remote_reader(d, "BLIND", 901, {{900, 1}, {901, 1}});
   REQUIRE(log.count(Change::joined, 901) == 1);
   CHECK(eventually([&] { return marks.load() >= 1; }, 3000ms));
-  pump.stop();
+  count.stop();
   d.stop();
   Registry::remove(0xe2, group_of(45), rdir.path);
 }
