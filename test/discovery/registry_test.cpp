@@ -619,6 +619,26 @@ lcmx::discovery::Options fed_vehicle_options(const lcmx::udpm::GroupConfig& v, s
   return o;
 }
 
+// A vehicle-scope observer on `v` whose datagrams the test hands to it (Discovery::deliver).
+lcmx::discovery::Options fed_observer_options(const lcmx::udpm::GroupConfig& v) {
+  lcmx::discovery::Options o;
+  o.group = v;
+  o.scope = beacon_t::SCOPE_VEHICLE;
+  o.observer = true;
+  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(v));
+  return o;
+}
+
+// A vehicle record of participant `id` of `host`, subscribing to `topic`, as that host's
+// speaker at 10.9.0.1 sends it.
+beacon_t remote_record(std::int64_t id, std::uint64_t host, const std::string& topic, std::int64_t revision = 1) {
+  auto b = beacon_of(id, host, {topic}, beacon_t::SCOPE_VEHICLE);
+  b.version = lcmx::discovery::kBeaconVersion;
+  b.revision = revision;
+  b.vehicle_source = "10.9.0.1:7668";
+  return b;
+}
+
 // Drains the vehicle group on a thread of its own and hands every discovery datagram to `fn`
 // (with whether it holds records: a beacon_t or a batch) until destroyed.
 class VehiclePump {
@@ -831,10 +851,7 @@ namespace {
 // at 10.9.0.1 would (a heartbeat naming `set`, with a lease longer than the test, then the record).
 void tell_remote_reader(Discovery& d, const std::string& topic, std::int64_t id = 900,
                         std::map<std::int64_t, std::int64_t> set = {{900, 1}}) {
-  auto b = beacon_of(id, 0xf2, {topic}, beacon_t::SCOPE_VEHICLE);
-  b.version = lcmx::discovery::kBeaconVersion;
-  b.revision = 1;
-  b.vehicle_source = "10.9.0.1:7668";
+  const auto b = remote_record(id, 0xf2, topic);
   auto h = heartbeat_of(0xf2, std::move(set));
   h.lease_ms = 60000;
   d.deliver(message_of(lcmx::discovery::encode_host_beacon(h), "10.9.0.1"));
@@ -921,11 +938,7 @@ TEST_CASE("vehicle scope: no data marker while no other host reads the data - th
 }
 
 TEST_CASE("trust: goodbyes, newer records and source claims only from the host's own address", "[discovery][hostile]") {
-  lcmx::discovery::Options o;
-  o.group = group_of(17);
-  o.scope = beacon_t::SCOPE_VEHICLE;
-  o.observer = true;
-  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(o.group));
+  auto o = fed_observer_options(group_of(17));
   Log lr;
   Discovery r(o, nullptr, lr.fn());
   const char* real = "10.9.0.1";
@@ -978,11 +991,7 @@ TEST_CASE("trust: goodbyes, newer records and source claims only from the host's
 
 TEST_CASE("vehicle scope: a batch whose closing heartbeat disagrees with what it holds asks for the index at once - one that agrees asks nothing",
           "[discovery][vehicle]") {
-  lcmx::discovery::Options o;
-  o.group = group_of(43);
-  o.scope = beacon_t::SCOPE_VEHICLE;
-  o.observer = true;
-  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(o.group));
+  auto o = fed_observer_options(group_of(43));
   Log lr;
   Discovery r(o, nullptr, lr.fn());
   std::atomic<int> asked{0};  // requests for host 77's index heard on the group
@@ -991,13 +1000,7 @@ TEST_CASE("vehicle scope: a batch whose closing heartbeat disagrees with what it
     if (h && h->kind == host_beacon_t::KIND_REQUEST && h->target_host == 77 && h->wanted.empty()) ++asked;
   });
   const char* speaker = "10.9.0.1";
-  auto rec = [](std::int64_t id) {
-    auto b = beacon_of(id, 77, {"T"}, beacon_t::SCOPE_VEHICLE);
-    b.version = lcmx::discovery::kBeaconVersion;
-    b.revision = 1;
-    b.vehicle_source = "10.9.0.1:7668";
-    return lcmx::discovery::encode_beacon(b);
-  };
+  auto rec = [](std::int64_t id) { return lcmx::discovery::encode_beacon(remote_record(id, 77, "T")); };
   auto batch = [&](std::vector<std::vector<std::byte>> records, std::map<std::int64_t, std::int64_t> set) {
     return lcmx::discovery::encode_batch(77, records, lcmx::discovery::encode_host_beacon(heartbeat_of(77, std::move(set))));
   };
@@ -1038,13 +1041,7 @@ TEST_CASE("trust: another host's record naming this process or a participant of 
   REQUIRE(eventually([&] { return in_registry(61) && in_registry(62); }));
   // Host 78 (bound to its address by its heartbeat) claims 61 and 62, and announces 63.
   const char* ip = "10.9.0.1";
-  auto rec = [](std::int64_t id) {
-    auto b = beacon_of(id, 78, {"X"}, beacon_t::SCOPE_VEHICLE);
-    b.version = lcmx::discovery::kBeaconVersion;
-    b.revision = 1;
-    b.vehicle_source = "10.9.0.1:7668";
-    return b;
-  };
+  auto rec = [](std::int64_t id) { return remote_record(id, 78, "X"); };
   r.deliver(message_of(lcmx::discovery::encode_host_beacon(heartbeat_of(78, {{61, 1}, {62, 1}, {63, 1}})), ip));
   r.deliver(message_of(lcmx::discovery::encode_beacon(rec(61)), ip));
   r.deliver(message_of(lcmx::discovery::encode_beacon(rec(62)), ip));
@@ -1059,12 +1056,8 @@ TEST_CASE("trust: another host's record naming this process or a participant of 
 }
 
 TEST_CASE("a full table never expires a known peer - its host's heartbeat keeps it", "[discovery][hostile]") {
-  lcmx::discovery::Options o;
-  o.group = group_of(18);
-  o.scope = beacon_t::SCOPE_VEHICLE;
-  o.observer = true;
+  auto o = fed_observer_options(group_of(18));
   o.max_participants = 2;
-  o.shared_group = std::make_shared<lcmx::udpm::Group>(lcmx::udpm::Group::open(o.group));
   Discovery r(o, nullptr, nullptr);
   const char* ip = "10.9.0.1";
   auto rec = [](std::int64_t id) {
