@@ -113,8 +113,8 @@ std::uint64_t structural_hash(beacon_t b) {
 // looks only for matches naming itself (udp) and for a bridge match (core's
 // Matching::count_remote_locked); tools read local matches and statistics from the records
 // sent in answer to their query (KIND_WANT_ALL), which are re-read and sent in full. The speaker
-// sends this view (it compresses to about two thirds of the full record), and sends a record
-// again only when its structural hash (Spoken::shape) changes. nullopt if the bytes do not decode.
+// sends this view, and sends a record again only when its structural hash (Spoken::shape)
+// changes. nullopt if the bytes do not decode.
 std::optional<beacon_t> vehicle_view(std::span<const std::byte> section) {
   auto b = decode_beacon(section);
   if (!b) return std::nullopt;
