@@ -54,9 +54,9 @@ template <class T, class F>
 void struct_array(Reader& r, std::int32_t& count, std::size_t min_size, std::vector<T>& out, F fields) {
   count = r.i32();
   out.resize(r.count(count, min_size));
-  for (auto& x : out) {
-    if (!r.ok()) return;
-    fields(r, x);
+  for (std::size_t i = 0; i < out.size() && r.ok(); ++i) {
+    const Reader::Hold later(r, (out.size() - 1 - i) * min_size);
+    fields(r, out[i]);
   }
 }
 
@@ -135,10 +135,8 @@ void fields(Reader& r, host_beacon_t& h) {
   h.count = r.i32();
   h.num_entries = r.i32();
   // Both arrays are sized by num_entries: check it against both before sizing either.
-  if (h.num_entries < 0 || static_cast<std::size_t>(h.num_entries) > r.left() / 16) {
-    r.fail();
-    return;
-  }
+  r.count(h.num_entries, 16);
+  if (!r.ok()) return;
   i64_array(r, h.num_entries, h.participants);
   i64_array(r, h.num_entries, h.revisions);
   h.target_host = r.i64();

@@ -3,7 +3,7 @@
 // <dir>/{history,service_envelope,action_envelope,bridge_status}/*.bin (a selector byte and an
 // lcm-gen encoding, so they follow the .lcm files too),
 // <dir>/udpm_datagram/*.bin (inputs in the layout of udpm_input.hpp) and
-// <dir>/regressions/beacon/*.bin (kept reproducers that depend on beacon.lcm). Exit status 0,
+// <dir>/regressions/{beacon,bridge_status}/*.bin (kept reproducers that depend on the .lcm files). Exit status 0,
 // or 1 with a message when a file cannot be written.
 
 #include <algorithm>
@@ -342,6 +342,26 @@ int main(int argc, char** argv) {
     bytes[at + 4] = std::byte{0};  // "fuzz\0seed"
     std::filesystem::create_directories(dir / "regressions" / "beacon");
     ok &= write(dir / "regressions" / "beacon" / "nul_inside_string.bin", bytes);
+  }
+
+  // Regression (kept, not a seed): nested counts that together claim the bytes twice (a
+  // bridge_status_t of as many peers as the bytes hold, whose first peer serves 1000 empty
+  // strings, cut after them). Made here because it carries bridge_status_t's fingerprint.
+  {
+    lcmx_msgs::bridge_peer_status_t peer{};
+    peer.served.assign(1000, std::string());
+    peer.num_served = 1000;
+    lcmx_msgs::bridge_status_t status{};
+    status.peers.push_back(peer);
+    status.num_peers = 1;
+    Bytes bytes{std::byte{0}};  // fuzz_bridge_status's selector: bridge_status_t
+    const Bytes encoded = lcmx::lcmtypes::encode(status);
+    bytes.insert(bytes.end(), encoded.begin(), encoded.end() - (4 + 3 * 8));  // no demand, no counters
+    const std::size_t num_peers_at = 1 + 8 + 8 + 5 + 8 + 4 + 1 + 8;
+    const auto peers = static_cast<std::uint32_t>((bytes.size() - num_peers_at - 4) / 35);
+    for (int i = 0; i < 4; ++i) bytes[num_peers_at + i] = std::byte(static_cast<std::uint8_t>(peers >> (24 - 8 * i)));
+    std::filesystem::create_directories(dir / "regressions" / "bridge_status");
+    ok &= write(dir / "regressions" / "bridge_status" / "nested_counts.bin", bytes);
   }
 
   using lcmx::fuzz::append_record;

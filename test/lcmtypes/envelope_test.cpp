@@ -151,6 +151,44 @@ void fill(Gen& g, beacon_t& b) {
   b.num_endpoints = static_cast<std::int32_t>(b.endpoints.size());
   b.carried = g.strs(b.num_carried);
 }
+void fill(Gen& g, host_beacon_t& h) {
+  h.version = g.i32();
+  h.kind = g.i8();
+  h.scope = g.i8();
+  h.host_id = g.i64();
+  h.registry_id = g.i64();
+  h.speaker = g.i64();
+  h.sequence = g.i64();
+  h.lease_ms = g.i32();
+  h.digest = g.i64();
+  h.count = g.i32();
+  h.num_entries = static_cast<std::int32_t>(g.small(4));
+  h.participants.resize(h.num_entries);
+  h.revisions.resize(h.num_entries);
+  for (auto& v : h.participants) v = g.i64();
+  for (auto& v : h.revisions) v = g.i64();
+  h.target_host = g.i64();
+  h.wanted.resize(g.small(3));
+  for (auto& v : h.wanted) v = g.i64();
+  h.num_wanted = static_cast<std::int32_t>(h.wanted.size());
+}
+void fill(Gen& g, records_t& r) {
+  r.version = g.i32();
+  r.host_id = g.i64();
+  r.records.resize(g.small(3));
+  for (auto& b : r.records) fill(g, b);
+  r.num_records = static_cast<std::int32_t>(r.records.size());
+  r.state.resize(g.small(1));
+  for (auto& h : r.state) fill(g, h);
+  r.num_state = static_cast<std::int32_t>(r.state.size());
+}
+void fill(Gen& g, records_z_t& r) {
+  r.version = g.i32();
+  r.host_id = g.i64();
+  r.raw_size = g.i32();
+  r.deflated = g.bytes();
+  r.num_bytes = static_cast<std::int32_t>(r.deflated.size());
+}
 void fill(Gen& g, history_message_t& m) {
   m.sent = g.i8();
   m.sequence = g.i32();
@@ -379,6 +417,9 @@ TEST_CASE("envelopes: every lcmx_msgs type round-trips with lcm-gen, refuses eve
   check_type<match_t>("match_t");
   check_type<endpoint_t>("endpoint_t");
   check_type<beacon_t>("beacon_t");
+  check_type<host_beacon_t>("host_beacon_t");
+  check_type<records_t>("records_t");
+  check_type<records_z_t>("records_z_t");
   check_type<history_message_t>("history_message_t");
   check_type<history_t>("history_t");
   check_type<service_request_t>("service_request_t");
@@ -408,6 +449,50 @@ TEST_CASE("envelopes: the history bomb of issue 34 (70 bytes that say 50,000,000
   CHECK_FALSE(ok);
   CHECK(allocated < 64);  // the channel name fits std::string's own buffer
   // lcm-gen's decode of the same bytes sizes the vector first (50,000,000 x 40 bytes): not run.
+}
+
+TEST_CASE("envelopes: an array inside an array element counts only the bytes its later siblings leave",
+          "[lcmtypes]") {
+  // The fuzz_bridge_status find of 2026-11-29: a bridge_status_t whose num_peers claims all
+  // the bytes (35 a peer), and whose first peer's num_served claims them again (5 a string).
+  // Each count alone fits; together they sized 12 bytes of vectors per input byte.
+  bridge_peer_status_t peer{};
+  peer.num_served = 1000;
+  peer.served.assign(1000, std::string());
+  bridge_status_t status{};
+  status.peers.push_back(peer);
+  status.num_peers = 1;
+  Bytes bytes = lcm_encode(status);
+  REQUIRE(counted_decode<bridge_status_t>(bytes).first);  // as lcm-gen wrote it
+  // The same bytes, saying as many peers as the bytes could hold alone, and nothing after
+  // the first peer's strings (so it ends early whatever happens).
+  const std::size_t num_peers_at = 8 + 8 + 5 + 8 + 4 + 1 + 8;
+  const std::size_t tail = 4 + 3 * 8;  // num_demand and the three counters after the peers
+  bytes.resize(bytes.size() - tail);
+  put32(bytes, num_peers_at, static_cast<std::uint32_t>((bytes.size() - num_peers_at - 4) / 35));
+  const auto [ok, allocated] = counted_decode<bridge_status_t>(bytes);
+  CHECK_FALSE(ok);
+  CHECK(allocated <= bound(bytes.size()));
+
+  // The same shape two levels deeper: records_t -> beacon_t (97 bytes at least) ->
+  // endpoint_t -> its errors.
+  endpoint_t e{};
+  e.errors.assign(1000, std::string());
+  e.num_errors = 1000;
+  beacon_t b{};
+  b.endpoints.push_back(e);
+  b.num_endpoints = 1;
+  records_t r{};
+  r.records.push_back(b);
+  r.num_records = 1;
+  Bytes rb = lcm_encode(r);
+  REQUIRE(counted_decode<records_t>(rb).first);
+  rb.resize(rb.size() - 4 - 4);  // the beacon's num_carried, then num_state
+  const std::size_t num_records_at = 8 + 4 + 8;
+  put32(rb, num_records_at, static_cast<std::uint32_t>((rb.size() - num_records_at - 4) / 97));
+  const auto [rok, rallocated] = counted_decode<records_t>(rb);
+  CHECK_FALSE(rok);
+  CHECK(rallocated <= bound(rb.size()));
 }
 
 TEST_CASE("envelopes: strings need one NUL, at their end, booleans are 0 or 1", "[lcmtypes]") {

@@ -109,14 +109,32 @@ class Reader {
     pos_ += n;
     return s;
   }
+  // The bytes an array's count may claim: those left, less those held for the later
+  // elements of the arrays being read (Hold).
+  std::size_t room() const noexcept { return left() > held_ ? left() - held_ : 0; }
   // An array's length (an int32 read just before, or a size member): refused when negative
   // or when `n` elements of at least `min_element_size` encoded bytes each cannot fit in the
-  // bytes left. Check it before sizing anything for the array. Returns n, or 0 on failure.
+  // room left. Check it before sizing anything for the array. Returns n, or 0 on failure.
   std::size_t count(std::int32_t n, std::size_t min_element_size) noexcept {
     if (!ok_ || n < 0) return fail(), 0;
-    if (min_element_size != 0 && static_cast<std::size_t>(n) > left() / min_element_size) return fail(), 0;
+    if (min_element_size != 0 && static_cast<std::size_t>(n) > room() / min_element_size) return fail(), 0;
     return static_cast<std::size_t>(n);
   }
+  // While one element of an array is read, the bytes its later siblings need at least are
+  // held: an array inside the element cannot count them too. Without it a nested count could
+  // claim the bytes its parent's count already claimed (a 5 KB bridge_status_t sized 12 bytes
+  // of vectors per input byte). Scoped; holds nest.
+  class Hold {
+   public:
+    Hold(Reader& r, std::size_t bytes) noexcept : r_(r), bytes_(bytes) { r_.held_ += bytes_; }
+    ~Hold() { r_.held_ -= bytes_; }
+    Hold(const Hold&) = delete;
+    Hold& operator=(const Hold&) = delete;
+
+   private:
+    Reader& r_;
+    std::size_t bytes_;
+  };
   // The 8-byte fingerprint an LCM message starts with; fails unless it is `expected`.
   bool fingerprint(std::int64_t expected) noexcept { return i64() == expected && ok_ ? true : fail(); }
 
@@ -134,6 +152,7 @@ class Reader {
 
   std::span<const std::byte> b_;
   std::size_t pos_ = 0;
+  std::size_t held_ = 0;  // Hold
   bool ok_ = true;
 };
 
