@@ -1048,9 +1048,10 @@ struct Discovery::Impl {
     on_record(std::move(b), ip, bytes);
   }
 
-  void on_record(beacon_t b, std::uint32_t ip, std::size_t bytes) {
+  // Returns whether the table took it (a new participant or revision).
+  bool on_record(beacon_t b, std::uint32_t ip, std::size_t bytes) {
     std::string bad = check_record(b, ip);
-    if (!bad.empty()) return forged(bad);
+    if (!bad.empty()) return forged(bad), false;
     Change change = Change::updated;
     Participant copy;
     std::unique_lock order(deliver_mutex);
@@ -1066,14 +1067,14 @@ struct Discovery::Impl {
       }
       if (b.flags & beacon_t::FLAG_GOODBYE) {
         host.members.erase(b.participant_id);
-        if (it == peers.end()) return;
+        if (it == peers.end()) return false;
         ++counters.goodbyes;
         copy = std::move(it->second.p);
         table_bytes -= it->second.bytes;
         peers.erase(it);
         change = Change::left;
       } else {
-        if (it != peers.end() && b.revision < it->second.p.beacon.revision) return;  // older
+        if (it != peers.end() && b.revision < it->second.p.beacon.revision) return false;  // older
         const std::size_t old = it == peers.end() ? 0 : it->second.bytes;
         std::string refused;
         if (it == peers.end() && peers.size() >= options.max_participants)
@@ -1085,13 +1086,13 @@ struct Discovery::Impl {
           ++counters.refused;
           warn_limited(last_refused_log, "lcmx discovery: refused a record of participant {}: {}; {} refused so far",
                        b.participant_id, refused, counters.refused);
-          return;
+          return false;
         }
         if (it == peers.end()) {
           change = Change::joined;
           it = peers.emplace(b.participant_id, Peer{}).first;
         } else if (it->second.p.beacon.revision == b.revision && !options.observer) {
-          return;  // nothing new (statistics are for observers)
+          return false;  // nothing new (statistics are for observers)
         }
         b.lease_ms = static_cast<std::int32_t>(host.lease.count());
         host.members[b.participant_id] = b.revision;
@@ -1106,6 +1107,7 @@ struct Discovery::Impl {
     if (on_change) on_change(change, copy);
     std::lock_guard lock(mutex);  // (deliver_mutex still held: told before complete can latch)
     update_complete();
+    return change != Change::left;
   }
 
   // Whether `id` is this process's participant or one in this host's registry (a slot in use;
@@ -1478,6 +1480,125 @@ struct Discovery::Impl {
     return t;
   }
 
+  // ------------------------------------------------------------ vehicle cache
+  // docs/discovery.md "Vehicle cache": the vehicle speaker keeps what it holds of the other
+  // hosts (their heartbeat's state and their records) in a file beside the registry; a
+  // process of this host that starts later takes it before it hears the group, instead of
+  // asking every other host for its index and records over the LAN. What it takes is judged
+  // as if heard (check_record), and the next heartbeats of those hosts check it (a digest that
+  // disagrees asks, as ever): a stale or missing cache costs requests, never a wrong table.
+
+  // Speaker, discovery thread: rewrites the cache when what it holds of other hosts changed
+  // (at most once per kCoalesce), and once per period anyway (its time tells readers it is
+  // current: a stopped or dead speaker's cache is ignored).
+  std::vector<std::byte> cache_bytes;  // the last one written (its written_ns patched per period)
+  std::uint64_t cache_shape = 0;       // tables_shape() it was built from
+  Clock::time_point cache_written{};
+  static constexpr std::size_t kCacheWrittenAt = 8 + 4 + 8 + 8;  // vehicle_cache_t.written_ns (after the fingerprint)
+
+  // Under mutex: a hash of what the cache holds (hosts' heartbeat state, members' revisions).
+  std::uint64_t tables_shape() const {
+    std::uint64_t h = 1469598103934665603ull;
+    for (const auto& [id, host] : hosts) {
+      const std::int64_t v[5] = {id, host.registry_id, host.speaker, host.digest,
+                                 static_cast<std::int64_t>(digest_of(host.members))};
+      h = reg::fnv1a(std::as_bytes(std::span(v)), h);
+    }
+    return h;
+  }
+
+  void write_cache() {
+    if (host_scope || options.observer || !reg || !is_speaker) return;
+    const auto now = Clock::now();
+    const bool refresh = now - cache_written >= options.period;
+    if (!refresh && now - cache_written < kCoalesce) return;
+    {
+      std::lock_guard lock(mutex);
+      const auto shape = tables_shape();
+      if (shape != cache_shape || cache_bytes.empty()) {
+        if (hosts.empty() && cache_bytes.empty()) return;  // nothing heard yet: no file
+        lcmx_msgs::vehicle_cache_t c{};
+        c.version = kBeaconVersion;
+        c.host_id = static_cast<std::int64_t>(own_host);
+        c.writer = self_id.load();
+        for (const auto& [id, host] : hosts) {
+          auto ip = bound.find(id);
+          if (ip == bound.end() || host.last_heard == Clock::time_point{}) continue;
+          lcmx_msgs::cached_host_t ch{};
+          ch.host_id = id;
+          ch.address = static_cast<std::int32_t>(ip->second);
+          ch.registry_id = host.registry_id;
+          ch.speaker = host.speaker;
+          ch.lease_ms = static_cast<std::int32_t>(host.lease.count());
+          ch.digest = host.digest;
+          for (const auto& [pid, rev] : host.members)
+            if (auto p = peers.find(pid); p != peers.end() && p->second.host == id) ch.records.push_back(p->second.p.beacon);
+          ch.num_records = static_cast<std::int32_t>(ch.records.size());
+          c.hosts.push_back(std::move(ch));
+        }
+        c.num_hosts = static_cast<std::int32_t>(c.hosts.size());
+        cache_bytes = lcmtypes::encode(c);
+        cache_shape = shape;
+      } else if (!refresh) {
+        return;
+      }
+    }
+    const auto t = reg::now_ns();
+    for (std::size_t k = 0; k < 8 && kCacheWrittenAt + k < cache_bytes.size(); ++k)
+      cache_bytes[kCacheWrittenAt + k] = static_cast<std::byte>(static_cast<std::uint64_t>(t) >> (56 - 8 * k));
+    reg->write_cache(group_hash, cache_bytes);
+    cache_written = now;
+  }
+
+  // Before this Discovery hears the group (its constructor: the group is joined, nothing read
+  // yet, so what the cache misses is queued for it): takes the other hosts' records from the
+  // cache if it is trusted and current. Trusted: owned by the uid of its writer's slot, a
+  // live participant of this registry, and writable by nobody else; current: written within
+  // two periods (its speaker rewrites it every period).
+  void load_cache() {
+    if (host_scope || options.observer || !reg) return;
+    auto file = reg->read_cache(group_hash);
+    if (!file) return;
+    lcmx_msgs::vehicle_cache_t c{};
+    if (!lcmtypes::decode(file->first, c) || c.version != kBeaconVersion ||
+        static_cast<std::uint64_t>(c.host_id) != own_host)
+      return;
+    const auto age = reg::now_ns() - c.written_ns;
+    if (age < 0 || age > 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count()) return;
+    bool writer_ok = false;
+    const auto hw = std::min(reg->header->high_water.load(std::memory_order_acquire), reg->slot_count);
+    for (std::uint32_t i = 0; i < hw && !writer_ok; ++i) {
+      const auto& sl = reg->slot(i);
+      writer_ok = c.writer != 0 && sl.participant_id.load(std::memory_order_relaxed) == c.writer &&
+                  reg::state_of(sl.state.load(std::memory_order_acquire)) == reg::kLive &&
+                  sl.uid.load(std::memory_order_relaxed) == file->second;
+    }
+    if (!writer_ok) return;
+    std::uint64_t taken = 0;
+    for (auto& ch : c.hosts) {
+      if (ch.host_id == 0 || static_cast<std::uint64_t>(ch.host_id) == own_host) continue;
+      const auto ip = static_cast<std::uint32_t>(ch.address);
+      {
+        std::lock_guard lock(mutex);
+        if (!source_ok(ch.host_id, ip)) continue;
+        auto& host = hosts[ch.host_id];
+        host.registry_id = ch.registry_id;
+        host.speaker = ch.speaker;
+        host.lease = lease_of(ch.lease_ms);
+        host.digest = ch.digest;
+        host.last_heard = Clock::now();
+      }
+      for (auto& b : ch.records) {
+        if (b.host_id != ch.host_id || (b.flags & (beacon_t::FLAG_GOODBYE | beacon_t::FLAG_OBSERVER | beacon_t::FLAG_QUERY)))
+          continue;
+        const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
+        if (on_record(std::move(b), ip, bytes)) ++taken;
+      }
+    }
+    std::lock_guard lock(mutex);
+    counters.cache_records += taken;
+  }
+
   // ------------------------------------------------------------ the thread
   void run() {
     auto next_periodic = Clock::now();
@@ -1519,6 +1640,7 @@ struct Discovery::Impl {
         }
       }
       if (is_speaker) speaker_duties();
+      write_cache();
       mark_sequence();
       const auto next_request = send_requests();
       expire_hosts();
@@ -1604,6 +1726,7 @@ Discovery::Discovery(Options options, LocalFn local, ChangeFn on_change)
     impl_->self_id = static_cast<std::int64_t>(random_participant_id());
     impl_->want_query = true;
   }
+  impl_->load_cache();  // before anything is read from the group (the runtime's front door starts later)
   impl_->thread = std::thread([this] { impl_->run(); });
   if (impl_->receive) impl_->rx_thread = std::thread([this] { impl_->rx_loop(); });
 }

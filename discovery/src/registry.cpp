@@ -493,6 +493,44 @@ std::optional<reg::State> Registry::Impl::read_state(std::uint32_t i, std::int64
   return out;
 }
 
+std::string Registry::Impl::cache_path_for(std::uint64_t vehicle_group) const { return path + "_pv" + hex(vehicle_group); }
+
+bool Registry::Impl::write_cache(std::uint64_t vehicle_group, std::span<const std::byte> bytes) const {
+  const auto target = cache_path_for(vehicle_group);
+  const auto tmp = target + "w" + std::to_string(::getpid());
+  const int f = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0644);
+  if (f < 0) return false;
+  bool ok = ::fchmod(f, 0644) == 0;  // (whatever the umask)
+  std::size_t done = 0;
+  while (ok && done < bytes.size()) {
+    const auto n = ::write(f, bytes.data() + done, bytes.size() - done);
+    if (n < 0 && errno == EINTR) continue;
+    ok = n > 0;
+    if (ok) done += static_cast<std::size_t>(n);
+  }
+  ::close(f);
+  if (ok) ok = ::rename(tmp.c_str(), target.c_str()) == 0;
+  if (!ok) ::unlink(tmp.c_str());
+  return ok;
+}
+
+std::optional<std::pair<std::vector<std::byte>, std::uint32_t>> Registry::Impl::read_cache(
+    std::uint64_t vehicle_group) const {
+  const int f = ::open(cache_path_for(vehicle_group).c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
+  if (f < 0) return std::nullopt;
+  struct stat st{};
+  std::vector<std::byte> buf;
+  bool ok = ::fstat(f, &st) == 0 && S_ISREG(st.st_mode) && (st.st_mode & 022) == 0 && st.st_size > 0 &&
+            st.st_size <= reg::kMaxStateBytes;
+  if (ok) {
+    buf.resize(static_cast<std::size_t>(st.st_size));
+    ok = ::pread(f, buf.data(), buf.size(), 0) == static_cast<ssize_t>(buf.size());
+  }
+  ::close(f);
+  if (!ok) return std::nullopt;
+  return std::make_pair(std::move(buf), static_cast<std::uint32_t>(st.st_uid));
+}
+
 bool Registry::Impl::owner_alive(std::uint32_t i) const {
   return i < slot_count && byte_held(fd, reg::kLockSlots + static_cast<off_t>(i));
 }

@@ -16,6 +16,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "lcmx/discovery/registry.hpp"
@@ -212,6 +213,16 @@ struct Registry::Impl {
   bool remove_if_unused();
   // The speaker frees a slot whose owner is dead: state file, shm segments, slot.
   void reclaim(std::uint32_t i, std::uint64_t seen_state);
+
+  // The vehicle cache of a vehicle group (docs/discovery.md "Vehicle cache"): a file beside the
+  // registry, `<path>_pv<group hash hex>` (removed with the state files). write_cache replaces
+  // it whole (a temporary file renamed over it: a reader sees the old one or the new one),
+  // mode 0644; false if it could not be written (a full /dev/shm: nobody relies on it).
+  // read_cache returns its bytes and its owner's uid, or nullopt when it is missing, not a
+  // regular file, writable by others than its owner, or larger than kMaxStateBytes.
+  std::string cache_path_for(std::uint64_t vehicle_group) const;
+  bool write_cache(std::uint64_t vehicle_group, std::span<const std::byte> bytes) const;
+  std::optional<std::pair<std::vector<std::byte>, std::uint32_t>> read_cache(std::uint64_t vehicle_group) const;
 };
 
 }  // namespace lcmx::discovery

@@ -12,10 +12,12 @@
 #include <atomic>
 #include <chrono>
 #include <filesystem>
+#include <fstream>
 #include <functional>
 #include <map>
 #include <mutex>
 #include <set>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -28,6 +30,7 @@
 #include "lcmx/test/netns.hpp"
 #include "lcmx/test/process.hpp"
 #include "lcmx/test/tmp_dir.hpp"
+#include "lcmx_msgs/vehicle_cache_t.hpp"
 #include "registry_impl.hpp"
 
 using namespace std::chrono_literals;
@@ -563,6 +566,101 @@ TEST_CASE("vehicle scope: each host's speaker speaks for its participants - reco
   leaving.h->stop();
   REQUIRE(eventually([&] { return b.vlog.count(Change::left, gone) == 2; }, 2000ms));
   CHECK(b.ps[0].v->counters().forged == 0);
+}
+
+// The vehicle cache's file for host `host` (docs/discovery.md "Vehicle cache").
+std::string cache_path(const FakeHost& h) {
+  std::ostringstream s;
+  s << Registry::path_for(h.host, h.local, h.dir.path) << "_pv" << std::hex << lcmx::discovery::reg::group_hash(h.vehicle);
+  return s.str();
+}
+
+TEST_CASE("vehicle scope: a process that starts later takes the other hosts' records from its host's vehicle cache - "
+          "it asks the LAN nothing",
+          "[discovery][vehicle]") {
+  const auto v = group_of(46);
+  FakeHost a(0xa5, group_of(47), v), b(0xb6, group_of(48), v);
+  a.add(51, {"X"});
+  a.add(52, {"Y"});
+  b.add(61, {"Z"});
+  REQUIRE(eventually([&] { return b.vlog.count(Change::joined, 51) == 1 && b.vlog.count(Change::joined, 52) == 1; }));
+  REQUIRE(eventually([&] { return b.ps[0].v->complete(); }));
+  REQUIRE(eventually([&] { return std::filesystem::exists(cache_path(b)); }));
+  auto answered = [&] {
+    std::uint64_t n = 0;
+    for (auto& p : a.ps) n += p.v->counters().requests_answered;
+    return n;
+  };
+  const auto before = answered();
+  b.add(62, {"X"});
+  auto& late = *b.ps[1].v;
+  // Taken in its constructor, before it heard anything.
+  CHECK(late.counters().cache_records == 2);
+  CHECK(b.vlog.count(Change::joined, 51) == 2);
+  CHECK(b.vlog.count(Change::joined, 52) == 2);
+  // a's next heartbeats agree with it: complete, and nobody asked a for anything (without the
+  // cache it asks for a's index, then for both records).
+  REQUIRE(eventually([&] { return late.complete(); }, 3000ms));
+  CHECK(answered() == before);
+  CHECK(late.counters().forged == 0);
+}
+
+TEST_CASE("vehicle scope: a vehicle cache writable by others, stale, or of a writer not in the registry is not taken",
+          "[discovery][vehicle][hostile]") {
+  const auto v = group_of(49);
+  FakeHost c(0xc7, group_of(50), v);
+  // A live slot of c's registry, as the writer a forger would name (no Discovery: it writes nothing).
+  auto writer_reg = Registry::open({.host_id = c.host, .group = c.local, .directory = c.dir.path});
+  writer_reg->impl().join(777, 500, 50);
+  // A record of participant 999 of a host 0xa5 that does not exist: taken only from the cache.
+  auto write = [&](std::int64_t writer, std::int64_t written_ns, mode_t mode) {
+    lcmx_msgs::cached_host_t h{};
+    h.host_id = 0xa5;
+    h.address = static_cast<std::int32_t>(::inet_addr("10.251.0.1"));
+    h.registry_id = 5;
+    h.speaker = 999;
+    h.lease_ms = 500;
+    auto b = beacon_of(999, 0xa5, {"X"}, beacon_t::SCOPE_VEHICLE);
+    b.version = lcmx::discovery::kBeaconVersion;
+    b.revision = 1;
+    h.records.push_back(b);
+    h.num_records = 1;
+    lcmx_msgs::vehicle_cache_t cache{};
+    cache.version = lcmx::discovery::kBeaconVersion;
+    cache.host_id = static_cast<std::int64_t>(c.host);
+    cache.writer = writer;
+    cache.written_ns = written_ns;
+    cache.hosts.push_back(h);
+    cache.num_hosts = 1;
+    std::vector<std::byte> bytes(static_cast<std::size_t>(cache.getEncodedSize()));
+    cache.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    const auto path = cache_path(c);
+    {
+      std::ofstream f(path, std::ios::binary | std::ios::trunc);
+      f.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+    }
+    REQUIRE(::chmod(path.c_str(), mode) == 0);
+  };
+  auto now_ns = [] { return lcmx::discovery::reg::now_ns(); };
+  writer_reg->impl().heartbeat();
+  write(777, now_ns(), 0666);  // writable by others
+  c.add(71, {"X"});
+  CHECK(c.ps.back().v->counters().cache_records == 0);
+  write(778, now_ns(), 0644);  // a writer that holds no slot
+  c.add(72, {"X"});
+  CHECK(c.ps.back().v->counters().cache_records == 0);
+  write(777, now_ns() - 2'000'000'000, 0644);  // written 2 s ago: its speaker stopped writing
+  c.add(73, {"X"});
+  CHECK(c.ps.back().v->counters().cache_records == 0);
+  CHECK(c.vlog.count(Change::joined, 999) == 0);
+  // The same file, current and trusted: taken (the checks above are what refused it).
+  writer_reg->impl().heartbeat();
+  write(777, now_ns(), 0644);
+  c.add(74, {"X"});
+  CHECK(c.ps.back().v->counters().cache_records == 1);
+  CHECK(c.vlog.count(Change::joined, 999) == 1);
+  c.ps.clear();
+  writer_reg.reset();
 }
 
 TEST_CASE("vehicle scope: a local match sends no vehicle record again, a match across hosts does",
