@@ -209,7 +209,15 @@ struct Discovery::Impl {
     Participant p;
     std::int64_t host = 0;    // remote: its host's id; 0: from the registry
     std::size_t bytes = 0;
+    std::int32_t sent_lease = 0;  // remote: the lease its record said (p.beacon's is its host's):
+                                  // sent_bytes() re-encodes the record as it came
   };
+  // A remote peer's record as it came (a base for compressed batches; the vehicle cache).
+  static lcmx_msgs::beacon_t as_sent(const Peer& p) {
+    auto b = p.p.beacon;
+    b.lease_ms = p.sent_lease;
+    return b;
+  }
   std::map<std::int64_t, Peer> peers;
   std::size_t table_bytes = 0;
   Counters counters;
@@ -248,7 +256,11 @@ struct Discovery::Impl {
     std::uint64_t shape = 0;    // vehicle scope: structural hash of vehicle_view() (never 0)
     std::vector<std::byte> record;  // as the participant wrote it (answers to an observer's query)
     std::vector<std::byte> view;    // vehicle scope: vehicle_view(), what other hosts are sent
-    Clock::time_point sent{};
+    Clock::time_point sent{};  // last sent in a batch without a base (send_record)
+    // Vehicle scope: the view last sent on the group and its revision: what every receiver
+    // that heard it holds (a base for the next batch: Batch::base).
+    std::vector<std::byte> sent_view;
+    std::int64_t sent_revision = 0;
   };
   std::map<std::int64_t, Spoken> spoken;      // what this speaker speaks for
   std::map<std::int64_t, std::int64_t> spoken_set;  // id -> revision (digest)
@@ -267,9 +279,9 @@ struct Discovery::Impl {
     const auto now = Clock::now();
     flush_at = !first_record && now - last_flush >= kRecordDelay ? now : now + kRecordDelay;
   }
-  bool want_index = false, want_all = false;  // under mutex
+  bool want_index = false, want_all = false, want_views = false;  // under mutex
   std::set<std::int64_t> wanted;               // under mutex
-  Clock::time_point last_index{}, last_all{}, audience_until{};
+  Clock::time_point last_index{}, last_all{}, last_views{}, audience_until{};
   Clock::time_point next_heartbeat{};
   struct Watch {
     int fd = -1;
@@ -771,6 +783,9 @@ struct Discovery::Impl {
     std::vector<std::vector<std::byte>> items;  // encode_beacon()'s bytes
     std::size_t bytes = kBatchHeaderBytes;      // the records_t they make
     std::uint64_t host = 0;                     // every record of a batch names one host
+    // Compressed against this record, if set (choose_base: flushes on the vehicle group only).
+    std::int64_t base_id = 0, base_revision = 0;
+    std::vector<std::byte> base;
   };
   // `last`: the last batch of a pass, which carries the speaker's heartbeat as of its records
   // (docs/discovery.md "Batches"; built just before it goes out: its `sequence` counts it).
@@ -778,8 +793,27 @@ struct Discovery::Impl {
     if (b.items.empty()) return;
     const auto heartbeat = last ? encode_host_beacon(host_message(host_beacon_t::KIND_HEARTBEAT)) : std::vector<std::byte>{};
     // The smallest of: a record alone (beacon_t), the records_t, the records_t compressed.
-    publish_udp(encode_batch(b.host, b.items, heartbeat));
-    b = Batch{};
+    const BatchBase base{b.base_id, b.base_revision, b.base};
+    publish_udp(encode_batch(b.host, b.items, heartbeat, b.base.empty() ? nullptr : &base));
+    b.items.clear();  // the next batch of the pass: the same base
+    b.bytes = kBatchHeaderBytes;
+  }
+  // The base of a flush's batches (vehicle scope): the previous revision, as sent, of the first
+  // record to go (the same participant: what changed is a match or an endpoint), else the
+  // record sent last (another process of this host, most likely of the same program). Only a
+  // record every receiver that heard the group holds: one sent on it and not gone since.
+  void choose_base(Batch& b, std::int64_t first) {
+    if (host_scope) return;
+    const Spoken* pick = nullptr;
+    std::int64_t id = 0;
+    if (auto it = spoken.find(first); it != spoken.end() && !it->second.sent_view.empty())
+      pick = &it->second, id = first;
+    else if (auto last = spoken.find(last_sent); last != spoken.end() && !last->second.sent_view.empty())
+      pick = &last->second, id = last_sent;
+    if (!pick) return;
+    b.base_id = id;
+    b.base_revision = pick->sent_revision;
+    b.base = pick->sent_view;
   }
   void batch_add(Batch& b, std::vector<std::byte> record) {
     if (record.size() < kBeaconHostAt + 8) return;  // (encode_beacon's bytes always hold more)
@@ -798,9 +832,17 @@ struct Discovery::Impl {
     auto it = spoken.find(id);
     if (it == spoken.end()) return;
     const auto& sp = it->second;
+    // `sent` rate-limits answers (twice per period: one multicast answer serves everyone);
+    // a record that went against a base did not reach who lacks the base, who may be asking.
+    if (batch.base.empty()) it->second.sent = Clock::now();
     batch_add(batch, full || sp.view.empty() ? sp.record : sp.view);
-    it->second.sent = Clock::now();
+    if (!full && !sp.view.empty()) {
+      it->second.sent_view = sp.view;
+      it->second.sent_revision = sp.revision;
+      last_sent = id;
+    }
   }
+  std::int64_t last_sent = 0;  // the participant whose view went last (choose_base)
 
   void send_goodbye(Batch& batch, std::int64_t id) {
     beacon_t b{};
@@ -820,13 +862,14 @@ struct Discovery::Impl {
       publish_udp(encode_host_beacon(host_message(host_beacon_t::KIND_HEARTBEAT)));
       next_heartbeat = now + options.period;
     }
-    bool index = false, all = false;
+    bool index = false, all = false, views = false;
     std::set<std::int64_t> want;
     {
       std::lock_guard lock(mutex);
       // Rate limits: the index and "everything" at most once per period each; one answer, multicast, serves all.
       if (want_index && now - last_index >= options.period) index = true, want_index = false;
       if (want_all && now - last_all >= options.period) all = true, want_all = false;
+      if (want_views && now - last_views >= options.period) views = true, want_views = false;
       want.swap(wanted);
     }
     Batch batch;  // this pass's records and goodbyes
@@ -846,6 +889,11 @@ struct Discovery::Impl {
       for (const auto& [id, sp] : spoken) send_record(batch, id, true);
       last_all = now;
       index = true;
+    } else if (views) {
+      // A receiver that holds none of ours: every record (what other hosts use of it), and the
+      // batch's heartbeat, instead of the index it would ask for and then every record.
+      for (const auto& [id, sp] : spoken) send_record(batch, id);
+      last_views = now;
     } else {
       for (auto id : want)
         if (auto it = spoken.find(id); it != spoken.end() && now - it->second.sent >= options.period / 2)
@@ -854,7 +902,11 @@ struct Discovery::Impl {
     if (now >= flush_at) {
       flush_at = Clock::time_point::max();
       last_flush = now;
-      if (audience()) {
+      if (audience() && !(pending_records.empty() && pending_goodbyes.empty())) {
+        // Its own batches, compressed against a base (answers to requests go without one:
+        // who asks may lack it), after the answers' batch.
+        batch_send(batch);
+        if (!pending_records.empty()) choose_base(batch, *pending_records.begin());
         for (auto id : pending_records) send_record(batch, id);
         for (auto id : pending_goodbyes) send_goodbye(batch, id);
       }
@@ -866,7 +918,7 @@ struct Discovery::Impl {
     // every flush: a third of the small robot's cold-start bytes.
     batch_send(batch, true);
     if (index) send_index();
-    if (all || index || !want.empty()) {
+    if (all || index || views || !want.empty()) {
       std::lock_guard lock(mutex);
       ++counters.requests_answered;
     }
@@ -976,6 +1028,25 @@ struct Discovery::Impl {
 
   // ------------------------------------------------------------ the group
   // A datagram from the group that does not decode: counted, warned about (every 5 s at most).
+  // A compressed batch of host `h` against a base record we do not hold (we missed it, or
+  // started after it; an observer holds full records, not what was sent): its records are
+  // lost to us. Asks that host for its index now (at most once per period), then for what is
+  // missing, as after a batch whose heartbeat disagrees.
+  void missed_batch(std::int64_t h, std::uint32_t ip) {
+    {
+      std::lock_guard lock(mutex);
+      ++counters.missed_batches;
+      auto it = hosts.find(h);
+      if (it == hosts.end() || !source_ok(h, ip)) return;
+      auto& host = it->second;
+      if (Clock::now() - host.last_request < options.period) return;
+      host.last_request = Clock::now();
+      host.mismatches = 0;
+      requests.push_back({h, {}, request_due()});
+    }
+    wake();
+  }
+
   void malformed(const char* what, const std::string& why) {
     std::lock_guard lock(mutex);
     ++counters.malformed;
@@ -1018,9 +1089,19 @@ struct Discovery::Impl {
   void on_records(const udpm::Message& m) {
     // This host's own (its speaker's, heard by everyone on the group): known through the
     // registry; dropped before decoding (the host id lies at the same offset in both).
-    if (host_at(m.data, kRecordsHostAt) == own_host) return;
+    const auto batch_host = static_cast<std::int64_t>(host_at(m.data, kRecordsHostAt));
+    if (static_cast<std::uint64_t>(batch_host) == own_host) return;
+    // Compressed against a base record: its bytes as it came, if we hold that revision.
+    std::vector<std::byte> base;
+    if (const auto [id, revision] = batch_base(m.data); id != 0) {
+      std::lock_guard lock(mutex);
+      if (auto it = peers.find(id);
+          it != peers.end() && it->second.host == batch_host && it->second.p.beacon.revision == revision)
+        base = encode_beacon(as_sent(it->second));
+    }
     std::string why;
-    auto r = decode_batch(m.data, &why);
+    auto r = decode_batch(m.data, &why, base);
+    if (!r && batch_base(m.data).first != 0) return missed_batch(batch_host, m.source.address_be);
     if (!r) return malformed("a batch of records", why);
     for (auto& b : r->records) {
       const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
@@ -1094,6 +1175,7 @@ struct Discovery::Impl {
         } else if (it->second.p.beacon.revision == b.revision && !options.observer) {
           return false;  // nothing new (statistics are for observers)
         }
+        it->second.sent_lease = b.lease_ms;
         b.lease_ms = static_cast<std::int32_t>(host.lease.count());
         host.members[b.participant_id] = b.revision;
         table_bytes += bytes - old;
@@ -1165,6 +1247,9 @@ struct Discovery::Impl {
       if (h->wanted.empty()) {
         if (want_index) ++counters.requests_limited;
         want_index = true;
+      } else if (h->wanted.size() == 1 && h->wanted[0] == host_beacon_t::WANT_VIEWS) {
+        if (want_views) ++counters.requests_limited;
+        want_views = true;
       } else if (h->wanted.size() == 1 && h->wanted[0] == host_beacon_t::WANT_ALL) {
         if (want_all) ++counters.requests_limited;
         want_all = true;
@@ -1283,8 +1368,8 @@ struct Discovery::Impl {
     if (h.target_host == 0 || !hosts.count(h.target_host)) return;
     auto& e = heard[h.target_host];
     const auto now = Clock::now();
-    if (h.wanted.empty()) {
-      e.index = now;
+    if (h.wanted.empty() || (h.wanted.size() == 1 && h.wanted[0] == host_beacon_t::WANT_VIEWS)) {
+      e.index = now;  // (every record and a heartbeat serve who wants the index too)
       return;
     }
     if (h.wanted.size() == 1 && h.wanted[0] == host_beacon_t::WANT_ALL) return;
@@ -1347,6 +1432,8 @@ struct Discovery::Impl {
         auto h = host_message(host_beacon_t::KIND_REQUEST);
         h.target_host = q.host;
         for (const auto& w : q.wanted) h.wanted.push_back(w.first);
+        // Holding none of that host's records: all of them at once, not its index first.
+        if (q.wanted.empty() && host->second.members.empty()) h.wanted.push_back(host_beacon_t::WANT_VIEWS);
         h.num_wanted = static_cast<std::int32_t>(h.wanted.size());
         out.push_back(std::move(h));
         return true;
@@ -1532,7 +1619,7 @@ struct Discovery::Impl {
           ch.lease_ms = static_cast<std::int32_t>(host.lease.count());
           ch.digest = host.digest;
           for (const auto& [pid, rev] : host.members)
-            if (auto p = peers.find(pid); p != peers.end() && p->second.host == id) ch.records.push_back(p->second.p.beacon);
+            if (auto p = peers.find(pid); p != peers.end() && p->second.host == id) ch.records.push_back(as_sent(p->second));
           ch.num_records = static_cast<std::int32_t>(ch.records.size());
           c.hosts.push_back(std::move(ch));
         }

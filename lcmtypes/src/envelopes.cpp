@@ -113,6 +113,8 @@ void fields(Reader& r, beacon_t& b) {
 void fields(Reader& r, records_z_t& b) {
   b.version = r.i32();
   b.host_id = r.i64();
+  b.base_participant = r.i64();
+  b.base_revision = r.i64();
   b.raw_size = r.i32();
   byte_array(r, b.num_bytes, b.deflated);
 }

@@ -278,6 +278,50 @@ TEST_CASE("a compressed batch (records_z_t) is smaller, inflates to the records_
   }
 }
 
+TEST_CASE("a batch compressed against a base record is smaller still, and decodes only with that record's bytes",
+          "[discovery][codec]") {
+  // The previous revision of a record: what changed is one match.
+  auto before = sample_beacon(3);
+  before.revision = 4;
+  auto after = before;
+  after.revision = 5;
+  after.endpoints[0].matches[0].path = "udp";
+  after.endpoints[0].matches[0].publisher_participant = 99;
+  const auto base_bytes = lcmx::discovery::encode_beacon(before);
+  const std::vector<std::vector<std::byte>> records = {lcmx::discovery::encode_beacon(after)};
+  const auto plain = lcmx::discovery::encode_batch(7, records);
+  const lcmx::discovery::BatchBase base{3, 4, base_bytes};
+  const auto against = lcmx::discovery::encode_batch(7, records, {}, &base);
+  INFO("alone or deflated " << plain.size() << " B, against its previous revision " << against.size() << " B");
+  REQUIRE(lcmx::discovery::fingerprint_of(against) == lcmx_msgs::records_z_t::getHash());
+  CHECK(against.size() + 20 < plain.size());
+  CHECK(lcmx::discovery::batch_base(against) == std::make_pair(std::int64_t{3}, std::int64_t{4}));
+  CHECK(lcmx::discovery::batch_base(plain) == std::make_pair(std::int64_t{0}, std::int64_t{0}));
+  std::string why;
+  // Without the base, or with other bytes (another revision), nothing comes out.
+  CHECK_FALSE(lcmx::discovery::decode_batch(against, &why));
+  CHECK_THAT(why, Catch::Contains("not given"));
+  auto other = before;
+  other.revision = 3;
+  CHECK_FALSE(lcmx::discovery::decode_batch(against, &why, lcmx::discovery::encode_beacon(other)));
+  CHECK_THAT(why, Catch::Contains("another base"));
+  // With it: the record as sent.
+  auto back = lcmx::discovery::decode_batch(against, &why, base_bytes);
+  REQUIRE(back);
+  REQUIRE(back->records.size() == 1);
+  CHECK(lcmx::discovery::encode_beacon(back->records[0]) == records[0]);
+  // lcm-gen's decoder reads the header; zlib's own inflate wants the dictionary it names.
+  lcmx_msgs::records_z_t z;
+  REQUIRE(z.decode(against.data(), 0, static_cast<int>(against.size())) == static_cast<int>(against.size()));
+  std::vector<std::byte> out(static_cast<std::size_t>(z.raw_size));
+  uLongf n = static_cast<uLongf>(out.size());
+  CHECK(uncompress(reinterpret_cast<Bytef*>(out.data()), &n, z.deflated.data(), static_cast<uLong>(z.deflated.size())) ==
+        Z_DATA_ERROR);  // (zlib's uncompress reports Z_NEED_DICT as a data error)
+  // Every truncation is refused, with the base too.
+  for (std::size_t k = 0; k < against.size(); ++k)
+    CHECK_FALSE(lcmx::discovery::decode_batch({against.data(), k}, &why, base_bytes));
+}
+
 TEST_CASE("malformed beacons are rejected without crashing or allocating", "[discovery][codec]") {
   const auto good = lcmx::discovery::encode_beacon(sample_beacon(1));
   std::string why;

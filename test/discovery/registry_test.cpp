@@ -737,6 +737,40 @@ beacon_t remote_record(std::int64_t id, std::uint64_t host, const std::string& t
   return b;
 }
 
+// A watcher's decoding of records on a group: keeps each record as heard (lcm-gen's bytes),
+// so a batch compressed against one of them (batch_base) decodes too. One thread.
+class HeardRecords {
+ public:
+  std::optional<lcmx_msgs::records_t> batch(std::span<const std::byte> bytes) {
+    const auto [id, revision] = lcmx::discovery::batch_base(bytes);
+    const auto base = held_.find({id, revision});
+    auto r = lcmx::discovery::decode_batch(bytes, nullptr,
+                                           id != 0 && base != held_.end() ? std::span<const std::byte>(base->second)
+                                                                          : std::span<const std::byte>{});
+    if (r) keep(r->records);
+    return r;
+  }
+  std::optional<std::vector<beacon_t>> any(std::span<const std::byte> bytes) {
+    const auto fp = lcmx::discovery::fingerprint_of(bytes);
+    if (fp == lcmx_msgs::records_t::getHash() || fp == lcmx_msgs::records_z_t::getHash()) {
+      auto r = batch(bytes);
+      if (!r) return std::nullopt;
+      return std::move(r->records);
+    }
+    auto b = lcmx::discovery::decode_beacon(bytes);
+    if (!b) return std::nullopt;
+    std::vector<beacon_t> one{std::move(*b)};
+    keep(one);
+    return one;
+  }
+
+ private:
+  void keep(const std::vector<beacon_t>& records) {
+    for (const auto& b : records) held_[{b.participant_id, b.revision}] = lcmx::discovery::encode_beacon(b);
+  }
+  std::map<std::pair<std::int64_t, std::int64_t>, std::vector<std::byte>> held_;
+};
+
 // Drains the vehicle group on a thread of its own and hands every discovery datagram to `fn`
 // (with whether it holds records: a beacon_t or a batch) until destroyed.
 class VehiclePump {
@@ -870,14 +904,19 @@ TEST_CASE("vehicle scope: a burst of records goes out in batches - one datagram 
   std::mutex mu;
   int datagrams = 0, records = 0, alone = 0, compressed = 0, with_heartbeat = 0;
   std::size_t largest_batch = 0;
+  HeardRecords heard;  // (the pump's thread only)
   VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
     if (!record) return;
-    auto rs = lcmx::discovery::decode_any_records(m.data);
+    const bool batch = lcmx::discovery::fingerprint_of(m.data) != beacon_t::getHash();
+    std::optional<lcmx_msgs::records_t> decoded;
+    std::optional<std::vector<beacon_t>> rs;
+    if (batch && (decoded = heard.batch(m.data))) rs = decoded->records;
+    if (!batch) rs = heard.any(m.data);
     if (!rs || rs->empty() || rs->front().host_id != 0xaa) return;
     std::lock_guard lock(mu);
     ++datagrams;
     if (lcmx::discovery::fingerprint_of(m.data) == lcmx_msgs::records_z_t::getHash()) ++compressed;
-    if (auto batch = lcmx::discovery::decode_batch(m.data); batch && !batch->state.empty()) ++with_heartbeat;
+    if (decoded && !decoded->state.empty()) ++with_heartbeat;
     records += static_cast<int>(rs->size());
     if (rs->size() == 1) ++alone;
     else largest_batch = std::max(largest_batch, m.data.size());
@@ -1112,6 +1151,81 @@ TEST_CASE("vehicle scope: a batch whose closing heartbeat disagrees with what it
   r.deliver(message_of(batch({rec(7)}, {{5, 1}, {6, 1}, {7, 1}, {8, 1}}), speaker));
   CHECK(lr.count(Change::joined, 7) == 1);
   CHECK(eventually([&] { return asked.load() >= 1; }, 2000ms));
+  pump.stop();
+}
+
+TEST_CASE("vehicle scope: a batch compressed against a record held is taken - one against a record not held asks at once",
+          "[discovery][vehicle]") {
+  auto o = fed_observer_options(group_of(51));
+  Log lr;
+  Discovery r(o, nullptr, lr.fn());
+  std::atomic<int> asked{0};  // requests to host 77 heard on the group (its index or all its records)
+  VehiclePump pump(o.group, [&](const lcmx::udpm::Message& m, bool) {
+    auto h = lcmx::discovery::decode_host_beacon(m.data);
+    if (h && h->kind == host_beacon_t::KIND_REQUEST && h->target_host == 77) ++asked;
+  });
+  const char* speaker = "10.9.0.1";
+  using Records = std::vector<std::vector<std::byte>>;
+  auto rec = [](std::int64_t id) { return lcmx::discovery::encode_beacon(remote_record(id, 77, "T")); };
+  auto heartbeat = [](std::map<std::int64_t, std::int64_t> set) {
+    return lcmx::discovery::encode_host_beacon(heartbeat_of(77, std::move(set)));
+  };
+  // Record 5, and a heartbeat that names it.
+  r.deliver(message_of(lcmx::discovery::encode_batch(77, Records{rec(5)}, heartbeat({{5, 1}})), speaker));
+  REQUIRE(lr.count(Change::joined, 5) == 1);
+  // Record 6 against record 5 as it was sent: taken.
+  const auto five = rec(5);
+  const lcmx::discovery::BatchBase held{5, 1, five};
+  const auto against_held = lcmx::discovery::encode_batch(77, Records{rec(6)}, heartbeat({{5, 1}, {6, 1}}), &held);
+  REQUIRE(lcmx::discovery::batch_base(against_held).first == 5);
+  r.deliver(message_of(against_held, speaker));
+  CHECK(lr.count(Change::joined, 6) == 1);
+  CHECK(r.counters().missed_batches == 0);
+  CHECK(r.counters().malformed == 0);
+  // Record 7 against record 9, which never came here: lost to r, which asks host 77 at once
+  // (no second heartbeat is sent here).
+  const auto nine = rec(9);
+  const lcmx::discovery::BatchBase missing{9, 1, nine};
+  r.deliver(message_of(
+      lcmx::discovery::encode_batch(77, Records{rec(7)}, heartbeat({{5, 1}, {6, 1}, {7, 1}, {9, 1}}), &missing), speaker));
+  CHECK(lr.count(Change::joined, 7) == 0);
+  CHECK(r.counters().missed_batches == 1);
+  CHECK(r.counters().malformed == 0);
+  CHECK(eventually([&] { return asked.load() >= 1; }, 2000ms));
+  pump.stop();
+}
+
+TEST_CASE("vehicle scope: a receiver that holds none of a host's records asks for all of them at once - one that holds "
+          "some asks for the index",
+          "[discovery][vehicle]") {
+  auto o = fed_observer_options(group_of(52));
+  Log lr;
+  Discovery r(o, nullptr, lr.fn());
+  std::atomic<int> views{0}, index{0};  // requests to host 77 heard on the group
+  VehiclePump pump(o.group, [&](const lcmx::udpm::Message& m, bool) {
+    auto h = lcmx::discovery::decode_host_beacon(m.data);
+    if (!h || h->kind != host_beacon_t::KIND_REQUEST || h->target_host != 77) return;
+    if (h->wanted.empty()) ++index;
+    if (h->wanted.size() == 1 && h->wanted[0] == host_beacon_t::WANT_VIEWS) ++views;
+  });
+  const char* speaker = "10.9.0.1";
+  auto beat = [&](std::map<std::int64_t, std::int64_t> set) {
+    r.deliver(message_of(lcmx::discovery::encode_host_beacon(heartbeat_of(77, std::move(set))), speaker));
+  };
+  // Two heartbeats that name a record r does not hold, and r holds none of 77's.
+  beat({{5, 1}});
+  beat({{5, 1}});
+  REQUIRE(eventually([&] { return views.load() >= 1; }, 2000ms));
+  CHECK(index.load() == 0);
+  // It holds 5 now; 77's set grows by 6: the index, as before.
+  r.deliver(message_of(lcmx::discovery::encode_beacon(remote_record(5, 77, "T")), speaker));
+  REQUIRE(lr.count(Change::joined, 5) == 1);
+  const auto views_before = views.load();
+  REQUIRE(eventually([&] {  // (its requests are rate-limited to one per period: heartbeats until it asks)
+    beat({{5, 1}, {6, 1}});
+    return index.load() >= 1;
+  }, 3000ms));
+  CHECK(views.load() == views_before);
   pump.stop();
 }
 

@@ -19,10 +19,12 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <optional>
 #include <span>
 #include <string>
 #include <vector>
 
+#include "batch_base.hpp"
 #include "lcmx/discovery/beacon_codec.hpp"
 
 namespace {
@@ -104,7 +106,11 @@ void check_same(const lcmx_msgs::beacon_t& a, const lcmx_msgs::beacon_t& b) {
 int check_batch(std::span<const std::byte> input) {
   std::string why;
   const bool compressed = lcmx::discovery::fingerprint_of(input) == lcmx_msgs::records_z_t::getHash();
-  const auto batch = lcmx::discovery::decode_batch(input, &why);
+  // Deflated against a base: the fuzz inputs' one (batch_base.hpp), whatever the batch names.
+  const auto named = lcmx::discovery::batch_base(input);
+  const auto base_bytes = lcmx::discovery::encode_beacon(lcmx::fuzz::batch_base_record());
+  const lcmx::discovery::BatchBase base{named.first, named.second, base_bytes};
+  const auto batch = lcmx::discovery::decode_batch(input, &why, named.first != 0 ? std::span(base_bytes) : std::span<const std::byte>{});
   if (!batch) {
     FUZZ_CHECK(!why.empty());
     return 0;
@@ -137,6 +143,18 @@ int check_batch(std::span<const std::byte> input) {
   const auto again = lcmx::discovery::decode_any_records(lcmx::discovery::encode_batch(host, each, heartbeat), &why);
   FUZZ_CHECK(again.has_value() && again->size() == batch->records.size());
   for (std::size_t i = 0; i < again->size(); ++i) check_same(batch->records[i], (*again)[i]);
+  if (named.first != 0) {  // and against the same base: what decodes with it gives them back
+    const auto sent = lcmx::discovery::encode_batch(host, each, heartbeat, &base);
+    std::optional<std::vector<lcmx_msgs::beacon_t>> got;
+    if (lcmx::discovery::batch_base(sent).first != 0) {
+      auto r = lcmx::discovery::decode_batch(sent, &why, base_bytes);
+      if (r) got = std::move(r->records);
+    } else {
+      got = lcmx::discovery::decode_any_records(sent, &why);
+    }
+    FUZZ_CHECK(got.has_value() && got->size() == batch->records.size());
+    for (std::size_t i = 0; i < got->size(); ++i) check_same(batch->records[i], (*got)[i]);
+  }
   return 0;
 }
 

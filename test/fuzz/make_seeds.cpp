@@ -16,6 +16,7 @@
 #include <string_view>
 #include <vector>
 
+#include "batch_base.hpp"
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/lcmtypes/envelope.hpp"
 #include "lcmx/udpm/wire.hpp"
@@ -316,6 +317,13 @@ int main(int argc, char** argv) {
   // The same batch compressed (records_z_t), as a speaker sends it when that is smaller.
   const std::vector<Bytes> many = {full, full, full, small, lcmx::discovery::encode_beacon(goodbye)};
   ok &= write(dir / "beacon" / "batch_z.bin", lcmx::discovery::encode_batch(0, many));
+  // Compressed against a base record (batch_base.hpp: fuzz_beacon inflates with it).
+  {
+    const auto base_record = lcmx::fuzz::batch_base_record();
+    const auto base_bytes = lcmx::discovery::encode_beacon(base_record);
+    const lcmx::discovery::BatchBase base{base_record.participant_id, base_record.revision, base_bytes};
+    ok &= write(dir / "beacon" / "batch_base.bin", lcmx::discovery::encode_batch(0, many, {}, &base));
+  }
   // With the speaker's heartbeat after the records, as the last batch of a pass ends.
   lcmx_msgs::host_beacon_t heartbeat{};
   heartbeat.version = lcmx::discovery::kHostBeaconVersion;

@@ -185,6 +185,8 @@ void fill(Gen& g, records_t& r) {
 void fill(Gen& g, records_z_t& r) {
   r.version = g.i32();
   r.host_id = g.i64();
+  r.base_participant = g.i64();
+  r.base_revision = g.i64();
   r.raw_size = g.i32();
   r.deflated = g.bytes();
   r.num_bytes = static_cast<std::int32_t>(r.deflated.size());

@@ -17,6 +17,7 @@
 #include <cstring>
 #include <fstream>
 #include <functional>
+#include <map>
 #include <optional>
 #include <random>
 #include <set>
@@ -260,10 +261,37 @@ using lcmx_msgs::beacon_t;
 using lcmx_msgs::endpoint_t;
 using lcmx_msgs::host_beacon_t;
 
+// Inflates a records_z_t's stream into `out` (its declared size), with `dictionary` when the
+// stream was deflated against a base record (zlib asks for it).
+bool inflate_z(const lcmx_msgs::records_z_t& z, const std::vector<std::uint8_t>& dictionary, std::vector<std::uint8_t>& out) {
+  out.resize(static_cast<std::size_t>(z.raw_size));
+  z_stream s{};
+  if (inflateInit(&s) != Z_OK) return false;
+  s.next_in = const_cast<Bytef*>(z.deflated.data());
+  s.avail_in = static_cast<uInt>(z.deflated.size());
+  s.next_out = out.data();
+  s.avail_out = static_cast<uInt>(out.size());
+  int r = inflate(&s, Z_FINISH);
+  if (r == Z_NEED_DICT && !dictionary.empty() &&
+      inflateSetDictionary(&s, dictionary.data(), static_cast<uInt>(dictionary.size())) == Z_OK)
+    r = inflate(&s, Z_FINISH);
+  const bool ok = r == Z_STREAM_END && s.total_out == out.size();
+  inflateEnd(&s);
+  return ok;
+}
+
 // The discovery records (beacon_t, goodbyes left out) a listener heard, decoded by lcm-gen's
-// code (and a compressed batch inflated by zlib's): the test's own view of its own hosts' traffic.
+// code (and a compressed batch inflated by zlib's, against the record it names as its base
+// when it has one): the test's own view of its own hosts' traffic.
 std::vector<beacon_t> records(const GroupListener& l) {
   std::vector<beacon_t> out;
+  std::map<std::pair<std::int64_t, std::int64_t>, std::vector<std::uint8_t>> as_heard;  // (id, revision) -> lcm-gen's bytes
+  auto keep = [&](beacon_t& b) {
+    std::vector<std::uint8_t> bytes(static_cast<std::size_t>(b.getEncodedSize()));
+    b.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
+    as_heard[{b.participant_id, b.revision}] = std::move(bytes);
+    if (!(b.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(b));
+  };
   for (const auto& h : l.heard()) {
     if (h.channel != kBeacons) continue;
     const void* data = h.payload.data();
@@ -273,17 +301,16 @@ std::vector<beacon_t> records(const GroupListener& l) {
     lcmx_msgs::records_z_t z;    // the same, compressed
     std::vector<std::uint8_t> inflated;
     if (z.decode(data, 0, n) == n && z.raw_size > 0) {
-      inflated.resize(static_cast<std::size_t>(z.raw_size));
-      uLongf size = static_cast<uLongf>(inflated.size());
-      if (uncompress(inflated.data(), &size, z.deflated.data(), static_cast<uLong>(z.deflated.size())) != Z_OK) continue;
+      static const std::vector<std::uint8_t> none;
+      const auto base = as_heard.find({z.base_participant, z.base_revision});
+      if (!inflate_z(z, z.base_participant != 0 && base != as_heard.end() ? base->second : none, inflated)) continue;
       data = inflated.data();
-      n = static_cast<int>(size);
+      n = static_cast<int>(inflated.size());
     }
     if (b.decode(data, 0, n) == n) {
-      if (!(b.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(b));
+      keep(b);
     } else if (batch.decode(data, 0, n) == n) {
-      for (auto& r : batch.records)
-        if (!(r.flags & beacon_t::FLAG_GOODBYE)) out.push_back(std::move(r));
+      for (auto& r : batch.records) keep(r);
     }
   }
   return out;

@@ -5,6 +5,7 @@
 #include <optional>
 #include <span>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "lcmx_msgs/beacon_t.hpp"
@@ -60,9 +61,24 @@ std::optional<lcmx_msgs::records_t> decode_records(std::span<const std::byte> by
 // records_t of its own host (then checked as decode_records does).
 inline constexpr std::size_t kMaxInflatedBytes = 4u << 20;
 inline constexpr std::size_t kMaxInflateRatio = 1032;  // deflate's own limit, about 1032:1
+//
+// A base (docs/discovery.md "Compressed against a base"): a record of the same host that every
+// receiver holds, whose encode_beacon() bytes are zlib's preset dictionary, so a record much
+// like one already heard (its previous revision, another process of the same program) costs
+// a fraction of its bytes. The receiver finds the base named by batch_base() in its table and
+// hands its bytes to decode_batch; zlib checks they are the ones deflated against.
+struct BatchBase {
+  std::int64_t participant = 0;
+  std::int64_t revision = 0;
+  std::span<const std::byte> bytes;  // encode_beacon() of that record, as sent
+};
 std::vector<std::byte> encode_batch(std::uint64_t host_id, std::span<const std::vector<std::byte>> records,
-                                    std::span<const std::byte> heartbeat = {});
-std::optional<lcmx_msgs::records_t> decode_batch(std::span<const std::byte> bytes, std::string* why = nullptr);
+                                    std::span<const std::byte> heartbeat = {}, const BatchBase* base = nullptr);
+// The (participant, revision) a compressed batch was deflated against; (0, 0): none, or not a
+// records_z_t.
+std::pair<std::int64_t, std::int64_t> batch_base(std::span<const std::byte> bytes);
+std::optional<lcmx_msgs::records_t> decode_batch(std::span<const std::byte> bytes, std::string* why = nullptr,
+                                                 std::span<const std::byte> base = {});
 // Whichever of the three a discovery datagram holds: its records (a beacon_t is one). nullopt and
 // *why for anything else or malformed. For tools and tests that watch a group's records.
 std::optional<std::vector<lcmx_msgs::beacon_t>> decode_any_records(std::span<const std::byte> bytes,
