@@ -1101,6 +1101,11 @@ struct Discovery::Impl {
     }
     std::string why;
     auto r = decode_batch(m.data, &why, base);
+    if (!r && options.observer && !base.empty()) {
+      // An observer holds the full record (its query's answer: local matches, statistics); the
+      // base went as what other hosts use of it, which is the same at the same revision.
+      if (auto view = vehicle_view(base)) r = decode_batch(m.data, &why, encode_beacon(*view));
+    }
     if (!r && batch_base(m.data).first != 0) return missed_batch(batch_host, m.source.address_be);
     if (!r) return malformed("a batch of records", why);
     for (auto& b : r->records) {

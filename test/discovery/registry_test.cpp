@@ -1195,6 +1195,45 @@ TEST_CASE("vehicle scope: a batch compressed against a record held is taken - on
   pump.stop();
 }
 
+TEST_CASE("vehicle scope: an observer that holds a full record inflates a batch against its vehicle view",
+          "[discovery][vehicle][observer]") {
+  auto o = fed_observer_options(group_of(53));
+  Log lr;
+  Discovery r(o, nullptr, lr.fn());
+  const char* speaker = "10.9.0.1";
+  using Records = std::vector<std::vector<std::byte>>;
+  // Record 5 as an observer's query gets it: a local (shm) match and statistics.
+  auto full = remote_record(5, 77, "T");
+  full.endpoints[0].messages = 1234;
+  lcmx_msgs::match_t local{};
+  local.publisher_participant = 4;
+  local.publisher_endpoint = 1;
+  local.path = "shm";
+  local.received = 99;
+  full.endpoints[0].matches.push_back(local);
+  full.endpoints[0].num_matches = 1;
+  full.sequence = 17;
+  full.timestamp_us = 1700000000000000;
+  r.deliver(message_of(lcmx::discovery::encode_beacon(full), speaker));
+  REQUIRE(lr.count(Change::joined, 5) == 1);
+  // What other hosts are sent of it (the speaker's base): no local match, no statistics.
+  auto view = full;
+  view.endpoints[0].messages = 0;
+  view.endpoints[0].matches.clear();
+  view.endpoints[0].num_matches = 0;
+  view.sequence = 0;
+  view.timestamp_us = 0;
+  const auto view_bytes = lcmx::discovery::encode_beacon(view);
+  const lcmx::discovery::BatchBase base{5, 1, view_bytes};
+  const auto batch = lcmx::discovery::encode_batch(
+      77, Records{lcmx::discovery::encode_beacon(remote_record(6, 77, "T"))},
+      lcmx::discovery::encode_host_beacon(heartbeat_of(77, {{5, 1}, {6, 1}})), &base);
+  REQUIRE(lcmx::discovery::batch_base(batch).first == 5);
+  r.deliver(message_of(batch, speaker));
+  CHECK(lr.count(Change::joined, 6) == 1);
+  CHECK(r.counters().missed_batches == 0);
+}
+
 TEST_CASE("vehicle scope: a receiver that holds none of a host's records asks for all of them at once - one that holds "
           "some asks for the index",
           "[discovery][vehicle]") {
