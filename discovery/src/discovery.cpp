@@ -209,8 +209,8 @@ struct Discovery::Impl {
     Participant p;
     std::int64_t host = 0;    // remote: its host's id; 0: from the registry
     std::size_t bytes = 0;
-    std::int32_t sent_lease = 0;  // remote: the lease its record said (p.beacon's is its host's):
-                                  // sent_bytes() re-encodes the record as it came
+    std::int32_t sent_lease = 0;  // remote: the lease its record said (p.beacon's is its host's;
+                                  // as_sent() puts it back)
   };
   // A remote peer's record as it came (a base for compressed batches; the vehicle cache).
   static lcmx_msgs::beacon_t as_sent(const Peer& p) {
@@ -794,7 +794,7 @@ struct Discovery::Impl {
     const auto heartbeat = last ? encode_host_beacon(host_message(host_beacon_t::KIND_HEARTBEAT)) : std::vector<std::byte>{};
     // The smallest of: a record alone (beacon_t), the records_t, the records_t compressed.
     const BatchBase base{b.base_id, b.base_revision, b.base};
-    publish_udp(encode_batch(b.host, b.items, heartbeat, b.base.empty() ? nullptr : &base));
+    publish_udp(encode_batch(b.host, b.items, heartbeat, &base));  // (no bytes: no base)
     b.items.clear();  // the next batch of the pass: the same base
     b.bytes = kBatchHeaderBytes;
   }
@@ -1027,7 +1027,6 @@ struct Discovery::Impl {
   }
 
   // ------------------------------------------------------------ the group
-  // A datagram from the group that does not decode: counted, warned about (every 5 s at most).
   // A compressed batch of host `h` against a base record we do not hold (we missed it, or
   // started after it; an observer holds full records, not what was sent): its records are
   // lost to us. Asks that host for its index now (at most once per period), then for what is
@@ -1047,6 +1046,7 @@ struct Discovery::Impl {
     wake();
   }
 
+  // A datagram from the group that does not decode: counted, warned about (every 5 s at most).
   void malformed(const char* what, const std::string& why) {
     std::lock_guard lock(mutex);
     ++counters.malformed;
@@ -1092,11 +1092,12 @@ struct Discovery::Impl {
     const auto batch_host = static_cast<std::int64_t>(host_at(m.data, kRecordsHostAt));
     if (static_cast<std::uint64_t>(batch_host) == own_host) return;
     // Compressed against a base record: its bytes as it came, if we hold that revision.
+    const auto [base_id, base_revision] = batch_base(m.data);
     std::vector<std::byte> base;
-    if (const auto [id, revision] = batch_base(m.data); id != 0) {
+    if (base_id != 0) {
       std::lock_guard lock(mutex);
-      if (auto it = peers.find(id);
-          it != peers.end() && it->second.host == batch_host && it->second.p.beacon.revision == revision)
+      if (auto it = peers.find(base_id);
+          it != peers.end() && it->second.host == batch_host && it->second.p.beacon.revision == base_revision)
         base = encode_beacon(as_sent(it->second));
     }
     std::string why;
@@ -1106,7 +1107,7 @@ struct Discovery::Impl {
       // base went as what other hosts use of it, which is the same at the same revision.
       if (auto view = vehicle_view(base)) r = decode_batch(m.data, &why, encode_beacon(*view));
     }
-    if (!r && batch_base(m.data).first != 0) return missed_batch(batch_host, m.source.address_be);
+    if (!r && base_id != 0) return missed_batch(batch_host, m.source.address_be);
     if (!r) return malformed("a batch of records", why);
     for (auto& b : r->records) {
       const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
@@ -1200,17 +1201,18 @@ struct Discovery::Impl {
   // Whether `id` is this process's participant or one in this host's registry (a slot in use;
   // a claimed slot may still name its previous, dead owner: refusing that id costs nothing).
   // Any thread: the registry is read with atomics only.
-  bool of_this_host(std::int64_t id) const {
-    if (id != 0 && id == self_id.load()) return true;
-    if (!reg) return false;
+  bool of_this_host(std::int64_t id) const { return (id != 0 && id == self_id.load()) || slot_of(id); }
+  // The slot in use that names participant `id` (null: none). Any thread (atomics only).
+  const reg::Slot* slot_of(std::int64_t id) const {
+    if (!reg) return nullptr;
     const auto hw = std::min(reg->header->high_water.load(std::memory_order_acquire), reg->slot_count);
     for (std::uint32_t i = 0; i < hw; ++i) {
       const auto& s = reg->slot(i);
       if (reg::state_of(s.state.load(std::memory_order_acquire)) != reg::kFree &&
           s.participant_id.load(std::memory_order_relaxed) == id)
-        return true;
+        return &s;
     }
-    return false;
+    return nullptr;
   }
 
   // The trust rules (docs/discovery.md "Trust"): a record or goodbye of host H only from the
@@ -1635,9 +1637,7 @@ struct Discovery::Impl {
         return;
       }
     }
-    const auto t = reg::now_ns();
-    for (std::size_t k = 0; k < 8 && kCacheWrittenAt + k < cache_bytes.size(); ++k)
-      cache_bytes[kCacheWrittenAt + k] = static_cast<std::byte>(static_cast<std::uint64_t>(t) >> (56 - 8 * k));
+    lcmtypes::Writer(std::span(cache_bytes).subspan(kCacheWrittenAt, 8)).i64(reg::now_ns());
     reg->write_cache(group_hash, cache_bytes);
     cache_written = now;
   }
@@ -1657,15 +1657,10 @@ struct Discovery::Impl {
       return;
     const auto age = reg::now_ns() - c.written_ns;
     if (age < 0 || age > 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count()) return;
-    bool writer_ok = false;
-    const auto hw = std::min(reg->header->high_water.load(std::memory_order_acquire), reg->slot_count);
-    for (std::uint32_t i = 0; i < hw && !writer_ok; ++i) {
-      const auto& sl = reg->slot(i);
-      writer_ok = c.writer != 0 && sl.participant_id.load(std::memory_order_relaxed) == c.writer &&
-                  reg::state_of(sl.state.load(std::memory_order_acquire)) == reg::kLive &&
-                  sl.uid.load(std::memory_order_relaxed) == file->second;
-    }
-    if (!writer_ok) return;
+    const auto* writer = c.writer != 0 ? slot_of(c.writer) : nullptr;
+    if (!writer || reg::state_of(writer->state.load(std::memory_order_acquire)) != reg::kLive ||
+        writer->uid.load(std::memory_order_relaxed) != file->second)
+      return;
     std::uint64_t taken = 0;
     for (auto& ch : c.hosts) {
       if (ch.host_id == 0 || static_cast<std::uint64_t>(ch.host_id) == own_host) continue;
