@@ -32,6 +32,39 @@ GroupKey fixed_key(std::uint8_t fill) {
   return make_key(b);
 }
 
+// True if `envelope`, sealed from `inner` with keys.keys.front(), holds the bytes of libsodium's
+// XChaCha20-Poly1305-IETF under nonce sender | 0^8 | counter (the envelope computes it as
+// HChaCha20 once per sender, a one-time key made ahead, then Poly1305: docs/keyed-groups.md).
+bool libsodium_agrees(const std::vector<std::byte>& envelope, std::string_view inner, const GroupKeys& keys) {
+  REQUIRE(envelope.size() == kEnvelopeOverhead + inner.size());
+  unsigned char nonce[24] = {};
+  std::memcpy(nonce, envelope.data() + 16, 8);
+  std::memcpy(nonce + 16, envelope.data() + 24, 8);
+  std::vector<unsigned char> body(inner.size()), tag(kEnvelopeTagSize);
+  const auto* header = reinterpret_cast<const unsigned char*>(envelope.data());
+  const auto* key = keys.keys.front().bytes.data();
+  bool same = true;
+  if (keys.encrypt) {
+    crypto_aead_xchacha20poly1305_ietf_encrypt_detached(body.data(), tag.data(), nullptr,
+                                                        reinterpret_cast<const unsigned char*>(inner.data()),
+                                                        inner.size(), header, kEnvelopeHeaderSize, nullptr, nonce, key);
+    same = std::memcmp(body.data(), envelope.data() + kEnvelopeHeaderSize, body.size()) == 0;
+  } else {
+    unsigned char none = 0;
+    crypto_aead_xchacha20poly1305_ietf_encrypt_detached(&none, tag.data(), nullptr, &none, 0, header,
+                                                        kEnvelopeHeaderSize + inner.size(), nullptr, nonce, key);
+  }
+  return same && std::memcmp(tag.data(), envelope.data() + kEnvelopeHeaderSize + inner.size(), tag.size()) == 0;
+}
+
+// `inner` sealed by `sealer` with `keys`.
+std::vector<std::byte> sealed(lcmx::udpm::detail::Sealer& sealer, const GroupKeys& keys, std::string_view inner) {
+  std::vector<std::byte> buf(kEnvelopeOverhead + inner.size());
+  std::memcpy(buf.data() + kEnvelopeHeaderSize, inner.data(), inner.size());
+  REQUIRE(sealer.seal(keys, buf.data(), inner.size()) == buf.size());
+  return buf;
+}
+
 // A temporary directory, removed at the end of the test.
 struct TmpDir {
   std::filesystem::path path;
@@ -180,26 +213,7 @@ TEST_CASE("keyed: the envelope round-trips authenticated and encrypted, any chan
   CHECK(std::memcmp(buf.data(), "LCXK", 4) == 0);
   const bool clear = std::memcmp(buf.data() + kEnvelopeHeaderSize, inner.data(), inner.size()) == 0;
   CHECK(clear == !encrypt);
-  {  // The same bytes as libsodium's XChaCha20-Poly1305-IETF under nonce sender | 0^8 | counter
-     // (the envelope computes it as HChaCha20 once per sender, then ChaCha20-Poly1305-IETF).
-    unsigned char nonce[24] = {};
-    std::memcpy(nonce, buf.data() + 16, 8);
-    std::memcpy(nonce + 16, buf.data() + 24, 8);
-    std::vector<unsigned char> body(inner.size()), tag(kEnvelopeTagSize);
-    const auto* header = reinterpret_cast<const unsigned char*>(buf.data());
-    const auto* key = keys->keys.front().bytes.data();
-    if (encrypt) {
-      crypto_aead_xchacha20poly1305_ietf_encrypt_detached(body.data(), tag.data(), nullptr,
-                                                          reinterpret_cast<const unsigned char*>(inner.data()),
-                                                          inner.size(), header, kEnvelopeHeaderSize, nullptr, nonce, key);
-      CHECK(std::memcmp(body.data(), buf.data() + kEnvelopeHeaderSize, body.size()) == 0);
-    } else {
-      unsigned char none = 0;
-      crypto_aead_xchacha20poly1305_ietf_encrypt_detached(&none, tag.data(), nullptr, &none, 0, header,
-                                                          kEnvelopeHeaderSize + inner.size(), nullptr, nonce, key);
-    }
-    CHECK(std::memcmp(tag.data(), buf.data() + kEnvelopeHeaderSize + inner.size(), tag.size()) == 0);
-  }
+  CHECK(libsodium_agrees(buf, inner, *keys));
 
   for (std::size_t at = 0; at < buf.size(); ++at) {  // every byte: header, body, tag
     auto copy = buf;
@@ -236,6 +250,66 @@ TEST_CASE("keyed: the envelope round-trips authenticated and encrypted, any chan
   std::memcpy(next.data() + kEnvelopeHeaderSize, inner.data(), inner.size());
   sealer.seal(*keys, next.data(), inner.size());
   CHECK_FALSE(late.open(*keys, next, 0, false, now + 3600, 60).refused);  // known sender now
+}
+
+TEST_CASE("keyed: one-time keys made ahead give libsodium's bytes - for the counter expected, after a gap, "
+          "reordered and after a key change", "[unit][keyed]") {
+  using lcmx::udpm::detail::Opener;
+  using lcmx::udpm::detail::Sealer;
+  const auto encrypt = GENERATE(false, true);
+  INFO((encrypt ? "encrypted" : "authenticated"));
+  const auto a = keys_of({fixed_key(1)}, encrypt), b = keys_of({fixed_key(2)}, encrypt);
+  const auto both = keys_of({fixed_key(1), fixed_key(2)}, encrypt);
+  const std::string inner = std::string("LC02....CHANNEL\0", 16) + std::string(300, 'p');
+
+  // The sender: made ahead or not, under the key it seals with or another one.
+  Sealer sealer;
+  std::vector<std::vector<std::byte>> sent;  // counters 1..
+  sent.push_back(sealed(sealer, *a, inner));  // nothing made ahead
+  sealer.prepare(*a);
+  sent.push_back(sealed(sealer, *a, inner));  // made ahead, used
+  sealer.prepare(*a);
+  sent.push_back(sealed(sealer, *b, inner));  // made ahead under a, sealed under b
+  sealer.prepare(*b);
+  sent.push_back(sealed(sealer, *b, inner));
+  sealer.prepare(*b);
+  sent.push_back(sealed(sealer, *a, inner));  // back to a
+  sealer.prepare(*a);
+  sent.push_back(sealed(sealer, *a, inner));
+  sent.push_back(sealed(sealer, *a, inner));
+  sealer.prepare(*a);
+  sent.push_back(sealed(sealer, *a, inner));
+  const std::vector<const GroupKeys*> under = {a.get(), a.get(), b.get(), b.get(), a.get(), a.get(), a.get(), a.get()};
+  for (std::size_t i = 0; i < sent.size(); ++i) {
+    INFO("datagram " << i + 1);
+    CHECK(libsodium_agrees(sent[i], inner, *under[i]));
+  }
+
+  // The receiver (holding both keys), making ahead after each: in order, across the key change,
+  // after a gap (4 and 5 lost, then 5 late), reordered; a forgery with the counter it expects is
+  // refused and leaves the next genuine datagram taken.
+  Opener opener;
+  const auto open = [&](std::size_t counter, bool prepare = true) {
+    auto copy = sent[counter - 1];
+    const auto o = opener.open(*both, copy);
+    if (prepare) opener.prepare();
+    INFO("counter " << counter);
+    REQUIRE_FALSE(o.refused);
+    CHECK(std::string_view(reinterpret_cast<const char*>(o.inner.data()), o.inner.size()) == inner);
+  };
+  open(1);
+  open(2);
+  open(3);  // made ahead under a, sealed under b
+  open(6);  // made for 4
+  open(5);  // made for 7
+  auto forged = sent[6];
+  forged[kEnvelopeHeaderSize + 20] ^= std::byte{1};
+  CHECK(opener.open(*both, forged).refused == Refusal::bad_tag);
+  open(7);
+  open(8, false);
+  auto again = sent[7];
+  CHECK(opener.open(*both, again).refused == Refusal::replayed);
+  open(4);  // late, within the window
 }
 
 TEST_CASE("keyed: the replay window takes each counter once, reordered within 960, not older", "[unit][keyed]") {

@@ -48,6 +48,30 @@ void ietf_nonce_of(const std::byte* header, unsigned char (&nonce)[crypto_aead_c
   std::memcpy(nonce + 4, header + kOffCounter, 8);
 }
 
+// ChaCha20-Poly1305-IETF's tag (RFC 8439 section 2.8) under the one-time key `otk`: Poly1305
+// over ad | zeros to 16 | c | zeros to 16 | le64(ad size) | le64(c size). These are the steps of
+// libsodium's crypto_aead_chacha20poly1305_ietf_{en,de}crypt_detached, taken apart so that the
+// one-time key (their first step) can be made ahead (OneTimeKey; docs/keyed-groups.md "Wire
+// form"); every primitive is libsodium's, and a unit test checks the bytes against its AEAD.
+void tag_of(unsigned char (&tag)[kEnvelopeTagSize], const unsigned char* otk, const unsigned char* ad,
+            std::size_t ad_size, const unsigned char* c, std::size_t c_size) noexcept {
+  static const unsigned char zeros[16] = {};
+  unsigned char sizes[16];
+  for (int i = 0; i < 8; ++i) {
+    sizes[i] = static_cast<unsigned char>(static_cast<std::uint64_t>(ad_size) >> (8 * i));
+    sizes[8 + i] = static_cast<unsigned char>(static_cast<std::uint64_t>(c_size) >> (8 * i));
+  }
+  crypto_onetimeauth_poly1305_state st;
+  ::crypto_onetimeauth_poly1305_init(&st, otk);
+  ::crypto_onetimeauth_poly1305_update(&st, ad, ad_size);
+  ::crypto_onetimeauth_poly1305_update(&st, zeros, (0x10 - ad_size) & 0xf);
+  if (c_size > 0) ::crypto_onetimeauth_poly1305_update(&st, c, c_size);
+  ::crypto_onetimeauth_poly1305_update(&st, zeros, (0x10 - c_size) & 0xf);
+  ::crypto_onetimeauth_poly1305_update(&st, sizes, sizeof sizes);
+  ::crypto_onetimeauth_poly1305_final(&st, tag);
+  ::sodium_memzero(&st, sizeof st);
+}
+
 }  // namespace
 
 void sodium_ready() {
@@ -68,8 +92,27 @@ const unsigned char* Subkey::of(const GroupKey& key, std::uint64_t sender) noexc
     key_ = key.bytes;
     sender_ = sender;
     set_ = true;
+    ++generation_;
   }
   return sub_;
+}
+
+OneTimeKey::~OneTimeKey() { ::sodium_memzero(key_, sizeof key_); }
+
+void OneTimeKey::prepare(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept {
+  static_assert(crypto_onetimeauth_poly1305_KEYBYTES == sizeof key_);
+  std::byte header[kEnvelopeHeaderSize] = {};
+  put_u64(header + kOffCounter, counter);
+  unsigned char nonce[crypto_aead_chacha20poly1305_ietf_NPUBBYTES];
+  ietf_nonce_of(header, nonce);
+  ::crypto_stream_chacha20_ietf(key_, sizeof key_, nonce, sub);
+  counter_ = counter;
+  generation_ = subkey.generation();
+}
+
+const unsigned char* OneTimeKey::of(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept {
+  if (counter_ == 0 || counter_ != counter || generation_ != subkey.generation()) prepare(subkey, sub, counter);
+  return key_;
 }
 
 Sealer::Sealer() {
@@ -90,17 +133,21 @@ std::size_t Sealer::seal(const GroupKeys& keys, std::byte* buffer, std::size_t i
   unsigned char nonce[crypto_aead_chacha20poly1305_ietf_NPUBBYTES];
   ietf_nonce_of(buffer, nonce);
   const unsigned char* sub = subkey_.of(key, sender_);
+  const unsigned char* otk = next_.of(subkey_, sub, counter_);
   std::byte* body = buffer + kEnvelopeHeaderSize;
-  std::byte* tag = body + inner_size;
+  unsigned char tag[kEnvelopeTagSize];
   if (keys.encrypt) {
-    ::crypto_aead_chacha20poly1305_ietf_encrypt_detached(uc(body), uc(tag), nullptr, uc(body), inner_size,
-                                                         uc(buffer), kEnvelopeHeaderSize, nullptr, nonce, sub);
+    ::crypto_stream_chacha20_ietf_xor_ic(uc(body), uc(body), inner_size, nonce, 1, sub);
+    tag_of(tag, otk, uc(buffer), kEnvelopeHeaderSize, uc(body), inner_size);
   } else {
-    unsigned char none = 0;
-    ::crypto_aead_chacha20poly1305_ietf_encrypt_detached(&none, uc(tag), nullptr, &none, 0, uc(buffer),
-                                                         kEnvelopeHeaderSize + inner_size, nullptr, nonce, sub);
+    tag_of(tag, otk, uc(buffer), kEnvelopeHeaderSize + inner_size, nullptr, 0);
   }
+  std::memcpy(body + inner_size, tag, sizeof tag);
   return kEnvelopeOverhead + inner_size;
+}
+
+void Sealer::prepare(const GroupKeys& keys) noexcept {
+  next_.prepare(subkey_, subkey_.of(keys.keys.front(), sender_), counter_ + 1);
 }
 
 bool ReplayWindow::accept(std::uint64_t counter) noexcept {
@@ -143,23 +190,22 @@ Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::
   ietf_nonce_of(d.data(), nonce);
   const std::uint64_t sender = get_u64(d.data() + kOffSender), counter = get_u64(d.data() + kOffCounter);
   auto it = windows_.find(sender);
-  // A known sender's subkey is kept with its window; one not heard yet (or a forgery naming no
-  // known sender) costs HChaCha20 each time, in scratch_.
-  Subkey& subkey = it != windows_.end() ? it->second.subkey : scratch_;
+  // A known sender's subkey and next one-time key are kept with its window; one not heard yet
+  // (or a forgery naming no known sender) costs HChaCha20 and ChaCha20 each time, in scratch_.
+  const bool heard = it != windows_.end();
+  Subkey& subkey = heard ? it->second.subkey : scratch_;
+  OneTimeKey& otk = heard ? it->second.next : scratch_key_;
+  const bool encrypted = (flags & kFlagEncrypted) != 0;
   bool known = false, verified = false;
   for (const auto& key : keys.keys) {  // at most two; ids may collide (2^-32): try each that matches
     if (key.id != id) continue;
     known = true;
     const unsigned char* sub = subkey.of(key, sender);
-    unsigned char none = 0;
-    const int r = (flags & kFlagEncrypted) != 0
-                      ? ::crypto_aead_chacha20poly1305_ietf_decrypt_detached(
-                            uc(body), nullptr, uc(body), inner_size, uc(tag), uc(d.data()), kEnvelopeHeaderSize,
-                            nonce, sub)
-                      : ::crypto_aead_chacha20poly1305_ietf_decrypt_detached(
-                            &none, nullptr, &none, 0, uc(tag), uc(d.data()), kEnvelopeHeaderSize + inner_size,
-                            nonce, sub);
-    if (r == 0) {
+    unsigned char expected[kEnvelopeTagSize];
+    if (encrypted) tag_of(expected, otk.of(subkey, sub, counter), uc(d.data()), kEnvelopeHeaderSize, uc(body), inner_size);
+    else tag_of(expected, otk.of(subkey, sub, counter), uc(d.data()), kEnvelopeHeaderSize + inner_size, nullptr, 0);
+    if (::crypto_verify_16(expected, uc(tag)) == 0) {
+      if (encrypted) ::crypto_stream_chacha20_ietf_xor_ic(uc(body), uc(body), inner_size, nonce, 1, sub);
       verified = true;
       break;
     }
@@ -184,7 +230,19 @@ Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::
   }
   if (!it->second.window.accept(counter)) return {{}, Refusal::replayed};
   it->second.heard = ++tick_;
+  if (npending_ < kMaxPending && (npending_ == 0 || pending_[npending_ - 1] != sender)) pending_[npending_++] = sender;
   return {std::span<std::byte>(body, inner_size), std::nullopt};
+}
+
+void Opener::prepare() noexcept {
+  for (std::size_t i = 0; i < npending_; ++i) {
+    const auto it = windows_.find(pending_[i]);
+    if (it == windows_.end()) continue;  // forgotten since (kMaxSenders)
+    Sender& s = it->second;
+    if (s.subkey.generation() == 0) continue;  // heard once: its subkey is made on its next datagram
+    s.next.prepare(s.subkey, s.subkey.current(), s.window.top() + 1);
+  }
+  npending_ = 0;
 }
 
 }  // namespace lcmx::udpm::detail

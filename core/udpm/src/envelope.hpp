@@ -28,12 +28,39 @@ class Subkey {
   ~Subkey();
   // The subkey for (key, sender), derived again only when either differs from the last call.
   const unsigned char* of(const GroupKey& key, std::uint64_t sender) noexcept;
+  // The subkey derived last (of() called at least once).
+  const unsigned char* current() const noexcept { return sub_; }
+  // Changes each time the subkey is derived (0: never): what a OneTimeKey was made under.
+  std::uint64_t generation() const noexcept { return generation_; }
 
  private:
+  std::uint64_t generation_ = 0;
   bool set_ = false;
   std::uint64_t sender_ = 0;
   std::array<std::uint8_t, kKeySize> key_{};
   unsigned char sub_[kKeySize] = {};
+};
+
+// Poly1305's one-time key for one counter of one sender: the first 32 bytes of ChaCha20(subkey,
+// 4 zero bytes | counter, block 0), as ChaCha20-Poly1305-IETF derives it. Made ahead, for the
+// counter expected next, once a datagram is handled (prepare()), so that the next datagram's
+// path runs Poly1305 alone (docs/keyed-groups.md "Wire form"). Used only when both the counter
+// and the subkey's generation match; wiped when dropped.
+class OneTimeKey {
+ public:
+  OneTimeKey() = default;
+  OneTimeKey(const OneTimeKey&) = delete;
+  OneTimeKey& operator=(const OneTimeKey&) = delete;
+  ~OneTimeKey();
+  // Makes the key of `counter` under `subkey` (current subkey.of(...)).
+  void prepare(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept;
+  // The key of `counter` under `subkey`: the one made ahead if it is that one, else made now.
+  const unsigned char* of(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept;
+
+ private:
+  std::uint64_t counter_ = 0;     // 0: none made
+  std::uint64_t generation_ = 0;  // the subkey's generation it was made under
+  unsigned char key_[32] = {};
 };
 
 // The sending side of one Group. Not thread-safe: the Group's send mutex guards it.
@@ -45,6 +72,9 @@ class Sealer {
   // encrypts the datagram when keys.encrypt. keys.keys must not be empty. Returns the
   // envelope's size, kEnvelopeOverhead + inner_size.
   std::size_t seal(const GroupKeys& keys, std::byte* buffer, std::size_t inner_size) noexcept;
+  // Makes the next datagram's one-time key under keys.keys.front(); call after sending, off the
+  // next datagram's path. keys.keys must not be empty.
+  void prepare(const GroupKeys& keys) noexcept;
   std::uint64_t sender_id() const noexcept { return sender_; }
   std::uint64_t counter() const noexcept { return counter_; }
 
@@ -52,6 +82,7 @@ class Sealer {
   std::uint64_t sender_ = 0;
   std::uint64_t counter_ = 0;  // of the last datagram sealed
   Subkey subkey_;              // of this sender under the key it seals with
+  OneTimeKey next_;            // of counter_ + 1, when prepare() ran
 };
 
 // Anti-replay window of one sender, as IPsec's (RFC 6479): the highest counter accepted and a
@@ -66,6 +97,8 @@ class ReplayWindow {
   // sender sent before the first datagram it heard from it (a late joiner is not fed old
   // captures).
   bool accept(std::uint64_t counter) noexcept;
+  // The highest counter accepted (0: none).
+  std::uint64_t top() const noexcept { return top_; }
 
  private:
   std::uint64_t top_ = 0;  // 0: nothing accepted yet (counters start at 1)
@@ -90,6 +123,9 @@ class Opener {
   Opened open(const GroupKeys& keys, std::span<std::byte> datagram, std::uint64_t own_sender = 0,
               bool from_self = false, std::uint32_t now_s = 0, std::uint32_t max_skew_s = 0) noexcept;
   std::size_t senders() const noexcept { return windows_.size(); }
+  // Makes, for each sender accepted since the last call, the one-time key of the counter after
+  // the highest it accepted. Call after the datagrams were handled (off their path).
+  void prepare() noexcept;
 
   // Senders remembered; past this the one heard least recently is forgotten (a datagram of
   // it captured earlier could then be taken once more: docs/keyed-groups.md "Replay").
@@ -100,10 +136,17 @@ class Opener {
     ReplayWindow window;
     std::uint64_t heard = 0;  // value of tick_ when last accepted
     Subkey subkey;            // of the key its last accepted datagram was sealed with
+    OneTimeKey next;          // of the counter after the highest accepted (prepare())
   };
   std::unordered_map<std::uint64_t, Sender> windows_;
+  // Senders accepted since prepare() ran (bounded: past kMaxPending the rest make theirs on
+  // their next datagram's path).
+  static constexpr std::size_t kMaxPending = 64;
+  std::uint64_t pending_[kMaxPending] = {};
+  std::size_t npending_ = 0;
   std::uint64_t tick_ = 0;
   Subkey scratch_;  // of the last sender not known yet
+  OneTimeKey scratch_key_;
 };
 
 }  // namespace lcmx::udpm::detail

@@ -476,6 +476,7 @@ struct Group::Impl {
       m[0].msg_hdr.msg_iov = &iov[0];
       m[0].msg_hdr.msg_iovlen = 1;
       send_all(fd, m, 1);
+      sealer->prepare(k);  // the next datagram's one-time key, now that this one is out
       return;
     }
     const std::size_t first = kSealedFragmentMax - (channel.size() + 1);
@@ -515,6 +516,7 @@ struct Group::Impl {
       }
       send_all(fd, m, count);
     }
+    sealer->prepare(k);
   }
 
   void arm_batch() {
@@ -619,6 +621,7 @@ struct Group::Impl {
       batch_size = static_cast<std::size_t>(r);
       read += batch_size;
     }
+    if (rx_keys) opener.prepare();  // the senders' next one-time keys, once theirs were handled
     reassembler.expire(detail::Reassembler::Clock::now());
     return delivered;
   }
