@@ -161,6 +161,18 @@ Child::~Child() { release(); }
 
 void Child::release() noexcept {
   if (pid_ > 0 && !status_) {
+    // A clean stop first, so that the child removes what it made (registry slot, state file,
+    // shared memory) as a program stopped by its user does; SIGCONT wakes a stopped one to
+    // take it. SIGKILL after the grace (a child that ignores SIGTERM or hangs).
+    kill(SIGTERM);
+    kill(SIGCONT);
+    if (wait(kStopGrace)) {
+      if (pid_ > 0) detail::unregister_child(pid_);
+      if (pidfd_ >= 0) ::close(pidfd_);
+      if (out_ >= 0) ::close(out_);
+      pid_ = pidfd_ = out_ = -1;
+      return;
+    }
     ::kill(-pid_, SIGKILL);
     ::kill(pid_, SIGKILL);
     int st = 0;

@@ -35,8 +35,10 @@ class Child {
   Child& operator=(Child&& other) noexcept;
   Child(const Child&) = delete;
   Child& operator=(const Child&) = delete;
-  // Sends SIGKILL to the child's process group (if not yet reaped) and reaps the child.
+  // Stops the child if it still runs: SIGTERM (and SIGCONT) to its process group, SIGKILL if
+  // it has not exited within kStopGrace; then reaps it.
   ~Child();
+  static constexpr std::chrono::milliseconds kStopGrace{1000};
 
   pid_t pid() const { return pid_; }
 
