@@ -34,6 +34,7 @@
 #include "harness/hosts.hpp"
 #include "harness/options.hpp"
 #include "harness/report.hpp"
+#include "../../core/udpm/src/envelope.hpp"  // private: --seal-micro times the envelope's own tag
 #include "lcmx/udpm/keys.hpp"
 #include "udp/roles.hpp"
 
@@ -303,23 +304,11 @@ int seal_micro() {
   using Fn = std::function<void(std::span<unsigned char>, std::span<unsigned char>, std::size_t)>;
   unsigned char otk[32];
   ::crypto_stream_chacha20_ietf(otk, sizeof otk, nonce, key);
-  // The envelope's tag with the one-time key made ahead (core/udpm/src/envelope.cpp tag_of):
-  // Poly1305 over ad | pad | c | pad | sizes.
+  // The envelope's tag with the one-time key made ahead (core/udpm/src/envelope.cpp).
   const auto tag_ahead = [&](const unsigned char* ad, std::size_t ad_size, const unsigned char* c, std::size_t c_size) {
-    static const unsigned char zeros[16] = {};
-    unsigned char sizes[16];
-    for (int i = 0; i < 8; ++i) {
-      sizes[i] = static_cast<unsigned char>(static_cast<std::uint64_t>(ad_size) >> (8 * i));
-      sizes[8 + i] = static_cast<unsigned char>(static_cast<std::uint64_t>(c_size) >> (8 * i));
-    }
-    crypto_onetimeauth_poly1305_state st;
-    ::crypto_onetimeauth_poly1305_init(&st, otk);
-    ::crypto_onetimeauth_poly1305_update(&st, ad, ad_size);
-    ::crypto_onetimeauth_poly1305_update(&st, zeros, (0x10 - ad_size) & 0xf);
-    if (c_size > 0) ::crypto_onetimeauth_poly1305_update(&st, c, c_size);
-    ::crypto_onetimeauth_poly1305_update(&st, zeros, (0x10 - c_size) & 0xf);
-    ::crypto_onetimeauth_poly1305_update(&st, sizes, sizeof sizes);
-    ::crypto_onetimeauth_poly1305_final(&st, tag);
+    unsigned char t[lcmx::udpm::kEnvelopeTagSize];
+    lcmx::udpm::detail::tag_of(t, otk, ad, ad_size, c, c_size);
+    std::memcpy(tag, t, sizeof t);
   };
   const std::vector<std::pair<std::string, Fn>> rows = {
       {"ChaCha20-Poly1305-IETF's tag (subkey kept) with the one-time key made ahead, datagram as AD "

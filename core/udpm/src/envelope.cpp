@@ -48,11 +48,8 @@ void ietf_nonce_of(const std::byte* header, unsigned char (&nonce)[crypto_aead_c
   std::memcpy(nonce + 4, header + kOffCounter, 8);
 }
 
-// ChaCha20-Poly1305-IETF's tag (RFC 8439 section 2.8) under the one-time key `otk`: Poly1305
-// over ad | zeros to 16 | c | zeros to 16 | le64(ad size) | le64(c size). These are the steps of
-// libsodium's crypto_aead_chacha20poly1305_ietf_{en,de}crypt_detached, taken apart so that the
-// one-time key (their first step) can be made ahead (OneTimeKey; docs/keyed-groups.md "Wire
-// form"); every primitive is libsodium's, and a unit test checks the bytes against its AEAD.
+}  // namespace
+
 void tag_of(unsigned char (&tag)[kEnvelopeTagSize], const unsigned char* otk, const unsigned char* ad,
             std::size_t ad_size, const unsigned char* c, std::size_t c_size) noexcept {
   static const unsigned char zeros[16] = {};
@@ -71,8 +68,6 @@ void tag_of(unsigned char (&tag)[kEnvelopeTagSize], const unsigned char* otk, co
   ::crypto_onetimeauth_poly1305_final(&st, tag);
   ::sodium_memzero(&st, sizeof st);
 }
-
-}  // namespace
 
 void sodium_ready() {
   static const int r = ::sodium_init();  // thread-safe, once
