@@ -220,7 +220,26 @@ class Child {
   }
   Child(const Child&) = delete;
   Child& operator=(const Child&) = delete;
+  // A child still running is stopped as its user would stop it (SIGTERM, SIGCONT for a
+  // stopped one), so that it removes its registry slot, state file and segments; SIGKILL if it
+  // has not exited within a second.
   ~Child() {
+    if (pid_ > 0) {
+      ::kill(pid_, SIGTERM);
+      ::kill(pid_, SIGCONT);
+      const auto deadline = Clock::now() + 1000ms;
+      int st = 0;
+      for (int guard = 0; guard < 10000 && Clock::now() < deadline; ++guard) {
+        const pid_t r = ::waitpid(pid_, &st, WNOHANG);
+        if (r == pid_ || (r < 0 && errno != EINTR)) {
+          pid_ = -1;
+          break;
+        }
+        pollfd p{out_, POLLIN, 0};  // drain its output, so that a child blocked on a full pipe can exit
+        if (eof_ || out_ < 0) ::poll(nullptr, 0, 5);
+        else if (::poll(&p, 1, 5) > 0) read_line(0ms);
+      }
+    }
     kill_and_reap();
     if (out_ >= 0) ::close(out_);
     if (in_ >= 0) ::close(in_);
