@@ -199,6 +199,14 @@ struct Discovery::Impl {
     return started + std::chrono::duration_cast<Clock::duration>(kCompleteAfter * options.period);
   }
   bool is_deputy = false;  // discovery thread only
+  // Vehicle scope: speaking for this host while its speaker, alive (it holds the lock), is
+  // silent on the group (stopped); held with the acting lock (docs/discovery.md "Speaker").
+  bool acting = false;  // discovery thread only
+  Clock::time_point acting_since{};
+  off_t acting_byte = 0;
+  // Under mutex: when this host's speaker was last heard on the group (a heartbeat or an index
+  // of our registry), and when one that is not us was.
+  Clock::time_point own_heard = started, other_speaker_heard{};
   std::uint64_t observer_periods = 0;
 
   // Orders what on_change is told (see the comment in the header of this class's users):
@@ -350,6 +358,7 @@ struct Discovery::Impl {
     }
     speaker_byte = host_scope ? reg::kLockSpeaker
                               : reg::kLockVehicle + static_cast<off_t>(group_hash & ((std::uint64_t{1} << 40) - 1));
+    acting_byte = reg::kLockVehicleActing + static_cast<off_t>(group_hash & ((std::uint64_t{1} << 40) - 1));
     wildcard = options.observer;
   }
   ~Impl() {
@@ -1006,11 +1015,16 @@ struct Discovery::Impl {
       reg->unlock(reg::kLockDeputy);
       is_deputy = false;
     }
-    is_speaker = true;
     {
       std::lock_guard lock(mutex);
       ++counters.speaker_terms;
     }
+    become_speaker();
+  }
+
+  // The speaker's duties begin: every participant is read again and spoken for.
+  void become_speaker() {
+    is_speaker = true;
     if (host_scope) reg->header->speaker.store(self_id.load(), std::memory_order_relaxed);
     // RLIMIT_NOFILE: a pidfd per participant of this host.
     rlimit rl{};
@@ -1024,6 +1038,71 @@ struct Discovery::Impl {
     next_heartbeat = Clock::now();
     spdlog::debug("lcmx discovery: participant {} speaks for {} (scope {})", self_id.load(), reg->path,
                   static_cast<int>(options.scope));
+  }
+
+  // Vehicle scope: a speaker that holds its lock but is not heard on the group for half the
+  // lease other hosts give this host (it is stopped: SIGSTOP, a debugger, a frozen cgroup)
+  // would have them drop every participant of this host. One other participant (the one that
+  // takes the acting lock) speaks meanwhile, from the same registry: the same records and
+  // digest, so other hosts see no change but the stopped one's lease running out. It stands
+  // down when it hears another speaker of this registry (the stopped one resumed) and becomes
+  // the speaker when the speaker's lock comes free (it died). Discovery thread.
+  Clock::duration act_after() const {
+    return std::max<Clock::duration>(options.lease / 2, options.period * 5 / 2);
+  }
+  // (Not on a group without multicast loop: there nobody hears this host's speaker.)
+  void try_act() {
+    if (host_scope || options.observer || !reg || !joined_registry || is_speaker || !group->config().multicast_loop)
+      return;
+    {
+      std::lock_guard lock(mutex);
+      if (Clock::now() - own_heard < act_after()) return;
+    }
+    if (!reg->try_lock(acting_byte)) return;
+    acting = true;
+    acting_since = Clock::now();
+    {
+      std::lock_guard lock(mutex);
+      ++counters.acting_terms;
+    }
+    spdlog::warn("lcmx discovery: this host's speaker on the vehicle group was not heard for {} ms but holds its "
+                 "lock (stopped?): participant {} speaks for {} until it is heard again",
+                 std::chrono::duration_cast<std::chrono::milliseconds>(act_after()).count(), self_id.load(), reg->path);
+    become_speaker();
+  }
+  void check_acting() {
+    if (!acting) return;
+    if (reg->try_lock(speaker_byte)) {  // the silent speaker died: ours now
+      reg->unlock(acting_byte);
+      acting = false;
+      std::lock_guard lock(mutex);
+      ++counters.speaker_terms;
+      return;
+    }
+    {
+      std::lock_guard lock(mutex);
+      if (other_speaker_heard <= acting_since) return;
+    }
+    spdlog::info("lcmx discovery: this host's speaker on the vehicle group is heard again: participant {} stands down",
+                 self_id.load());
+    stand_down();
+  }
+  // Stops speaking (acting only): what it spoke for is forgotten, to be read again whenever it
+  // speaks next.
+  void stand_down() {
+    is_speaker = false;
+    acting = false;
+    reg->unlock(acting_byte);
+    spoken.clear();
+    spoken_set.clear();
+    pending_records.clear();
+    pending_goodbyes.clear();
+    flush_at = Clock::time_point::max();
+    last_sent = 0;
+    std::lock_guard lock(mutex);
+    own_heard = Clock::now();
+    want_index = want_all = want_views = false;
+    wanted.clear();
   }
 
   // ------------------------------------------------------------ the group
@@ -1273,6 +1352,13 @@ struct Discovery::Impl {
       return;
     }
     if (static_cast<std::uint64_t>(h->host_id) == own_host) {  // ourselves...
+      if (reg && h->registry_id == static_cast<std::int64_t>(reg->header->registry_id) &&
+          (h->kind == host_beacon_t::KIND_HEARTBEAT || h->kind == host_beacon_t::KIND_INDEX)) {
+        std::lock_guard lock(mutex);  // ... our speaker (try_act, check_acting)
+        own_heard = Clock::now();
+        if (h->speaker != self_id.load()) other_speaker_heard = own_heard;
+        return;
+      }
       if (reg && h->registry_id != static_cast<std::int64_t>(reg->header->registry_id)) {
         // ... or another registry with our host id: processes given one LCMX_HOST_ID that do
         // not share /dev/shm (containers). They cannot meet: no shared memory, and their
@@ -1706,6 +1792,8 @@ struct Discovery::Impl {
         }
       }
       if (is_deputy) try_speak();
+      if (!is_speaker) try_act();
+      check_acting();
       if (want_query.exchange(false)) {
         send_query();
         full_due = true;
@@ -1743,6 +1831,10 @@ struct Discovery::Impl {
       if (reads && changed_since_pass()) until = std::min(until, next_pass_at());
       if (is_speaker) until = std::min({until, Clock::now() + kSpeakerTick, flush_at});
       if (is_deputy) until = std::min(until, Clock::now() + kSpeakerTick);
+      if (!host_scope && !is_speaker && reg && !options.observer) {  // try_act when it is due
+        std::lock_guard lock(mutex);
+        if (const auto act_at = own_heard + act_after(); act_at > Clock::now()) until = std::min(until, act_at);
+      }
       const auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       const auto ms = std::clamp<std::int64_t>(wait.count(), 0, 1000);
       // A wake-up that came while this pass ran (announce_now() or query() after the flags
@@ -1784,8 +1876,9 @@ struct Discovery::Impl {
       }
     }
     if (is_speaker && host_scope) reg->header->speaker.store(0, std::memory_order_relaxed);
-    if (is_speaker) reg->unlock(speaker_byte);
+    if (is_speaker) reg->unlock(acting ? acting_byte : speaker_byte);
     if (is_deputy) reg->unlock(reg::kLockDeputy);
+    acting = false;
     is_speaker = false;
     is_deputy = false;
   }

@@ -47,6 +47,7 @@ inline constexpr off_t kLockDeputy = (off_t{1} << 40) - 3;   // its deputy (take
 inline constexpr off_t kLockUsers = (off_t{1} << 40) - 4;
 inline constexpr off_t kLockSlots = off_t{1} << 40;          // + slot index: its participant lives
 inline constexpr off_t kLockVehicle = off_t{1} << 41;        // + (group hash & 2^40-1): vehicle speaker
+inline constexpr off_t kLockVehicleActing = (off_t{1} << 41) + (off_t{1} << 40);  // + the same: acting for a silent one
 
 // Offset 0 of the file. Written once by the creator (under kLockInit), `version` last.
 struct alignas(kCacheLine) Header {

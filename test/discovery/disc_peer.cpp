@@ -2,7 +2,8 @@
 // one with --vehicle, sharing one registry slot as the runtime does). Prints
 // "READY <participant id>" once it is in the registry, then with --watch "JOINED <id>",
 // "UPDATED <id>" and "LEFT <id>" for the other participants it is told of (host scope) and
-// "VJOINED <id>"/"VLEFT <id>" (vehicle scope). Runs until SIGTERM (goodbye: it leaves the
+// "VJOINED <id>"/"VLEFT <id>" (vehicle scope), and "VSPEAKING 1"/"VSPEAKING 0" when its vehicle
+// Discovery starts or stops speaking. Runs until SIGTERM (goodbye: it leaves the
 // registry) or SIGKILL.
 // Options: --group URL (host-local) --vehicle URL --topics a,b --period ms --lease ms
 //          --dir DIR (registry directory) --host-id N --watch
@@ -104,7 +105,18 @@ int main(int argc, char** argv) {
     std::this_thread::sleep_for(std::chrono::milliseconds(1));
   std::printf("READY %lld\n", static_cast<long long>(id));
   std::fflush(stdout);
-  while (!g_stop) ::pause();
+  // --watch: whether its vehicle Discovery speaks, each time that changes (polled: a test's
+  // helper, not a synchronisation).
+  bool speaking = false;
+  while (!g_stop && (!watch || !dv)) ::pause();
+  while (!g_stop) {
+    if (dv->speaking() != speaking) {
+      speaking = !speaking;
+      std::printf("VSPEAKING %d\n", speaking ? 1 : 0);
+      std::fflush(stdout);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(10));
+  }
   if (dv) dv->stop();
   d.stop();
   std::printf("BYE\n");

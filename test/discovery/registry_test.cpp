@@ -568,6 +568,44 @@ TEST_CASE("vehicle scope: each host's speaker speaks for its participants - reco
   CHECK(b.ps[0].v->counters().forged == 0);
 }
 
+// A stopped speaker (SIGSTOP) holds its lock: before, its host went silent on the vehicle group
+// and other hosts dropped every participant of it after the host's lease.
+TEST_CASE("vehicle scope: while a host's speaker is stopped another participant speaks for the host - other hosts drop "
+          "only the stopped one, and it stands down when the speaker resumes",
+          "[discovery][vehicle][liveness]") {
+  const auto v = group_of(54), la = group_of(55);
+  lcmx::test::TmpDir dir("lcmx_act");
+  RegistryCleanup clean_a{la, dir.path, 0xa1};
+  FakeHost b(0xb2, group_of(56), v);
+  b.add(21, {"X"});
+  const std::vector<std::string> peer = {LCMX_DISCOVERY_PEER, "--group", url_of(la), "--vehicle", url_of(v), "--dir",
+                                         dir.path, "--host-id", "0xa1", "--period", "50", "--lease", "500",
+                                         "--topics", "X", "--watch"};
+  auto speaker = lcmx::test::spawn(peer);
+  const auto sid = ready_id(speaker);
+  REQUIRE(speaker.expect("VSPEAKING 1", 5s));
+  auto other = lcmx::test::spawn(peer);
+  const auto oid = ready_id(other);
+  REQUIRE(eventually([&] { return b.vlog.count(Change::joined, sid) == 1 && b.vlog.count(Change::joined, oid) == 1; }));
+
+  speaker.kill(SIGSTOP);
+  // The other participant takes over within half the lease (250 ms) and a period or two ...
+  const auto acted = other.expect("VSPEAKING 1", 3s);
+  CHECK(acted);
+  // ... so host b is told the stopped one left (its lease ran out), not the host.
+  REQUIRE(eventually([&] { return b.vlog.count(Change::left, sid) == 1; }, 3000ms));
+  // For three more leases the other participant is never dropped (before: host a expired at b
+  // one lease after the stop, and with it this participant).
+  CHECK_FALSE(eventually([&] { return b.vlog.count(Change::left, oid) > 0; }, 1500ms));
+
+  speaker.kill(SIGCONT);
+  // The speaker resumes; the acting one hears it and stands down; the resumed one is back at b.
+  CHECK(other.expect("VSPEAKING 0", 3s));
+  REQUIRE(eventually([&] { return b.vlog.count(Change::joined, sid) == 2; }, 3000ms));
+  CHECK(b.vlog.count(Change::left, oid) == 0);
+  CHECK(b.vlog.count(Change::left, sid) == 1);
+}
+
 // The vehicle cache's file for host `host` (docs/discovery.md "Vehicle cache").
 std::string cache_path(const FakeHost& h) {
   std::ostringstream s;
