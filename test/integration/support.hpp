@@ -220,25 +220,20 @@ class Child {
   }
   Child(const Child&) = delete;
   Child& operator=(const Child&) = delete;
-  // A child still running is stopped as its user would stop it (SIGTERM, SIGCONT for a
-  // stopped one), so that it removes its registry slot, state file and segments; SIGKILL if it
-  // has not exited within a second.
+  // A child still running is stopped as its user would stop it, so that it removes its
+  // registry slot, state file and segments: its stdin closed (the test peers that wait for
+  // that end then) and 100 ms to exit, then SIGTERM (SIGCONT for a stopped one) and a second,
+  // then SIGKILL.
   ~Child() {
+    if (pid_ > 0 && in_ >= 0) {
+      ::close(in_);
+      in_ = -1;
+      exited_within(100ms);
+    }
     if (pid_ > 0) {
       ::kill(pid_, SIGTERM);
       ::kill(pid_, SIGCONT);
-      const auto deadline = Clock::now() + 1000ms;
-      int st = 0;
-      for (int guard = 0; guard < 10000 && Clock::now() < deadline; ++guard) {
-        const pid_t r = ::waitpid(pid_, &st, WNOHANG);
-        if (r == pid_ || (r < 0 && errno != EINTR)) {
-          pid_ = -1;
-          break;
-        }
-        pollfd p{out_, POLLIN, 0};  // drain its output, so that a child blocked on a full pipe can exit
-        if (eof_ || out_ < 0) ::poll(nullptr, 0, 5);
-        else if (::poll(&p, 1, 5) > 0) read_line(0ms);
-      }
+      exited_within(1000ms);
     }
     kill_and_reap();
     if (out_ >= 0) ::close(out_);
@@ -363,6 +358,22 @@ class Child {
   pid_t started_pid() const { return started_pid_; }
 
  private:
+  // Reaps the child if it exits within `timeout` (pid_ then -1), draining its output meanwhile so
+  // that a child blocked on a full pipe can exit.
+  void exited_within(ms timeout) {
+    const auto deadline = Clock::now() + timeout;
+    int st = 0;
+    for (int guard = 0; guard < 10000 && Clock::now() < deadline; ++guard) {
+      const pid_t r = ::waitpid(pid_, &st, WNOHANG);
+      if (r == pid_ || (r < 0 && errno != EINTR)) {
+        pid_ = -1;
+        return;
+      }
+      pollfd p{out_, POLLIN, 0};
+      if (eof_ || out_ < 0) ::poll(nullptr, 0, 5);
+      else if (::poll(&p, 1, 5) > 0) read_line(0ms);
+    }
+  }
   void kill_and_reap() {
     if (pid_ > 0) {
       ::kill(pid_, SIGKILL);
