@@ -56,6 +56,7 @@ def hosts(procs):
     holder = procs([HOLDER, "2"])
     fields = holder.expect("ready ").split()
     yield fields[1], fields[4]
+    procs.close_all(keep=(holder,))  # stopped cleanly while their hosts still exist
     holder.p.send_signal(signal.SIGTERM)  # removes the namespaces
     assert holder.wait(20) == 0
 
