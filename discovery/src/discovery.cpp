@@ -356,9 +356,9 @@ struct Discovery::Impl {
       reg = &registry->impl();
       known.resize(reg->slot_count);
     }
-    speaker_byte = host_scope ? reg::kLockSpeaker
-                              : reg::kLockVehicle + static_cast<off_t>(group_hash & ((std::uint64_t{1} << 40) - 1));
-    acting_byte = reg::kLockVehicleActing + static_cast<off_t>(group_hash & ((std::uint64_t{1} << 40) - 1));
+    const auto group_bits = static_cast<off_t>(group_hash & ((std::uint64_t{1} << 40) - 1));
+    speaker_byte = host_scope ? reg::kLockSpeaker : reg::kLockVehicle + group_bits;
+    acting_byte = reg::kLockVehicleActing + group_bits;
     wildcard = options.observer;
   }
   ~Impl() {
@@ -1792,7 +1792,7 @@ struct Discovery::Impl {
         }
       }
       if (is_deputy) try_speak();
-      if (!is_speaker) try_act();
+      try_act();
       check_acting();
       if (want_query.exchange(false)) {
         send_query();

@@ -69,6 +69,17 @@ void tag_of(unsigned char (&tag)[kEnvelopeTagSize], const unsigned char* otk, co
   ::sodium_memzero(&st, sizeof st);
 }
 
+namespace {
+// The tag of the envelope at `envelope` (header, then `inner_size` bytes of body): over header
+// and body as additional data when authenticated, over the header as additional data and the
+// body as ciphertext when encrypted (the body already encrypted). Sealer and Opener alike.
+void envelope_tag(unsigned char (&tag)[kEnvelopeTagSize], const unsigned char* otk, const std::byte* envelope,
+                  std::size_t inner_size, bool encrypted) noexcept {
+  if (encrypted) tag_of(tag, otk, uc(envelope), kEnvelopeHeaderSize, uc(envelope + kEnvelopeHeaderSize), inner_size);
+  else tag_of(tag, otk, uc(envelope), kEnvelopeHeaderSize + inner_size, nullptr, 0);
+}
+}  // namespace
+
 void sodium_ready() {
   static const int r = ::sodium_init();  // thread-safe, once
   if (r < 0) throw Error(Error::Code::system, "udpm: libsodium failed to start (sodium_init)");
@@ -94,19 +105,19 @@ const unsigned char* Subkey::of(const GroupKey& key, std::uint64_t sender) noexc
 
 OneTimeKey::~OneTimeKey() { ::sodium_memzero(key_, sizeof key_); }
 
-void OneTimeKey::prepare(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept {
+void OneTimeKey::prepare(const Subkey& subkey, std::uint64_t counter) noexcept {
   static_assert(crypto_onetimeauth_poly1305_KEYBYTES == sizeof key_);
   std::byte header[kEnvelopeHeaderSize] = {};
   put_u64(header + kOffCounter, counter);
   unsigned char nonce[crypto_aead_chacha20poly1305_ietf_NPUBBYTES];
   ietf_nonce_of(header, nonce);
-  ::crypto_stream_chacha20_ietf(key_, sizeof key_, nonce, sub);
+  ::crypto_stream_chacha20_ietf(key_, sizeof key_, nonce, subkey.current());
   counter_ = counter;
   generation_ = subkey.generation();
 }
 
-const unsigned char* OneTimeKey::of(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept {
-  if (counter_ == 0 || counter_ != counter || generation_ != subkey.generation()) prepare(subkey, sub, counter);
+const unsigned char* OneTimeKey::of(const Subkey& subkey, std::uint64_t counter) noexcept {
+  if (counter_ == 0 || counter_ != counter || generation_ != subkey.generation()) prepare(subkey, counter);
   return key_;
 }
 
@@ -128,21 +139,17 @@ std::size_t Sealer::seal(const GroupKeys& keys, std::byte* buffer, std::size_t i
   unsigned char nonce[crypto_aead_chacha20poly1305_ietf_NPUBBYTES];
   ietf_nonce_of(buffer, nonce);
   const unsigned char* sub = subkey_.of(key, sender_);
-  const unsigned char* otk = next_.of(subkey_, sub, counter_);
   std::byte* body = buffer + kEnvelopeHeaderSize;
+  if (keys.encrypt) ::crypto_stream_chacha20_ietf_xor_ic(uc(body), uc(body), inner_size, nonce, 1, sub);
   unsigned char tag[kEnvelopeTagSize];
-  if (keys.encrypt) {
-    ::crypto_stream_chacha20_ietf_xor_ic(uc(body), uc(body), inner_size, nonce, 1, sub);
-    tag_of(tag, otk, uc(buffer), kEnvelopeHeaderSize, uc(body), inner_size);
-  } else {
-    tag_of(tag, otk, uc(buffer), kEnvelopeHeaderSize + inner_size, nullptr, 0);
-  }
+  envelope_tag(tag, next_.of(subkey_, counter_), buffer, inner_size, keys.encrypt);
   std::memcpy(body + inner_size, tag, sizeof tag);
   return kEnvelopeOverhead + inner_size;
 }
 
 void Sealer::prepare(const GroupKeys& keys) noexcept {
-  next_.prepare(subkey_, subkey_.of(keys.keys.front(), sender_), counter_ + 1);
+  subkey_.of(keys.keys.front(), sender_);
+  next_.prepare(subkey_, counter_ + 1);
 }
 
 bool ReplayWindow::accept(std::uint64_t counter) noexcept {
@@ -197,8 +204,7 @@ Opener::Opened Opener::open(const GroupKeys& keys, std::span<std::byte> d, std::
     known = true;
     const unsigned char* sub = subkey.of(key, sender);
     unsigned char expected[kEnvelopeTagSize];
-    if (encrypted) tag_of(expected, otk.of(subkey, sub, counter), uc(d.data()), kEnvelopeHeaderSize, uc(body), inner_size);
-    else tag_of(expected, otk.of(subkey, sub, counter), uc(d.data()), kEnvelopeHeaderSize + inner_size, nullptr, 0);
+    envelope_tag(expected, otk.of(subkey, counter), d.data(), inner_size, encrypted);
     if (::crypto_verify_16(expected, uc(tag)) == 0) {
       if (encrypted) ::crypto_stream_chacha20_ietf_xor_ic(uc(body), uc(body), inner_size, nonce, 1, sub);
       verified = true;
@@ -235,7 +241,7 @@ void Opener::prepare() noexcept {
     if (it == windows_.end()) continue;  // forgotten since (kMaxSenders)
     Sender& s = it->second;
     if (s.subkey.generation() == 0) continue;  // heard once: its subkey is made on its next datagram
-    s.next.prepare(s.subkey, s.subkey.current(), s.window.top() + 1);
+    s.next.prepare(s.subkey, s.window.top() + 1);
   }
   npending_ = 0;
 }

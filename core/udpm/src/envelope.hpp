@@ -61,10 +61,11 @@ class OneTimeKey {
   OneTimeKey(const OneTimeKey&) = delete;
   OneTimeKey& operator=(const OneTimeKey&) = delete;
   ~OneTimeKey();
-  // Makes the key of `counter` under `subkey` (current subkey.of(...)).
-  void prepare(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept;
-  // The key of `counter` under `subkey`: the one made ahead if it is that one, else made now.
-  const unsigned char* of(const Subkey& subkey, const unsigned char* sub, std::uint64_t counter) noexcept;
+  // Makes the key of `counter` under `subkey`'s current subkey (of() called at least once).
+  void prepare(const Subkey& subkey, std::uint64_t counter) noexcept;
+  // The key of `counter` under `subkey`'s current subkey: the one made ahead if it is that one,
+  // else made now.
+  const unsigned char* of(const Subkey& subkey, std::uint64_t counter) noexcept;
 
  private:
   std::uint64_t counter_ = 0;     // 0: none made

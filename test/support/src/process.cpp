@@ -166,18 +166,13 @@ void Child::release() noexcept {
     // take it. SIGKILL after the grace (a child that ignores SIGTERM or hangs).
     kill(SIGTERM);
     kill(SIGCONT);
-    if (wait(kStopGrace)) {
-      if (pid_ > 0) detail::unregister_child(pid_);
-      if (pidfd_ >= 0) ::close(pidfd_);
-      if (out_ >= 0) ::close(out_);
-      pid_ = pidfd_ = out_ = -1;
-      return;
+    if (!wait(kStopGrace)) {
+      ::kill(-pid_, SIGKILL);
+      ::kill(pid_, SIGKILL);
+      int st = 0;
+      for (int guard = 0; guard < 100; ++guard)
+        if (::waitpid(pid_, &st, 0) >= 0 || errno != EINTR) break;
     }
-    ::kill(-pid_, SIGKILL);
-    ::kill(pid_, SIGKILL);
-    int st = 0;
-    for (int guard = 0; guard < 100; ++guard)
-      if (::waitpid(pid_, &st, 0) >= 0 || errno != EINTR) break;
   }
   if (pid_ > 0) detail::unregister_child(pid_);
   if (pidfd_ >= 0) ::close(pidfd_);
