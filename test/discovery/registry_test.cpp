@@ -864,6 +864,71 @@ struct GatedReceiver {
 };
 }  // namespace
 
+TEST_CASE("vehicle scope: a process that is not its host's speaker and missed other hosts' records takes them from "
+          "its host's vehicle cache - it asks the LAN nothing",
+          "[discovery][vehicle]") {
+  const auto v = group_of(57);
+  FakeHost a(0xa5, group_of(58), v), b(0xb6, group_of(59), v);
+  b.add(61, {"X"});
+  REQUIRE(eventually([&] { return b.ps[0].v->speaking(); }));
+  // r: another process of host b (its registry), that hears the vehicle group only through
+  // this test's pump: host messages (heartbeats), never a record - a process that lags behind
+  // the group and loses them.
+  Log lr;
+  Discovery r(fed_vehicle_options(v, b.host, b.local, b.dir.path),
+              [] { return beacon_of(62, 0xb6, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (!record) r.deliver(m);
+  });
+  a.add(51, {"X"});
+  a.add(52, {"Y"});
+  REQUIRE(eventually([&] { return b.vlog.count(Change::joined, 51) >= 1 && b.vlog.count(Change::joined, 52) >= 1; }));
+  // a's heartbeats disagree with what r holds: it looks in the cache b's speaker keeps
+  // (without that it asks the LAN, and the answers never reach it).
+  REQUIRE(eventually([&] { return lr.count(Change::joined, 51) == 1 && lr.count(Change::joined, 52) == 1; }, 3000ms));
+  REQUIRE(eventually([&] { return r.complete(); }, 3000ms));
+  const auto c = r.counters();
+  CHECK(!r.speaking());
+  CHECK(c.cache_records == 2);
+  CHECK(c.requests_sent == 0);
+  CHECK(c.cache_misses == 0);
+  CHECK(c.forged == 0);
+  // A participant that leaves host a: r hears its goodbye nowhere (records), the cache tells it.
+  a.ps.pop_back();
+  REQUIRE(eventually([&] { return lr.count(Change::left, 52) == 1; }, 3000ms));
+  CHECK(r.counters().requests_sent == 0);
+  pump.stop();
+}
+
+TEST_CASE("vehicle scope: what the vehicle cache does not settle within a period is asked of the LAN",
+          "[discovery][vehicle]") {
+  const auto v = group_of(60);
+  FakeHost a(0xa7, group_of(61), v), b(0xb8, group_of(62), v);
+  // A directory where b's cache would be: its speaker cannot write it, nobody can read it.
+  std::filesystem::create_directory(cache_path(b));
+  b.add(71, {"X"});
+  REQUIRE(eventually([&] { return b.ps[0].v->speaking(); }));
+  Log lr;
+  Discovery r(fed_vehicle_options(v, b.host, b.local, b.dir.path),
+              [] { return beacon_of(72, 0xb8, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
+  std::atomic<bool> pass_records{false};
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
+    if (!record || pass_records) r.deliver(m);
+  });
+  a.add(81, {"X"});
+  REQUIRE(eventually([&] { return b.vlog.count(Change::joined, 81) >= 1; }));
+  // r missed 81's record and the cache cannot give it: after a period of lookups it asks a
+  // (the records pass from then on; without the fallback r waits for the cache for ever).
+  REQUIRE(eventually([&] { return r.counters().cache_misses >= 1; }, 3000ms));
+  pass_records = true;
+  REQUIRE(eventually([&] { return lr.count(Change::joined, 81) == 1; }, 3000ms));
+  CHECK(r.counters().requests_sent >= 1);
+  CHECK(r.counters().cache_records == 0);
+  CHECK(!r.speaking());
+  pump.stop();
+  std::filesystem::remove(cache_path(b));
+}
+
 TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the missing records - repaired", "[discovery][vehicle]") {
   const auto v = group_of(14);
   FakeHost a(0xa3, group_of(15), v);

@@ -105,8 +105,13 @@ struct Counters {
   std::uint64_t acting_terms = 0;       // vehicle scope: times it spoke for a silent speaker (docs/discovery.md)
   std::uint64_t missed_batches = 0;     // receiver: compressed batches against a base record not
                                         // held (the index asked instead)
-  std::uint64_t cache_records = 0;      // vehicle scope: other hosts' records taken at start from
-                                        // this host's vehicle cache (not asked for on the LAN)
+  std::uint64_t cache_records = 0;      // vehicle scope: other hosts' records taken from this
+                                        // host's vehicle cache (at start, or missed on the group:
+                                        // not asked for on the LAN)
+  std::uint64_t cache_misses = 0;       // vehicle scope, not the speaker: hosts whose missing
+                                        // records the cache did not settle within a period
+                                        // (asked of the LAN instead)
+  std::uint64_t requests_sent = 0;      // receiver: requests (index or records) sent on the group
 };
 
 class Discovery {
