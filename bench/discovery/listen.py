@@ -3,7 +3,8 @@
 channel is LCMX_BEACON (discovery) or not. Run inside the namespace whose interface is given.
 Usage: listen.py GROUP PORT IFACE_ADDR SECONDS  -> one JSON line {src: {"disc": bytes, "data": bytes,
 "kinds": {kind: bytes}, "disc_datagrams": n}} at the end or on SIGTERM; kinds split the discovery bytes: "record" (a
-participant's beacon_t, or a speaker's batch of them: records_t), "heartbeat", "index", "request", "mark" (host_beacon_t), "other".
+participant's beacon_t, or a speaker's batch of them: records_t), "heartbeat", "index", "request", "mark" (host_beacon_t), "other";
+"request_nonspeaker": a request from a participant that speaks for nobody (its count is 0), not its host's speaker.
 """
 import json, signal, socket, struct, sys, time
 
@@ -36,6 +37,8 @@ while time.monotonic() < end and not stop:
             version = struct.unpack(">i", body[8:12])[0]
             if version == 1:  # host_beacon_t (kHostBeaconVersion); beacon_t and records_t are version 6
                 sub = {1: "heartbeat", 2: "index", 3: "request", 4: "mark"}.get(body[12], "other")
+                if sub == "request" and len(body) >= 62 and struct.unpack(">i", body[58:62])[0] == 0:
+                    sub = "request_nonspeaker"  # host_beacon_t.count: a speaker's counts what it speaks for
             else:
                 sub = "record"
     elif data[:4] == b"LC03":

@@ -1817,14 +1817,17 @@ struct Discovery::Impl {
   // for what it lacks itself, and rewrites the cache within kCoalesce. On a busy host the
   // processes that lag behind the group (a launch of many) then cost the LAN nothing (8 hosts x
   // 50 processes: requests were half of all discovery bytes, and every answer is heard by
-  // every process of every host). What the cache does not settle within a period (stale,
-  // missing, never the state heard) is asked of the LAN as before. (docs/discovery.md
+  // every process of every host). What the cache does not settle is asked of the LAN
+  // as before: after a period without a usable cache (missing, untrusted, stale), after
+  // kCacheTrust periods with one. (docs/discovery.md
   // "Vehicle cache".)
   std::set<std::int64_t> cache_hosts;                   // under mutex: to look up
   Clock::time_point cache_due = Clock::time_point::max();  // under mutex: the next lookup
   Clock::time_point cache_since = Clock::time_point::max();  // under mutex: the first lookup not settled
   std::uint64_t cache_seen = 0;                          // discovery thread: the file last decoded
+  Clock::time_point cache_usable_at{};                   // under mutex: the last lookup that found it usable
   static constexpr auto kCacheWait = 2 * kCoalesce;
+  static constexpr int kCacheTrust = 4;
 
   // Under mutex: this receiver lacks records of host `h` (`want`: those; empty: it needs the
   // host's index). Returns whether the discovery thread must wake (always: a request or a lookup).
@@ -1867,17 +1870,22 @@ struct Discovery::Impl {
         }
     }
     // Decoded only when its bytes (its write time aside: the speaker patches it every period)
-    // or what we heard changed since the last lookup.
+    // or what we heard changed since the last lookup; usable when trusted and current.
     std::set<std::int64_t> settled;
+    bool usable = false;
     if (auto file = reg->read_cache(group_hash); file && file->first.size() > kCacheWrittenAt + 8) {
       const auto bytes = std::span<const std::byte>(file->first);
       const auto seen = reg::fnv1a(bytes.subspan(kCacheWrittenAt + 8), reg::fnv1a(bytes.first(kCacheWrittenAt), heard_key));
       if (seen != cache_seen) {
         if (auto c = trusted_cache(*file)) {
-          cache_seen = seen;
+          usable = true;
+          cache_seen = seen;  // (only a trusted file's)
           for (auto& ch : c->hosts)
             if (todo.count(ch.host_id) && take_cached_host(ch, false)) settled.insert(ch.host_id);
         }
+      } else {  // the file trusted when decoded: current if its speaker still patches its time
+        const auto age = reg::now_ns() - lcmtypes::Reader(bytes.subspan(kCacheWrittenAt, 8)).i64();
+        usable = age >= 0 && age <= 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count();
       }
     }
     std::lock_guard lock(mutex);
@@ -1891,7 +1899,12 @@ struct Discovery::Impl {
       cache_due = cache_since = Clock::time_point::max();
       return cache_due;
     }
-    if (now - cache_since >= options.period) {  // not settled by the cache: the LAN
+    if (usable) cache_usable_at = now;
+    // Not settled: the LAN, after a period without a usable cache (none, untrusted, or its
+    // speaker no longer writes it), or kCacheTrust periods with one (its speaker asks for what
+    // it lacks itself and its answers serve us too: what it holds comes to the cache).
+    const auto waited = now - cache_since;
+    if ((waited >= options.period && cache_usable_at < cache_since) || waited >= kCacheTrust * options.period) {
       for (auto h : cache_hosts) {
         requests.push_back({h, {}, request_due()});
         ++counters.cache_misses;
