@@ -207,7 +207,6 @@ struct Discovery::Impl {
   // Under mutex: when this host's speaker was last heard on the group (a heartbeat or an index
   // of our registry), and when one that is not us was.
   Clock::time_point own_heard = started, other_speaker_heard{};
-  std::int64_t own_speaker = 0;  // under mutex: the participant last heard speaking for this host
   std::uint64_t observer_periods = 0;
 
   // Orders what on_change is told (see the comment in the header of this class's users):
@@ -1055,25 +1054,9 @@ struct Discovery::Impl {
   void try_act() {
     if (host_scope || options.observer || !reg || !joined_registry || is_speaker || !group->config().multicast_loop)
       return;
-    std::int64_t speaker = 0;
     {
       std::lock_guard lock(mutex);
       if (Clock::now() - own_heard < act_after()) return;
-      speaker = own_speaker;
-    }
-    // The speaker's process runs (its slot's heartbeat, written every period by each of its
-    // Discoveries, is fresh): it is this process that lags behind the group, or the group lost
-    // the heartbeats, not the speaker that is stopped. Acting then adds a second speaker's
-    // records to a group already loaded (8 hosts x 50 on 2 vCPUs: more speakers than hosts).
-    // Judged again a period later.
-    if (const auto* s = speaker != 0 ? slot_of(speaker) : nullptr) {
-      const auto age = reg::now_ns() - s->heartbeat_ns.load(std::memory_order_relaxed);
-      if (age < std::chrono::duration_cast<std::chrono::nanoseconds>(act_after()).count()) {
-        std::lock_guard lock(mutex);
-        own_heard = Clock::now() - act_after() + options.period;
-        ++counters.acting_declined;
-        return;
-      }
     }
     if (!reg->try_lock(acting_byte)) return;
     acting = true;
@@ -1373,10 +1356,7 @@ struct Discovery::Impl {
           (h->kind == host_beacon_t::KIND_HEARTBEAT || h->kind == host_beacon_t::KIND_INDEX)) {
         std::lock_guard lock(mutex);  // ... our speaker (try_act, check_acting)
         own_heard = Clock::now();
-        if (h->speaker != self_id.load()) {
-          other_speaker_heard = own_heard;
-          own_speaker = h->speaker;
-        }
+        if (h->speaker != self_id.load()) other_speaker_heard = own_heard;
         return;
       }
       if (reg && h->registry_id != static_cast<std::int64_t>(reg->header->registry_id)) {

@@ -103,8 +103,6 @@ struct Counters {
   std::uint64_t registry_skipped = 0;   // changed participants none of whose topics concern us
   std::uint64_t speaker_terms = 0;      // times this Discovery became its group's speaker
   std::uint64_t acting_terms = 0;       // vehicle scope: times it spoke for a silent speaker (docs/discovery.md)
-  std::uint64_t acting_declined = 0;    // vehicle scope: times its own host's speaker was not heard
-                                        // for long but its process ran (its slot's heartbeat): no act
   std::uint64_t missed_batches = 0;     // receiver: compressed batches against a base record not
                                         // held (the index asked instead)
   std::uint64_t cache_records = 0;      // vehicle scope: other hosts' records taken from this
