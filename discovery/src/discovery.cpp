@@ -1421,7 +1421,8 @@ struct Discovery::Impl {
         if (host.mismatches >= 2 && Clock::now() - host.last_request >= options.period) {
           host.last_request = Clock::now();
           host.mismatches = 0;
-          ask = lack(h.host_id, {});
+          lack(h.host_id, {});
+          ask = true;
         }
       } else {
         host.mismatches = 0;
@@ -1679,10 +1680,12 @@ struct Discovery::Impl {
   Clock::time_point cache_written{};
   static constexpr std::size_t kCacheWrittenAt = 8 + 4 + 8 + 8;  // vehicle_cache_t.written_ns (after the fingerprint)
 
-  // Under mutex: a hash of what the cache holds (hosts' heartbeat state, members' revisions).
-  std::uint64_t tables_shape() const {
+  // Under mutex: a hash of what the cache holds (hosts' heartbeat state, members' revisions),
+  // of every host or of those in `only`.
+  std::uint64_t tables_shape(const std::set<std::int64_t>* only = nullptr) const {
     std::uint64_t h = 1469598103934665603ull;
     for (const auto& [id, host] : hosts) {
+      if (only && !only->count(id)) continue;
       const std::int64_t v[5] = {id, host.registry_id, host.speaker, host.digest,
                                  static_cast<std::int64_t>(digest_of(host.members))};
       h = reg::fnv1a(std::as_bytes(std::span(v)), h);
@@ -1690,8 +1693,17 @@ struct Discovery::Impl {
     return h;
   }
 
+  // Whether this Discovery has a vehicle cache: vehicle scope, a participant in a registry.
+  bool has_vehicle_cache() const { return !host_scope && !options.observer && reg; }
+  // Whether a cache written at `written_ns` is current: within two periods (its speaker
+  // rewrites it, or patches its time, every period).
+  bool cache_current(std::int64_t written_ns) const {
+    const auto age = reg::now_ns() - written_ns;
+    return age >= 0 && age <= 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count();
+  }
+
   void write_cache() {
-    if (host_scope || options.observer || !reg || !is_speaker) return;
+    if (!has_vehicle_cache() || !is_speaker) return;
     const auto now = Clock::now();
     const bool refresh = now - cache_written >= options.period;
     if (!refresh && now - cache_written < kCoalesce) return;
@@ -1742,9 +1754,7 @@ struct Discovery::Impl {
     if (!lcmtypes::decode(file.first, c) || c.version != kBeaconVersion ||
         static_cast<std::uint64_t>(c.host_id) != own_host)
       return std::nullopt;
-    const auto age = reg::now_ns() - c.written_ns;
-    if (age < 0 || age > 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count())
-      return std::nullopt;
+    if (!cache_current(c.written_ns)) return std::nullopt;
     const auto* writer = c.writer != 0 ? slot_of(c.writer) : nullptr;
     if (!writer || reg::state_of(writer->state.load(std::memory_order_acquire)) != reg::kLive ||
         writer->uid.load(std::memory_order_relaxed) != file.second)
@@ -1804,7 +1814,7 @@ struct Discovery::Impl {
   // yet, so what the cache misses is queued for it): takes the other hosts' records from the
   // cache if it is trusted and current.
   void load_cache() {
-    if (host_scope || options.observer || !reg) return;
+    if (!has_vehicle_cache()) return;
     const auto file = reg->read_cache(group_hash);
     auto c = file ? trusted_cache(*file) : std::nullopt;
     if (!c) return;
@@ -1830,44 +1840,39 @@ struct Discovery::Impl {
   static constexpr int kCacheTrust = 4;
 
   // Under mutex: this receiver lacks records of host `h` (`want`: those; empty: it needs the
-  // host's index). Returns whether the discovery thread must wake (always: a request or a lookup).
-  bool lack(std::int64_t h, std::vector<std::pair<std::int64_t, std::int64_t>> want) {
-    if (host_scope || options.observer || !reg || is_speaker) {
+  // host's index): a request, or a lookup in the cache. The caller wakes the discovery thread.
+  void lack(std::int64_t h, std::vector<std::pair<std::int64_t, std::int64_t>> want) {
+    if (!has_vehicle_cache() || is_speaker) {
       requests.push_back({h, std::move(want), request_due()});
-      return true;
+      return;
     }
     const auto now = Clock::now();
     cache_hosts.insert(h);
     if (cache_since == Clock::time_point::max()) cache_since = now;
     cache_due = std::min(cache_due, now + kCacheWait);
-    return true;
+  }
+  // Under mutex: no lookup pending (whatever was to be looked up is settled or asked of the LAN).
+  Clock::time_point end_lookups() {
+    cache_hosts.clear();
+    cache_due = cache_since = Clock::time_point::max();
+    return cache_due;
   }
 
   // Discovery thread: the lookup that is due, if any. Returns when the next one is due (max: none).
   Clock::time_point look_in_cache() {
     std::set<std::int64_t> todo;
-    std::uint64_t heard_key = 0;  // what we last heard of those hosts and hold of them
+    std::uint64_t heard_key = 0;  // what we last heard of those hosts and hold of them (tables_shape)
     {
       std::lock_guard lock(mutex);
-      if (cache_hosts.empty()) {
-        cache_due = cache_since = Clock::time_point::max();
-        return cache_due;
-      }
+      if (cache_hosts.empty()) return end_lookups();
       if (is_speaker) {  // became the speaker meanwhile: it asks the LAN itself
         for (auto h : cache_hosts) requests.push_back({h, {}, request_due()});
-        cache_hosts.clear();
-        cache_due = cache_since = Clock::time_point::max();
+        end_lookups();
         return Clock::now();
       }
       if (Clock::now() < cache_due) return cache_due;
       todo = cache_hosts;
-      heard_key = 1469598103934665603ull;
-      for (auto h : todo)
-        if (auto it = hosts.find(h); it != hosts.end()) {
-          const std::int64_t v[4] = {h, it->second.registry_id, it->second.digest,
-                                     static_cast<std::int64_t>(digest_of(it->second.members))};
-          heard_key = reg::fnv1a(std::as_bytes(std::span(v)), heard_key);
-        }
+      heard_key = tables_shape(&todo);
     }
     // Decoded only when its bytes (its write time aside: the speaker patches it every period)
     // or what we heard changed since the last lookup; usable when trusted and current.
@@ -1884,8 +1889,7 @@ struct Discovery::Impl {
             if (todo.count(ch.host_id) && take_cached_host(ch, false)) settled.insert(ch.host_id);
         }
       } else {  // the file trusted when decoded: current if its speaker still patches its time
-        const auto age = reg::now_ns() - lcmtypes::Reader(bytes.subspan(kCacheWrittenAt, 8)).i64();
-        usable = age >= 0 && age <= 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count();
+        usable = cache_current(lcmtypes::Reader(bytes.subspan(kCacheWrittenAt, 8)).i64());
       }
     }
     std::lock_guard lock(mutex);
@@ -1895,10 +1899,7 @@ struct Discovery::Impl {
       if (settled.count(h) || it == hosts.end() || static_cast<std::uint64_t>(it->second.digest) == digest_of(it->second.members))
         cache_hosts.erase(h);  // taken, gone, or what it lacked came from the group meanwhile
     }
-    if (cache_hosts.empty()) {
-      cache_due = cache_since = Clock::time_point::max();
-      return cache_due;
-    }
+    if (cache_hosts.empty()) return end_lookups();
     if (usable) cache_usable_at = now;
     // Not settled: the LAN, after a period without a usable cache (none, untrusted, or its
     // speaker no longer writes it), or kCacheTrust periods with one (its speaker asks for what
@@ -1909,8 +1910,7 @@ struct Discovery::Impl {
         requests.push_back({h, {}, request_due()});
         ++counters.cache_misses;
       }
-      cache_hosts.clear();
-      cache_due = cache_since = Clock::time_point::max();
+      end_lookups();
       return Clock::now();  // (send_requests next)
     }
     cache_due = now + kCacheWait;
