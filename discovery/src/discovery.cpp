@@ -14,6 +14,7 @@
 #include <atomic>
 #include <cerrno>
 #include <cstdio>
+#include <cstring>
 #include <cstdint>
 #include <map>
 #include <mutex>
@@ -28,6 +29,7 @@
 #include "lcmx/lcmtypes/envelope.hpp"
 #include "lcmx/shm/futex.hpp"
 #include "registry_impl.hpp"
+#include "vehicle_table.hpp"
 
 namespace lcmx::discovery {
 
@@ -199,6 +201,10 @@ struct Discovery::Impl {
     return started + std::chrono::duration_cast<Clock::duration>(kCompleteAfter * options.period);
   }
   bool is_deputy = false;  // discovery thread only
+  // Vehicle scope, a participant in a registry that is not speaking: it follows the host's
+  // vehicle table (follow_table) unless it found none current for kFallbackAfter, then it
+  // listens to the group itself until one is current again (docs/discovery.md "Vehicle table").
+  std::atomic<bool> listening_fallback{false};
   // Vehicle scope: speaking for this host while its speaker, alive (it holds the lock), is
   // silent on the group (stopped); held with the acting lock (docs/discovery.md "Speaker").
   bool acting = false;  // discovery thread only
@@ -310,6 +316,7 @@ struct Discovery::Impl {
     int mismatches = 0;
     Clock::time_point last_request{};
     std::map<std::int64_t, std::int64_t> members;  // participant -> revision
+    std::int64_t listed_digest = 0;  // a follower: the vehicle table's listed_digest of it, taken
   };
   std::map<std::int64_t, RemoteHost> hosts;
   std::map<std::int64_t, std::uint32_t> bound;  // host id -> the address its speakers send from
@@ -454,7 +461,7 @@ struct Discovery::Impl {
     reg->publish(!host_scope, encode_beacon(b), st, host_scope ? &topics : nullptr, flags,
                  host_scope ? 0 : group_hash);
     reg->heartbeat();
-    if (host_scope && structural) {
+    if (structural) {
       std::sort(names.begin(), names.end());
       names.erase(std::unique(names.begin(), names.end()), names.end());
       const bool wc = (flags & reg::kSlotWildcard) != 0;
@@ -467,10 +474,13 @@ struct Discovery::Impl {
           words.insert(own_bits.back().bit[0]);
         }
         bucket_tokens.clear();
-        for (auto w : words)
-          bucket_tokens.push_back({&reg->buckets[w], reg->buckets[w].load(std::memory_order_acquire), false});
+        if (host_scope)
+          for (auto w : words)
+            bucket_tokens.push_back({&reg->buckets[w], reg->buckets[w].load(std::memory_order_acquire), false});
         wildcard = wc || options.observer;
-        recheck_skipped = true;  // participants skipped before may concern us now
+        // Participants (of this host, or in the vehicle table) skipped before may concern us now.
+        if (host_scope) recheck_skipped = true;
+        else table_recheck = true;
       }
     }
     std::lock_guard lock(mutex);
@@ -480,12 +490,21 @@ struct Discovery::Impl {
   // ------------------------------------------------------------ registry reader
   // Whether slot i's participant may concern us (its topic filter meets our topics).
   bool concerns(const reg::Slot& s) const {
+    return concerns(s.flags.load(std::memory_order_relaxed),
+                    [&](std::uint16_t w) { return s.topics[w].load(std::memory_order_relaxed); });
+  }
+  // The same for a record of the vehicle table (its flags and topic filter as its speaker wrote them).
+  bool concerns(const table::Record& r) const {
+    return concerns(r.flags, [&](std::uint16_t w) { return r.topics[w]; });
+  }
+  template <class Word>
+  bool concerns(std::uint32_t flags, Word word) const {
     if (wildcard) return true;
-    if (s.flags.load(std::memory_order_relaxed) & reg::kSlotWildcard) return true;
+    if (flags & reg::kSlotWildcard) return true;
     for (const auto& t : own_bits) {
       bool all = true;
       for (auto bit : t.bit)
-        if (!(s.topics[bit / 64].load(std::memory_order_relaxed) & (std::uint64_t{1} << (bit % 64)))) {
+        if (!(word(static_cast<std::uint16_t>(bit / 64)) & (std::uint64_t{1} << (bit % 64)))) {
           all = false;
           break;
         }
@@ -579,6 +598,7 @@ struct Discovery::Impl {
                       p.beacon.process_name, p.beacon.pid);
       tell(c, std::move(p));
     }
+    order.unlock();  // (a new vehicle speaker takes the vehicle table: follow_table locks it)
     if (someone_left && !is_deputy && !is_speaker) try_speak();  // the deputy may have been the one
     someone_left = false;
   }
@@ -1036,6 +1056,18 @@ struct Discovery::Impl {
     for (auto& k : known) k.seq = ~0ull;
     full_due = true;
     next_heartbeat = Clock::now();
+    if (follows_table()) {
+      // What the host's vehicle table holds (the previous speaker's, or an acting one's): every
+      // record, whatever its topics (we write the table from now on), and the leases of its hosts
+      // start now (their heartbeats reach us from now on). What it lacks is asked for as ever:
+      // the next heartbeats' digests disagree.
+      listening_fallback = false;
+      follow_table(true);
+      std::lock_guard lock(mutex);
+      for (auto& [id, h] : hosts) h.last_heard = Clock::now();
+      table_written_once = false;  // ours is written at once
+    }
+    note_listening();
     spdlog::debug("lcmx discovery: participant {} speaks for {} (scope {})", self_id.load(), reg->path,
                   static_cast<int>(options.scope));
   }
@@ -1050,13 +1082,18 @@ struct Discovery::Impl {
   Clock::duration act_after() const {
     return std::max<Clock::duration>(options.lease / 2, options.period * 5 / 2);
   }
-  // (Not on a group without multicast loop: there nobody hears this host's speaker.)
+  // A follower judges by the vehicle table: its speaker patches it every period (a stopped one
+  // does not). A participant that listens to the group itself (listening_fallback: no table)
+  // judges by its speaker's heartbeats (not on a group without multicast loop: there nobody
+  // hears this host's speaker).
   void try_act() {
-    if (host_scope || options.observer || !reg || !joined_registry || is_speaker || !group->config().multicast_loop)
-      return;
-    {
+    if (host_scope || options.observer || !reg || !joined_registry || is_speaker) return;
+    if (listening_fallback) {
+      if (!group->config().multicast_loop) return;
       std::lock_guard lock(mutex);
       if (Clock::now() - own_heard < act_after()) return;
+    } else if (Clock::now() - table_current_at < act_after()) {
+      return;
     }
     if (!reg->try_lock(acting_byte)) return;
     acting = true;
@@ -1099,10 +1136,20 @@ struct Discovery::Impl {
     pending_goodbyes.clear();
     flush_at = Clock::time_point::max();
     last_sent = 0;
-    std::lock_guard lock(mutex);
-    own_heard = Clock::now();
-    want_index = want_all = want_views = false;
-    wanted.clear();
+    // A follower again: the table is read anew (whoever writes it now), and judged from now on.
+    // If the speaker we heard has no current table (it cannot write it), this participant
+    // listens to the group itself rather than act again (check_fallback undoes it once one is).
+    table_generation_seen = ~0ull;
+    if (table_is_current()) table_current_at = Clock::now();
+    else listening_fallback = true;
+    {
+      std::lock_guard lock(mutex);
+      own_heard = Clock::now();
+      want_index = want_all = want_views = false;
+      wanted.clear();
+      requests.clear();
+    }
+    note_listening();
   }
 
   // ------------------------------------------------------------ the group
@@ -1151,6 +1198,9 @@ struct Discovery::Impl {
 
   void on_datagram(const udpm::Message& m) {
     if (m.channel != kBeaconChannel) return;
+    // A follower takes other hosts from the vehicle table, not from the group (its owner's
+    // receive filter normally drops these before they wake anyone: Options::on_listening).
+    if (!listening()) return;
     const auto fp = fingerprint_of(m.data);
     if (fp == host_beacon_t::getHash()) return on_host_message(m);
     if (fp == lcmx_msgs::records_t::getHash() || fp == lcmx_msgs::records_z_t::getHash()) return on_records(m);
@@ -1218,63 +1268,68 @@ struct Discovery::Impl {
   bool on_record(beacon_t b, std::uint32_t ip, std::size_t bytes) {
     std::string bad = check_record(b, ip);
     if (!bad.empty()) return forged(bad), false;
-    Change change = Change::updated;
-    Participant copy;
     std::unique_lock order(deliver_mutex);
-    {
-      std::lock_guard lock(mutex);
-      ++counters.beacons_received;
-      const auto h = b.host_id;
-      auto it = peers.find(b.participant_id);
-      auto& host = hosts[h];
-      if (host.last_heard == Clock::time_point{}) {
-        host.last_heard = Clock::now();
-        host.lease = lease_of(b.lease_ms);
-      }
-      if (b.flags & beacon_t::FLAG_GOODBYE) {
-        host.members.erase(b.participant_id);
-        if (it == peers.end()) return false;
-        ++counters.goodbyes;
-        copy = std::move(it->second.p);
-        table_bytes -= it->second.bytes;
-        peers.erase(it);
-        change = Change::left;
-      } else {
-        if (it != peers.end() && b.revision < it->second.p.beacon.revision) return false;  // older
-        const std::size_t old = it == peers.end() ? 0 : it->second.bytes;
-        std::string refused;
-        if (it == peers.end() && peers.size() >= options.max_participants)
-          refused = "the table holds max_participants (" + std::to_string(options.max_participants) + ")";
-        else if (table_bytes - old + bytes > options.max_table_bytes)
-          refused = "the table would exceed max_table_bytes (" + std::to_string(options.max_table_bytes) + ")";
-        if (!refused.empty()) {
-          // A known participant keeps its place (and its host's heartbeat keeps it): never expired for this.
-          ++counters.refused;
-          warn_limited(last_refused_log, "lcmx discovery: refused a record of participant {}: {}; {} refused so far",
-                       b.participant_id, refused, counters.refused);
-          return false;
-        }
-        if (it == peers.end()) {
-          change = Change::joined;
-          it = peers.emplace(b.participant_id, Peer{}).first;
-        } else if (it->second.p.beacon.revision == b.revision && !options.observer) {
-          return false;  // nothing new (statistics are for observers)
-        }
-        it->second.sent_lease = b.lease_ms;
-        b.lease_ms = static_cast<std::int32_t>(host.lease.count());
-        host.members[b.participant_id] = b.revision;
-        table_bytes += bytes - old;
-        it->second.bytes = bytes;
-        it->second.host = h;
-        it->second.p.beacon = std::move(b);
-        it->second.p.last_seen = Clock::now();
-        copy = it->second.p;
-      }
-    }
-    if (on_change) on_change(change, copy);
+    auto told = apply_record(std::move(b), bytes);
+    if (!told) return false;
+    const bool taken = told->first != Change::left;
+    if (on_change) on_change(told->first, told->second);
     std::lock_guard lock(mutex);  // (deliver_mutex still held: told before complete can latch)
     update_complete();
-    return change != Change::left;
+    return taken;
+  }
+
+  // Puts record (or goodbye) `b` of another host into the table; returns what to tell
+  // on_change (nullopt: nothing new, or refused by the table's bounds). `bytes`: its encoded
+  // size. deliver_mutex held by the caller (it tells what this returns before releasing it).
+  std::optional<std::pair<Change, Participant>> apply_record(beacon_t b, std::size_t bytes) {
+    std::lock_guard lock(mutex);
+    ++counters.beacons_received;
+    const auto h = b.host_id;
+    auto it = peers.find(b.participant_id);
+    auto& host = hosts[h];
+    if (host.last_heard == Clock::time_point{}) {
+      host.last_heard = Clock::now();
+      host.lease = lease_of(b.lease_ms);
+    }
+    if (b.flags & beacon_t::FLAG_GOODBYE) {
+      host.members.erase(b.participant_id);
+      if (it == peers.end()) return std::nullopt;
+      ++counters.goodbyes;
+      auto gone = std::make_pair(Change::left, std::move(it->second.p));
+      table_bytes -= it->second.bytes;
+      peers.erase(it);
+      return gone;
+    }
+    if (it != peers.end() && b.revision < it->second.p.beacon.revision) return std::nullopt;  // older
+    const std::size_t old = it == peers.end() ? 0 : it->second.bytes;
+    std::string refused;
+    if (it == peers.end() && peers.size() >= options.max_participants)
+      refused = "the table holds max_participants (" + std::to_string(options.max_participants) + ")";
+    else if (table_bytes - old + bytes > options.max_table_bytes)
+      refused = "the table would exceed max_table_bytes (" + std::to_string(options.max_table_bytes) + ")";
+    if (!refused.empty()) {
+      // A known participant keeps its place (and its host's heartbeat keeps it): never expired for this.
+      ++counters.refused;
+      warn_limited(last_refused_log, "lcmx discovery: refused a record of participant {}: {}; {} refused so far",
+                   b.participant_id, refused, counters.refused);
+      return std::nullopt;
+    }
+    Change change = Change::updated;
+    if (it == peers.end()) {
+      change = Change::joined;
+      it = peers.emplace(b.participant_id, Peer{}).first;
+    } else if (it->second.p.beacon.revision == b.revision && !options.observer) {
+      return std::nullopt;  // nothing new (statistics are for observers)
+    }
+    it->second.sent_lease = b.lease_ms;
+    b.lease_ms = static_cast<std::int32_t>(host.lease.count());
+    host.members[b.participant_id] = b.revision;
+    table_bytes += bytes - old;
+    it->second.bytes = bytes;
+    it->second.host = h;
+    it->second.p.beacon = std::move(b);
+    it->second.p.last_seen = Clock::now();
+    return std::make_pair(change, it->second.p);
   }
 
   // Whether `id` is this process's participant or one in this host's registry (a slot in use;
@@ -1410,7 +1465,7 @@ struct Discovery::Impl {
         }
         for (auto id : gone) host.members.erase(id);
         if (!want.empty() && want.size() <= 4096) lack(h.host_id, std::move(want));
-        ask = !requests.empty() || !cache_hosts.empty();
+        ask = !requests.empty();
       } else if (static_cast<std::uint64_t>(h.digest) != digest_of(host.members)) {
         // Records may be on their way: ask after two heartbeats that disagree, once per period;
         // after a batch's heartbeat at once (its records came with it).
@@ -1450,6 +1505,7 @@ struct Discovery::Impl {
       complete = true;
       return;
     }
+    if (follower()) return;  // the vehicle table says (follow_table)
     if (Clock::now() < complete_due()) return;
     for (const auto& [id, h] : hosts)
       if (h.last_heard == Clock::time_point{} || static_cast<std::uint64_t>(h.digest) != digest_of(h.members)) return;
@@ -1664,23 +1720,38 @@ struct Discovery::Impl {
     return t;
   }
 
-  // ------------------------------------------------------------ vehicle cache
-  // docs/discovery.md "Vehicle cache": the vehicle speaker keeps what it holds of the other
-  // hosts (their heartbeat's state and their records) in a file beside the registry; a
-  // process of this host that starts later takes it before it hears the group, instead of
-  // asking every other host for its index and records over the LAN. What it takes is judged
-  // as if heard (check_record), and the next heartbeats of those hosts check it (a digest that
-  // disagrees asks, as ever): a stale or missing cache costs requests, never a wrong table.
+  // ------------------------------------------------------------ vehicle table
+  // docs/discovery.md "Vehicle table" (vehicle_table.hpp): the vehicle speaker of a host writes
+  // what it holds of the other hosts (their heartbeat's state and their records, each with its
+  // topic filter) into a file beside the registry; every other vehicle participant of the host
+  // follows that file instead of the group: woken when it changes (Header::vehicle_changes), it
+  // reads only the hosts whose records changed, and of those only the records whose topics
+  // concern it. A follower with no current table for kFallbackAfter listens to the group itself
+  // (as every participant did before) until one is current again.
 
-  // Speaker, discovery thread: rewrites the cache when what it holds of other hosts changed
-  // (at most once per kCoalesce), and once per period anyway (its time tells readers it is
-  // current: a stopped or dead speaker's cache is ignored).
-  std::vector<std::byte> cache_bytes;  // the last one written (its written_ns patched per period)
-  std::uint64_t cache_shape = 0;       // tables_shape() it was built from
-  Clock::time_point cache_written{};
-  static constexpr std::size_t kCacheWrittenAt = 8 + 4 + 8 + 8;  // vehicle_cache_t.written_ns (after the fingerprint)
+  // Whether this Discovery has a vehicle table: vehicle scope, a participant in a registry.
+  bool follows_table() const { return !host_scope && !options.observer && reg; }
+  // A follower: reads the table, ignores the group's discovery.
+  bool follower() const { return follows_table() && !is_speaker && !listening_fallback; }
+  bool listening() const { return !follower(); }
+  // Whether a table written at `written_ns` is current: within two periods (its speaker
+  // rewrites it, or patches its time, every period).
+  bool table_current(std::int64_t written_ns) const {
+    const auto age = reg::now_ns() - written_ns;
+    return age >= 0 && age <= 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count();
+  }
+  static constexpr int kFallbackAfter = 2;  // times act_after() without a current table
 
-  // Under mutex: a hash of what the cache holds (hosts' heartbeat state, members' revisions),
+  // Tells the owner when listening() changed (Options::on_listening). Discovery thread, no lock held.
+  void note_listening() {
+    const bool now = listening();
+    if (now == listening_told) return;
+    listening_told = now;
+    if (options.on_listening && follows_table()) options.on_listening(now);
+  }
+  bool listening_told = true;  // (a new Discovery listens until it first follows a table)
+
+  // Under mutex: a hash of what the table holds (hosts' heartbeat state, members' revisions),
   // of every host or of those in `only`.
   std::uint64_t tables_shape(const std::set<std::int64_t>* only = nullptr) const {
     std::uint64_t h = 1469598103934665603ull;
@@ -1693,228 +1764,289 @@ struct Discovery::Impl {
     return h;
   }
 
-  // Whether this Discovery has a vehicle cache: vehicle scope, a participant in a registry.
-  bool has_vehicle_cache() const { return !host_scope && !options.observer && reg; }
-  // Whether a cache written at `written_ns` is current: within two periods (its speaker
-  // rewrites it, or patches its time, every period).
-  bool cache_current(std::int64_t written_ns) const {
-    const auto age = reg::now_ns() - written_ns;
-    return age >= 0 && age <= 2 * std::chrono::duration_cast<std::chrono::nanoseconds>(options.period).count();
-  }
+  // ---- the speaker's side (discovery thread)
+  // Rewrites the table when what it holds of other hosts changed (at most once per kCoalesce),
+  // and patches its time once per period anyway (a stopped or dead speaker's table goes stale).
+  struct TableEntry {  // a record as it goes into the table, made again only for a new revision
+    std::int64_t revision = 0;
+    table::Content::Entry entry;
+  };
+  std::map<std::int64_t, TableEntry> table_entries;
+  std::uint64_t table_shape_written = 0;  // tables_shape() (with the complete flag) of the file written
+  bool table_written_once = false;
+  Clock::time_point table_written{};
+  std::uint64_t table_generation = 0;
+  Clock::time_point last_table_error_log{};
 
-  void write_cache() {
-    if (!has_vehicle_cache() || !is_speaker) return;
+  void write_table() {
+    if (!follows_table() || !is_speaker) return;
     const auto now = Clock::now();
-    const bool refresh = now - cache_written >= options.period;
-    if (!refresh && now - cache_written < kCoalesce) return;
+    const bool refresh = now - table_written >= options.period;
+    if (!refresh && now - table_written < kCoalesce) return;
+    std::vector<std::byte> bytes;
     {
       std::lock_guard lock(mutex);
-      const auto shape = tables_shape();
-      if (shape != cache_shape || cache_bytes.empty()) {
-        if (hosts.empty() && cache_bytes.empty()) return;  // nothing heard yet: no file
-        lcmx_msgs::vehicle_cache_t c{};
-        c.version = kBeaconVersion;
-        c.host_id = static_cast<std::int64_t>(own_host);
+      const auto shape = tables_shape() ^ (complete.load() ? 0x9e3779b97f4a7c15ull : 0);
+      if (!table_written_once || shape != table_shape_written) {
+        table::Content c;
         c.writer = self_id.load();
+        c.complete = complete.load();
+        std::set<std::int64_t> listed;
         for (const auto& [id, host] : hosts) {
           auto ip = bound.find(id);
           if (ip == bound.end() || host.last_heard == Clock::time_point{}) continue;
-          lcmx_msgs::cached_host_t ch{};
-          ch.host_id = id;
-          ch.address = static_cast<std::int32_t>(ip->second);
-          ch.registry_id = host.registry_id;
-          ch.speaker = host.speaker;
-          ch.lease_ms = static_cast<std::int32_t>(host.lease.count());
-          ch.digest = host.digest;
-          for (const auto& [pid, rev] : host.members)
-            if (auto p = peers.find(pid); p != peers.end() && p->second.host == id) ch.records.push_back(as_sent(p->second));
-          ch.num_records = static_cast<std::int32_t>(ch.records.size());
-          c.hosts.push_back(std::move(ch));
+          table::Content::HostEntry he;
+          he.host.host_id = id;
+          he.host.registry_id = host.registry_id;
+          he.host.speaker = host.speaker;
+          he.host.digest = host.digest;
+          he.host.address = ip->second;
+          he.host.lease_ms = static_cast<std::int32_t>(host.lease.count());
+          std::map<std::int64_t, std::int64_t> set;
+          for (const auto& [pid, rev] : host.members) {
+            auto p = peers.find(pid);
+            if (p == peers.end() || p->second.host != id) continue;
+            auto& te = table_entries[pid];
+            if (te.entry.bytes.empty() || te.revision != p->second.p.beacon.revision) {
+              te.revision = p->second.p.beacon.revision;
+              te.entry = table_entry(as_sent(p->second));
+            }
+            he.records.push_back(te.entry);
+            set[pid] = te.revision;
+            listed.insert(pid);
+          }
+          he.host.listed_digest = static_cast<std::int64_t>(digest_of(set));
+          c.hosts.push_back(std::move(he));
         }
-        c.num_hosts = static_cast<std::int32_t>(c.hosts.size());
-        cache_bytes = lcmtypes::encode(c);
-        cache_shape = shape;
+        std::erase_if(table_entries, [&](const auto& kv) { return !listed.count(kv.first); });
+        bytes = table::encode(c, own_host, ++table_generation);
+        table_shape_written = shape;
       } else if (!refresh) {
         return;
       }
     }
-    lcmtypes::Writer(std::span(cache_bytes).subspan(kCacheWrittenAt, 8)).i64(reg::now_ns());
-    reg->write_cache(group_hash, cache_bytes);
-    cache_written = now;
-  }
-
-  // The cache in `file` (bytes, owner uid) if it is trusted and current (nullopt: not a cache
-  // of this host, or neither). Trusted: owned by the uid of its writer's slot, a live
-  // participant of this registry, and writable by nobody else (Impl::read_cache); current:
-  // written within two periods (its speaker rewrites it every period). Any thread (the
-  // registry read with atomics only).
-  std::optional<lcmx_msgs::vehicle_cache_t> trusted_cache(
-      const std::pair<std::vector<std::byte>, std::uint32_t>& file) const {
-    lcmx_msgs::vehicle_cache_t c{};
-    if (!lcmtypes::decode(file.first, c) || c.version != kBeaconVersion ||
-        static_cast<std::uint64_t>(c.host_id) != own_host)
-      return std::nullopt;
-    if (!cache_current(c.written_ns)) return std::nullopt;
-    const auto* writer = c.writer != 0 ? slot_of(c.writer) : nullptr;
-    if (!writer || reg::state_of(writer->state.load(std::memory_order_acquire)) != reg::kLive ||
-        writer->uid.load(std::memory_order_relaxed) != file.second)
-      return std::nullopt;
-    return c;
-  }
-
-  // Takes what the cache holds of host `ch` into the table, each record judged as if heard
-  // from the group (on_record: the trust rules, the address binding). `at_start` (nothing heard
-  // yet): as it is. Later (a receiver that missed records): only when it is exactly the state
-  // this process last heard the host announce (its registry and digest) and its records make
-  // that digest; then what the table holds of the host becomes what the cache holds (members
-  // it lacks are gone). Returns the records taken (new participants or revisions), nullopt
-  // when the host was not taken. Discovery thread, no lock held.
-  std::optional<std::uint64_t> take_cached_host(lcmx_msgs::cached_host_t& ch, bool at_start) {
-    if (ch.host_id == 0 || static_cast<std::uint64_t>(ch.host_id) == own_host) return std::nullopt;
-    const auto ip = static_cast<std::uint32_t>(ch.address);
-    std::erase_if(ch.records, [&](const beacon_t& b) {
-      return b.host_id != ch.host_id ||
-             (b.flags & (beacon_t::FLAG_GOODBYE | beacon_t::FLAG_OBSERVER | beacon_t::FLAG_QUERY));
-    });
-    std::vector<std::int64_t> gone;
-    {
-      std::lock_guard lock(mutex);
-      if (!source_ok(ch.host_id, ip)) return std::nullopt;
-      if (at_start) {
-        auto& host = hosts[ch.host_id];
-        host.registry_id = ch.registry_id;
-        host.speaker = ch.speaker;
-        host.lease = lease_of(ch.lease_ms);
-        host.digest = ch.digest;
-        host.last_heard = Clock::now();
-      } else {
-        const auto it = hosts.find(ch.host_id);
-        if (it == hosts.end() || it->second.registry_id != ch.registry_id || it->second.digest != ch.digest)
-          return std::nullopt;
-        std::map<std::int64_t, std::int64_t> cached;
-        for (const auto& b : ch.records) cached[b.participant_id] = b.revision;
-        if (static_cast<std::uint64_t>(ch.digest) != digest_of(cached)) return std::nullopt;
-        for (const auto& [id, rev] : it->second.members)
-          if (!cached.count(id)) gone.push_back(id);
-        for (auto id : gone) it->second.members.erase(id);
-      }
-    }
-    drop_members(gone);
-    std::uint64_t taken = 0;
-    for (auto& b : ch.records) {
-      const auto bytes = static_cast<std::size_t>(b.getEncodedSize());
-      if (on_record(std::move(b), ip, bytes)) ++taken;
-    }
-    std::lock_guard lock(mutex);
-    counters.cache_records += taken;
-    return taken;
-  }
-
-  // Before this Discovery hears the group (its constructor: the group is joined, nothing read
-  // yet, so what the cache misses is queued for it): takes the other hosts' records from the
-  // cache if it is trusted and current.
-  void load_cache() {
-    if (!has_vehicle_cache()) return;
-    const auto file = reg->read_cache(group_hash);
-    auto c = file ? trusted_cache(*file) : std::nullopt;
-    if (!c) return;
-    for (auto& ch : c->hosts) take_cached_host(ch, true);
-  }
-
-  // A receiver that is not its host's vehicle speaker and lacks records of another host (a
-  // heartbeat's digest disagrees, a batch against a base it does not hold, an index lists what
-  // it lacks) looks in the cache before it asks the LAN: its speaker hears the same group, asks
-  // for what it lacks itself, and rewrites the cache within kCoalesce. On a busy host the
-  // processes that lag behind the group (a launch of many) then cost the LAN nothing (8 hosts x
-  // 50 processes: requests were half of all discovery bytes, and every answer is heard by
-  // every process of every host). What the cache does not settle is asked of the LAN
-  // as before: after a period without a usable cache (missing, untrusted, stale), after
-  // kCacheTrust periods with one. (docs/discovery.md
-  // "Vehicle cache".)
-  std::set<std::int64_t> cache_hosts;                   // under mutex: to look up
-  Clock::time_point cache_due = Clock::time_point::max();  // under mutex: the next lookup
-  Clock::time_point cache_since = Clock::time_point::max();  // under mutex: the first lookup not settled
-  std::uint64_t cache_seen = 0;                          // discovery thread: the file last decoded
-  Clock::time_point cache_usable_at{};                   // under mutex: the last lookup that found it usable
-  static constexpr auto kCacheWait = 2 * kCoalesce;
-  static constexpr int kCacheTrust = 4;
-
-  // Under mutex: this receiver lacks records of host `h` (`want`: those; empty: it needs the
-  // host's index): a request, or a lookup in the cache. The caller wakes the discovery thread.
-  void lack(std::int64_t h, std::vector<std::pair<std::int64_t, std::int64_t>> want) {
-    if (!has_vehicle_cache() || is_speaker) {
-      requests.push_back({h, std::move(want), request_due()});
+    const bool ok = bytes.empty() ? reg->patch_table_time(group_hash, reg::now_ns()) : reg->write_table(group_hash, bytes);
+    const int err = errno;
+    table_written = now;
+    if (ok) {
+      table_written_once = table_written_once || !bytes.empty();
       return;
     }
-    const auto now = Clock::now();
-    cache_hosts.insert(h);
-    if (cache_since == Clock::time_point::max()) cache_since = now;
-    cache_due = std::min(cache_due, now + kCacheWait);
-  }
-  // Under mutex: no lookup pending (whatever was to be looked up is settled or asked of the LAN).
-  Clock::time_point end_lookups() {
-    cache_hosts.clear();
-    cache_due = cache_since = Clock::time_point::max();
-    return cache_due;
+    table_written_once = false;  // written whole next time
+    std::lock_guard lock(mutex);
+    warn_limited(last_table_error_log,
+                 "lcmx discovery: cannot write the vehicle table {} ({}): the other participants of this host "
+                 "will listen to the vehicle group themselves",
+                 reg->table_path_for(group_hash), std::strerror(err));
   }
 
-  // Discovery thread: the lookup that is due, if any. Returns when the next one is due (max: none).
-  Clock::time_point look_in_cache() {
-    std::set<std::int64_t> todo;
-    std::uint64_t heard_key = 0;  // what we last heard of those hosts and hold of them (tables_shape)
+  // A record as the table holds it: its bytes as sent, its topic filter, and whether it wants
+  // every topic (a bridge, a DDS gateway, a channel-pattern reader).
+  static table::Content::Entry table_entry(const beacon_t& b) {
+    table::Content::Entry e;
+    e.participant_id = b.participant_id;
+    e.revision = b.revision;
+    for (const auto& ep : b.endpoints) e.topics.add(ep.topic);
+    if (b.flags & (beacon_t::FLAG_BRIDGE | beacon_t::FLAG_CHANNELS | beacon_t::FLAG_DDS_GATEWAY))
+      e.flags |= reg::kSlotWildcard;
+    e.bytes = encode_beacon(b);
+    return e;
+  }
+
+  // ---- the followers' side (discovery thread)
+  std::uint64_t table_generation_seen = ~0ull;  // of the table last taken (with its writer)
+  std::int64_t table_writer_seen = 0;
+  std::uint32_t vehicle_changes_seen = 0;       // Header::vehicle_changes when it was read
+  bool table_recheck = false;                   // our topics changed: records skipped may concern us
+  Clock::time_point table_current_at = started;  // when a current, trusted table was last read
+  Clock::time_point table_checked{};             // when the table was last opened
+  bool table_seen_current = false;               // what that look found
+
+  // Whether `f` may be followed: a table of this host, written by a live participant of this
+  // registry whose slot names the file's owner. (A local process of the same uid as a
+  // participant could write a false table; it could as well write that participant's state
+  // file: trust on one host stops at the uid.)
+  bool trusted(const table::File& f) const {
+    const auto& h = f.header();
+    if (h.host_id != own_host || h.writer == 0) return false;
+    const auto* writer = slot_of(h.writer);
+    return writer && reg::state_of(writer->state.load(std::memory_order_acquire)) == reg::kLive &&
+           writer->uid.load(std::memory_order_relaxed) == f.owner();
+  }
+
+  // Takes the vehicle table into the table of remote participants and tells on_change what
+  // changed, in one pass under the delivery lock: hosts gone or restarted lose their members;
+  // of a host whose listed records changed, the records of ours, of a topic of ours, or of a
+  // reader of every topic are read (`all`: every record: a new speaker), the others skipped
+  // (counted; read once our topics meet theirs: table_recheck). A record must decode, be of its
+  // host, id and revision, and not name a participant of this host. Returns whether the table
+  // is current. Discovery thread, no lock held.
+  bool follow_table(bool all) {
+    bool refused = false;
+    auto file = table::File::open(reg->table_path_for(group_hash), &refused);
+    table_checked = Clock::now();
+    if (!file || !trusted(*file)) {
+      table_seen_current = false;
+      if (!file && !refused) return false;  // none (yet)
+      std::lock_guard lock(mutex);
+      ++counters.tables_refused;
+      return false;
+    }
+    const auto& hd = file->header();
+    const bool current = table_current(hd.written_ns);
+    table_seen_current = current;
+    if (current) table_current_at = Clock::now();
+    if (!all && !table_recheck && hd.generation == table_generation_seen && hd.writer == table_writer_seen)
+      return current;
+    const bool recheck = all || table_recheck;
+    table_recheck = false;
+    std::uint64_t taken = 0, skipped = 0, malformed_records = 0;
+    std::vector<std::pair<Change, Participant>> out;
+    std::unique_lock order(deliver_mutex);
+    auto forget = [&](const std::vector<std::int64_t>& ids) {  // under mutex
+      for (auto id : ids) {
+        auto it = peers.find(id);
+        if (it == peers.end() || it->second.host == 0) continue;
+        table_bytes -= it->second.bytes;
+        out.emplace_back(Change::left, std::move(it->second.p));
+        peers.erase(it);
+      }
+    };
+    std::set<std::int64_t> in_table;
+    for (const auto& th : file->hosts()) {
+      if (th.host_id == 0 || static_cast<std::uint64_t>(th.host_id) == own_host) continue;
+      in_table.insert(th.host_id);
+      {
+        std::lock_guard lock(mutex);
+        auto& host = hosts[th.host_id];
+        if (host.registry_id != 0 && host.registry_id != th.registry_id) {  // restarted: its old members are gone
+          std::vector<std::int64_t> gone;
+          for (const auto& [id, rev] : host.members) gone.push_back(id);
+          host.members.clear();
+          host.listed_digest = 0;
+          forget(gone);
+        }
+        host.registry_id = th.registry_id;
+        host.speaker = th.speaker;
+        host.lease = lease_of(th.lease_ms);
+        host.digest = th.digest;
+        if (host.last_heard == Clock::time_point{}) host.last_heard = Clock::now();
+        bound[th.host_id] = th.address;  // (what its speaker bound: used if this one ever listens)
+        if (!recheck && host.listed_digest == th.listed_digest && th.listed_digest != 0) continue;
+      }
+      const auto records = file->records(th);
+      if (!records) {
+        ++malformed_records;
+        continue;
+      }
+      std::map<std::int64_t, std::int64_t> listed;
+      for (const auto& r : *records) {
+        listed[r.participant_id] = r.revision;
+        bool held = false;
+        {
+          std::lock_guard lock(mutex);
+          const auto p = peers.find(r.participant_id);
+          if (p != peers.end() && p->second.host != th.host_id) continue;  // another host's: not ours to judge
+          if (p != peers.end() && p->second.p.beacon.revision == r.revision) continue;  // held as it is
+          held = p != peers.end();
+        }
+        if (!all && !held && !concerns(r)) {
+          ++skipped;
+          continue;
+        }
+        if (!held && of_this_host(r.participant_id)) {  // ours is known through the registry, never from a table
+          ++malformed_records;
+          continue;
+        }
+        auto bytes = file->bytes(r);
+        auto b = bytes ? decode_beacon(*bytes) : std::nullopt;
+        if (!b || b->participant_id != r.participant_id || b->host_id != th.host_id || b->revision != r.revision ||
+            (b->flags & (beacon_t::FLAG_GOODBYE | beacon_t::FLAG_OBSERVER | beacon_t::FLAG_QUERY))) {
+          ++malformed_records;
+          continue;
+        }
+        if (auto told = apply_record(std::move(*b), bytes->size())) {
+          ++taken;
+          out.push_back(std::move(*told));
+        }
+      }
+      std::lock_guard lock(mutex);
+      auto& host = hosts[th.host_id];
+      std::vector<std::int64_t> gone;
+      for (const auto& [id, p] : peers)
+        if (p.host == th.host_id && !listed.count(id)) gone.push_back(id);
+      forget(gone);
+      host.members = std::move(listed);
+      host.listed_digest = th.listed_digest;
+    }
     {
       std::lock_guard lock(mutex);
-      if (cache_hosts.empty()) return end_lookups();
-      if (is_speaker) {  // became the speaker meanwhile: it asks the LAN itself
-        for (auto h : cache_hosts) requests.push_back({h, {}, request_due()});
-        end_lookups();
-        return Clock::now();
-      }
-      if (Clock::now() < cache_due) return cache_due;
-      todo = cache_hosts;
-      heard_key = tables_shape(&todo);
+      std::vector<std::int64_t> gone;
+      for (const auto& [id, p] : peers)
+        if (p.host != 0 && !in_table.count(p.host)) gone.push_back(id);
+      forget(gone);
+      std::erase_if(hosts, [&](const auto& kv) { return !in_table.count(kv.first); });
+      std::erase_if(heard, [&](const auto& kv) { return !in_table.count(kv.first); });
+      counters.table_reads += 1;
+      counters.table_records += taken;
+      counters.table_skipped += skipped;
+      counters.malformed += malformed_records;
+      if (malformed_records > 0)
+        warn_limited(last_malformed_log, "lcmx discovery: ignored {} malformed record(s) of the vehicle table {}",
+                     malformed_records, reg->table_path_for(group_hash));
     }
-    // Decoded only when its bytes (its write time aside: the speaker patches it every period)
-    // or what we heard changed since the last lookup; usable when trusted and current.
-    std::set<std::int64_t> settled;
-    bool usable = false;
-    if (auto file = reg->read_cache(group_hash); file && file->first.size() > kCacheWrittenAt + 8) {
-      const auto bytes = std::span<const std::byte>(file->first);
-      const auto seen = reg::fnv1a(bytes.subspan(kCacheWrittenAt + 8), reg::fnv1a(bytes.first(kCacheWrittenAt), heard_key));
-      if (seen != cache_seen) {
-        if (auto c = trusted_cache(*file)) {
-          usable = true;
-          cache_seen = seen;  // (only a trusted file's)
-          for (auto& ch : c->hosts)
-            if (todo.count(ch.host_id) && take_cached_host(ch, false)) settled.insert(ch.host_id);
-        }
-      } else {  // the file trusted when decoded: current if its speaker still patches its time
-        usable = cache_current(lcmtypes::Reader(bytes.subspan(kCacheWrittenAt, 8)).i64());
-      }
+    for (auto& [c, p] : out) tell(c, std::move(p));
+    // What its writer had heard of the whole vehicle, we hold now (what concerns us of it).
+    if ((hd.flags & table::kComplete) && follower()) complete = true;
+    table_generation_seen = hd.generation;
+    table_writer_seen = hd.writer;
+    return current;
+  }
+
+  // A follower without a current table for kFallbackAfter acting periods listens to the group
+  // itself (its speaker cannot write the table: a full /dev/shm; or it is stopped and another
+  // acts), and follows again as soon as one is current. Discovery thread.
+  void check_fallback() {
+    if (!follows_table() || is_speaker) return;
+    // In: no current table for kFallbackAfter acting periods. Out: the last look found one current.
+    const bool stale = listening_fallback ? !table_seen_current
+                                          : Clock::now() - table_current_at >= kFallbackAfter * act_after();
+    if (stale == listening_fallback.load()) return;
+    listening_fallback = stale;
+    if (stale) {
+      spdlog::warn("lcmx discovery: no current vehicle table {} for {} ms: participant {} listens to the vehicle "
+                   "group itself until its host's speaker writes one again",
+                   reg->table_path_for(group_hash),
+                   std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - table_current_at).count(),
+                   self_id.load());
+      std::lock_guard lock(mutex);
+      for (auto& [id, h] : hosts) h.last_heard = Clock::now();  // their heartbeats reach us from now on
+    } else {
+      spdlog::info("lcmx discovery: participant {} follows the vehicle table {} again", self_id.load(),
+                   reg->table_path_for(group_hash));
+      table_generation_seen = ~0ull;
+      std::lock_guard lock(mutex);
+      requests.clear();
     }
-    std::lock_guard lock(mutex);
-    const auto now = Clock::now();
-    for (auto h : todo) {
-      const auto it = hosts.find(h);
-      if (settled.count(h) || it == hosts.end() || static_cast<std::uint64_t>(it->second.digest) == digest_of(it->second.members))
-        cache_hosts.erase(h);  // taken, gone, or what it lacked came from the group meanwhile
-    }
-    if (cache_hosts.empty()) return end_lookups();
-    if (usable) cache_usable_at = now;
-    // Not settled: the LAN, after a period without a usable cache (none, untrusted, or its
-    // speaker no longer writes it), or kCacheTrust periods with one (its speaker asks for what
-    // it lacks itself and its answers serve us too: what it holds comes to the cache).
-    const auto waited = now - cache_since;
-    if ((waited >= options.period && cache_usable_at < cache_since) || waited >= kCacheTrust * options.period) {
-      for (auto h : cache_hosts) {
-        requests.push_back({h, {}, request_due()});
-        ++counters.cache_misses;
-      }
-      end_lookups();
-      return Clock::now();  // (send_requests next)
-    }
-    cache_due = now + kCacheWait;
-    return cache_due;
+    note_listening();
+  }
+
+  // A participant listening in a follower's stead: notes when the table is current again.
+  void watch_table() {
+    if (table_is_current()) table_current_at = Clock::now();
+  }
+  bool table_is_current() {
+    auto file = table::File::open(reg->table_path_for(group_hash));
+    table_checked = Clock::now();
+    table_seen_current = file && trusted(*file) && table_current(file->header().written_ns);
+    return table_seen_current;
+  }
+
+  // Under mutex: this receiver (a speaker, or a participant listening to the group) lacks
+  // records of host `h` (`want`: those; empty: it needs the host's index). The caller wakes the
+  // discovery thread.
+  void lack(std::int64_t h, std::vector<std::pair<std::int64_t, std::int64_t>> want) {
+    requests.push_back({h, std::move(want), request_due()});
   }
 
   // ------------------------------------------------------------ the thread
@@ -1939,6 +2071,17 @@ struct Discovery::Impl {
       if (is_deputy) try_speak();
       try_act();
       check_acting();
+      if (follows_table() && !is_speaker) {
+        // A follower reads the table when it changed, when our topics did, and once per period
+        // (is it still current?); a participant listening in its stead only watches for its return.
+        const auto changes = reg->header->vehicle_changes.load(std::memory_order_acquire);  // pairs with write_table
+        if (changes != vehicle_changes_seen || table_recheck || Clock::now() - table_checked >= options.period) {
+          vehicle_changes_seen = changes;
+          if (follower()) follow_table(false);
+          else watch_table();
+          check_fallback();
+        }
+      }
       if (want_query.exchange(false)) {
         send_query();
         full_due = true;
@@ -1960,26 +2103,29 @@ struct Discovery::Impl {
         }
       }
       if (is_speaker) speaker_duties();
-      write_cache();
+      write_table();
       mark_sequence();
-      const auto next_lookup = look_in_cache();
-      const auto next_request = send_requests();
-      expire_hosts();
+      const bool listens = listening();
+      const auto next_request = listens ? send_requests() : Clock::time_point::max();
+      if (listens) expire_hosts();
       check_complete();
-      const bool completing = !complete.load(std::memory_order_relaxed);
+      const bool completing = listens && !complete.load(std::memory_order_relaxed);
 
       // Sleep until the next period, a host's lease, a request's time, a change of the
-      // registry, or a wake-up.
-      auto until = std::min({next_periodic, next_host_expiry(), next_request, next_lookup});
+      // registry (or of the vehicle table), or a wake-up.
+      auto until = std::min({next_periodic, listens ? next_host_expiry() : Clock::time_point::max(), next_request});
       if (completing) until = std::min(until, std::max(complete_due(), Clock::now() + kSpeakerTick));
       if (retry_soon) until = std::min(until, last_pass + kCoalesce);
       // A change waits for its pass no longer than the coalescing says (the speaker too).
       if (reads && changed_since_pass()) until = std::min(until, next_pass_at());
       if (is_speaker) until = std::min({until, Clock::now() + kSpeakerTick, flush_at});
       if (is_deputy) until = std::min(until, Clock::now() + kSpeakerTick);
-      if (!host_scope && !is_speaker && reg && !options.observer) {  // try_act when it is due
+      if (follows_table() && !is_speaker) {  // try_act and check_fallback when they are due
         std::lock_guard lock(mutex);
-        if (const auto act_at = own_heard + act_after(); act_at > Clock::now()) until = std::min(until, act_at);
+        const auto act_at = (listening_fallback ? own_heard : table_current_at) + act_after();
+        const auto fallback_at = table_current_at + kFallbackAfter * act_after();
+        for (auto at : {act_at, fallback_at})
+          if (at > Clock::now()) until = std::min(until, at);
       }
       const auto wait = std::chrono::ceil<std::chrono::milliseconds>(until - Clock::now());
       const auto ms = std::clamp<std::int64_t>(wait.count(), 0, 1000);
@@ -1996,6 +2142,12 @@ struct Discovery::Impl {
         [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);  // keep the eventfd from filling
         shm::WaitToken t[2] = {{&wake_word, expected_wake, true}, {&reg->header->changes, seen_changes, false}};
         if (!changed_since_pass()) shm::wait_any(std::span(t), std::chrono::milliseconds(ms));
+      } else if (follower()) {
+        // A follower wakes on a new vehicle table (or a wake-up of its own).
+        std::uint64_t v;
+        [[maybe_unused]] auto n = ::read(wake_fd, &v, sizeof v);  // keep the eventfd from filling
+        shm::WaitToken t[2] = {{&wake_word, expected_wake, true}, {&reg->header->vehicle_changes, vehicle_changes_seen, false}};
+        shm::wait_any(std::span(t), std::chrono::milliseconds(ms));
       } else if (is_speaker || !reads) {
         pollfd fds[1] = {{wake_fd, POLLIN, 0}};
         const int r = ::poll(fds, 1, static_cast<int>(ms));
@@ -2052,7 +2204,13 @@ Discovery::Discovery(Options options, LocalFn local, ChangeFn on_change)
     impl_->self_id = static_cast<std::int64_t>(random_participant_id());
     impl_->want_query = true;
   }
-  impl_->load_cache();  // before anything is read from the group (the runtime's front door starts later)
+  // A vehicle participant follows its host's vehicle table from the start (before anything is
+  // read from the group: the runtime's front door starts later).
+  if (impl_->follows_table()) {
+    impl_->vehicle_changes_seen = impl_->reg->header->vehicle_changes.load(std::memory_order_acquire);
+    impl_->follow_table(false);
+    impl_->note_listening();
+  }
   impl_->thread = std::thread([this] { impl_->run(); });
   if (impl_->receive) impl_->rx_thread = std::thread([this] { impl_->rx_loop(); });
 }
@@ -2097,6 +2255,7 @@ Counters Discovery::counters() const {
 }
 
 bool Discovery::speaking() const { return impl_->is_speaker.load(); }
+bool Discovery::listening() const { return impl_->listening(); }
 bool Discovery::complete() const { return impl_->complete.load(std::memory_order_acquire); }
 std::shared_ptr<Registry> Discovery::registry() const { return impl_->registry; }
 const Options& Discovery::options() const { return impl_->options; }

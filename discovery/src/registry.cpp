@@ -19,6 +19,7 @@
 #include "lcmx/shm/futex.hpp"
 #include "lcmx/shm/segment.hpp"
 #include "registry_impl.hpp"
+#include "vehicle_table.hpp"
 
 namespace lcmx::discovery {
 namespace reg {
@@ -493,10 +494,10 @@ std::optional<reg::State> Registry::Impl::read_state(std::uint32_t i, std::int64
   return out;
 }
 
-std::string Registry::Impl::cache_path_for(std::uint64_t vehicle_group) const { return path + "_pv" + hex(vehicle_group); }
+std::string Registry::Impl::table_path_for(std::uint64_t vehicle_group) const { return path + "_pv" + hex(vehicle_group); }
 
-bool Registry::Impl::write_cache(std::uint64_t vehicle_group, std::span<const std::byte> bytes) const {
-  const auto target = cache_path_for(vehicle_group);
+bool Registry::Impl::write_table(std::uint64_t vehicle_group, std::span<const std::byte> bytes) const {
+  const auto target = table_path_for(vehicle_group);
   const auto tmp = target + "w" + std::to_string(::getpid());
   const int f = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC | O_NOFOLLOW, 0644);
   if (f < 0) return false;
@@ -510,25 +511,23 @@ bool Registry::Impl::write_cache(std::uint64_t vehicle_group, std::span<const st
   }
   ::close(f);
   if (ok) ok = ::rename(tmp.c_str(), target.c_str()) == 0;
-  if (!ok) ::unlink(tmp.c_str());
-  return ok;
+  if (!ok) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    errno = err;
+    return false;
+  }
+  header->vehicle_changes.fetch_add(1, std::memory_order_release);  // pairs with the followers' acquire load
+  shm::futex_wake_all(&header->vehicle_changes);
+  return true;
 }
 
-std::optional<std::pair<std::vector<std::byte>, std::uint32_t>> Registry::Impl::read_cache(
-    std::uint64_t vehicle_group) const {
-  const int f = ::open(cache_path_for(vehicle_group).c_str(), O_RDONLY | O_CLOEXEC | O_NOFOLLOW);
-  if (f < 0) return std::nullopt;
-  struct stat st{};
-  std::vector<std::byte> buf;
-  bool ok = ::fstat(f, &st) == 0 && S_ISREG(st.st_mode) && (st.st_mode & 022) == 0 && st.st_size > 0 &&
-            st.st_size <= reg::kMaxStateBytes;
-  if (ok) {
-    buf.resize(static_cast<std::size_t>(st.st_size));
-    ok = ::pread(f, buf.data(), buf.size(), 0) == static_cast<ssize_t>(buf.size());
-  }
+bool Registry::Impl::patch_table_time(std::uint64_t vehicle_group, std::int64_t written_ns) const {
+  const int f = ::open(table_path_for(vehicle_group).c_str(), O_WRONLY | O_CLOEXEC | O_NOFOLLOW);
+  if (f < 0) return false;
+  const bool ok = ::pwrite(f, &written_ns, sizeof written_ns, offsetof(table::Header, written_ns)) == static_cast<ssize_t>(sizeof written_ns);
   ::close(f);
-  if (!ok) return std::nullopt;
-  return std::make_pair(std::move(buf), static_cast<std::uint32_t>(st.st_uid));
+  return ok;
 }
 
 bool Registry::Impl::owner_alive(std::uint32_t i) const {

@@ -61,7 +61,9 @@ struct alignas(kCacheLine) Header {
   std::uint64_t reserved0[3];
   // -- line 1: written by every participant
   std::atomic<std::uint32_t> changes;   // futex word: +1 after every change of a slot (release)
-  std::uint32_t reserved1;
+  // Futex word: +1 after a vehicle speaker wrote a vehicle table with new content (release;
+  // docs/discovery.md "Vehicle table"). One for every vehicle group of the registry.
+  std::atomic<std::uint32_t> vehicle_changes;
   std::atomic<std::uint32_t> high_water;  // slots [0, high_water) may be in use
   std::uint32_t reserved2;
   std::atomic<std::int64_t> observed_until_ns;  // CLOCK_MONOTONIC: an observer wants fresh statistics
@@ -215,15 +217,15 @@ struct Registry::Impl {
   // The speaker frees a slot whose owner is dead: state file, shm segments, slot.
   void reclaim(std::uint32_t i, std::uint64_t seen_state);
 
-  // The vehicle cache of a vehicle group (docs/discovery.md "Vehicle cache"): a file beside the
-  // registry, `<path>_pv<group hash hex>` (removed with the state files). write_cache replaces
-  // it whole (a temporary file renamed over it: a reader sees the old one or the new one),
-  // mode 0644; false if it could not be written (a full /dev/shm: nobody relies on it).
-  // read_cache returns its bytes and its owner's uid, or nullopt when it is missing, not a
-  // regular file, writable by others than its owner, or larger than kMaxStateBytes.
-  std::string cache_path_for(std::uint64_t vehicle_group) const;
-  bool write_cache(std::uint64_t vehicle_group, std::span<const std::byte> bytes) const;
-  std::optional<std::pair<std::vector<std::byte>, std::uint32_t>> read_cache(std::uint64_t vehicle_group) const;
+  // The vehicle table of a vehicle group (vehicle_table.hpp, docs/discovery.md "Vehicle table"):
+  // a file beside the registry, `<path>_pv<group hash hex>` (removed with the state files).
+  // write_table replaces it whole (a temporary file renamed over it: a reader sees the old one or
+  // the new one), mode 0644, then bumps Header::vehicle_changes and wakes its waiters; false if it
+  // could not be written (a full /dev/shm: the error is the caller's to report; errno says why).
+  // patch_table_time writes `written_ns` into the current file in place (false: none, or failed).
+  std::string table_path_for(std::uint64_t vehicle_group) const;
+  bool write_table(std::uint64_t vehicle_group, std::span<const std::byte> bytes) const;
+  bool patch_table_time(std::uint64_t vehicle_group, std::int64_t written_ns) const;
 };
 
 }  // namespace lcmx::discovery

@@ -19,7 +19,6 @@ constexpr std::size_t kEndpoint = 8 + 1 + 3 * kString + 8 + kString + 1 + 8 + 4 
 constexpr std::size_t kBeacon = 4 + 8 + 8 + 4 + 8 + 8 + kString + 8 + 8 + 1 + 4 + 8 + 1 + 2 * kString + 4 + 4 + 4;
 // The smallest host_beacon_t without its fingerprint: fixed fields and empty arrays.
 constexpr std::size_t kHostBeacon = 4 + 1 + 1 + 8 + 8 + 8 + 8 + 4 + 8 + 4 + 4 + 8 + 4;
-constexpr std::size_t kCachedHost = 8 + 4 + 8 + 8 + 4 + 8 + 4;
 constexpr std::size_t kHistoryMessage = 1 + 4 + 4;
 constexpr std::size_t kGoalStatus = kString + 1 + kString + 4;
 constexpr std::size_t kLinkStatus = 2 * kString + 1 + 1 + 8 + 8 + 8 + 4;
@@ -152,24 +151,6 @@ void fields(Reader& r, records_t& b) {
   b.host_id = r.i64();
   struct_array(r, b.num_records, kBeacon, b.records, [](Reader& rr, beacon_t& x) { fields(rr, x); });
   struct_array(r, b.num_state, kHostBeacon, b.state, [](Reader& rr, host_beacon_t& x) { fields(rr, x); });
-}
-
-void fields(Reader& r, cached_host_t& h) {
-  h.host_id = r.i64();
-  h.address = r.i32();
-  h.registry_id = r.i64();
-  h.speaker = r.i64();
-  h.lease_ms = r.i32();
-  h.digest = r.i64();
-  struct_array(r, h.num_records, kBeacon, h.records, [](Reader& rr, beacon_t& x) { fields(rr, x); });
-}
-
-void fields(Reader& r, vehicle_cache_t& c) {
-  c.version = r.i32();
-  c.host_id = r.i64();
-  c.writer = r.i64();
-  c.written_ns = r.i64();
-  struct_array(r, c.num_hosts, kCachedHost, c.hosts, [](Reader& rr, cached_host_t& h) { fields(rr, h); });
 }
 
 // --- keep last N (history.lcm) ---
@@ -342,7 +323,6 @@ bool decode(std::span<const std::byte> b, beacon_t& out) { return whole(b, out);
 bool decode(std::span<const std::byte> b, host_beacon_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, records_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, records_z_t& out) { return whole(b, out); }
-bool decode(std::span<const std::byte> b, vehicle_cache_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, endpoint_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, match_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, history_t& out) { return whole(b, out); }

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -30,8 +31,8 @@
 #include "lcmx/test/netns.hpp"
 #include "lcmx/test/process.hpp"
 #include "lcmx/test/tmp_dir.hpp"
-#include "lcmx_msgs/vehicle_cache_t.hpp"
 #include "registry_impl.hpp"
+#include "vehicle_table.hpp"
 
 using namespace std::chrono_literals;
 using lcmx::discovery::Change;
@@ -451,6 +452,7 @@ struct FakeHost {
   std::shared_ptr<Registry> registry;
   struct P {
     std::unique_ptr<Discovery> h, v;
+    std::shared_ptr<Log> vl = std::make_shared<Log>();  // what its vehicle scope tells
   };
   std::vector<P> ps;
   Log vlog;
@@ -489,7 +491,10 @@ struct FakeHost {
           if (edit) edit(b);
           return b;
         },
-        vlog.fn());
+        [all = vlog.fn(), log = p.vl](Change c, const Participant& q) {  // (keeps its log alive)
+          all(c, q);
+          log->fn()(c, q);
+        });
     ps.push_back(std::move(p));
   }
 };
@@ -522,32 +527,54 @@ host_beacon_t heartbeat_of(std::int64_t host, std::map<std::int64_t, std::int64_
 
 }  // namespace
 
-TEST_CASE("vehicle scope: each host's speaker speaks for its participants - records, goodbyes, index", "[discovery][vehicle]") {
+TEST_CASE("vehicle scope: each host's speaker speaks for its participants - records, goodbyes, index - the others "
+          "follow its vehicle table and are told only what shares a topic with them",
+          "[discovery][vehicle]") {
   const auto v = group_of(11);
   FakeHost a(0xa1, group_of(12), v), b(0xb2, group_of(13), v);
   a.add(11, {"X"});
   a.add(12, {"Y"});
   b.add(21, {"X"});
-  b.add(22, {"Z"});
-  // Every participant of b hears both of a's (and vice versa), whatever their topics.
+  b.add(22, {"X"});
   auto info = [&] {
     std::string t;
     for (auto* h : {&a, &b})
       for (auto& p : h->ps) {
         const auto c = p.v->counters();
-        t += "speaking=" + std::to_string(p.v->speaking()) + " sent=" + std::to_string(c.beacons_sent) + " recv=" +
-             std::to_string(c.beacons_received) + " forged=" + std::to_string(c.forged) + " malformed=" +
-             std::to_string(c.malformed) + " refused=" + std::to_string(c.refused) + " reads=" + std::to_string(c.registry_reads) + "\n";
+        t += "speaking=" + std::to_string(p.v->speaking()) + " listening=" + std::to_string(p.v->listening()) +
+             " sent=" + std::to_string(c.beacons_sent) + " recv=" + std::to_string(c.beacons_received) +
+             " table_reads=" + std::to_string(c.table_reads) + " table_records=" + std::to_string(c.table_records) +
+             " skipped=" + std::to_string(c.table_skipped) + " forged=" + std::to_string(c.forged) +
+             " malformed=" + std::to_string(c.malformed) + " requests_sent=" + std::to_string(c.requests_sent) + "\n";
       }
     return t;
   };
-  const bool met = eventually([&] { return b.vlog.count(Change::joined, 11) == 2 && b.vlog.count(Change::joined, 12) == 2; });
+  // One speaker per host and group; the other participant follows.
+  auto roles = [](FakeHost& h) {
+    return eventually([&] { return h.ps[0].v->speaking() != h.ps[1].v->speaking(); });
+  };
+  REQUIRE(roles(a));
+  REQUIRE(roles(b));
+  auto& bs = b.ps[0].v->speaking() ? b.ps[0] : b.ps[1];
+  auto& bf = &bs == &b.ps[0] ? b.ps[1] : b.ps[0];
+  auto& as = a.ps[0].v->speaking() ? a.ps[0] : a.ps[1];
+  auto& af = &as == &a.ps[0] ? a.ps[1] : a.ps[0];
+  const std::int64_t af_id = &af == &a.ps[0] ? 11 : 12;
+  // b's speaker hears both of a's; b's follower (topic X) is told of 11 (X) from the table, not 12 (Y).
+  const bool met = eventually([&] {
+    return bs.vl->count(Change::joined, 11) == 1 && bs.vl->count(Change::joined, 12) == 1 &&
+           bf.vl->count(Change::joined, 11) == 1;
+  });
   INFO(info());
   REQUIRE(met);
-  REQUIRE(eventually([&] { return a.vlog.count(Change::joined, 21) == 2 && a.vlog.count(Change::joined, 22) == 2; }));
-  int speakers = 0;
-  for (auto& p : a.ps) speakers += p.v->speaking() ? 1 : 0;
-  CHECK(speakers == 1);  // one per host and group
+  // a's speaker hears both of b's; a's follower too if it is 11 (X), none if it is 12 (Y).
+  REQUIRE(eventually([&] {
+    return as.vl->count(Change::joined, 21) == 1 && as.vl->count(Change::joined, 22) == 1 &&
+           af.vl->count(Change::joined, 21) == (af_id == 11 ? 1 : 0);
+  }));
+  CHECK(!bf.v->listening());
+  CHECK(!af.v->listening());
+  CHECK(bs.v->listening());
   // Steady state: the hosts' digests agree, no request and no record goes out any more.
   auto answered = [&] {
     std::uint64_t n = 0;
@@ -559,13 +586,18 @@ TEST_CASE("vehicle scope: each host's speaker speaks for its participants - reco
   const auto settled = answered();
   std::this_thread::sleep_for(500ms);  // 10 periods: a digest that disagreed would ask every 2
   CHECK(answered() == settled);
-  // A participant of a leaves: b's participants are told by a's speaker.
-  auto& leaving = a.ps[0].v->speaking() ? a.ps[1] : a.ps[0];
-  const std::int64_t gone = &leaving == &a.ps[0] ? 11 : 12;
-  leaving.v->stop();
-  leaving.h->stop();
-  REQUIRE(eventually([&] { return b.vlog.count(Change::left, gone) == 2; }, 2000ms));
-  CHECK(b.ps[0].v->counters().forged == 0);
+  CHECK(bf.vl->count(Change::joined, 12) == 0);  // not its topic: skipped in the table
+  CHECK(bf.v->counters().table_skipped >= 1);
+  CHECK(bf.v->counters().requests_sent == 0);  // a follower never asks the LAN
+  CHECK(af.v->counters().requests_sent == 0);
+  // a's follower leaves: b's speaker is told by a's speaker, b's follower by the table if it knew it.
+  const bool knew = af_id == 11;
+  af.v->stop();
+  af.h->stop();
+  REQUIRE(eventually([&] { return bs.vl->count(Change::left, af_id) == 1; }, 2000ms));
+  if (knew) REQUIRE(eventually([&] { return bf.vl->count(Change::left, af_id) == 1; }, 2000ms));
+  CHECK(bs.v->counters().forged == 0);
+  CHECK(bf.v->counters().malformed == 0);
 }
 
 // A stopped speaker (SIGSTOP) holds its lock: before, its host went silent on the vehicle group
@@ -606,14 +638,14 @@ TEST_CASE("vehicle scope: while a host's speaker is stopped another participant 
   CHECK(b.vlog.count(Change::left, sid) == 1);
 }
 
-// The vehicle cache's file for host `host` (docs/discovery.md "Vehicle cache").
-std::string cache_path(const FakeHost& h) {
+// The vehicle table's file for host `host` (docs/discovery.md "Vehicle table").
+std::string table_path(const FakeHost& h) {
   std::ostringstream s;
   s << Registry::path_for(h.host, h.local, h.dir.path) << "_pv" << std::hex << lcmx::discovery::reg::group_hash(h.vehicle);
   return s.str();
 }
 
-TEST_CASE("vehicle scope: a process that starts later takes the other hosts' records from its host's vehicle cache - "
+TEST_CASE("vehicle scope: a process that starts later takes the other hosts' records from its host's vehicle table - "
           "it asks the LAN nothing",
           "[discovery][vehicle]") {
   const auto v = group_of(46);
@@ -623,7 +655,7 @@ TEST_CASE("vehicle scope: a process that starts later takes the other hosts' rec
   b.add(61, {"Z"});
   REQUIRE(eventually([&] { return b.vlog.count(Change::joined, 51) == 1 && b.vlog.count(Change::joined, 52) == 1; }));
   REQUIRE(eventually([&] { return b.ps[0].v->complete(); }));
-  REQUIRE(eventually([&] { return std::filesystem::exists(cache_path(b)); }));
+  REQUIRE(eventually([&] { return std::filesystem::exists(table_path(b)); }));
   auto answered = [&] {
     std::uint64_t n = 0;
     for (auto& p : a.ps) n += p.v->counters().requests_answered;
@@ -632,71 +664,93 @@ TEST_CASE("vehicle scope: a process that starts later takes the other hosts' rec
   const auto before = answered();
   b.add(62, {"X"});
   auto& late = *b.ps[1].v;
-  // Taken in its constructor, before it heard anything.
-  CHECK(late.counters().cache_records == 2);
-  CHECK(b.vlog.count(Change::joined, 51) == 2);
-  CHECK(b.vlog.count(Change::joined, 52) == 2);
-  // a's next heartbeats agree with it: complete, and nobody asked a for anything (without the
-  // cache it asks for a's index, then for both records).
-  REQUIRE(eventually([&] { return late.complete(); }, 3000ms));
+  // From the table: 51 (its topic X), not 52 (Y); complete as the table's writer is.
+  REQUIRE(eventually([&] { return b.ps[1].vl->count(Change::joined, 51) == 1 && late.complete(); }, 3000ms));
+  CHECK(!late.speaking());
+  CHECK(!late.listening());
+  CHECK(late.counters().table_records == 1);
+  CHECK(late.counters().table_skipped >= 1);
+  CHECK(b.ps[1].vl->count(Change::joined, 52) == 0);
+  // Nobody asked a for anything (without the table it asks for a's records).
+  std::this_thread::sleep_for(200ms);  // 4 periods: a request would have gone by now
   CHECK(answered() == before);
+  CHECK(late.counters().requests_sent == 0);
   CHECK(late.counters().forged == 0);
 }
 
-TEST_CASE("vehicle scope: a vehicle cache writable by others, stale, or of a writer not in the registry is not taken",
+TEST_CASE("vehicle scope: a vehicle table writable by others, of another owner, or of a writer not in the registry is "
+          "not followed - a stale one is, until the follower listens itself",
           "[discovery][vehicle][hostile]") {
+  namespace table = lcmx::discovery::table;
   const auto v = group_of(49);
   FakeHost c(0xc7, group_of(50), v);
-  // A live slot of c's registry, as the writer a forger would name (no Discovery: it writes nothing).
+  // A live slot of c's registry, as the writer a forger would name; it holds c's vehicle
+  // speaker and acting locks (it writes nothing), so c's participants follow the table.
   auto writer_reg = Registry::open({.host_id = c.host, .group = c.local, .directory = c.dir.path});
   writer_reg->impl().join(777, 500, 50);
-  // A record of participant 999 of a host 0xa5 that does not exist: taken only from the cache.
-  auto write = [&](std::int64_t writer, std::int64_t written_ns, mode_t mode) {
-    lcmx_msgs::cached_host_t h{};
-    h.host_id = 0xa5;
-    h.address = static_cast<std::int32_t>(::inet_addr("10.251.0.1"));
-    h.registry_id = 5;
-    h.speaker = 999;
-    h.lease_ms = 500;
+  const auto bits = static_cast<off_t>(lcmx::discovery::reg::group_hash(v) & ((std::uint64_t{1} << 40) - 1));
+  REQUIRE(writer_reg->impl().try_lock(lcmx::discovery::reg::kLockVehicle + bits));
+  REQUIRE(writer_reg->impl().try_lock(lcmx::discovery::reg::kLockVehicleActing + bits));
+  // A record of participant 999 of a host 0xa5 that does not exist: known only from the table.
+  std::uint64_t generation = 0;
+  auto write = [&](std::int64_t writer, std::int64_t written_ns, mode_t mode, uid_t owner) {
+    table::Content content;
+    content.writer = writer;
+    content.complete = true;
+    table::Content::HostEntry h;
+    h.host.host_id = 0xa5;
+    h.host.address = ::inet_addr("10.251.0.1");
+    h.host.registry_id = 5;
+    h.host.speaker = 999;
+    h.host.lease_ms = 500;
     auto b = beacon_of(999, 0xa5, {"X"}, beacon_t::SCOPE_VEHICLE);
     b.version = lcmx::discovery::kBeaconVersion;
     b.revision = 1;
-    h.records.push_back(b);
-    h.num_records = 1;
-    lcmx_msgs::vehicle_cache_t cache{};
-    cache.version = lcmx::discovery::kBeaconVersion;
-    cache.host_id = static_cast<std::int64_t>(c.host);
-    cache.writer = writer;
-    cache.written_ns = written_ns;
-    cache.hosts.push_back(h);
-    cache.num_hosts = 1;
-    std::vector<std::byte> bytes(static_cast<std::size_t>(cache.getEncodedSize()));
-    cache.encode(bytes.data(), 0, static_cast<int>(bytes.size()));
-    const auto path = cache_path(c);
+    table::Content::Entry e;
+    e.participant_id = 999;
+    e.revision = 1;
+    e.topics.add("X");
+    e.bytes = lcmx::discovery::encode_beacon(b);
+    h.records.push_back(e);
+    h.host.listed_digest = 12345;
+    content.hosts.push_back(h);
+    auto bytes = table::encode(content, c.host, ++generation);
+    std::memcpy(bytes.data() + offsetof(table::Header, written_ns), &written_ns, sizeof written_ns);
+    const auto path = table_path(c);
+    const auto tmp = path + ".t";
     {
-      std::ofstream f(path, std::ios::binary | std::ios::trunc);
+      std::ofstream f(tmp, std::ios::binary | std::ios::trunc);
       f.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
     }
-    REQUIRE(::chmod(path.c_str(), mode) == 0);
+    REQUIRE(::chmod(tmp.c_str(), mode) == 0);
+    REQUIRE(::chown(tmp.c_str(), owner, static_cast<gid_t>(-1)) == 0);
+    REQUIRE(std::filesystem::exists(tmp));
+    std::filesystem::rename(tmp, path);  // as a speaker does: readers see the old file or the new one
   };
   auto now_ns = [] { return lcmx::discovery::reg::now_ns(); };
-  writer_reg->impl().heartbeat();
-  write(777, now_ns(), 0666);  // writable by others
+  const uid_t me = ::getuid();
+  auto refused_by = [&](std::size_t k) { return c.ps[k].v->counters().tables_refused; };
+  write(777, now_ns(), 0666, me);  // writable by others
   c.add(71, {"X"});
-  CHECK(c.ps.back().v->counters().cache_records == 0);
-  write(778, now_ns(), 0644);  // a writer that holds no slot
+  REQUIRE(eventually([&] { return refused_by(0) >= 1; }));
+  write(778, now_ns(), 0644, me);  // a writer that holds no slot
   c.add(72, {"X"});
-  CHECK(c.ps.back().v->counters().cache_records == 0);
-  write(777, now_ns() - 2'000'000'000, 0644);  // written 2 s ago: its speaker stopped writing
+  REQUIRE(eventually([&] { return refused_by(1) >= 1; }));
+  write(777, now_ns(), 0644, me == 0 ? 65534 : me + 1);  // owned by another uid than the writer's slot names
   c.add(73, {"X"});
-  CHECK(c.ps.back().v->counters().cache_records == 0);
+  if (me == 0) REQUIRE(eventually([&] { return refused_by(2) >= 1; }));
   CHECK(c.vlog.count(Change::joined, 999) == 0);
-  // The same file, current and trusted: taken (the checks above are what refused it).
-  writer_reg->impl().heartbeat();
-  write(777, now_ns(), 0644);
+  for (auto& p : c.ps) CHECK(!p.v->speaking());
+  // The same file, trusted (current or not: a stopped speaker's table is still the best there is): followed.
+  write(777, now_ns() - 2'000'000'000, 0644, me);
   c.add(74, {"X"});
-  CHECK(c.ps.back().v->counters().cache_records == 1);
-  CHECK(c.vlog.count(Change::joined, 999) == 1);
+  REQUIRE(eventually([&] { return c.ps[3].vl->count(Change::joined, 999) == 1; }));
+  CHECK(c.ps[3].v->counters().table_records == 1);
+  CHECK(c.ps[3].v->counters().forged == 0);
+  // Stale for two acting periods (the speaker neither writes it nor can anyone act): the
+  // followers listen to the group themselves.
+  REQUIRE(eventually([&] { return c.ps[3].v->listening(); }, 3000ms));
+  CHECK(!c.ps[3].v->speaking());
   c.ps.clear();
   writer_reg.reset();
 }
@@ -864,69 +918,74 @@ struct GatedReceiver {
 };
 }  // namespace
 
-TEST_CASE("vehicle scope: a process that is not its host's speaker and missed other hosts' records takes them from "
-          "its host's vehicle cache - it asks the LAN nothing",
+TEST_CASE("vehicle scope: a participant that is not its host's speaker ignores the group's discovery - it takes other "
+          "hosts from its host's vehicle table alone, goodbyes too",
           "[discovery][vehicle]") {
   const auto v = group_of(57);
   FakeHost a(0xa5, group_of(58), v), b(0xb6, group_of(59), v);
   b.add(61, {"X"});
   REQUIRE(eventually([&] { return b.ps[0].v->speaking(); }));
-  // r: another process of host b (its registry), that hears the vehicle group only through
-  // this test's pump: host messages (heartbeats), never a record - a process that lags behind
-  // the group and loses them.
+  // r: another process of host b (its registry), handed every datagram of the vehicle group by
+  // this test's pump, as the runtime's front door would if it let them through.
   Log lr;
   Discovery r(fed_vehicle_options(v, b.host, b.local, b.dir.path),
               [] { return beacon_of(62, 0xb6, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
-  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
-    if (!record) r.deliver(m);
+  std::atomic<int> handed{0};
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool) {
+    ++handed;
+    r.deliver(m);
   });
   a.add(51, {"X"});
   a.add(52, {"Y"});
   REQUIRE(eventually([&] { return b.vlog.count(Change::joined, 51) >= 1 && b.vlog.count(Change::joined, 52) >= 1; }));
-  // a's heartbeats disagree with what r holds: it looks in the cache b's speaker keeps
-  // (without that it asks the LAN, and the answers never reach it).
-  REQUIRE(eventually([&] { return lr.count(Change::joined, 51) == 1 && lr.count(Change::joined, 52) == 1; }, 3000ms));
+  REQUIRE(eventually([&] { return lr.count(Change::joined, 51) == 1; }, 3000ms));
   REQUIRE(eventually([&] { return r.complete(); }, 3000ms));
   const auto c = r.counters();
   CHECK(!r.speaking());
-  CHECK(c.cache_records == 2);
+  CHECK(!r.listening());
+  CHECK(handed.load() > 0);
+  CHECK(c.beacons_received == c.table_records);  // every record it took came from the table
+  CHECK(c.table_records == 1);
+  CHECK(lr.count(Change::joined, 52) == 0);  // Y: not its topic
   CHECK(c.requests_sent == 0);
-  CHECK(c.cache_misses == 0);
   CHECK(c.forged == 0);
-  // A participant that leaves host a: r hears its goodbye nowhere (records), the cache tells it.
-  a.ps.pop_back();
-  REQUIRE(eventually([&] { return lr.count(Change::left, 52) == 1; }, 3000ms));
+  CHECK(c.malformed == 0);
+  // A participant that leaves host a: the table tells r.
+  a.ps.erase(a.ps.begin());  // 51
+  REQUIRE(eventually([&] { return lr.count(Change::left, 51) == 1; }, 3000ms));
   CHECK(r.counters().requests_sent == 0);
   pump.stop();
 }
 
-TEST_CASE("vehicle scope: what the vehicle cache does not settle within a period is asked of the LAN",
+TEST_CASE("vehicle scope: a participant whose speaker cannot write the vehicle table listens to the group itself - "
+          "and follows the table again once it is written",
           "[discovery][vehicle]") {
   const auto v = group_of(60);
   FakeHost a(0xa7, group_of(61), v), b(0xb8, group_of(62), v);
-  // A directory where b's cache would be: its speaker cannot write it, nobody can read it.
-  std::filesystem::create_directory(cache_path(b));
+  // A directory where b's table would be: its speaker cannot write it, nobody can read it.
+  std::filesystem::create_directory(table_path(b));
   b.add(71, {"X"});
   REQUIRE(eventually([&] { return b.ps[0].v->speaking(); }));
   Log lr;
   Discovery r(fed_vehicle_options(v, b.host, b.local, b.dir.path),
               [] { return beacon_of(72, 0xb8, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());
-  std::atomic<bool> pass_records{false};
-  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool record) {
-    if (!record || pass_records) r.deliver(m);
-  });
+  VehiclePump pump(v, [&](const lcmx::udpm::Message& m, bool) { r.deliver(m); });
   a.add(81, {"X"});
   REQUIRE(eventually([&] { return b.vlog.count(Change::joined, 81) >= 1; }));
-  // r missed 81's record and the cache cannot give it: after a period of lookups it asks a
-  // (the records pass from then on; without the fallback r waits for the cache for ever).
-  REQUIRE(eventually([&] { return r.counters().cache_misses >= 1; }, 3000ms));
-  pass_records = true;
+  // No table for half the lease: r may act for the host, hears its speaker and stands down, and
+  // listens to the group itself (without that it would never hear of 81).
+  REQUIRE(eventually([&] { return r.listening() && !r.speaking(); }, 3000ms));
   REQUIRE(eventually([&] { return lr.count(Change::joined, 81) == 1; }, 3000ms));
-  CHECK(r.counters().requests_sent >= 1);
-  CHECK(r.counters().cache_records == 0);
+  CHECK(r.counters().tables_refused >= 1);
+  // The table can be written again: r follows it (and no longer listens).
+  std::filesystem::remove(table_path(b));
+  REQUIRE(eventually([&] { return !r.listening(); }, 3000ms));
   CHECK(!r.speaking());
+  CHECK(lr.count(Change::left, 81) == 0);  // the table holds what r heard: nothing left
+  a.add(82, {"X"});
+  REQUIRE(eventually([&] { return lr.count(Change::joined, 82) == 1; }, 3000ms));
+  CHECK(r.counters().table_records >= 1);
   pump.stop();
-  std::filesystem::remove(cache_path(b));
 }
 
 TEST_CASE("vehicle scope: a digest mismatch asks for the index, then for the missing records - repaired", "[discovery][vehicle]") {
@@ -1128,6 +1187,7 @@ TEST_CASE("vehicle scope: a data marker follows data, not the speaker's own hear
   auto shared = o.shared_group;  // the runtime's socket: data and discovery from one sequence
   Log log;
   Discovery d(o, [] { return publisher_of(111, 0xe1, "MARK_DATA"); }, log.fn());
+  REQUIRE(eventually([&] { return d.speaking(); }));  // (alone on its host: it hears the group once it speaks)
   tell_remote_reader(d, "MARK_DATA");  // someone on another host reads what it publishes
   REQUIRE(log.count(Change::joined, 900) == 1);
   HostBeaconCount count(v, 0xe1);
@@ -1374,7 +1434,6 @@ TEST_CASE("vehicle scope: a receiver that holds none of a host's records asks fo
 TEST_CASE("trust: another host's record naming this process or a participant of this host is refused", "[discovery][hostile]") {
   const auto v = group_of(25);
   FakeHost a(0xc6, group_of(26), v);
-  a.add(61, {"X"});  // another participant of this host (its own registry object, as another process)
   lcmx::discovery::Options o;
   o.group = v;
   o.scope = beacon_t::SCOPE_VEHICLE;
@@ -1384,6 +1443,8 @@ TEST_CASE("trust: another host's record naming this process or a participant of 
   o.registry = Registry::open({.host_id = 0xc6, .group = group_of(26), .directory = a.dir.path});
   Log lr;
   Discovery r(o, [] { return beacon_of(62, 0xc6, {"X"}, beacon_t::SCOPE_VEHICLE); }, lr.fn());  // this process
+  REQUIRE(eventually([&] { return r.speaking(); }));  // (it hears the group: its host's speaker)
+  a.add(61, {"X"});  // another participant of this host (its own registry object, as another process)
   auto in_registry = [&](std::int64_t id) {
     auto& ri = r.registry()->impl();
     for (std::uint32_t i = 0; i < ri.slot_count; ++i)

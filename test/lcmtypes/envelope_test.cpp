@@ -191,25 +191,6 @@ void fill(Gen& g, records_z_t& r) {
   r.deflated = g.bytes();
   r.num_bytes = static_cast<std::int32_t>(r.deflated.size());
 }
-void fill(Gen& g, vehicle_cache_t& c) {
-  c.version = g.i32();
-  c.host_id = g.i64();
-  c.writer = g.i64();
-  c.written_ns = g.i64();
-  c.hosts.resize(g.small(2));
-  for (auto& h : c.hosts) {
-    h.host_id = g.i64();
-    h.address = g.i32();
-    h.registry_id = g.i64();
-    h.speaker = g.i64();
-    h.lease_ms = g.i32();
-    h.digest = g.i64();
-    h.records.resize(g.small(2));
-    for (auto& b : h.records) fill(g, b);
-    h.num_records = static_cast<std::int32_t>(h.records.size());
-  }
-  c.num_hosts = static_cast<std::int32_t>(c.hosts.size());
-}
 void fill(Gen& g, history_message_t& m) {
   m.sent = g.i8();
   m.sequence = g.i32();
@@ -441,7 +422,6 @@ TEST_CASE("envelopes: every lcmx_msgs type round-trips with lcm-gen, refuses eve
   check_type<host_beacon_t>("host_beacon_t");
   check_type<records_t>("records_t");
   check_type<records_z_t>("records_z_t");
-  check_type<vehicle_cache_t>("vehicle_cache_t");
   check_type<history_message_t>("history_message_t");
   check_type<history_t>("history_t");
   check_type<service_request_t>("service_request_t");

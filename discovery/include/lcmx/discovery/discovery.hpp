@@ -16,9 +16,13 @@
 //    participant is gone when its slot is freed (goodbye), marked dead (its process exited,
 //    seen by the speaker) or its heartbeat is older than its lease;
 //  - in host scope, hears neighbours (other registries on the host-local group: another
-//    /dev/shm); in vehicle scope, other hosts: per host a table kept in step with its
-//    speaker's heartbeat digest (a mismatch asks for the index, then the missing records); a
-//    host whose heartbeat stops for its lease takes all its participants with it.
+//    /dev/shm); in vehicle scope, other hosts. Only the host's vehicle speaker hears the
+//    vehicle group's discovery: per host a table kept in step with its speaker's heartbeat
+//    digest (a mismatch asks for the index, then the missing records; a host whose heartbeat
+//    stops for its lease takes all its participants with it), which it writes into the host's
+//    vehicle table (shared memory). Every other participant of the host *follows* that table:
+//    it is woken when it changes and reads only the records of other hosts whose topics concern
+//    it (docs/discovery.md "Vehicle table"), and ignores the group's discovery datagrams.
 // Observers (the lcmx tools) read the registry and ask other hosts' speakers for everything,
 // never appear as participants.
 //
@@ -75,6 +79,11 @@ struct Options {
   // owner's receive thread alone decides how late a beacon is read. (A Discovery that reads
   // its own group drains it itself.)
   std::function<void()> drain_before_expiry;
+  // Vehicle scope: called on the discovery thread, with no lock held, whenever listening()
+  // changes (the Discovery starts or stops speaking for its host, or finds no vehicle table to
+  // follow): an owner that filters the group's datagrams before they reach deliver() (a
+  // udpm::ReceiveFilter) lets the discovery datagrams through exactly while it is true.
+  std::function<void(bool listening)> on_listening;
 };
 
 // What is known about another participant: its latest beacon and when it arrived.
@@ -105,12 +114,14 @@ struct Counters {
   std::uint64_t acting_terms = 0;       // vehicle scope: times it spoke for a silent speaker (docs/discovery.md)
   std::uint64_t missed_batches = 0;     // receiver: compressed batches against a base record not
                                         // held (the index asked instead)
-  std::uint64_t cache_records = 0;      // vehicle scope: other hosts' records taken from this
-                                        // host's vehicle cache (at start, or missed on the group:
-                                        // not asked for on the LAN)
-  std::uint64_t cache_misses = 0;       // vehicle scope, not the speaker: hosts whose missing
-                                        // records the cache did not settle within a period
-                                        // (asked of the LAN instead)
+  std::uint64_t table_records = 0;      // vehicle scope: other hosts' records taken from this
+                                        // host's vehicle table (a follower, or a new speaker)
+  std::uint64_t table_reads = 0;        // vehicle scope: vehicle tables read (a new one each)
+  std::uint64_t table_skipped = 0;      // vehicle scope: records of a table not read (their topics
+                                        // do not concern this participant)
+  std::uint64_t tables_refused = 0;     // vehicle scope: tables not followed: not of this host, or
+                                        // not written by a live participant of its registry under
+                                        // that participant's uid
   std::uint64_t requests_sent = 0;      // receiver: requests (index or records) sent on the group
 };
 
@@ -140,6 +151,10 @@ class Discovery {
   Counters counters() const;
   // True while this Discovery is its registry's speaker on its group.
   bool speaking() const;
+  // Whether it takes the group's discovery datagrams (deliver()): always in host scope and for
+  // observers; in vehicle scope while it speaks (or acts) for its host, or while it has no
+  // current vehicle table to follow (docs/discovery.md "Vehicle table"). Any thread.
+  bool listening() const;
   // Vehicle scope: whether it has heard the whole vehicle once (docs/discovery.md "Complete"):
   // it listened for kCompleteAfter periods (every live host's heartbeat came) and holds, for
   // every host heard, the records that host's digest names. Then a subscriber of another host

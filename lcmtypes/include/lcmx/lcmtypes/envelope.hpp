@@ -46,7 +46,6 @@
 #include "lcmx_msgs/host_beacon_t.hpp"
 #include "lcmx_msgs/records_t.hpp"
 #include "lcmx_msgs/records_z_t.hpp"
-#include "lcmx_msgs/vehicle_cache_t.hpp"
 #include "lcmx_msgs/service_reply_t.hpp"
 #include "lcmx_msgs/service_request_t.hpp"
 
@@ -212,7 +211,6 @@ bool decode(std::span<const std::byte> bytes, lcmx_msgs::beacon_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::host_beacon_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::records_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::records_z_t& out);
-bool decode(std::span<const std::byte> bytes, lcmx_msgs::vehicle_cache_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::endpoint_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::match_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::history_t& out);
