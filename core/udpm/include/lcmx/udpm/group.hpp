@@ -47,8 +47,9 @@ struct Counters {
   std::uint64_t bytes_sent = 0;          // UDP payload bytes sent
   std::uint64_t duplicate_fragments = 0;  // LC03 fragments received twice (ignored)
   std::uint64_t oversize_dropped = 0;    // messages larger than max_reassembly_bytes
-  // Datagrams the kernel dropped (SO_RXQ_OVFL), cumulative: a full receive buffer, and also
-  // this Group's own datagrams, which its socket filter drops by design.
+  // Datagrams the kernel dropped (SO_RXQ_OVFL), cumulative, as of the last datagram read: a
+  // full receive buffer, and also what the socket filter drops by design: this Group's own
+  // datagrams (receive_own false) and what the receive filter refuses (set_filter).
   std::uint64_t kernel_dropped = 0;
   std::uint64_t duplicates_dropped = 0;  // messages whose (source, sequence) was delivered already
   // Keyed groups (GroupConfig::keys): datagrams refused before any parsing of the LCM
