@@ -23,7 +23,8 @@
 // Not judged (always taken, left to the usual checks): datagrams that are not LC02/LC03
 // (counted malformed), and, on a keyed group, anything that is not an envelope of one of its
 // keys (refused and reported as before). A keyed group's envelopes that verify are judged by the
-// datagram inside.
+// datagram inside. An LC02 datagram whose bytes match no channel taken is dropped by the kernel
+// even when it is malformed (then it is not counted malformed).
 //
 // LC03: the channel travels in fragment 0 only, so the kernel takes every LC03 datagram. drain()
 // judges the message at its fragment 0: refused, it drops fragment 0 and every other fragment of
@@ -42,12 +43,16 @@
 // of a refused channel is dropped unverified, so a forger's datagrams on channels this process
 // does not read are not counted in refusals; those of another key or no key always reach user
 // space and are refused and reported). Encrypted envelopes are opaque to the kernel: on a group
-// whose keys encrypt, only user space applies the rule (kernel_filtered() false). Limits: BPF's
-// 4096 instructions (a channel of n bytes takes about 5 + n/2 instructions, a mark source 5: some
-// 300 channels of 10-20 bytes, 116 of 63 bytes, 800 mark sources) and the kernel's
-// net.core.optmem_max. A filter too large for it is attached in part, in this order as long as
-// it does not fit: without `channels` (every other channel taken by the kernel), without
-// `mark_sources`, then the own-datagram drop alone; user space applies the rest.
+// whose keys encrypt, only user space applies the rule (kernel_filtered() false). What the
+// kernel drops is counted in Counters::kernel_dropped (the socket's drop count).
+// Limits: BPF's 4096 instructions and 8-bit conditional jumps (every jump stays within one
+// channel's block: unlimited by the jumps) and the kernel's net.core.optmem_max. A channel of
+// n bytes takes 3 + 2 x (number of 4-, 2- and 1-byte compares of its n + 1 bytes, NUL included)
+// instructions, a mark source 5, the rest about 30: 116 channels of 63 bytes fit, 371 of 12 to
+// 15 bytes, 453 of 6 bytes, or 813 mark sources. A filter too large is attached in part, in
+// this order as long as it does not fit: without `channels` (every other channel taken by the
+// kernel), without `mark_sources`, then the own-datagram drop alone; user space applies the
+// rest (Counters::filtered_dropped).
 //
 // Regular type; default-constructed: takes everything (no filter). Group::set_filter checks it.
 
