@@ -17,6 +17,7 @@
 #include <ctime>
 #include <mutex>
 #include <optional>
+#include <string_view>
 #include <unordered_map>
 #include <vector>
 
@@ -24,6 +25,7 @@
 #include "lcmx/udpm/wire.hpp"
 #include "envelope.hpp"
 #include "reassembler.hpp"
+#include "socket_filter.hpp"
 
 #ifndef SO_RXQ_OVFL
 #define SO_RXQ_OVFL 40
@@ -164,25 +166,6 @@ std::optional<Route> route_of(in_addr group, std::uint16_t port) {
   return route;
 }
 
-// A classic BPF socket filter for the receive socket that drops datagrams from this Group's
-// send sockets (source port `port_be` and one of `addresses`) and accepts everything else. For
-// UDP the filter runs on the datagram with the UDP header at offset 0 (source port) and the
-// IPv4 header at SKF_NET_OFF (source address at +12); BPF_ABS loads are big-endian, hence the
-// ntoh*. Attaching again replaces the filter atomically.
-void drop_own_datagrams(int fd, std::uint16_t port_be, const std::vector<std::uint32_t>& addresses) {
-  const auto n = static_cast<std::uint8_t>(std::min<std::size_t>(addresses.size(), 16));
-  std::vector<sock_filter> code;
-  code.push_back(BPF_STMT(BPF_LD | BPF_H | BPF_ABS, 0));
-  code.push_back(BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohs(port_be), 0, static_cast<std::uint8_t>(n + 1)));
-  code.push_back(BPF_STMT(BPF_LD | BPF_W | BPF_ABS, static_cast<std::uint32_t>(SKF_NET_OFF) + 12));
-  for (std::uint8_t i = 0; i < n; ++i)
-    code.push_back(BPF_JUMP(BPF_JMP | BPF_JEQ | BPF_K, ntohl(addresses[i]), static_cast<std::uint8_t>(n - i), 0));
-  code.push_back(BPF_STMT(BPF_RET | BPF_K, 0xffffffffu));  // anyone else's: keep all of it
-  code.push_back(BPF_STMT(BPF_RET | BPF_K, 0));            // ours: drop
-  sock_fprog prog{static_cast<unsigned short>(code.size()), code.data()};
-  set_opt(fd, SOL_SOCKET, SO_ATTACH_FILTER, prog, "udpm group: SO_ATTACH_FILTER");
-}
-
 void join(int fd, in_addr group, int ifindex) {
   ip_mreqn mreq{};
   mreq.imr_multiaddr = group;
@@ -259,6 +242,94 @@ struct Group::Impl {
   std::atomic<std::uint64_t> own_sender{0};  // sealer's sender id (0: none yet), for the receive thread
   std::unique_ptr<std::byte[]> seal_buffer;
   std::size_t seal_slots = 0;
+
+  // --- counts per channel sent (send_mutex), for publish_counted ---
+  struct Sent {
+    std::uint64_t messages = 0;
+    std::chrono::steady_clock::time_point last{};
+  };
+  struct NameHash {
+    using is_transparent = void;
+    std::size_t operator()(std::string_view s) const noexcept { return std::hash<std::string_view>{}(s); }
+  };
+  // Looked up by string_view (no allocation but the first message of a channel); bounded.
+  std::unordered_map<std::string, Sent, NameHash, std::equal_to<>> sent_counts;
+  std::vector<ChannelCount> count_view;  // publish_counted's span, reused
+  std::atomic<std::uint64_t> uncounted_sent{0};
+
+  // A message on `channel` was sent whole (send_mutex held).
+  void count_sent(std::string_view channel) {
+    auto it = sent_counts.find(channel);
+    if (it == sent_counts.end()) {
+      if (sent_counts.size() >= kMaxCountedChannels) {
+        uncounted_sent.fetch_add(1, std::memory_order_relaxed);
+        return;
+      }
+      it = sent_counts.emplace(std::string(channel), Sent{}).first;
+    }
+    ++it->second.messages;
+    it->second.last = std::chrono::steady_clock::now();
+  }
+
+  // --- the receive filter ---
+  // filter_mutex guards filter, own_addresses' changes and the kernel program (attach_locked):
+  // set_filter and refresh (the receive thread) change them, set_keys (any thread) re-derives
+  // the program. The receive thread reads filter and own_addresses without it (it is their
+  // only writer); rule is the receive thread's alone.
+  mutable std::mutex filter_mutex;
+  ReceiveFilter filter;
+  detail::FilterRule rule;
+  bool program_attached = false;
+  std::atomic<bool> kernel_whole{true};
+
+  // Derives the receive socket's kernel program from the filter, the own-datagram drop and the
+  // keys, and attaches it (replacing the previous one atomically). Tries the parts of the
+  // filter most first (detail::KernelPart) until one fits and the socket takes it.
+  // filter_mutex held. Throws Error(system) if the socket refuses even the own-datagram drop.
+  void attach_locked(const ReceiveFilter& f, const std::shared_ptr<const GroupKeys>& k) {
+    detail::ProgramSpec spec;
+    spec.drop_own = !cfg.receive_own;
+    spec.own_port_be = local.port_be;
+    spec.own_addresses = own_addresses;
+    if (k) {
+      spec.key_ids.emplace();
+      for (const auto& key : k->keys) spec.key_ids->push_back(key.id);
+    }
+    std::vector<sock_filter> tried;
+    for (const auto part : {detail::KernelPart::whole, detail::KernelPart::without_channels,
+                            detail::KernelPart::without_sources, detail::KernelPart::own_only}) {
+      auto code = detail::socket_program(spec, f, part);
+      if (!code) continue;  // does not fit classic BPF
+      if (code->empty()) {  // nothing to drop
+        if (!program_attached) {
+          set_kernel_whole(f, k, part);
+          return;
+        }
+        code->push_back(BPF_STMT(BPF_RET | BPF_K, 0xffffffffu));
+      }
+      if (code->size() == tried.size() &&
+          std::memcmp(code->data(), tried.data(), code->size() * sizeof(sock_filter)) == 0)
+        continue;  // the same program as the part before, refused already
+      sock_fprog prog{static_cast<unsigned short>(code->size()), code->data()};
+      if (::setsockopt(recv_fd.get(), SOL_SOCKET, SO_ATTACH_FILTER, &prog, sizeof prog) == 0) {
+        program_attached = true;
+        set_kernel_whole(f, k, part);
+        if (part != detail::KernelPart::whole)
+          spdlog::debug("lcmx::udpm {}: the kernel holds part of the receive filter ({} instructions)", to_url(cfg),
+                        code->size());
+        return;
+      }
+      const int err = errno;
+      if (part == detail::KernelPart::own_only) throw_errno("udpm group: SO_ATTACH_FILTER", err);
+      // ENOMEM: larger than net.core.optmem_max allows; anything else: try a smaller part.
+      spdlog::debug("lcmx::udpm {}: SO_ATTACH_FILTER of {} instructions: {}", to_url(cfg), code->size(),
+                    std::strerror(err));
+      tried = std::move(*code);
+    }
+  }
+  void set_kernel_whole(const ReceiveFilter& f, const std::shared_ptr<const GroupKeys>& k, detail::KernelPart part) {
+    kernel_whole.store(takes_everything(f) || (part == detail::KernelPart::whole && !(k && k->encrypt)));
+  }
 
   // --- the group key (any thread) ---
   mutable std::mutex keys_mutex;  // guards keys
@@ -366,28 +437,54 @@ struct Group::Impl {
     }
   }
 
-  std::uint32_t publish(std::string_view channel, std::span<const std::byte> payload, bool routed) {
+  static void check_channel(std::string_view channel) {
     if (channel.size() > kMaxChannelLength)
       throw Error(Error::Code::channel_too_long, "udpm publish: channel '" + std::string(channel) + "' is " +
                                                      std::to_string(channel.size()) + " bytes (max 63)");
     if (channel.find('\0') != std::string_view::npos)
       throw Error(Error::Code::invalid_channel, "udpm publish: channel name contains a NUL byte");
+  }
+  static void check_payload(std::string_view channel, std::span<const std::byte> payload) {
     if (payload.size() > kMaxMessageSize)
       throw Error(Error::Code::message_too_large, "udpm publish on '" + std::string(channel) + "': " +
                                                       std::to_string(payload.size()) + " bytes exceed " +
                                                       std::to_string(kMaxMessageSize));
+  }
+
+  std::uint32_t publish(std::string_view channel, std::span<const std::byte> payload, bool routed) {
+    check_channel(channel);
+    check_payload(channel, payload);
+    const auto sealing = current_keys();
+    std::lock_guard lock(send_mutex);
+    return send_locked(sealing.get(), channel, payload, routed);
+  }
+
+  std::uint32_t publish_counted(
+      std::string_view channel, const std::function<std::vector<std::byte>(std::span<const ChannelCount>)>& build) {
+    check_channel(channel);
+    const auto sealing = current_keys();
+    std::lock_guard lock(send_mutex);
+    count_view.clear();
+    for (const auto& [name, sent] : sent_counts)
+      if (name != channel) count_view.push_back(ChannelCount{name, sent.messages, sent.last});
+    const std::vector<std::byte> payload = build(std::span<const ChannelCount>(count_view));
+    check_payload(channel, payload);
+    return send_locked(sealing.get(), channel, payload, false);
+  }
+
+  // Sends one checked message and counts it once all of it was sent (send_mutex held).
+  std::uint32_t send_locked(const GroupKeys* sealing, std::string_view channel, std::span<const std::byte> payload,
+                            bool routed) {
     static constexpr char kNul = '\0';
     auto* chan = const_cast<char*>(channel.data());
     auto* data = const_cast<std::byte*>(payload.data());
     const std::size_t nframes = datagram_count(channel.size(), payload.size());
-
-    const auto sealing = current_keys();
-    std::lock_guard lock(send_mutex);
     const int fd = routed && routed_fd.get() >= 0 ? routed_fd.get() : send_fd.get();
     const std::uint32_t seq = sequence++;
     if (sealing) {
       publish_sealed(*sealing, fd, seq, channel, payload);
       messages_sent.fetch_add(1, std::memory_order_relaxed);
+      count_sent(channel);
       return seq;
     }
     mmsghdr m[kSendBatch]{};
@@ -443,6 +540,7 @@ struct Group::Impl {
       }
     }
     messages_sent.fetch_add(1, std::memory_order_relaxed);
+    count_sent(channel);
     return seq;
   }
 
@@ -576,6 +674,10 @@ struct Group::Impl {
     }
     std::uint32_t lost = 0;
     if (!parsed->fragment) {
+      if (!rule.takes(parsed->channel, parsed->payload, source)) {
+        ++recv_counters.filtered_dropped;
+        return 0;
+      }
       if (!fresh(source, parsed->sequence, &lost)) {
         ++recv_counters.duplicates_dropped;
         return 0;
@@ -585,8 +687,26 @@ struct Group::Impl {
       return 1;
     }
     ++recv_counters.fragments_received;
-    auto complete = reassembler.add(*parsed, source, detail::Reassembler::Clock::now());
+    const auto now = detail::Reassembler::Clock::now();
+    // A message is judged at its fragment 0 (the one with the channel); the rest of a refused
+    // one is dropped as it comes, never counted incomplete (filter.hpp "LC03").
+    if (parsed->fragment_no == 0) {
+      if (!rule.takes(parsed->channel, parsed->payload, source)) {
+        recv_counters.filtered_dropped += 1 + reassembler.refuse(*parsed, source, now);
+        return 0;
+      }
+    } else if (reassembler.refused(*parsed, source, now)) {
+      ++recv_counters.filtered_dropped;
+      return 0;
+    }
+    auto complete = reassembler.add(*parsed, source, now);
     if (!complete) return 0;
+    // The filter may have changed since its fragment 0.
+    if (!rule.takes(complete->channel, std::span<const std::byte>(complete->data.get(), complete->size),
+                    complete->source)) {
+      ++recv_counters.filtered_dropped;
+      return 0;
+    }
     if (!fresh(complete->source, complete->sequence, &lost)) {
       ++recv_counters.duplicates_dropped;
       return 0;
@@ -723,13 +843,15 @@ Group Group::open(const GroupConfig& cfg) {
   impl->own_addresses.push_back(src.sin_addr.s_addr);
   if (rs.get() >= 0) impl->own_addresses.push_back(route->address.s_addr);
   impl->routed_name = rs.get() >= 0 ? route->name : primary;
-  // Nothing has been sent yet, so no own datagram can be queued before the filter.
-  if (!cfg.receive_own) drop_own_datagrams(r.get(), impl->local.port_be, impl->own_addresses);
-
   impl->dest.sin_family = AF_INET;
   impl->dest.sin_addr = group;
   impl->dest.sin_port = htons(cfg.port);
   impl->recv_fd = std::move(r);
+  {
+    // Nothing has been sent yet, so no own datagram can be queued before the filter.
+    std::lock_guard lock(impl->filter_mutex);
+    impl->attach_locked(impl->filter, impl->current_keys());
+  }
   impl->send_fd = std::move(s);
   impl->routed_fd = std::move(rs);
   spdlog::debug("lcmx::udpm opened {} (ifindex {}, from {}, SO_RCVBUF {}{}{})", to_url(cfg), ifindex,
@@ -766,8 +888,9 @@ bool Group::refresh() {
     std::string name = rs.get() >= 0 ? route->name : "lo";
     if (rs.get() >= 0 &&
         std::find(g.own_addresses.begin(), g.own_addresses.end(), route->address.s_addr) == g.own_addresses.end()) {
+      std::lock_guard flock(g.filter_mutex);
       g.own_addresses.push_back(route->address.s_addr);
-      if (!g.cfg.receive_own) drop_own_datagrams(g.recv_fd.get(), g.local.port_be, g.own_addresses);
+      if (!g.cfg.receive_own) g.attach_locked(g.filter, g.current_keys());
     }
     std::string joined;
     for (int i : g.joined) {
@@ -840,6 +963,7 @@ const Counters& Group::counters() const noexcept {
   c.packets_sent = impl_->packets_sent.load(std::memory_order_relaxed);
   c.messages_sent = impl_->messages_sent.load(std::memory_order_relaxed);
   c.bytes_sent = impl_->bytes_sent.load(std::memory_order_relaxed);
+  c.uncounted_sent = impl_->uncounted_sent.load(std::memory_order_relaxed);
   const auto& r = impl_->reassembler.stats();
   c.incomplete_dropped = r.incomplete_dropped;
   c.malformed_dropped += r.malformed_dropped;
@@ -855,8 +979,38 @@ std::shared_ptr<const GroupKeys> Group::keys() const { return impl_->current_key
 void Group::set_keys(std::shared_ptr<const GroupKeys> keys) {
   check_keys(keys);
   if (keys) detail::sodium_ready();
-  std::lock_guard lock(impl_->keys_mutex);
-  impl_->keys = std::move(keys);
+  {
+    std::lock_guard lock(impl_->keys_mutex);
+    impl_->keys = std::move(keys);
+  }
+  // The program names the keys and where the LCM datagram starts: derived again from the keys
+  // now in force (the last set_keys' whichever thread attaches last).
+  std::lock_guard lock(impl_->filter_mutex);
+  if (takes_everything(impl_->filter)) return;  // the program does not depend on the keys
+  try {
+    impl_->attach_locked(impl_->filter, impl_->current_keys());
+  } catch (const Error& e) {
+    spdlog::warn("lcmx::udpm {}: the receive filter's program stays as it was: {}", to_url(impl_->cfg), e.what());
+  }
+}
+
+bool Group::set_filter(const ReceiveFilter& f) {
+  detail::check_filter(f);
+  detail::FilterRule rule(f);
+  std::lock_guard lock(impl_->filter_mutex);
+  impl_->attach_locked(f, impl_->current_keys());  // throws before anything changed
+  impl_->filter = f;
+  impl_->rule = std::move(rule);
+  return impl_->kernel_whole.load();
+}
+
+const ReceiveFilter& Group::filter() const noexcept { return impl_->filter; }
+
+bool Group::kernel_filtered() const noexcept { return impl_->kernel_whole.load(); }
+
+std::uint32_t Group::publish_counted(
+    std::string_view channel, const std::function<std::vector<std::byte>(std::span<const ChannelCount>)>& build) {
+  return impl_->publish_counted(channel, build);
 }
 
 Refusals& Group::refusals() const noexcept { return *impl_->refusals; }

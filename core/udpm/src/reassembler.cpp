@@ -108,7 +108,44 @@ std::optional<Reassembler::Complete> Reassembler::add(const ParsedDatagram& d, S
   return c;
 }
 
+std::size_t Reassembler::refuse(const ParsedDatagram& d, Source source, Clock::time_point now) {
+  const Key key{source.address_be, source.port_be, d.sequence};
+  std::size_t dropped = 0;
+  std::size_t left = d.fragment_count - 1u;
+  if (const auto it = partials_.find(key); it != partials_.end()) {
+    const Partial& p = it->second;
+    if (p.fragment_count == d.fragment_count && p.total_size == d.total_size && !p.seen[0]) {
+      // Fragments that overtook fragment 0: the same message, dropped with it.
+      dropped = p.received;
+      left -= p.received;
+      erase(it);
+    }
+  }
+  if (left == 0) return dropped;
+  if (refused_.size() >= kMaxRefused && !refused_.contains(key)) {
+    auto oldest = refused_.begin();
+    for (auto it = refused_.begin(); it != refused_.end(); ++it)
+      if (it->second.last < oldest->second.last) oldest = it;
+    refused_.erase(oldest);
+  }
+  refused_[key] = Refused{static_cast<std::uint16_t>(left), now};
+  return dropped;
+}
+
+bool Reassembler::refused(const ParsedDatagram& d, Source source, Clock::time_point now) {
+  if (refused_.empty()) return false;
+  const auto it = refused_.find(Key{source.address_be, source.port_be, d.sequence});
+  if (it == refused_.end()) return false;
+  if (--it->second.left == 0) refused_.erase(it);
+  else it->second.last = now;
+  return true;
+}
+
 void Reassembler::expire(Clock::time_point now) {
+  for (auto it = refused_.begin(); it != refused_.end();) {
+    if (now - it->second.last > limits_.timeout) it = refused_.erase(it);
+    else ++it;
+  }
   for (auto it = partials_.begin(); it != partials_.end();) {
     if (now - it->second.last > limits_.timeout) {
       const auto next = std::next(it);

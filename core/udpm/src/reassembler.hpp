@@ -54,8 +54,21 @@ class Reassembler {
   // fragment completes it.
   std::optional<Complete> add(const ParsedDatagram& d, Source source, Clock::time_point now);
 
-  // Drops partial messages idle for longer than the timeout.
+  // Drops partial messages idle for longer than the timeout, and forgets refused messages
+  // (refuse()) idle as long.
   void expire(Clock::time_point now);
+
+  // A receive filter refused the message whose fragment 0 is `d` (d.fragment, d.fragment_no 0):
+  // its partial message, if fragments of it came first, is dropped without counting it
+  // incomplete, and its other fragments are taken by refused() until they all came or it is
+  // idle for the timeout. Returns the number of fragments dropped with the partial message.
+  // Remembers at most kMaxRefused messages at once (past it the oldest is forgotten: its later
+  // fragments then make a partial message that counts incomplete when it expires).
+  std::size_t refuse(const ParsedDatagram& d, Source source, Clock::time_point now);
+  // True, and the fragment is used up, when `d` (d.fragment) belongs to a message refuse()d.
+  bool refused(const ParsedDatagram& d, Source source, Clock::time_point now);
+  std::size_t refused_count() const noexcept { return refused_.size(); }
+  static constexpr std::size_t kMaxRefused = 1024;
 
   const Stats& stats() const noexcept { return stats_; }
   std::size_t partial_count() const noexcept { return partials_.size(); }
@@ -108,9 +121,16 @@ class Reassembler {
   void erase(std::unordered_map<Key, Partial, KeyHash>::iterator it);
   bool evict_one();
 
+  // A refused message's fragments still to come (besides fragment 0).
+  struct Refused {
+    std::uint16_t left = 0;
+    Clock::time_point last{};
+  };
+
   Limits limits_;
   Stats stats_;
   std::unordered_map<Key, Partial, KeyHash> partials_;
+  std::unordered_map<Key, Refused, KeyHash> refused_;
   std::unordered_map<std::uint64_t, SourceUse> sources_;  // per source with partial messages
   std::size_t reserved_ = 0;
 };

@@ -9,19 +9,14 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "lcmx/udpm/config.hpp"
+#include "lcmx/udpm/filter.hpp"
 #include "lcmx/udpm/keys.hpp"
+#include "lcmx/udpm/source.hpp"
 
 namespace lcmx::udpm {
-
-// A sender's IPv4 address and UDP port, both in network byte order.
-struct Source {
-  std::uint32_t address_be;
-  std::uint16_t port_be;
-  friend bool operator==(const Source&, const Source&) = default;
-};
-std::string to_string(const Source& source);  // "a.b.c.d:port"
 
 // One complete message. Views are valid only during the on_message callback.
 struct Message {
@@ -30,7 +25,8 @@ struct Message {
   Source source;
   std::uint32_t sequence = 0;  // the sender's LCM sequence number
   // Sequence numbers of this source that never arrived between its previous message and this
-  // one: datagrams the kernel dropped, fragmented messages never completed, loss on the link.
+  // one: datagrams the kernel dropped, fragmented messages never completed, loss on the link,
+  // and, under a receive filter (filter.hpp), the messages the filter refused.
   // 0 for a source's first message and after a sender restart. A message overtaken by a
   // later one (no reordering happens on one link) counts here and is still delivered.
   std::uint32_t lost_before = 0;
@@ -51,8 +47,9 @@ struct Counters {
   std::uint64_t bytes_sent = 0;          // UDP payload bytes sent
   std::uint64_t duplicate_fragments = 0;  // LC03 fragments received twice (ignored)
   std::uint64_t oversize_dropped = 0;    // messages larger than max_reassembly_bytes
-  // Datagrams the kernel dropped (SO_RXQ_OVFL), cumulative: a full receive buffer, and also
-  // this Group's own datagrams, which its socket filter drops by design.
+  // Datagrams the kernel dropped (SO_RXQ_OVFL), cumulative, as of the last datagram read: a
+  // full receive buffer, and also what the socket filter drops by design: this Group's own
+  // datagrams (receive_own false) and what the receive filter refuses (set_filter).
   std::uint64_t kernel_dropped = 0;
   std::uint64_t duplicates_dropped = 0;  // messages whose (source, sequence) was delivered already
   // Keyed groups (GroupConfig::keys): datagrams refused before any parsing of the LCM
@@ -61,6 +58,21 @@ struct Counters {
   // Valid envelopes received a second time, older than the replay window, or (a sender not
   // heard yet) stamped further than keyed_max_skew from this host's clock.
   std::uint64_t replays_dropped = 0;
+  // Datagrams the receive filter (set_filter) refused in user space: those the kernel program
+  // let through (queued before the filter changed, an encrypted keyed group, a filter the kernel
+  // holds in part), every fragment of an LC03 message refused at its fragment 0, and a
+  // reassembled message refused when it completed (counted 1). Not what the kernel dropped.
+  std::uint64_t filtered_dropped = 0;
+  // Messages sent (publish, publish_routed, publish_counted) on channels past the first
+  // Group::kMaxCountedChannels this Group sent on: sent, but not counted per channel.
+  std::uint64_t uncounted_sent = 0;
+};
+
+// One channel's count of messages sent by this Group (Group::publish_counted).
+struct ChannelCount {
+  std::string_view channel;
+  std::uint64_t messages;  // messages sent on it so far, every datagram of each on the wire
+  std::chrono::steady_clock::time_point last_sent;  // when the last of them was sent
 };
 
 // Move-only owner of the receive socket (bound to the group's address and port, so unicast to
@@ -118,13 +130,34 @@ class Group {
   // channel, Error(message_too_large) for payload > kMaxMessageSize, Error(system) when sending
   // fails (the message may have been partly sent; its sequence number is used up).
   // Returns the LCM sequence number the message was sent with (receivers see it in
-  // Message::sequence).
+  // Message::sequence). Counted per channel once every datagram of it was sent
+  // (publish_counted): one hash lookup under the send lock, an allocation only for the first
+  // message of a channel.
   std::uint32_t publish(std::string_view channel, std::span<const std::byte> payload);
 
   // Like publish(), but where stock LCM programs on this host listen: in host-local mode the
   // interface the kernel routes the group to (lo when it routes nowhere); pinned, the same as
   // publish(). Same sequence counter as publish(). Thread-safe; throws and returns as publish().
   std::uint32_t publish_routed(std::string_view channel, std::span<const std::byte> payload);
+
+  // Sends one message on `channel` whose bytes `build` makes, under the send lock, from the
+  // counts of every channel this Group sent on (publish, publish_routed and publish_counted,
+  // `channel` itself left out; in no particular order): the number of messages sent on each
+  // before this one, and when the last was sent. A receiver that counts the messages it got of
+  // a channel between two such datagrams of one sender knows exactly how many it lost (no
+  // reordering on one link). A message counts once whatever its number of fragments, and only
+  // once every datagram of it was sent: a publish that throws is not counted (whatever part of
+  // it reached the wire can never be completed by a receiver; its sequence number is used up).
+  // Counts are kept for the first kMaxCountedChannels channels sent on; messages of further
+  // channels are not counted (Counters::uncounted_sent) and missing from `build`'s counts.
+  // `build` runs on the calling thread with the send lock held: it must not publish on this
+  // Group; the span and its views are valid during the call only. If it throws, nothing is sent
+  // and no sequence number is used. Sent like publish() (not routed). Thread-safe; throws as
+  // publish() (the channel is checked before `build` runs, the payload after). Returns the
+  // sequence number.
+  std::uint32_t publish_counted(std::string_view channel,
+                                const std::function<std::vector<std::byte>(std::span<const ChannelCount>)>& build);
+  static constexpr std::size_t kMaxCountedChannels = 4096;
 
   // The sequence number the next message will be sent with (publish/publish_routed). Discovery
   // sends a small marker after data so receivers see a tail loss (docs/discovery.md). Thread-safe.
@@ -168,9 +201,31 @@ class Group {
   std::shared_ptr<const GroupKeys> keys() const;
   // Replaces the group key while the Group runs (rotation: the next datagram sent is sealed
   // with keys->keys[0], the next datagram received checked against every key of `keys`).
-  // Null makes the group unkeyed; a keyed group's keys must hold 1 or 2 keys.
+  // Null makes the group unkeyed; a keyed group's keys must hold 1 or 2 keys. The receive
+  // socket's kernel program is derived again (key ids, authenticated or encrypted); if the
+  // socket refuses it, the previous one stays (it never drops what user space would take) and
+  // a warning is logged.
   // Throws Error(invalid_config) for 0 or more than 2 keys. Thread-safe.
   void set_keys(std::shared_ptr<const GroupKeys> keys);
+  // Replaces the receive filter (filter.hpp; a Group opens with the default, which takes
+  // everything). The socket's kernel program is replaced at once (atomically: a datagram is
+  // judged by the old program or the new one), re-derived from the filter, the own-datagram
+  // drop and the group key (set_keys derives it again). drain() applies `f` from its next
+  // datagram on, datagrams queued before this call included. Returns kernel_filtered().
+  // Receive thread.
+  // Throws: Error(invalid_config) for a bad filter (a channel or the control channel not a
+  // valid channel name, a mark_prefix longer than kMaxMarkPrefix); Error(system) if the socket
+  // refuses even the own-datagram drop. The filter in force is then unchanged.
+  bool set_filter(const ReceiveFilter& f);
+  // The filter in force. Receive thread.
+  const ReceiveFilter& filter() const noexcept;
+  // Whether the kernel program holds the whole filter in force (so drain() finds nothing to
+  // refuse but datagrams queued before it). False when the group's keys encrypt (the kernel
+  // cannot see the channel) or the filter did not fit classic BPF or the kernel's limits (then
+  // the kernel holds a part of it, at least the own-datagram drop: filter.hpp). True for the
+  // default filter. Thread-safe.
+  bool kernel_filtered() const noexcept;
+
   // What the keyed group refused, per source (GroupConfig::refusals, or the Group's own).
   Refusals& refusals() const noexcept;
   const GroupConfig& config() const noexcept;
