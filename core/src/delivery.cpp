@@ -186,6 +186,23 @@ std::vector<std::string> Pairs::charge_loss(std::int64_t sender, const std::set<
   return subscribed;
 }
 
+Pairs::UdpWants Pairs::udp_wants() {
+  UdpWants out;
+  std::lock_guard lock(mu_);
+  out.all = !channel_subs_.empty();
+  if (out.all) return out;
+  for (const auto& [channel, id] : subs_by_channel_) out.channels.insert(channel);
+  return out;
+}
+
+std::set<std::string> Pairs::udp_read_channels(bool vehicle) {
+  std::set<std::string> out;
+  std::lock_guard lock(mu_);
+  for (const auto& [id, pub] : pubs_)
+    if (pub->udp_readers(vehicle) > 0) out.insert(pub->channel());
+  return out;
+}
+
 std::optional<Pairs::Kept> Pairs::kept_for_replay(std::uint64_t publisher, bool vehicle) {
   std::lock_guard lock(mu_);  // the publisher cannot go away meanwhile
   auto it = pubs_.find(publisher);

@@ -18,8 +18,13 @@
 #include "lcmx/discovery/beacon_codec.hpp"
 #include "lcmx/lcmtypes/envelope.hpp"
 #include "lcmx_msgs/history_t.hpp"
+#include "lcmx_msgs/marker_t.hpp"
 
 namespace lcmx::detail {
+
+// Where marker_t's channel lies in its encoding: after the fingerprint (8), version (4),
+// participant (8) and host (8).
+constexpr std::size_t kMarkerChannelAt = 28;
 
 // Serial number order (RFC 1982) of LCM's 32-bit sequence numbers: a comes before b.
 bool serial_before(std::uint32_t a, std::uint32_t b) { return static_cast<std::int32_t>(a - b) < 0; }
@@ -191,7 +196,8 @@ FrontDoor::Counters FrontDoor::counters() const {
 void FrontDoor::receive_loop() {
   while (!stopped_.load()) {
     epoll_event evs[4];
-    const int n = ::epoll_wait(epoll_, evs, 4, 1000);
+    // A filter change waits for its turn (kFilterDelay) with no datagram to wake us.
+    const int n = ::epoll_wait(epoll_, evs, 4, filters_dirty_.load() ? static_cast<int>(kFilterDelay.count()) : 1000);
     if (std::chrono::steady_clock::now() - routes_checked_ >= std::chrono::seconds(1)) {
       {
         std::lock_guard lock(recv_mu_);
@@ -240,6 +246,8 @@ bool FrontDoor::drain(bool handle_beacons, bool try_only) {
 }
 
 void FrontDoor::drain_locked(bool handle_beacons) {
+  if (filters_dirty_.load() && std::chrono::steady_clock::now() - filters_updated_ >= kFilterDelay)
+    update_filters_locked();
   if (handle_beacons) {
     // Beacons other threads drained first: they arrived before anything drained now.
     auto pending = std::move(forwarded_);
@@ -256,7 +264,9 @@ void FrontDoor::drain_locked(bool handle_beacons) {
   auto one = [&](udpm::Group& group, bool vehicle) {
     try {
       group.drain([&](const udpm::Message& m) {
-        if (!handle_beacons && m.channel == discovery::kBeaconChannel) {
+        // (A data marker is handled here, in order with the data around it: it settles their loss.)
+        if (!handle_beacons && m.channel == discovery::kBeaconChannel &&
+            !fingerprint_is(m.data, lcmx_msgs::marker_t::getHash())) {
           // Only from a source the front door takes (checked again when handled).
           if (!vehicle && !addresses_.is_local(m.source.address_be)) return refuse_not_local(m.source);
           // Beacons repeat every period: dropping some when the receive thread lags (or has
@@ -280,6 +290,79 @@ void FrontDoor::drain_locked(bool handle_beacons) {
     one(*ctx_.vehicle, true);
     report_refusals(*ctx_.vehicle, true);
   }
+}
+
+void FrontDoor::filters_changed() {
+  if (filters_dirty_.exchange(true)) return;
+  const std::uint64_t one = 1;
+  if (wake_fd_ >= 0) [[maybe_unused]] auto r = ::write(wake_fd_, &one, sizeof one);
+}
+
+// What a group's socket takes: the channels we subscribe to (every channel with a channel-
+// pattern subscription) and keep-last-N replays; on LCMX_BEACON, on the vehicle group while its
+// Discovery follows the vehicle table, only the data markers of those channels, whoever sends
+// them (marker_t names its channel 28 bytes into its payload; docs/discovery.md "Vehicle
+// table"); the host-local group's discovery is always taken (host scope hears neighbours).
+// recv_mu_ held.
+udpm::ReceiveFilter FrontDoor::filter_for(bool vehicle, const Pairs::UdpWants& wants) {
+  udpm::ReceiveFilter f;
+  if (!wants.all) {
+    std::vector<std::string> channels(wants.channels.begin(), wants.channels.end());
+    channels.push_back(kHistoryChannel);
+    f.channels = std::move(channels);
+  }
+  f.control_channel = discovery::kBeaconChannel;
+  if (vehicle && ctx_.vehicle_discovery_listening && !ctx_.vehicle_discovery_listening()) {
+    f.control_all = false;
+    const auto fp = static_cast<std::uint64_t>(lcmx_msgs::marker_t::getHash());
+    for (int i = 7; i >= 0; --i) f.mark_prefix.push_back(static_cast<std::byte>(fp >> (8 * i)));
+    f.mark_channel_at = kMarkerChannelAt;
+  }
+  return f;
+}
+
+void FrontDoor::update_filters_locked() {
+  filters_dirty_.store(false);
+  filters_updated_ = std::chrono::steady_clock::now();
+  const auto wants = ctx_.pairs.udp_wants();
+  for (const auto& [group, vehicle] : {std::pair{ctx_.local, false}, std::pair{ctx_.vehicle, true}}) {
+    if (!group) continue;
+    auto f = filter_for(vehicle, wants);
+    if (f == group->filter()) continue;
+    try {
+      group->set_filter(f);
+    } catch (const udpm::Error& e) {
+      // The filter in force stays (it takes more, never less: nothing is lost, wake-ups cost).
+      const auto now = std::chrono::steady_clock::now();
+      if (now - filter_error_logged_ >= std::chrono::seconds(5)) {
+        filter_error_logged_ = now;
+        spdlog::warn("lcmx: the {} group's receive filter could not be set: {}", vehicle ? "vehicle" : "host-local",
+                     e.what());
+      }
+    }
+  }
+}
+
+UdpStats FrontDoor::udp_stats() {
+  std::lock_guard lock(recv_mu_);
+  UdpStats out;
+  for (const auto& [group, stats] : {std::pair{ctx_.local.get(), &out.host_local}, std::pair{ctx_.vehicle.get(), &out.vehicle}}) {
+    if (!group) continue;
+    const auto& c = group->counters();
+    const auto& f = group->filter();
+    stats->open = true;
+    stats->packets_received = c.packets_received;
+    stats->messages_received = c.messages_received;
+    stats->packets_sent = c.packets_sent;
+    stats->filtered_dropped = c.filtered_dropped;
+    stats->kernel_dropped = c.kernel_dropped;
+    stats->kernel_filtered = group->kernel_filtered();
+    stats->all_channels = !f.channels;
+    stats->channels = f.channels ? f.channels->size() : 0;
+    stats->discovery = f.control_channel.empty() || f.control_all;
+    stats->markers_by_channel = f.mark_channel_at.has_value();
+  }
+  return out;
 }
 
 void FrontDoor::report_refusals(udpm::Group& group, bool vehicle) {
@@ -343,33 +426,10 @@ void FrontDoor::dispatch(bool vehicle, const udpm::Message& m) {
   auto& group = vehicle ? *ctx_.vehicle : *ctx_.local;
   // 2. By channel.
   if (m.channel == discovery::kBeaconChannel) {
+    // A data marker (Markers) settles UDP loss; everything else on the channel is discovery's
+    // (only a registry's speaker sends it, docs/discovery.md).
+    if (fingerprint_is(m.data, lcmx_msgs::marker_t::getHash())) return on_marker(vehicle, m, local_address);
     ctx_.beacon(vehicle, m);
-    // Participants no longer beacon on the groups (discovery v6, docs/discovery.md): only their
-    // registry's speaker (heartbeats, records) and a participant's marker after its UDP data
-    // (discovery::Discovery::mark_sequence) send here. A host_beacon_t carries its sender's
-    // count of discovery datagrams: at each, the gaps seen since the last are settled
-    // (discovery credited, the rest data), as v5 did with every participant's beacons.
-    const auto sender = ctx_.peers.sender(vehicle, m.source, local_address);
-    if (sender.participant == 0 || sender.same_host) return;
-    const std::string source = udpm::to_string(m.source);
-    auto& loss = loss_of(vehicle, source);
-    if (auto h = discovery::decode_host_beacon(m.data)) {
-      lcmx_msgs::beacon_t b{};
-      b.participant_id = sender.participant;
-      b.sequence = h->sequence;
-      b.process_name = "participant " + std::to_string(sender.participant);
-      for (const auto& topic : ctx_.peers.published_by(sender.participant)) {
-        lcmx_msgs::endpoint_t e{};
-        e.kind = lcmx_msgs::endpoint_t::KIND_PUBLISHER;
-        e.topic = topic;
-        b.endpoints.push_back(std::move(e));
-      }
-      b.num_endpoints = static_cast<std::int32_t>(b.endpoints.size());
-      settle_loss(vehicle, source, b, m.lost_before);
-    } else {
-      loss.pending += m.lost_before;  // settled at its next host_beacon_t
-      if (loss.last_beacon >= 0) ++loss.last_beacon;  // a record: one of its discovery datagrams, received
-    }
     return;
   }
   if (group.is_own(m.source)) return;  // our own, looped back
@@ -390,18 +450,15 @@ void FrontDoor::dispatch(bool vehicle, const udpm::Message& m) {
     }
     return;
   }
-  const std::string source = udpm::to_string(m.source);
-  std::uint32_t foreign_lost = 0;
-  if (m.lost_before > 0) {
-    // A participant's gap is settled at its next beacon (some of it may be beacons); a stock
-    // LCM sender has no channel list: its loss cannot be given to a pair.
-    if (sender.participant != 0) loss_of(vehicle, source).pending += m.lost_before;
-    else foreign_lost = m.lost_before;
-  }
   std::vector<Pairs::Target> targets;
   ctx_.settle(ctx_.pairs.deliver_udp(vehicle, sender.participant, m.source, m, targets));
-  if (foreign_lost > 0 && !targets.empty()) log_foreign_loss(vehicle, source, foreign_lost);
   if (targets.empty()) return;
+  // UDP loss: a participant's is settled per channel at its markers (on_marker); a stock LCM
+  // sender's sequence gaps are logged, while the socket takes every channel (a filtered socket
+  // does not see the sequence numbers of the channels it refuses).
+  if (sender.participant != 0) ++channel_loss(vehicle, sender.participant, m.channel).received;
+  else if (m.lost_before > 0 && !group.filter().channels)
+    log_foreign_loss(vehicle, udpm::to_string(m.source), m.lost_before);
   // A reassembled message is handed over in its reassembly buffer; a single datagram's bytes
   // live in the socket's receive slot, reused by the next read: copied.
   std::shared_ptr<const void> owner = m.buffer;
@@ -422,53 +479,59 @@ void FrontDoor::dispatch(bool vehicle, const udpm::Message& m) {
   }
 }
 
-void FrontDoor::settle_loss(bool vehicle, const std::string& source, const lcmx_msgs::beacon_t& b,
-                            std::uint32_t lost_before) {
-  auto& s = loss_of(vehicle, source);
-  struct ForgetOnGoodbye {  // at return: `s` is used until then
-    decltype(source_loss_)& map;
-    std::pair<bool, std::string> key;
-    bool goodbye;
-    ~ForgetOnGoodbye() {
-      if (goodbye) map.erase(key);
-    }
-  } forget{source_loss_, {vehicle, source}, (b.flags & lcmx_msgs::beacon_t::FLAG_GOODBYE) != 0};
-  s.pending += lost_before;
-  if (s.last_beacon >= 0 && b.sequence > s.last_beacon)
-    s.beacon_credit += static_cast<std::uint64_t>(std::min<std::int64_t>(b.sequence - s.last_beacon - 1, 1 << 30));
-  s.last_beacon = b.sequence;
-  const std::uint64_t beacons = std::min(s.pending, s.beacon_credit);
-  const std::uint64_t lost = s.pending - beacons;
-  s.beacon_credit -= beacons;
-  s.pending = 0;
-  if (lost == 0) return;
-  std::set<std::string> channels;
-  for (const auto& e : b.endpoints)
-    if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) channels.insert(e.topic);
-  const auto subscribed = ctx_.pairs.charge_loss(b.participant_id, channels, lost);
-  const char* which = vehicle ? "vehicle" : "host-local";
-  if (channels.size() == 1) {
-    if (!subscribed.empty())
-      spdlog::warn("lcmx: {} message(s) on channel '{}' from {} pid {} ({}) lost on the {} group; counted in its "
-                   "subscribers' drops",
-                   lost, *channels.begin(), b.process_name, b.pid, source, which);
+// A participant's marker (lcmx_msgs::marker_t, Markers): for one channel it sends, the messages
+// it sent on it so far. Between two markers of one sender, what was sent and not received here
+// is that channel's loss, counted in the drops of our subscribers matched with it (each pair
+// exactly: a sender's channels are told apart). The first marker of a channel (or one whose
+// count went back: the sender restarted on the same port) only sets the count to start from.
+void FrontDoor::on_marker(bool vehicle, const udpm::Message& m, bool local_address) {
+  auto& group = vehicle ? *ctx_.vehicle : *ctx_.local;
+  if (group.is_own(m.source)) return;
+  const auto sender = ctx_.peers.sender(vehicle, m.source, local_address);
+  if (sender.participant == 0 || sender.same_host) return;  // (this host's: its subscribers here read shm)
+  lcmx_msgs::marker_t mk;
+  if (!lcmtypes::decode(m.data, mk) || mk.participant_id != sender.participant || mk.count < 0) return;
+  const auto& channel = mk.channel;
+  const auto count = mk.count;
+  auto it = channel_loss_.find(ChannelKey{vehicle, sender.participant, channel});
+  if (it == channel_loss_.end()) {
+    // Nothing of it received here yet: counted from this marker on if we receive it.
+    if (ctx_.pairs.charge_loss(sender.participant, {channel}, 0).empty()) return;
+    channel_loss(vehicle, sender.participant, channel).last = count;
     return;
   }
-  if (subscribed.empty()) return;  // none of its channels is received here: nobody here lost
-  s.unattributed += lost;
+  auto& l = it->second;
+  const auto received = std::exchange(l.received, 0);
+  if (l.last < 0 || count < l.last) {
+    l.last = count;
+    return;
+  }
+  const auto expected = static_cast<std::uint64_t>(count - l.last);
+  l.last = count;
+  if (expected <= received) return;
+  const auto lost = expected - received;
+  l.lost += lost;
+  if (ctx_.pairs.charge_loss(sender.participant, {channel}, lost).empty()) return;
   const auto now = std::chrono::steady_clock::now();
-  if (now - s.logged < std::chrono::seconds(5)) return;
-  s.logged = now;
-  std::string list;
-  for (const auto& c : channels) list += (list.empty() ? "" : ", ") + c;
-  spdlog::warn("lcmx: {} message(s) from {} pid {} ({}) lost on the {} group ({} so far); it sends several channels "
-               "({}), so the loss cannot be given to one subscription (UDP sequence numbers are per socket)",
-               lost, b.process_name, b.pid, source, which, s.unattributed, list);
+  if (now - l.logged < std::chrono::seconds(5)) return;
+  l.logged = now;
+  spdlog::warn("lcmx: {} message(s) on channel '{}' from participant {} ({}) lost on the {} group ({} so far); "
+               "counted in its subscribers' drops",
+               lost, channel, sender.participant, udpm::to_string(m.source), vehicle ? "vehicle" : "host-local",
+               l.lost);
 }
 
-// Bounded: a sender that says goodbye is forgotten (settle_loss); one killed without a
-// goodbye, or a stock LCM sender, stays until kMaxSources senders were seen, then all start
-// over (their pending gaps, at most one beacon period's, and unattributed totals are lost).
+FrontDoor::ChannelLoss& FrontDoor::channel_loss(bool vehicle, std::int64_t participant, std::string_view channel) {
+  ChannelKey key{vehicle, participant, std::string(channel)};
+  auto it = channel_loss_.find(key);
+  if (it != channel_loss_.end()) return it->second;
+  // Bounded: past kMaxChannelLoss (senders x channels) all start over from their next marker.
+  if (channel_loss_.size() >= kMaxChannelLoss) channel_loss_.clear();
+  return channel_loss_[std::move(key)];
+}
+
+// Bounded: a stock LCM sender stays until kMaxSources senders were seen, then all start over
+// (their unattributed totals are lost).
 FrontDoor::SourceLoss& FrontDoor::loss_of(bool vehicle, const std::string& source) {
   if (source_loss_.size() >= kMaxSources && !source_loss_.count({vehicle, source})) source_loss_.clear();
   return source_loss_[{vehicle, source}];

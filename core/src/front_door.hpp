@@ -7,7 +7,14 @@
 //  2. dispatches by channel: beacons to discovery of that scope (on the receive thread only;
 //     executors forward them), keep-last-N replays to Pairs::accept_history (decoded bounded),
 //     messages to the subscribers Pairs matched with the sender;
-//  3. accounts UDP loss per sender socket (LCM sequence gaps, settled at the sender's beacon).
+//  3. accounts UDP loss per sender and channel (the messages received between two of the
+//     sender's data markers against what they say it sent; a stock LCM sender's sequence gaps
+//     are logged).
+// It keeps each group's receive filter (udpm::ReceiveFilter) in step with what this participant
+// reads: the channels it subscribes to (every channel with a channel-pattern subscription), the
+// markers of the participants publishing them, and on the vehicle group the discovery datagrams
+// only while its vehicle Discovery listens (its host's speaker: Discovery::listening). The
+// kernel drops the rest before it wakes anyone (update_filters_locked).
 // Before all that, a keyed group (udpm::GroupConfig::keys, docs/keyed-groups.md) has checked
 // each datagram's tag and replay window inside udpm::Group::drain, before parsing anything: what
 // it refused never reaches the front door. The front door reports it: the first refusal from
@@ -32,8 +39,10 @@
 #include <set>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
+#include "lcmx/core/stats.hpp"
 #include "lcmx/udpm/udpm.hpp"
 #include "lcmx_msgs/beacon_t.hpp"
 #include "pairs.hpp"
@@ -96,6 +105,9 @@ class FrontDoor {
     // DeathWatch's fd (-1: none) and what to do when it is readable (receive thread, no lock).
     int death_fd = -1;
     std::function<void()> on_death_fd;
+    // Whether the vehicle scope's Discovery takes the group's discovery datagrams now (null:
+    // always). Receive thread, recv_mu_ held.
+    std::function<bool()> vehicle_discovery_listening;
   };
   explicit FrontDoor(Context context);
   ~FrontDoor();  // stop()
@@ -119,6 +131,15 @@ class FrontDoor {
 
   bool is_local_address(std::uint32_t address_be) { return addresses_.is_local(address_be); }
 
+  // What this participant reads changed (a subscription, a match, a peer, its vehicle
+  // Discovery's listening): the receive filters are brought in step within kFilterDelay (at
+  // most once per kFilterDelay: a launch changes matches thousands of times). Any thread.
+  void filters_changed();
+  static constexpr auto kFilterDelay = std::chrono::milliseconds(10);
+
+  // Each group's receive counters and filter as of now (takes recv_mu_).
+  UdpStats udp_stats();
+
   struct Counters {
     std::uint64_t refused_not_local = 0;  // host-local datagrams from a non-local source
   };
@@ -127,6 +148,9 @@ class FrontDoor {
  private:
   void receive_loop();
   void drain_locked(bool handle_beacons);
+  // Brings the groups' receive filters in step (filters_changed). recv_mu_ held.
+  void update_filters_locked();
+  udpm::ReceiveFilter filter_for(bool vehicle, const Pairs::UdpWants& wants);
   void dispatch(bool vehicle, const udpm::Message& m);
   void refuse_not_local(const udpm::Source& source);
   // The sources `group` refused for the first time since the last call, as error Events.
@@ -134,20 +158,27 @@ class FrontDoor {
   void report_refusals(udpm::Group& group, bool vehicle);
   void check_accept_local();
 
-  // UDP loss per sender socket (issue 15): LCM sequence gaps (udpm::Message::lost_before) count
-  // data and beacons alike; the beacon's own sequence tells how many were beacons. Settled at
-  // each beacon of the sender: the rest is data it lost, given to the pair when the sender
-  // publishes one channel, else logged as not attributable. recv_mu_ held.
+  // UDP loss of a participant, per (group, sender, channel) (issue 15; docs/ARCHITECTURE.md
+  // "UDP loss"): the messages received of it since the sender's last marker, and the count
+  // that marker said. Settled at each of its markers (on_marker): each pair's loss exactly,
+  // whatever the receive filter drops of the sender's other channels. recv_mu_ held.
+  struct ChannelLoss {
+    std::uint64_t received = 0;  // messages of it received since `last` was said
+    std::int64_t last = -1;      // the sender's count at its last marker (-1: none yet)
+    std::uint64_t lost = 0;      // in all, for the log
+    std::chrono::steady_clock::time_point logged{};
+  };
+  using ChannelKey = std::tuple<bool, std::int64_t, std::string>;  // (vehicle, participant, channel)
+  static constexpr std::size_t kMaxChannelLoss = 65536;  // channel_loss_ entries (see channel_loss)
+  ChannelLoss& channel_loss(bool vehicle, std::int64_t participant, std::string_view channel);
+  void on_marker(bool vehicle, const udpm::Message& m, bool local_address);
+  // A stock LCM sender's loss (sequence gaps): it announces no channels, so it is logged only.
   struct SourceLoss {
-    std::uint64_t pending = 0;        // sequence numbers missed since the last settlement
-    std::uint64_t beacon_credit = 0;  // beacons known lost, not yet matched by a gap
-    std::int64_t last_beacon = -1;    // beacon sequence of the sender's last beacon
-    std::uint64_t unattributed = 0;   // data messages lost, sender with several channels
+    std::uint64_t unattributed = 0;   // messages lost
     std::chrono::steady_clock::time_point logged{};
   };
   static constexpr std::size_t kMaxSources = 4096;  // source_loss_ entries (see loss_of)
   SourceLoss& loss_of(bool vehicle, const std::string& source);
-  void settle_loss(bool vehicle, const std::string& source, const lcmx_msgs::beacon_t& b, std::uint32_t lost_before);
   void log_foreign_loss(bool vehicle, const std::string& source, std::uint32_t lost);
   // Warns when a group dropped messages no sequence gap reports yet (incomplete, oversize).
   struct GroupDrops {
@@ -173,7 +204,11 @@ class FrontDoor {
     std::uint32_t lost_before;
   };
   std::vector<Forwarded> forwarded_;  // handled before anything drained later
-  std::map<std::pair<bool, std::string>, SourceLoss> source_loss_;  // (vehicle, "ip:port")
+  std::map<std::pair<bool, std::string>, SourceLoss> source_loss_;  // (vehicle, "ip:port") of stock senders
+  std::map<ChannelKey, ChannelLoss> channel_loss_;
+  std::atomic<bool> filters_dirty_{true};
+  std::chrono::steady_clock::time_point filters_updated_{};
+  std::chrono::steady_clock::time_point filter_error_logged_{};
   GroupDrops local_drops_, vehicle_drops_;
   std::chrono::steady_clock::time_point routes_checked_{};
   std::map<std::uint32_t, std::uint64_t> refused_sources_;  // address -> datagrams (bounded)

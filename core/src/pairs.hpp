@@ -116,6 +116,17 @@ class Pairs {
   // beacons under a flood of spoofed sources). Returns whether any went.
   Outcome expire_foreign(std::chrono::steady_clock::duration idle);
 
+  // ---- what the receive filters take (FrontDoor::update_filters_locked) and markers list
+  struct UdpWants {
+    bool all = false;                // a channel-pattern subscription: every channel
+    std::set<std::string> channels;  // else: the channels of our subscribers
+  };
+  UdpWants udp_wants();
+  // The channels our publishers send on the vehicle group (`vehicle`) or the host-local group
+  // to subscribers of other processes that read them there (udp pairs: other hosts;
+  // neighbours).
+  std::set<std::string> udp_read_channels(bool vehicle);
+
   // ---- keep last N over UDP: a publisher's kept encodings for a replay (Replays::send)
   struct Kept {
     std::string channel;

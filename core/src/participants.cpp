@@ -25,6 +25,8 @@ void RuntimeImpl::on_participant(std::int8_t scope, discovery::Change change, co
   if (vehicle == same_host && !(neighbour && !vehicle_group)) return;
   const Scope s = vehicle ? Scope::vehicle : neighbour ? Scope::neighbour : Scope::host;
   const auto delta = peers.apply(s, change, b);
+  // (Whose data markers our receive filter takes: the publishers of what we subscribe to.)
+  if (delta.structural && !delta.publisher_topics.empty() && front_door) front_door->filters_changed();
   settle(pairs.on_peer(delta, b, [this](std::uint32_t a) { return front_door && front_door->is_local_address(a); }));
   replays.send(pairs, participant_id, *local_group, vehicle_group.get());
   // A participant of this host that died left shared memory: its registry's speaker reclaims

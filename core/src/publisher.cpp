@@ -177,11 +177,15 @@ PublisherImpl::UdpSent PublisherImpl::send_udp(std::span<const std::byte> encode
                    "host's; start `lcmx bridge` on every host)",
                    channel_, unbridged_udp_subscribers_.load());
     }
+    if (vehicle_marker_due_.exchange(false)) rt.markers.baseline(*rt.vehicle_group, true, channel_);
     sent.vehicle = send(*rt.vehicle_group, "vehicle");
   }
   // The mirror, and subscribers of neighbours (this network namespace, another /dev/shm).
-  if (mirrors(encoded.size()) || local_udp_subscribers_.load() > 0)
+  if (mirrors(encoded.size()) || local_udp_subscribers_.load() > 0) {
+    if (local_udp_subscribers_.load() > 0 && local_marker_due_.exchange(false))
+      rt.markers.baseline(*rt.local_group, false, channel_);
     sent.local = send(*rt.local_group, "host-local");
+  }
   return sent;
 }
 
@@ -413,6 +417,8 @@ void PublisherImpl::set_remote_subscribers(std::size_t shm, std::size_t udp, std
   std::lock_guard lock(intra_mu);
   if (remote_subscribers_ != shm + udp + local_udp && interrupt_on_match.load()) node->interrupt();
   remote_subscribers_ = shm + udp + local_udp;
+  if (udp > udp_subscribers_.load()) vehicle_marker_due_.store(true);
+  if (local_udp > local_udp_subscribers_.load()) local_marker_due_.store(true);
   udp_subscribers_.store(udp);
   unbridged_udp_subscribers_.store(unbridged_udp);
   unbridged_elsewhere_.store(unbridged_elsewhere);

@@ -55,6 +55,11 @@ class PublisherImpl final : public PublisherCore {
   void set_remote_subscribers(std::size_t shm, std::size_t udp, std::size_t local_udp,
                               std::size_t unbridged_udp, std::size_t unbridged_elsewhere);
   bool large() const { return large_.load(); }
+  // Subscribers of other processes that read this publisher over UDP on the vehicle group
+  // (`vehicle`: other hosts) or the host-local group (neighbours). Any thread.
+  std::size_t udp_readers(bool vehicle) const {
+    return vehicle ? udp_subscribers_.load() : local_udp_subscribers_.load();
+  }
   // The bits committed with each message into its shared memory (shm::Writer::commit's
   // `flags`): this publisher's class of that very message, which the Message Bridges of this
   // host follow (RawMessage::published_large; docs/bridge.md "One class per message").
@@ -142,6 +147,9 @@ class PublisherImpl final : public PublisherCore {
   std::atomic<std::size_t> unbridged_udp_subscribers_{0};  // of udp_subscribers_ (set_remote_subscribers)
   std::atomic<std::size_t> unbridged_elsewhere_{0};  // set_remote_subscribers
   std::atomic<std::size_t> local_udp_subscribers_{0};  // neighbours: sent on the host-local group
+  // Its UDP readers on that group grew: a data marker goes before its next message there, so
+  // the new reader counts its loss from it (Markers::baseline). Set by set_remote_subscribers.
+  std::atomic<bool> vehicle_marker_due_{false}, local_marker_due_{false};
   std::atomic<bool> large_{false};
   const bool mirrored_;  // RuntimeOptions::mirror / mirror_channels select this channel
   bool warned_large_udp_ = false;        // guarded by publish_mu

@@ -150,7 +150,8 @@ void RuntimeImpl::start_transports() {
       [this](Pairs::Outcome o) { settle(std::move(o)); },
       [this] { every_second(); },
       deaths.fd(),
-      [this] { on_death_fd(); }});
+      [this] { on_death_fd(); },
+      [this] { return vehicle_listening.load(); }});
 
   auto make = [&](std::int8_t scope, std::shared_ptr<udpm::Group> group) {
     discovery::Options d;
@@ -166,6 +167,13 @@ void RuntimeImpl::start_transports() {
       if (!self || self->stopped_.load() || !self->front_door) return;
       self->front_door->drain(true);
     };
+    if (scope == lcmx_msgs::beacon_t::SCOPE_VEHICLE)
+      d.on_listening = [weak](bool listening) {
+        auto self = weak.lock();
+        if (!self) return;
+        self->vehicle_listening.store(listening);
+        if (self->front_door) self->front_door->filters_changed();
+      };
     return std::make_unique<discovery::Discovery>(
         d,
         [weak, scope] {
@@ -199,7 +207,10 @@ void RuntimeImpl::changed() {
 }
 
 void RuntimeImpl::settle(Pairs::Outcome outcome) {
-  if (outcome.announce) changed();
+  if (outcome.announce) {
+    changed();
+    if (front_door) front_door->filters_changed();  // (our endpoints or matches: what we read)
+  }
   events.emit(std::move(outcome.events));
 }
 
@@ -211,6 +222,8 @@ void RuntimeImpl::every_second() {
   replays.tick();  // replays that waited for their publisher's budget
   replays.send(pairs, participant_id, *local_group, vehicle_group.get());
   settle(pairs.expire_foreign(std::chrono::seconds(60)));
+  markers.tick(*local_group, false, pairs.udp_read_channels(false));
+  if (vehicle_group) markers.tick(*vehicle_group, true, pairs.udp_read_channels(true));
 }
 
 void RuntimeImpl::watch_keys() {
@@ -296,5 +309,6 @@ void Runtime::on_event(std::function<void(const Event&)> callback) {
 
 std::uint64_t Runtime::participant_id() const { return impl_->participant_id; }
 std::uint64_t Runtime::host_id() const { return impl_->host; }
+UdpStats Runtime::udp_stats() const { return impl_->front_door ? impl_->front_door->udp_stats() : UdpStats{}; }
 
 }  // namespace lcmx

@@ -7,7 +7,8 @@
 //   Pairs        pairs.hpp         our endpoints and every pair (path selection, delivery)
 //   DeathWatch   death_watch.hpp   writers in other pid namespaces (fast death notice)
 //   Replays      replays.hpp       keep-last-N replays we send over UDP
-//   FrontDoor    front_door.hpp    the receive side of the groups: source checks, dispatch
+//   FrontDoor    front_door.hpp    the receive side of the groups: source checks, dispatch, receive filters
+//   Markers      markers.hpp       the data markers this participant sends (UDP loss per channel)
 //   discovery::Discovery (x2)      beacons of the host scope and (with a vehicle group) the vehicle scope
 //
 // Data flow: a datagram enters the FrontDoor, which takes beacons to discovery and messages to
@@ -30,6 +31,7 @@
 #include "front_door.hpp"
 #include "lcmx/core/runtime.hpp"
 #include "lcmx/discovery/discovery.hpp"
+#include "markers.hpp"
 #include "pairs.hpp"
 #include "peers.hpp"
 #include "replays.hpp"
@@ -62,6 +64,11 @@ class RuntimeImpl : public std::enable_shared_from_this<RuntimeImpl> {
   Replays replays;
   Pairs pairs;
   std::unique_ptr<FrontDoor> front_door;  // made by start_transports
+  Markers markers{participant_id, host};
+  // Whether the vehicle Discovery takes the vehicle group's discovery datagrams (its host's
+  // speaker, or no vehicle table to follow: Discovery::listening): the front door's receive
+  // filter lets them through while it is true. Set by Options::on_listening.
+  std::atomic<bool> vehicle_listening{true};
 
   // Group keys: a key file that changed (its inode, size or mtime) is read again and the
   // group's keys replaced (rotation without a restart, docs/keyed-groups.md). A file that now

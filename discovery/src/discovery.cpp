@@ -260,7 +260,6 @@ struct Discovery::Impl {
   std::vector<std::string> own_topics;
   bool wildcard = false;  // reads every participant (observer, bridge, pattern subscriptions, speaker)
   std::uint64_t own_struct = 0, own_stats = 0;
-  std::set<std::string> own_published;  // vehicle scope, under mutex: this participant's published topics
 
   // ---- speaker (discovery thread only, except the request state under mutex)
   off_t speaker_byte = 0;
@@ -394,8 +393,9 @@ struct Discovery::Impl {
   }
 
   // Every discovery datagram this Discovery sends counts in udp_sent; a host_beacon_t carries
-  // the count it is sent as (its `sequence`), so a receiver tells the discovery datagrams it
-  // missed from the data it missed on the same socket (the runtime's loss accounting).
+  // the count it is sent as (its `sequence`: what a listener may use to see what it missed of
+  // a speaker's discovery). UDP data loss is settled per channel from the runtime's data
+  // markers (lcmx_msgs::marker_t), not from these.
   void publish_udp(const std::vector<std::byte>& bytes) {
     ++udp_sent;
     try {
@@ -451,13 +451,6 @@ struct Discovery::Impl {
     std::uint32_t flags = static_cast<std::uint8_t>(b.flags);
     if (b.flags & (beacon_t::FLAG_BRIDGE | beacon_t::FLAG_CHANNELS | beacon_t::FLAG_DDS_GATEWAY))
       flags |= reg::kSlotWildcard;
-    if (!host_scope && structural) {
-      std::set<std::string> published;
-      for (const auto& e : b.endpoints)
-        if (e.kind == lcmx_msgs::endpoint_t::KIND_PUBLISHER) published.insert(e.topic);
-      std::lock_guard lock(mutex);
-      own_published = std::move(published);
-    }
     reg->publish(!host_scope, encode_beacon(b), st, host_scope ? &topics : nullptr, flags,
                  host_scope ? 0 : group_hash);
     reg->heartbeat();
@@ -1379,7 +1372,7 @@ struct Discovery::Impl {
     std::string why;
     auto h = decode_host_beacon(m.data, &why);
     if (!h) return malformed("a host beacon", why);
-    if (h->kind == host_beacon_t::KIND_MARK) return;  // for the runtime's loss accounting only
+    if (h->kind == host_beacon_t::KIND_MARK) return;  // (data markers of builds before marker_t)
     if (h->kind == host_beacon_t::KIND_REQUEST) {
       std::lock_guard lock(mutex);
       audience_until = Clock::now() + 3 * options.lease;
@@ -1595,57 +1588,6 @@ struct Discovery::Impl {
     }
     return next;
   }
-
-  // After data on the group (its sequence moved by more than our own discovery datagrams since
-  // our last marker), once a second, 3 times: a small marker from this participant's own
-  // socket, so a receiver sees the datagrams it lost at the end of a burst (the gap before the
-  // marker). v5 beacons did that every period. (A speaker's heartbeats move the sequence too:
-  // counted as data, they made every speaker send a marker every second, for nothing.)
-  //
-  // On the vehicle group a marker goes only while a participant of another host reads what this
-  // one publishes (read_elsewhere): a publisher's blind start-up sends, which nobody may read,
-  // made every process of a starting host send 3 markers (the small robot's cold start: 4.4 KB
-  // of its 18). The markers wait, and go as soon as such a reader is known (a subscriber that
-  // matched us before we heard of it: the start-up race): one settles every gap before it.
-  void mark_sequence() {
-    if (options.observer || !options.shared_group) return;
-    const auto now = Clock::now();
-    if (now - last_mark < std::max<Clock::duration>(options.period, std::chrono::seconds(1))) return;
-    const std::uint32_t moved = group->next_sequence() - mark_next;  // (wraps: unsigned)
-    if (static_cast<std::int64_t>(moved) > udp_sent - mark_udp_sent) mark_repeats = 3;  // data: 3 markers, a second apart
-    if (mark_repeats == 0) return;  // (one may be lost with the data it follows)
-    if (!host_scope && !read_elsewhere()) {
-      last_mark = now;  // asked again in a second
-      return;
-    }
-    --mark_repeats;
-    last_mark = now;
-    auto h = host_message(host_beacon_t::KIND_MARK);
-    h.speaker = self_id.load();
-    h.digest = 0;
-    h.count = 0;
-    publish_udp(encode_host_beacon(h));
-    mark_next = group->next_sequence();
-    mark_udp_sent = udp_sent;
-  }
-  // Whether a participant of another host may read this one's data on the vehicle group: it
-  // subscribes to a topic this one publishes, or takes channels by pattern (a recorder, echo),
-  // or is a bridge or DDS gateway. Under mutex (taken here); discovery thread.
-  bool read_elsewhere() {
-    std::lock_guard lock(mutex);
-    constexpr auto kWildcard = beacon_t::FLAG_BRIDGE | beacon_t::FLAG_CHANNELS | beacon_t::FLAG_DDS_GATEWAY;
-    for (const auto& [id, peer] : peers) {
-      if (peer.host == 0) continue;  // this host's
-      if (peer.p.beacon.flags & kWildcard) return true;
-      for (const auto& e : peer.p.beacon.endpoints)
-        if (e.kind == lcmx_msgs::endpoint_t::KIND_SUBSCRIBER && own_published.count(e.topic)) return true;
-    }
-    return false;
-  }
-  Clock::time_point last_mark{};
-  std::uint32_t mark_next = 0;     // the group's next sequence after our last marker
-  std::int64_t mark_udp_sent = 0;  // udp_sent then
-  int mark_repeats = 0;
 
   // An observer's query. With the registry (host scope) this host needs none: only the known
   // neighbours are asked, each by name (a query of everyone would make every participant of
@@ -2104,7 +2046,6 @@ struct Discovery::Impl {
       }
       if (is_speaker) speaker_duties();
       write_table();
-      mark_sequence();
       const bool listens = listening();
       const auto next_request = listens ? send_requests() : Clock::time_point::max();
       if (listens) expire_hosts();

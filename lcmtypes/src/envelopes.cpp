@@ -146,6 +146,14 @@ void fields(Reader& r, host_beacon_t& h) {
   i64_array(r, h.num_wanted, h.wanted);
 }
 
+void fields(Reader& r, marker_t& m) {
+  m.version = r.i32();
+  m.participant_id = r.i64();
+  m.host_id = r.i64();
+  str(r, m.channel);
+  m.count = r.i64();
+}
+
 void fields(Reader& r, records_t& b) {
   b.version = r.i32();
   b.host_id = r.i64();
@@ -321,6 +329,7 @@ bool whole(std::span<const std::byte> bytes, T& out) {
 
 bool decode(std::span<const std::byte> b, beacon_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, host_beacon_t& out) { return whole(b, out); }
+bool decode(std::span<const std::byte> b, marker_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, records_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, records_z_t& out) { return whole(b, out); }
 bool decode(std::span<const std::byte> b, endpoint_t& out) { return whole(b, out); }

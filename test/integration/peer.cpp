@@ -1,7 +1,7 @@
 // lcmx_test_peer: the other processes of the integration tests.
 //
 //   pub  --channel C --type pose|image|bench --count N --rate HZ --size BYTES
-//        [--subscribers K] [--id NAME] [--local-sub] [--hold] [--history N]
+//        [--subscribers K] [--id NAME] [--local-sub] [--hold] [--history N] [--also D ...]
 //     Advertises, prints "READY", waits (deadline --timeout-ms) for K matched subscribers,
 //     prints "MATCHED <k>", publishes N messages (N = 0: until killed or told "quit"), prints
 //     "PUBLISHED <n>". With --hold it then waits for "quit" on stdin before exiting (so
@@ -11,7 +11,8 @@
 //   sub  --channel C [--channel D ...] --type ... [--expect N] [--publishers K]
 //     Subscribes, prints "READY", optionally waits for K publishers per channel and prints
 //     "MATCHED". Exits when every channel received --expect messages (N > 0), or on "quit".
-//     "status" on stdin prints the summary without exiting.
+//     "status" on stdin prints the summary without exiting. Every role: "udp" on stdin prints
+//     the UDP groups' counters and receive filters ("UDP ..." lines, then "UDP END").
 //   idle --channel C --type ...   advertise (and with --local-sub subscribe), "READY", wait for "quit".
 //   many --channel C --topics N --count R   raw publishers on C_0..C_<N-1>, each matched, then R
 //        rounds of one 8-byte message per channel; "PUBLISHED <n>", wait for "quit".
@@ -86,10 +87,26 @@ bool check(const V& data, std::int64_t seq, std::size_t from = 0) {
   return true;
 }
 
-// Reads commands from stdin on its own thread: "quit" and "status" (EOF = quit).
+// "UDP <group> packets_received=... filtered=... kernel_filtered=0|1 channels=all|N discovery=0|1
+// markers_by_channel=0|1" for both groups (Runtime::udp_stats), on "udp".
+void say_udp(const lcmx::Runtime& rt) {
+  const auto u = rt.udp_stats();
+  for (const auto& [name, g] : {std::pair{"host-local", u.host_local}, std::pair{"vehicle", u.vehicle}}) {
+    if (!g.open) continue;
+    say(std::string("UDP ") + name + " packets_received=" + std::to_string(g.packets_received) +
+        " messages_received=" + std::to_string(g.messages_received) + " filtered=" + std::to_string(g.filtered_dropped) +
+        " kernel_filtered=" + (g.kernel_filtered ? "1" : "0") +
+        " channels=" + (g.all_channels ? std::string("all") : std::to_string(g.channels)) +
+        " discovery=" + (g.discovery ? "1" : "0") + " markers_by_channel=" + (g.markers_by_channel ? "1" : "0"));
+  }
+  say("UDP END");
+}
+
+// Reads commands from stdin on its own thread: "quit", "status" and "udp" (EOF = quit).
 class Stdin {
  public:
   std::atomic<int> status_requests{0};
+  const lcmx::Runtime* runtime = nullptr;  // for "udp"
   void start() {
     thread_ = std::thread([this] {
       std::string buf;
@@ -108,6 +125,7 @@ class Stdin {
           buf.erase(0, nl + 1);
           if (cmd == "quit") g_quit = true;
           else if (cmd == "status") ++status_requests;
+          else if (cmd == "udp" && runtime) say_udp(*runtime);
         }
       }
     });
@@ -124,6 +142,7 @@ class Stdin {
 struct Config {
   std::string role;
   std::vector<std::string> channels;
+  std::vector<std::string> also;  // pub --type pose: more channels, each message on every one
   std::string type = "pose";
   std::string id = "P";
   std::string node = "peer";
@@ -361,8 +380,10 @@ int run_pub(const Config& cfg, lcmx::Runtime& rt, Stdin& in, Clock::time_point d
   lcmx_examples::pose_t pose{};
   lcmx_examples::image_t image{};
   lcmx_examples::bench_t bench{};
+  std::vector<lcmx::Publisher<lcmx_examples::pose_t>> also_pubs;  // --also: one socket, several channels
   if (cfg.type == "pose") {
     pose_pub = node.advertise<lcmx_examples::pose_t>(channel, po);
+    for (const auto& c : cfg.also) also_pubs.push_back(node.advertise<lcmx_examples::pose_t>(c, po));
     pose.header.frame_id = cfg.id;
     pose.orientation[3] = 1.0;
     publish = [&](std::int64_t seq) {
@@ -370,8 +391,14 @@ int run_pub(const Config& cfg, lcmx::Runtime& rt, Stdin& in, Clock::time_point d
       pose.header.stamp_ns = now_ns();
       pose.position[0] = static_cast<double>(seq);
       pose_pub.publish(pose);
+      for (auto& p : also_pubs) p.publish(pose);
     };
-    wait_subs = [&](std::size_t n, std::chrono::milliseconds t) { return pose_pub.wait_for_subscribers(n, t); };
+    wait_subs = [&](std::size_t n, std::chrono::milliseconds t) {
+      if (!pose_pub.wait_for_subscribers(n, t)) return false;
+      for (auto& p : also_pubs)
+        if (!p.wait_for_subscribers(n, t)) return false;
+      return true;
+    };
     published = [&] { return pose_pub.published(); };
   } else if (cfg.type == "image") {
     image_pub = node.advertise<lcmx_examples::image_t>(channel, po);
@@ -512,6 +539,7 @@ int main(int argc, char** argv) {
   app.add_option("role", cfg.role, "pub | sub | idle | many")->required()->check(CLI::IsMember({"pub", "sub", "idle", "many"}));
   app.add_option("--topics", cfg.topics, "many: raw publishers on <channel>_0 .. <channel>_<topics-1>");
   app.add_option("--channel", cfg.channels, "channel (sub: may repeat)");
+  app.add_option("--also", cfg.also, "pub --type pose: another channel, each message published on it too (may repeat)");
   app.add_option("--type", cfg.type, "pose | image | bench")->check(CLI::IsMember({"pose", "image", "bench"}));
   app.add_option("--id", cfg.id, "publisher tag carried in every message");
   app.add_option("--node", cfg.node, "node name");
@@ -547,6 +575,7 @@ int main(int argc, char** argv) {
       say(std::string("EVENT ") + lcmx::to_string(e.kind) + " " + (e.channel.empty() ? "-" : e.channel) + " " + e.message);
     });
     Stdin in;
+    in.runtime = &rt;
     in.start();
     int rc = 0;
     if (cfg.role == "pub") rc = run_pub(cfg, rt, in, deadline);

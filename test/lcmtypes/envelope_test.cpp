@@ -151,6 +151,13 @@ void fill(Gen& g, beacon_t& b) {
   b.num_endpoints = static_cast<std::int32_t>(b.endpoints.size());
   b.carried = g.strs(b.num_carried);
 }
+void fill(Gen& g, marker_t& m) {
+  m.version = g.i32();
+  m.participant_id = g.i64();
+  m.host_id = g.i64();
+  m.channel = g.str();
+  m.count = g.i64();
+}
 void fill(Gen& g, host_beacon_t& h) {
   h.version = g.i32();
   h.kind = g.i8();
@@ -420,6 +427,7 @@ TEST_CASE("envelopes: every lcmx_msgs type round-trips with lcm-gen, refuses eve
   check_type<endpoint_t>("endpoint_t");
   check_type<beacon_t>("beacon_t");
   check_type<host_beacon_t>("host_beacon_t");
+  check_type<marker_t>("marker_t");
   check_type<records_t>("records_t");
   check_type<records_z_t>("records_z_t");
   check_type<history_message_t>("history_message_t");

@@ -480,6 +480,114 @@ TEST_CASE("UDP loss across hosts is counted in the pair's drops: received + drop
   CHECK(pub.wait() == 0);
 }
 
+// Issue 15 item 4, since data markers (lcmx_msgs::marker_t): a sender's loss is settled per
+// channel, so a process that publishes several channels from one socket has each pair's loss
+// counted exactly too (before, with per-socket sequence gaps, it was only logged).
+TEST_CASE("UDP loss across hosts from a sender of two channels is counted in each pair's drops: received + drops = "
+          "published on each, exactly",
+          "[multihost][delivery]") {
+  LCMX_REQUIRE_NETNS();
+  Hosts h(2, 79);
+  const auto a = h.channel("LOSS_A"), b = h.channel("LOSS_B");
+  const long long n = 15000;
+  auto& sub = h.peer(1, {"sub", "--channel", a, "--channel", b, "--type", "pose", "--publishers", "1", "--queue-depth",
+                         "100000"});
+  REQUIRE(sub.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", a, "--also", b, "--type", "pose", "--count", std::to_string(n), "--rate",
+                         "0", "--subscribers", "1", "--hold", "--id", "A"});
+  REQUIRE(pub.expect("MATCHED 1"));
+  sub.signal(SIGSTOP);
+  const auto published_line = pub.expect("PUBLISHED", 30000ms);
+  sub.signal(SIGCONT);
+  REQUIRE(published_line);
+  REQUIRE(sub.wait_seen("MATCHED", 10000ms));
+  std::map<std::string, Summary> last;
+  const bool settled = wait_until(
+      [&] {
+        sub.send("status");
+        const auto all = sub.read_summaries(5000ms);
+        for (const auto& s : all) last[s.str("channel")] = s;
+        if (last.size() < 2) return false;
+        for (const auto& ch : {a, b})
+          if (last[ch].num("received") + last[ch].num("drops") != n) return false;
+        return true;
+      },
+      20000ms, 100ms);
+  INFO("subscriber:\n" << sub.output());
+  CHECK(settled);
+  for (const auto& ch : {a, b}) {
+    INFO("channel " << ch);
+    CHECK(last[ch].num("drops") > 0);  // the receive buffer did overflow
+    CHECK(last[ch].num("drops") == last[ch].num("gaps") + (n - 1 - last[ch].num("last")));
+    CHECK(last[ch].num("duplicates") == 0);
+    CHECK(last[ch].num("decode_errors") == 0);
+  }
+  sub.send("quit");
+  CHECK(sub.wait() == 0);
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+}
+
+namespace {
+// The "UDP vehicle ..." line of a peer's "udp" command (Runtime::udp_stats).
+Summary vehicle_udp(Child& c) {
+  c.send("udp");
+  std::optional<Summary> v;
+  for (;;) {
+    auto line = c.read_line(10000ms);
+    REQUIRE(line);
+    if (line->rfind("UDP vehicle ", 0) == 0) v = Summary{lcmx::it::parse_kv(*line), {}};
+    if (*line == "UDP END") break;
+  }
+  REQUIRE(v);
+  return *v;
+}
+}  // namespace
+
+// Issue 33: every process of a vehicle joins the vehicle group, and the kernel used to wake
+// every one of them for every datagram of every channel and every host's discovery. Now each
+// socket's receive filter drops, in the kernel, the channels its process does not read, the
+// data markers of senders it does not read, and (but at its host's vehicle speaker) discovery.
+TEST_CASE("receive filter: a process is not woken by data of channels it does not read, nor by other hosts' discovery "
+          "while it follows its host's vehicle table",
+          "[multihost][delivery][filter]") {
+  LCMX_REQUIRE_NETNS();
+  Hosts h(2, 80);
+  const auto x = h.channel("FILTER_X"), y = h.channel("FILTER_Y");
+  // Host 1: a first process (its host's vehicle speaker), then a reader of X and a reader of Y.
+  auto& first = h.peer(1, {"idle"});
+  REQUIRE(first.expect("READY"));
+  auto& sub_x = h.peer(1, {"sub", "--channel", x, "--type", "pose", "--publishers", "1", "--queue-depth", "100000"});
+  auto& sub_y = h.peer(1, {"sub", "--channel", y, "--type", "pose"});
+  REQUIRE(sub_x.expect("READY"));
+  REQUIRE(sub_y.expect("READY"));
+  auto& pub = h.peer(0, {"pub", "--channel", x, "--type", "pose", "--count", "3000", "--rate", "2000", "--subscribers",
+                         "1", "--hold", "--id", "A"});
+  REQUIRE(pub.expect("MATCHED 1"));
+  REQUIRE(sub_x.wait_seen("MATCHED", 10000ms));
+  // The followers' filters: their channel (and keep-last-N replays) only, no discovery, the
+  // kernel holding all of it.
+  REQUIRE(wait_until([&] { return vehicle_udp(sub_y).str("discovery") == "0"; }, 5000ms, 50ms));
+  const auto y0 = vehicle_udp(sub_y), x0 = vehicle_udp(sub_x);
+  CHECK(y0.str("kernel_filtered") == "1");
+  CHECK(y0.str("channels") == "2");
+  CHECK(x0.str("discovery") == "0");
+  REQUIRE(pub.expect("PUBLISHED", 30000ms));
+  // Every message of X reached sub_x; a second of it (heartbeats, markers, X) woke sub_y for nothing.
+  REQUIRE(poll_sub(sub_x, x, [](const Summary& st) { return st.num("received") + st.num("drops") == 3000; }, 15000ms));
+  const auto y1 = vehicle_udp(sub_y), x1 = vehicle_udp(sub_x);
+  INFO("sub_y before " << y0.num("packets_received") << ", after " << y1.num("packets_received"));
+  CHECK(x1.num("packets_received") >= 3000);
+  CHECK(y1.num("packets_received") - y0.num("packets_received") == 0);
+  CHECK(y1.num("filtered") == y0.num("filtered"));  // dropped in the kernel, not read then refused
+  pub.send("quit");
+  CHECK(pub.wait() == 0);
+  for (auto* c : {&sub_x, &sub_y, &first}) {
+    c->send("quit");
+    CHECK(c->wait() == 0);
+  }
+}
+
 TEST_CASE("keep last N across hosts (udp): a late subscriber gets the last N once, also while the stream runs",
           "[multihost][delivery][history]") {
   LCMX_REQUIRE_NETNS();

@@ -521,6 +521,70 @@ TEST_CASE("filter: the control channel - every datagram, marks only, marks of li
   CHECK(queued.counters().filtered_dropped == plan.size() - expected.size());
 }
 
+namespace filter_test {
+// An LCM string: big-endian int32 length counting the NUL, the bytes, the NUL.
+std::vector<std::byte> lcm_string(std::string_view s) {
+  const auto n = static_cast<std::uint32_t>(s.size() + 1);
+  auto out = bytes({static_cast<int>(n >> 24), static_cast<int>((n >> 16) & 0xff), static_cast<int>((n >> 8) & 0xff),
+                    static_cast<int>(n & 0xff)});
+  out = concat(out, bytes(s));
+  out.push_back(std::byte{0});
+  return out;
+}
+}  // namespace filter_test
+
+// The data markers of lcmx (lcmx_msgs::marker_t) name their channel: a socket takes only those
+// of the channels it reads, whoever sends them (its filter need not know the senders yet).
+TEST_CASE("filter: marks naming a channel are taken only for the channels taken - exact names, in the kernel and "
+          "in user space",
+          "[integration][filter]") {
+  const auto cfg = unique_config();
+  const std::string control = "LCMX_BEACON";
+  const auto prefix = bytes({0x8a, 0x11, 0x02, 0x33, 0x44, 0x55, 0x66, 0x77});
+  const auto filler = std::vector<std::byte>(20, std::byte{0x5a});  // version, participant, host
+  auto mark = [&](std::vector<std::byte> name) { return concat(concat(prefix, filler), std::move(name)); };
+  ReceiveFilter f = only({"DATA", "DATA_2"});
+  f.control_channel = control;
+  f.control_all = false;
+  f.mark_prefix = prefix;
+  f.mark_channel_at = 28;
+  auto rx = Group::open(cfg);
+  auto queued = Group::open(cfg);
+  auto witness = Group::open(cfg);
+  auto tx = Group::open(cfg);
+  REQUIRE(rx.set_filter(f));
+  const detail::FilterRule rule(f);
+  std::vector<std::pair<std::string, std::vector<std::byte>>> plan = {
+      {control, mark(lcm_string("DATA"))},                                  // taken
+      {control, concat(mark(lcm_string("DATA_2")), bytes("count"))},        // taken (bytes after it)
+      {control, mark(lcm_string("DAT"))},                                   // a prefix of a name
+      {control, mark(lcm_string("DATA_"))},                                 // longer than one, shorter than the other
+      {control, mark(lcm_string("OTHER"))},
+      {control, mark(bytes({0, 0, 0, 5, 'D', 'A', 'T', 'A', 'X'}))},         // no NUL where the length says
+      {control, mark(bytes({0, 0, 0, 6, 'D', 'A', 'T', 'A', 0}))},           // the length says one more
+      {control, mark(bytes({0, 0, 0, 5, 'D', 'A'}))},                        // cut short
+      {control, concat(prefix, lcm_string("DATA"))},                        // the name elsewhere
+      {"DATA", bytes("data")},                                              // data of a channel taken
+      {"OTHER", bytes("other")}};
+  std::vector<Heard> expected;
+  for (const auto& [channel, payload] : plan) {
+    const auto seq = tx.publish(channel, payload);
+    if (rule.takes(channel, payload, tx.local_source())) expected.push_back(Heard{tx.local_source(), seq, channel, payload.size()});
+  }
+  CHECK(expected.size() == 3);  // the two marks of DATA and DATA_2, and DATA's data
+  witness_reads(witness, plan.size());
+  std::vector<Heard> got;
+  drain_all(rx, got);
+  CHECK(sorted(got) == sorted(expected));
+  CHECK(rx.kernel_filtered());
+  CHECK(rx.counters().packets_received == expected.size());  // the rest refused in the kernel
+  CHECK(queued.set_filter(f));
+  std::vector<Heard> later;
+  drain_all(queued, later);
+  CHECK(sorted(later) == sorted(expected));
+  CHECK(queued.counters().filtered_dropped == plan.size() - expected.size());
+}
+
 TEST_CASE("filter: own datagrams are still dropped with a filter, also one the kernel holds in part",
           "[integration][filter]") {
   auto cfg = unique_config();

@@ -1008,6 +1008,14 @@ const ReceiveFilter& Group::filter() const noexcept { return impl_->filter; }
 
 bool Group::kernel_filtered() const noexcept { return impl_->kernel_whole.load(); }
 
+std::vector<std::pair<std::string, std::uint64_t>> Group::channel_counts() const {
+  std::lock_guard lock(impl_->send_mutex);
+  std::vector<std::pair<std::string, std::uint64_t>> out;
+  out.reserve(impl_->sent_counts.size());
+  for (const auto& [name, sent] : impl_->sent_counts) out.emplace_back(name, sent.messages);
+  return out;
+}
+
 std::uint32_t Group::publish_counted(
     std::string_view channel, const std::function<std::vector<std::byte>(std::span<const ChannelCount>)>& build) {
   return impl_->publish_counted(channel, build);

@@ -39,6 +39,7 @@ FilterRule::FilterRule(const ReceiveFilter& f)
       control_(f.control_channel),
       control_all_(f.control_all),
       prefix_(f.mark_prefix),
+      mark_channel_at_(f.mark_channel_at),
       any_source_(!f.mark_sources) {
   if (f.channels) {
     channels_ = *f.channels;
@@ -54,6 +55,18 @@ bool FilterRule::takes(std::string_view channel, std::span<const std::byte> payl
   if (!control_.empty() && channel == control_) {
     if (control_all_) return true;
     if (payload.size() < prefix_.size() || !std::equal(prefix_.begin(), prefix_.end(), payload.begin())) return false;
+    if (mark_channel_at_ && !all_channels_) {
+      // An LCM string: big-endian int32 length counting the NUL, the bytes, the NUL.
+      const std::size_t at = *mark_channel_at_;
+      if (payload.size() < at + 4) return false;
+      std::uint32_t len = 0;
+      for (int k = 0; k < 4; ++k) len = (len << 8) | std::to_integer<std::uint8_t>(payload[at + static_cast<std::size_t>(k)]);
+      if (len == 0 || len - 1 > kMaxChannelLength || payload.size() < at + 4 + len ||
+          payload[at + 4 + len - 1] != std::byte{0})
+        return false;
+      const std::string_view name(reinterpret_cast<const char*>(payload.data() + at + 4), len - 1);
+      if (!std::binary_search(channels_.begin(), channels_.end(), name, std::less<>{})) return false;
+    }
     return any_source_ || std::find(sources_.begin(), sources_.end(), source) != sources_.end();
   }
   return all_channels_ || std::binary_search(channels_.begin(), channels_.end(), channel, std::less<>{});
@@ -257,6 +270,30 @@ std::optional<std::vector<sock_filter>> socket_program(const ProgramSpec& spec, 
       a.bind(not_mark);
       a.ret(kDrop);
       a.bind(mark);
+      if (f.mark_channel_at && judge_channels) {
+        // The channel it names (an LCM string: length with the NUL, bytes, NUL): one block per
+        // channel taken, as above; none matched: dropped.
+        const std::uint32_t name = payload + static_cast<std::uint32_t>(*f.mark_channel_at);
+        std::vector<std::string> names = *f.channels;
+        std::sort(names.begin(), names.end());
+        names.erase(std::unique(names.begin(), names.end()), names.end());
+        const L named = a.label();
+        for (const auto& c : names) {
+          const L other = a.label();
+          std::vector<std::uint8_t> bytes;
+          const auto len = static_cast<std::uint32_t>(c.size() + 1);
+          for (int k = 3; k >= 0; --k) bytes.push_back(static_cast<std::uint8_t>(len >> (8 * k)));
+          const auto text = with_nul(c);
+          bytes.insert(bytes.end(), text.begin(), text.end());
+          a.need(name + static_cast<std::uint32_t>(bytes.size()), other);
+          a.compare(name, bytes, other);
+          a.ja(named);
+          a.bind(other);
+          if (a.size() > kMaxInstructions) return std::nullopt;
+        }
+        a.ret(kDrop);
+        a.bind(named);
+      }
       if (sources) {
         for (const Source& s : *f.mark_sources) {
           const L other = a.label();

@@ -32,7 +32,8 @@ class FilterRule {
   // True when it takes every datagram.
   bool everything() const noexcept { return everything_; }
   // Whether it takes a message of `channel` from `source` whose payload starts with `payload`
-  // (the whole payload, or at least its first kMaxMarkPrefix bytes).
+  // (the whole payload, or at least its first kMaxMarkPrefix bytes and, with mark_channel_at,
+  // the mark's channel name).
   bool takes(std::string_view channel, std::span<const std::byte> payload, const Source& source) const noexcept;
 
  private:
@@ -42,6 +43,7 @@ class FilterRule {
   std::string control_;
   bool control_all_ = true;
   std::vector<std::byte> prefix_;
+  std::optional<std::size_t> mark_channel_at_;
   bool any_source_ = true;
   std::vector<Source> sources_;
 };

@@ -39,6 +39,8 @@ class Runtime {
 
   std::uint64_t participant_id() const;
   std::uint64_t host_id() const;
+  // This participant's UDP groups: counters and receive filters, as of now.
+  UdpStats udp_stats() const;
 
  private:
   explicit Runtime(std::shared_ptr<detail::RuntimeImpl> impl) : impl_(std::move(impl)) {}

@@ -35,6 +35,25 @@ struct SubscriberStats {
   std::vector<std::string> errors;  // e.g. type mismatches with publishers on the channel
 };
 
+// One UDP group of this participant (Runtime::udp_stats): what its socket took and what its
+// receive filter kept away (docs/ARCHITECTURE.md "Receive filter").
+struct UdpGroupStats {
+  bool open = false;                   // the group exists (the vehicle group only with vehicle_url)
+  std::uint64_t packets_received = 0;  // datagrams read (each woke this process or was read in a batch)
+  std::uint64_t messages_received = 0;
+  std::uint64_t packets_sent = 0;
+  std::uint64_t filtered_dropped = 0;  // refused by the filter after they were read (user space)
+  std::uint64_t kernel_dropped = 0;    // dropped by the kernel: a full buffer, own datagrams, the filter
+  bool kernel_filtered = false;        // the kernel applies the whole filter
+  bool all_channels = true;            // the filter takes every channel
+  std::size_t channels = 0;            // else: the channels it takes
+  bool discovery = true;               // it takes the group's discovery datagrams
+  bool markers_by_channel = false;     // it takes only the data markers of the channels it reads
+};
+struct UdpStats {
+  UdpGroupStats host_local, vehicle;
+};
+
 struct Event {
   enum class Kind {
     type_mismatch,        // same channel, different fingerprint: not matched

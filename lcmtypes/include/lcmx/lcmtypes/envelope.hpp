@@ -44,6 +44,7 @@
 #include "lcmx_msgs/bridge_status_t.hpp"
 #include "lcmx_msgs/history_t.hpp"
 #include "lcmx_msgs/host_beacon_t.hpp"
+#include "lcmx_msgs/marker_t.hpp"
 #include "lcmx_msgs/records_t.hpp"
 #include "lcmx_msgs/records_z_t.hpp"
 #include "lcmx_msgs/service_reply_t.hpp"
@@ -209,6 +210,7 @@ class Writer {
 
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::beacon_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::host_beacon_t& out);
+bool decode(std::span<const std::byte> bytes, lcmx_msgs::marker_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::records_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::records_z_t& out);
 bool decode(std::span<const std::byte> bytes, lcmx_msgs::endpoint_t& out);

@@ -16,8 +16,10 @@
 //
 // The rule, for an LCM datagram of channel C (LC02, or the LC03 message of fragment 0 C):
 //   - C == control_channel (non-empty): taken if control_all, else only if it is a *mark*: its
-//     payload (the bytes after the channel's NUL) starts with mark_prefix, and, if mark_sources
-//     is set, its sender is one of them. `channels` is not consulted for it.
+//     payload (the bytes after the channel's NUL) starts with mark_prefix; if mark_channel_at is
+//     set, it names, as an LCM string at that offset of the payload (a big-endian int32 length
+//     that counts the NUL, the bytes, the NUL), one of `channels` (any channel when `channels`
+//     is nullopt); and, if mark_sources is set, its sender is one of them.
 //   - any other C: taken if `channels` is nullopt or lists C exactly (every byte and the length:
 //     "AB" does not take "ABC" nor "A").
 // Not judged (always taken, left to the usual checks): datagrams that are not LC02/LC03
@@ -48,11 +50,12 @@
 // Limits: BPF's 4096 instructions and 8-bit conditional jumps (every jump stays within one
 // channel's block: unlimited by the jumps) and the kernel's net.core.optmem_max. A channel of
 // n bytes takes 3 + 2 x (number of 4-, 2- and 1-byte compares of its n + 1 bytes, NUL included)
-// instructions, a mark source 5, the rest about 30: 116 channels of 63 bytes fit, 371 of 12 to
-// 15 bytes, 453 of 6 bytes, or 813 mark sources. A filter too large is attached in part, in
-// this order as long as it does not fit: without `channels` (every other channel taken by the
-// kernel), without `mark_sources`, then the own-datagram drop alone; user space applies the
-// rest (Counters::filtered_dropped).
+// instructions (twice with mark_channel_at: the marks' names are compared too, plus 2), a mark
+// source 5, the rest about 30: 116 channels of 63 bytes fit, 371 of 12 to 15 bytes, 453 of 6
+// bytes (about half as many with mark_channel_at), or 813 mark sources. A filter too large is
+// attached in part, in this order as long as it does not fit: without `channels` (every other
+// channel taken by the kernel, and marks whatever channel they name), without `mark_sources`,
+// then the own-datagram drop alone; user space applies the rest (Counters::filtered_dropped).
 //
 // Regular type; default-constructed: takes everything (no filter). Group::set_filter checks it.
 
@@ -78,6 +81,9 @@ struct ReceiveFilter {
   // if `mark_sources` is set, come from one of them (address and port).
   bool control_all = true;
   std::vector<std::byte> mark_prefix;  // e.g. an lcm-gen type's 8-byte fingerprint
+  // A mark names a channel at this offset of its payload (lcmx: marker_t.channel, after its
+  // fingerprint, version, participant and host: 28), and is taken only for a channel taken.
+  std::optional<std::size_t> mark_channel_at;
   std::optional<std::vector<Source>> mark_sources;
   friend bool operator==(const ReceiveFilter&, const ReceiveFilter&) = default;
 };

@@ -158,6 +158,10 @@ class Group {
   std::uint32_t publish_counted(std::string_view channel,
                                 const std::function<std::vector<std::byte>(std::span<const ChannelCount>)>& build);
   static constexpr std::size_t kMaxCountedChannels = 4096;
+  // The per-channel counts as of now (what publish_counted would give `build`, this Group's
+  // every channel), copied: to decide whether a counted message is due, not to send the count
+  // (it may move before one is sent). Thread-safe (takes the send lock).
+  std::vector<std::pair<std::string, std::uint64_t>> channel_counts() const;
 
   // The sequence number the next message will be sent with (publish/publish_routed). Discovery
   // sends a small marker after data so receivers see a tail loss (docs/discovery.md). Thread-safe.
