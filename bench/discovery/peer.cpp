@@ -1,13 +1,21 @@
 // bench/discovery peer: a user's kind of program. Publishes 10 topics at 1 Hz and subscribes to
 // the 10 topics of other processes (--sub, repeatable: "<index>:<k>" = topic k of process
-// <index>; default: the 10 topics of process index+1 mod n). Prints "MATCHED <ns>" (CLOCK_MONOTONIC)
-// once every subscription has a publisher (after "READY <ns>" once its endpoints exist); runs until stdin
-// closes (the driver's pipe) or SIGTERM. Discovery options come from the environment
-// (LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL, LCMX_BEACON_PERIOD_MS...), RuntimeOptions::from_env.
+// <index>; default: the 10 topics of process index+1 mod n). Prints, on stdout, one line each
+// (times are CLOCK_MONOTONIC ns, the driver's time.monotonic_ns()):
+//   READY <ns> <cpu us> <wall ns since main>   once its endpoints exist
+//   MATCHED <ns>                               once every subscription has a publisher
+//   UNMATCHED <ns> <topic>                     a subscription that had a publisher has none
+//                                              (publisher_count() went from >0 to 0)
+//   REMATCHED <ns> <topic>                     a subscription that printed UNMATCHED has one again
+// The subscriptions are polled every --poll-ms ms (default 10), before and after MATCHED, so a
+// time is late by at most that (plus scheduling). Runs until stdin closes (the driver's pipe) or
+// SIGTERM. Discovery options come from the environment (LCMX_DISCOVERY_URL, LCMX_VEHICLE_URL,
+// LCMX_BEACON_PERIOD_MS, LCMX_LEASE_MS...), RuntimeOptions::from_env.
 #include <poll.h>
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
 #include <chrono>
 #include <csignal>
@@ -31,7 +39,7 @@ std::int64_t mono_ns() {
 
 int main(int argc, char** argv) {
   const auto t_main = mono_ns();
-  int index = 0, n = 1, topics = 10;
+  int index = 0, n = 1, topics = 10, poll_ms = 10;
   std::string prefix = "DB";
   std::vector<std::string> subs;
   for (int i = 1; i + 1 < argc; i += 2) {
@@ -40,6 +48,7 @@ int main(int argc, char** argv) {
     else if (k == "--n") n = std::atoi(v.c_str());
     else if (k == "--topics") topics = std::atoi(v.c_str());
     else if (k == "--prefix") prefix = v;
+    else if (k == "--poll-ms") poll_ms = std::max(1, std::atoi(v.c_str()));
     else if (k == "--sub") {
       const auto c = v.find(':');
       subs.push_back(prefix + "_" + v.substr(0, c) + "_" + v.substr(c + 1));
@@ -65,26 +74,38 @@ int main(int argc, char** argv) {
   std::printf("READY %lld %lld %lld\n", static_cast<long long>(mono_ns()), cpu_us,
               static_cast<long long>(mono_ns() - t_main));  // endpoints created: CPU and wall time so far
   std::fflush(stdout);
-  std::fflush(stdout);
   bool matched = false;
+  std::vector<char> has(ss.size(), 0), lost(ss.size(), 0);  // per subscription: a publisher now; UNMATCHED printed
   auto next_pub = std::chrono::steady_clock::now();
   lcmx_examples::pose_t msg{};
   while (!g_stop) {
-    if (!matched) {
-      bool all = true;
-      for (auto& s : ss) all = all && s.publisher_count() > 0;
-      if (all) {
-        matched = true;
-        std::printf("MATCHED %lld\n", static_cast<long long>(mono_ns()));
-        std::fflush(stdout);
+    bool all = true, printed = false;
+    for (std::size_t i = 0; i < ss.size(); ++i) {
+      const bool now = ss[i].publisher_count() > 0;
+      all = all && now;
+      if (now == static_cast<bool>(has[i])) continue;
+      has[i] = now;
+      if (!now) {
+        lost[i] = 1;
+        std::printf("UNMATCHED %lld %s\n", static_cast<long long>(mono_ns()), subs[i].c_str());
+        printed = true;
+      } else if (lost[i]) {
+        std::printf("REMATCHED %lld %s\n", static_cast<long long>(mono_ns()), subs[i].c_str());
+        printed = true;
       }
     }
+    if (!matched && all) {
+      matched = true;
+      std::printf("MATCHED %lld\n", static_cast<long long>(mono_ns()));
+      printed = true;
+    }
+    if (printed) std::fflush(stdout);
     if (std::chrono::steady_clock::now() >= next_pub) {
       for (auto& p : pubs) p.publish(msg);
       next_pub += std::chrono::seconds(1);
     }
     pollfd pfd{0, POLLIN, 0};  // stdin: the driver's pipe closes -> stop
-    if (::poll(&pfd, 1, matched ? 200 : 10) > 0) {
+    if (::poll(&pfd, 1, poll_ms) > 0) {
       char buf[64];
       if (::read(0, buf, sizeof buf) <= 0) break;
     }
