@@ -18,7 +18,7 @@ process's topics) within --spread seconds and measures, per run:
             (lan_disc_Bps_per_host_max/_mean, _by_kind: {kind: {max, mean}} over hosts, over the
             listener's own window). "disc" is discovery proper; data markers (host_beacon_t
             KIND_MARK, marker_t) are data bookkeeping and are reported apart (lan_mark_*).
-            (Before 2026-11-30 the lan_disc_* figures included the markers: old disc = disc + mark.)
+            (Before 2026-12-08 the lan_disc_* figures included the markers: old disc = disc + mark.)
             A listener that does not report within 5 s of SIGTERM is killed, and one whose socket
             dropped datagrams (SO_RXQ_OVFL) is incomplete: its figures are null (lan_listen says why).
   false expiry  every UNMATCHED line a peer printed for a publisher nobody killed (between the
@@ -39,7 +39,7 @@ process's topics) within --spread seconds and measures, per run:
             restarted ones matched again and 3 s more (idle subtracted), and the time from the
             last restart until every restarted peer matched
 A restarted peer (kill, churn, restart) has the same subscriptions as the one it replaces
-(before 2026-11-30 it drew new random cross-host ones). The driver and its listeners and logger
+(before 2026-12-08 it drew new random cross-host ones). The driver and its listeners and logger
 run at real-time priority (--rt-prio, SCHED_FIFO; 0: normal), so that a saturated machine does
 not stretch their windows or starve their counts; the peers run at normal priority: they are
 what is measured. Summary medians are over the runs where a figure was measured.
@@ -303,19 +303,19 @@ class Listener:
     def stop(self, seconds=5.0):
         if self.p.poll() is None:
             self.p.send_signal(signal.SIGTERM)
-        self._read(seconds, lambda: self.out.endswith(b"}\n"))
-        if self.p.poll() is None:
-            try:
-                self.p.wait(timeout=max(0.1, seconds / 5))
-            except subprocess.TimeoutExpired:
-                self.p.kill()
-                self.p.wait()
-                self.problem = self.problem or f"no report within {seconds} s of SIGTERM (killed)"
-                return None
+        reported = self._read(seconds, lambda: self.out.endswith(b"}\n"))
+        try:
+            self.p.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:
+            self.p.kill()
+            self.p.wait()
+        if not reported:
+            self.problem = f"no report within {seconds:g} s of SIGTERM (exit {self.p.returncode})"
+            return None
         try:
             rep = json.loads(self.out.strip().splitlines()[-1])
-        except Exception:
-            self.problem = self.problem or f"no report (exit {self.p.returncode})"
+        except ValueError:
+            self.problem = "its report did not parse"
             return None
         if rep.get("dropped"):
             self.problem = f"its socket dropped {rep['dropped']} datagrams"
