@@ -25,14 +25,19 @@ process's topics) within --spread seconds and measures, per run:
             subscriber's start or its last REMATCHED of that topic and the line, no kill of the
             topic's publisher): false_expiry (whole run), false_expiry_by_phase ("launch": up to
             the end of the steady window, then "kill", "churn", "restart": from each one's start),
-            false_expiry_launch (= by_phase["launch"], target 0), false_expiry_some (3 of them)
+            false_expiry_launch (= by_phase["launch"], target 0), false_expiry_some (3 of them: who,
+            which topic, when, how long until its REMATCHED)
   kill      (--kill; default on with --hosts > 1) after the steady window one peer whose topics
             have subscribers on its own host and on others (from the subscription map) is
             SIGKILLed; per subscriber of its topics, the time from the kill until it printed
             UNMATCHED for all of them (kill_local_ms, kill_remote_ms: p50, max, "k/m" unmatched
             within the wait; max null when one was not), next to the lease (LCMX_LEASE_MS, default
-            1500) and the 100 ms target on its own host. It is then started again (kill_rematch_s:
-            until every one of those subscribers printed REMATCHED)
+            1500) and the 100 ms target on its own host; kill_seen_by_poll: how many of those lines
+            a peer's periodic check saw rather than one a match Event woke (late by up to
+            --idle-poll-ms). It is then started again (kill_rematch_s: until every one of those
+            subscribers printed REMATCHED)
+            (The peers check their subscriptions every --poll-ms ms until MATCHED, then every
+            --idle-poll-ms ms and at each publisher_(un)matched Event: peer.cpp says why.)
   churn     CPU (ms) of all the other peers while one peer is SIGKILLed and one started
   restart   (--host-restart, --hosts > 1) every peer of host 0 SIGKILLed, then all started again
             within --spread: CPU (ms) of each peer of the other hosts from the kill until the
@@ -203,6 +208,7 @@ class Proc:
         self.idx, self.h, self.p, self.start_ns = idx, h, popen, start_ns
         self.ready_ns = self.ready_cpu_ms = self.matched_ns = None
         self.events = []  # (kind, ns, topic): UNMATCHED / REMATCHED, in the order printed
+        self.how = {}     # event -> "event" or "poll": what the peer's check that saw it ran for
         self.buf = b""
         self.killed_ns = None
 
@@ -262,6 +268,7 @@ class Lines:
                     proc.matched_ns = proc.matched_ns or int(f[1])
                 elif f[0] in (b"UNMATCHED", b"REMATCHED"):
                     proc.events.append((f[0].decode(), int(f[1]), f[2].decode()))
+                    proc.how[(f[0].decode(), int(f[1]), f[2].decode())] = f[3].decode() if len(f) > 3 else "poll"
             except (IndexError, ValueError):
                 pass
 
@@ -340,7 +347,10 @@ def main():
     ap.add_argument("--kill", action=argparse.BooleanOptionalAction, default=None,
                     help="SIGKILL one peer after the steady window and time its unmatching (default: on with --hosts > 1)")
     ap.add_argument("--host-restart", action="store_true", help="kill and restart every peer of host 0 (--hosts > 1)")
-    ap.add_argument("--poll-ms", type=int, default=10, help="the peers' subscription polling period")
+    ap.add_argument("--poll-ms", type=int, default=10, help="the peers' subscription polling period until MATCHED")
+    ap.add_argument("--idle-poll-ms", type=int, default=200, help="... after MATCHED (besides their match events)")
+    ap.add_argument("--events", action=argparse.BooleanOptionalAction, default=True,
+                    help="the peers check their subscriptions at each publisher_(un)matched Event too")
     ap.add_argument("--rt-prio", type=int, default=10, help="SCHED_FIFO priority of the driver, listeners, logger (0: none)")
     ap.add_argument("--logger", default=shutil.which("lcm-logger"))
     ap.add_argument("--label", default="")
@@ -402,7 +412,7 @@ def summarize(args, results):
     rp50, rmax, rk = kill_stats("kill_remote_ms")
     return {
         "label": args.label, "hosts": args.hosts, "n": args.n, "topics": args.topics, "cross": args.cross,
-        "runs": args.runs,
+        "runs": args.runs, "kill": args.kill, "churn": args.churn, "host_restart": args.host_restart and multi,
         "matched": f'{sum(r["matched"] for r in results)}/{sum(r["total"] for r in results)}',
         "match_p50_s": rnd(pct(match, 50)), "match_p99_s": rnd(pct(match, 99)),
         "match_max_s": rnd(max(match) if match else None),
@@ -432,11 +442,12 @@ def summarize(args, results):
         "kill_local_ms_p50": lp50, "kill_local_ms_max": lmax, "kill_local_unmatched": lk,
         "kill_remote_ms_p50": rp50, "kill_remote_ms_max": rmax, "kill_remote_unmatched": rk,
         "kill_rematch_s": [r.get("kill_rematch_s") for r in results] if args.kill else None,
-        "churn_ms_per_other": results[0].get("churn_ms_per_other"),
+        "churn_ms_per_other": results[0].get("churn_ms_per_other"),  # the first run's (null: not run or unmeasured)
         "restart_ms_per_other": [r.get("restart_ms_per_other") for r in results] if args.host_restart else None,
         "restart_rematch_s": [r.get("restart_rematch_s") for r in results] if args.host_restart else None,
         "last_ready_s": med([r["last_ready_s"] for r in results]),
-        "poll_ms": args.poll_ms, "driver_rt_prio": args.rt,
+        "kill_seen_by_poll": sum(r.get("kill_seen_by_poll") or 0 for r in results) if args.kill else None,
+        "poll_ms": args.poll_ms, "idle_poll_ms": args.idle_poll_ms, "events": args.events, "driver_rt_prio": args.rt,
     }
 
 
@@ -481,8 +492,10 @@ def false_expiries(procs, kills, phases):
             phase = [name for name, t in phases if t <= ns][-1:] or [phases[0][0]]
             by_phase[phase[0]] += 1
             if len(some) < 3:
+                back = [t for k, t, tp in pr.events if k == "REMATCHED" and tp == topic and t > ns]
                 some.append({"subscriber": pr.idx, "topic": topic, "phase": phase[0],
-                             "at_s_after_start": round((ns - pr.start_ns) / 1e9, 3)})
+                             "at_s_after_start": round((ns - pr.start_ns) / 1e9, 3),
+                             "rematched_after_ms": round((back[0] - ns) / 1e6, 1) if back else None})
     return n, by_phase, some
 
 
@@ -544,7 +557,8 @@ def one_run(args, run):
             idx = h * args.n + i
             sub_args = [a for pub, k in subs[idx] for a in ("--sub", f"{pub}:{k}")]
             p = subprocess.Popen(["ip", "netns", "exec", net.hosts[h], args.peer, "--index", str(idx), "--n", str(total),
-                                  "--topics", str(args.topics), "--prefix", f"T{tag}", "--poll-ms", str(args.poll_ms)] + sub_args,
+                                  "--topics", str(args.topics), "--prefix", f"T{tag}", "--poll-ms", str(args.poll_ms),
+                                  "--idle-poll-ms", str(args.idle_poll_ms), "--events", str(int(args.events))] + sub_args,
                                  env=env, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
             pr = Proc(idx, h, p, time.monotonic_ns())
             procs.append(pr)
@@ -656,14 +670,18 @@ def one_run(args, run):
             victim.p.wait()
             wait_s = 2 * args.lease_ms / 1000 + 3
 
+            def unmatched_lines(s, topics):
+                """{topic: the first UNMATCHED event since tk} of subscriber s."""
+                t = {}
+                for ev in live[s].events:
+                    if ev[0] == "UNMATCHED" and ev[2] in topics and ev[1] >= tk:
+                        t.setdefault(ev[2], ev)
+                return t
+
             def unmatched_at(s, topics):
                 """ns when subscriber s had printed UNMATCHED for every one of topics since tk, or None."""
-                t = {}
-                for kind, ns, topic in live[s].events:
-                    if topic in topics and ns >= tk:
-                        if kind == "UNMATCHED":
-                            t.setdefault(topic, ns)
-                return max(t.values()) if len(t) == len(topics) else None
+                t = unmatched_lines(s, topics)
+                return max(ev[1] for ev in t.values()) if len(t) == len(topics) else None
 
             lines.pump(wait_s, until=lambda: all(unmatched_at(s, t) is not None for s, t in watch.items()))
             loc, rem = [], []
@@ -673,7 +691,10 @@ def one_run(args, run):
             res.update({"kill_victim": vidx, "kill_local_ms": loc, "kill_remote_ms": rem,
                         "kill_local_ms_max": (round(max(loc), 1) if loc and None not in loc else None),
                         "kill_remote_ms_max": (round(max(rem), 1) if rem and None not in rem else None),
-                        "kill_unmatched": f"{sum(x is not None for x in loc + rem)}/{len(loc) + len(rem)} within {wait_s:g} s"})
+                        "kill_unmatched": f"{sum(x is not None for x in loc + rem)}/{len(loc) + len(rem)} within {wait_s:g} s",
+                        # lines of a check that ran for its poll period, not for a match Event: late by up to it
+                        "kill_seen_by_poll": sum(live[s].how[ev] == "poll" for s, t in watch.items()
+                                                 for ev in unmatched_lines(s, t).values())})
             # started again: the following phases begin from every pair matched
             h, i = order[vidx]
             again = start(h, i)

@@ -41,6 +41,8 @@ def kill(r, side):
     k = r[f"kill_{side}_unmatched"]
     if k is None:
         return "—"
+    if r.get("kill") is False:
+        return ""
     cell = f'{num(r[f"kill_{side}_ms_max"])} ({num(r[f"kill_{side}_ms_p50"])})'
     got, all_ = k.split("/")
     return cell if got == all_ else f"{cell}, {k} unmatched"
@@ -75,9 +77,9 @@ COLS = [
     ("LAN disc. B to match (≤ 10,000)", lambda r: "" if r.get("hosts", 1) < 2 else cell(r, "lan_disc_bytes_to_match")),
     ("SIGKILL: own host ms max (p50) (≤ 100)", lambda r: kill(r, "local")),
     ("SIGKILL: other hosts ms max (p50) (≤ lease)",
-     lambda r: "" if r.get("hosts", 1) < 2 else kill(r, "remote") + (f' (lease {r["lease_ms"]})' if kill(r, "remote") and "lease_ms" in r else "")),
+     lambda r: "" if r.get("hosts", 1) < 2 else kill(r, "remote") + (f'; lease {r["lease_ms"]}' if kill(r, "remote") and "lease_ms" in r else "")),
     ("false expiry at launch (0)", lambda r: cell(r, "false_expiry_launch")),
-    ("churn ms/other (≤ 2)", lambda r: cell(r, "churn_ms_per_other")),
+    ("churn ms/other (≤ 2)", lambda r: "" if r.get("churn") is False else cell(r, "churn_ms_per_other")),
     ("host restart ms/other (≤ 5)", lambda r: runs_list(r.get("restart_ms_per_other"))),
 ]
 
@@ -94,7 +96,8 @@ def main():
             hit = [r for r in rows if pred(r)]
             if hit:
                 r = hit[-1]
-                out.append((name + (f' ({r["label"]})' if r.get("label") else ""), r))
+                label = r.get("label") or ""
+                out.append((name + (f" ({label})" if label and label.lower() not in name.lower() else ""), r))
             else:
                 missing.append((name, cmd))
     print("| run | " + " | ".join(c[0] for c in COLS) + " |")
