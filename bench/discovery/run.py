@@ -47,7 +47,12 @@ A restarted peer (kill, churn, restart) has the same subscriptions as the one it
 (before 2026-12-08 it drew new random cross-host ones). The driver and its listeners and logger
 run at real-time priority (--rt-prio, SCHED_FIFO; 0: normal), so that a saturated machine does
 not stretch their windows or starve their counts; the peers run at normal priority: they are
-what is measured. Summary medians are over the runs where a figure was measured.
+what is measured.
+Each run prints one JSON line; then a SUMMARY line (appended to --json FILE) of the runs: the
+configuration (hosts, n, topics, cross, runs, and whether kill, churn, host_restart ran), match
+p50/p99/max over every process of every run, kill p50/max over every subscriber of every run,
+false expiries summed, lan_listen_ok (runs whose listeners reported in full), and of the other
+figures the median over the runs where it was measured (null: in none).
 Everything runs inside network namespaces this script creates (lo only, or a bridge between
 emulated hosts with --hosts): no packet leaves them. They are removed at exit, even on failure.
 Usage (root): run.py --peer build/bench/discovery/lcmx_bench_discovery_peer --n 50 --runs 3
