@@ -443,7 +443,7 @@ def summarize(args, results):
         "false_expiry_launch": sum(r["false_expiry_launch"] for r in results),
         "false_expiry_by_phase": {k: sum(r["false_expiry_by_phase"].get(k, 0) for r in results)
                                   for k in results[0]["false_expiry_by_phase"]},
-        "lease_ms": args.lease_ms,
+        "lease_ms": args.lease_ms, "kill_local_target_ms": 100,  # targets: other hosts within the lease, its own 100 ms
         "kill_local_ms_p50": lp50, "kill_local_ms_max": lmax, "kill_local_unmatched": lk,
         "kill_remote_ms_p50": rp50, "kill_remote_ms_max": rmax, "kill_remote_unmatched": rk,
         "kill_rematch_s": [r.get("kill_rematch_s") for r in results] if args.kill else None,

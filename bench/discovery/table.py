@@ -97,6 +97,8 @@ def main():
             if hit:
                 r = hit[-1]
                 label = r.get("label") or ""
+                if name == "host restart":  # of any configuration: say which
+                    label = f'{r["hosts"]} × {r["n"]}' + (f", {label}" if label else "")
                 out.append((name + (f" ({label})" if label and label.lower() not in name.lower() else ""), r))
             else:
                 missing.append((name, cmd))
