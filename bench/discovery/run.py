@@ -119,7 +119,7 @@ class Net:
                         time.sleep(0.01)
             else:
                 sh("ip", "-n", self.hosts[0], "route", "add", "224.0.0.0/4", "dev", "lo")
-        except Exception:
+        except BaseException:  # a signal's SystemExit too (main)
             self.close()
             raise
 
@@ -335,7 +335,21 @@ class Listener:
         return rep
 
 
+_stopping = False
+
+
+def on_signal(sig, _frame):
+    """SIGTERM, SIGHUP (and SIGINT unless ignored): SystemExit once, so that every `finally`
+    stops the processes and removes the namespaces; later ones are ignored while it does."""
+    global _stopping
+    if not _stopping:
+        _stopping = True
+        raise SystemExit(128 + sig)
+
+
 def main():
+    for sig in (signal.SIGTERM, signal.SIGHUP) + ((signal.SIGINT,) if signal.getsignal(signal.SIGINT) is signal.default_int_handler else ()):
+        signal.signal(sig, on_signal)
     ap = argparse.ArgumentParser()
     ap.add_argument("--peer", required=True)
     ap.add_argument("--fingerprints", default="", help="lcmx_bench_fingerprints (default: beside --peer)")
@@ -506,13 +520,14 @@ def false_expiries(procs, kills, phases):
 
 def one_run(args, run):
     tag = f"{os.getpid() % 10000}r{run}"
-    net = Net(args.hosts, tag)
+    net = None
     procs = []   # every incarnation started, in order
     live = {}    # index -> its current Proc
     aux = []     # logger and listeners
     lines = Lines()
     tmp = tempfile.mkdtemp(prefix="lcmx_bench_disc_")
     try:
+        net = Net(args.hosts, tag)
         salt = (os.getpid() * 7 + run) % 250 + 1
         local = f"udpm://239.255.{salt}.67:{17000 + salt}?ttl=0"
         vehicle = f"udpm://239.255.{salt}.68:{18000 + salt}?ttl=1&iface=eth0"
@@ -776,7 +791,8 @@ def one_run(args, run):
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
-        net.close()
+        if net is not None:
+            net.close()
         shutil.rmtree(tmp, ignore_errors=True)
 
 
