@@ -203,7 +203,9 @@ def rnd(x, d=3):
 def med(values, d=3):
     """Median of the values that were measured (not None); None when none was."""
     v = [x for x in values if x is not None]
-    return round(statistics.median(v), d) if v else None
+    if not v:
+        return None
+    return round(statistics.median(v)) if d == 0 else round(statistics.median(v), d)
 
 
 class Proc:
@@ -669,7 +671,9 @@ def one_run(args, run):
                                "steady": steady.problem if steady_rep is None else None,
                                "steady_window_s": round(st_f["window_s"], 3) if st_f else None},
             })
-        if args.kill:
+        if args.kill and not any(subs.values()):
+            res["kill_victim"] = None  # no process has a subscriber: nothing to time
+        elif args.kill:
             # the victim: the process whose topics have subscribers on its own host and on
             # others (most of the fewer side, then most in all); on one host, the most subscribers
             subscribers = {}  # publisher index -> {subscriber index: {topics}}
@@ -707,7 +711,7 @@ def one_run(args, run):
             loc, rem = [], []
             for s, t in watch.items():
                 at = unmatched_at(s, t)
-                (loc if host_of[s] == host_of[vidx] else rem).append(None if at is None else (at - tk) / 1e6)
+                (loc if host_of[s] == host_of[vidx] else rem).append(None if at is None else round((at - tk) / 1e6, 2))
             res.update({"kill_victim": vidx, "kill_local_ms": loc, "kill_remote_ms": rem,
                         "kill_local_ms_max": (round(max(loc), 1) if loc and None not in loc else None),
                         "kill_remote_ms_max": (round(max(rem), 1) if rem and None not in rem else None),
