@@ -41,8 +41,9 @@ process's topics) within --spread seconds and measures, per run:
   churn     CPU (ms) of all the other peers while one peer is SIGKILLed and one started
   restart   (--host-restart, --hosts > 1) every peer of host 0 SIGKILLed, then all started again
             within --spread: CPU (ms) of each peer of the other hosts from the kill until the
-            restarted ones matched again and 3 s more (idle subtracted), and the time from the
-            last restart until every restarted peer matched
+            restarted ones matched again and 3 s more (idle subtracted; null when some did not
+            match within --timeout), and the time from the last restart until every restarted peer
+            matched (restart_rematched: how many did)
 A restarted peer (kill, churn, restart) has the same subscriptions as the one it replaces
 (before 2026-12-08 it drew new random cross-host ones). The driver and its listeners and logger
 run at real-time priority (--rt-prio, SCHED_FIFO; 0: normal), so that a saturated machine does
@@ -766,8 +767,9 @@ def one_run(args, run):
             lines.pump(3.0)
             c1 = Snap(others)
             done = [pr.matched_ns for pr in fresh if pr.matched_ns]
+            # "until the restarted ones matched again": undefined when some did not (null)
             res["restart_ms_per_other"] = (cpu_ms_beyond_idle(c0, c1, res["cpu_pct"], len(order))
-                                           if res["cpu_pct"] is not None else None)
+                                           if res["cpu_pct"] is not None and len(done) == len(fresh) else None)
             res["restart_rematch_s"] = (round(max(0, max(done) - last) / 1e9, 3) if len(done) == len(fresh) else None)
             res["restart_rematched"] = f"{len(done)}/{len(fresh)}"
         lines.pump(0.1)  # the last lines
